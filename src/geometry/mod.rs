@@ -1,0 +1,11 @@
+//! Geometric primitives: boxes, rays, the watertight triangle test and Morton codes.
+
+mod aabb;
+mod morton;
+mod ray;
+mod triangle;
+
+pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
+pub use morton::{morton30, morton63};
+pub use ray::{ROBUST_TMAX_SCALE, Ray};
+pub use triangle::{TriangleHit, TriangleRay};

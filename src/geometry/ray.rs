@@ -1,0 +1,154 @@
+//! Rays and the conservative ray–box slab test.
+
+use super::Aabb;
+use glam::{BVec3, Vec3};
+
+/// A ray `origin + t·dir` for `t` in `[tmin, tmax]`.
+///
+/// `dir` need not be normalised: every `t` the crate reports is in units of `dir`. The reciprocal direction
+/// used by the box test is computed once here. Direction components that are zero or subnormal are flushed to
+/// signed zero, whose reciprocal is `±∞`; the box test is written so that the `0 · ∞ = NaN` of a ray lying
+/// exactly in a slab plane means "no limit on this axis" (see [`Ray::intersect_aabb`]).
+///
+/// A ray whose origin or direction is not finite, or whose direction is zero, is *invalid*: queries return
+/// no hit for it rather than panicking (see [`Ray::is_valid`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Start point.
+    pub origin: Vec3,
+    /// Direction (any non-zero length).
+    pub dir: Vec3,
+    /// Reciprocal of `dir` per component, `±∞` where the component is (flushed to) zero.
+    pub inv_dir: Vec3,
+    /// Which components of `dir` have their sign bit set (`-0.0` included): selects the near slab plane.
+    pub dir_neg: BVec3,
+    /// Smallest accepted hit distance.
+    pub tmin: f32,
+    /// Largest accepted hit distance.
+    pub tmax: f32,
+}
+
+impl Ray {
+    /// A ray over `t ∈ [0, ∞)`.
+    pub fn new(origin: Vec3, dir: Vec3) -> Self {
+        Self::with_range(origin, dir, 0.0, f32::INFINITY)
+    }
+
+    /// A ray over `t ∈ [tmin, tmax]`.
+    pub fn with_range(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
+        let flush = |d: f32| {
+            if d.abs() < f32::MIN_POSITIVE {
+                0.0f32.copysign(d)
+            } else {
+                d
+            }
+        };
+        let dir = Vec3::new(flush(dir.x), flush(dir.y), flush(dir.z));
+        Self {
+            origin,
+            dir,
+            inv_dir: dir.recip(),
+            dir_neg: BVec3::new(
+                dir.x.is_sign_negative(),
+                dir.y.is_sign_negative(),
+                dir.z.is_sign_negative(),
+            ),
+            tmin,
+            tmax,
+        }
+    }
+
+    /// The segment from `from` to `to` as a ray with `dir = to - from` over `t ∈ [0, 1]`: the form shadow
+    /// (occlusion) queries take.
+    pub fn segment(from: Vec3, to: Vec3) -> Self {
+        Self::with_range(from, to - from, 0.0, 1.0)
+    }
+
+    /// The point at distance `t`.
+    #[inline]
+    pub fn at(&self, t: f32) -> Vec3 {
+        self.origin + self.dir * t
+    }
+
+    /// False for rays that no query can answer: non-finite origin or direction, zero direction, NaN range.
+    #[inline]
+    pub fn is_valid(&self) -> bool {
+        self.origin.is_finite()
+            && self.dir.is_finite()
+            && self.dir != Vec3::ZERO
+            && !self.tmin.is_nan()
+            && !self.tmax.is_nan()
+    }
+
+    /// Conservative slab test: the entry distance into `b` when the ray's `[tmin, tmax]` overlaps the box,
+    /// else `None`.
+    ///
+    /// Follows Ize, "Robust BVH Ray Traversal" (JCGT 2013): the far distance is scaled by `1 + 2 ulp`, which
+    /// covers the rounding of the subtractions and products, so a box the ray touches is never culled. It may
+    /// accept boxes the ray misses by a rounding error; the triangle test settles those.
+    ///
+    /// The near and far planes of each axis are chosen by the direction's sign, and the per-axis distances
+    /// are combined with `f32::max` / `f32::min`, which ignore NaN. On an axis where the direction is zero the
+    /// distances are `±∞` (origin inside or outside the slab) or NaN (origin exactly on a plane): the NaN drops
+    /// out of the combination, so a ray running inside a face of the box keeps it, on the min face and on the
+    /// max face alike.
+    #[inline]
+    pub fn intersect_aabb(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        let t0 = (b.min - self.origin) * self.inv_dir;
+        let t1 = (b.max - self.origin) * self.inv_dir;
+        let near = Vec3::select(self.dir_neg, t1, t0);
+        let far = Vec3::select(self.dir_neg, t0, t1);
+        let tnear = near.x.max(near.y).max(near.z).max(self.tmin);
+        let tfar = far.x.min(far.y).min(far.z) * ROBUST_TMAX_SCALE;
+        (tnear <= tfar.min(tmax)).then_some(tnear)
+    }
+}
+
+/// `1 + 2 ulp(1)`, Ize's factor for the far slab distance.
+pub const ROBUST_TMAX_SCALE: f32 = 1.0 + 2.0 * f32::EPSILON;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zero_direction_components_do_not_cull_touching_boxes() {
+        let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        // Origin exactly on the box's x = 0 face, running along +y inside that plane.
+        let r = Ray::new(Vec3::new(0.0, -1.0, 0.5), Vec3::Y);
+        assert_eq!(r.intersect_aabb(&b, f32::INFINITY), Some(1.0));
+        // Same on the max face.
+        let r = Ray::new(Vec3::new(1.0, -1.0, 1.0), Vec3::Y);
+        assert!(r.intersect_aabb(&b, f32::INFINITY).is_some());
+        // Just outside the face: a miss.
+        let r = Ray::new(Vec3::new(-1e-6, -1.0, 0.5), Vec3::Y);
+        assert!(r.intersect_aabb(&b, f32::INFINITY).is_none());
+        // Negative zero behaves as zero, on both faces.
+        for x in [0.0, 0.5, 1.0] {
+            let r = Ray::new(Vec3::new(x, 2.0, 1.0), Vec3::new(-0.0, -1.0, -0.0));
+            assert_eq!(r.intersect_aabb(&b, f32::INFINITY), Some(1.0), "x = {x}");
+        }
+        // Along an edge of the box (two zero components, origin on two planes).
+        let r = Ray::new(Vec3::new(1.0, 1.0, -3.0), Vec3::Z);
+        assert_eq!(r.intersect_aabb(&b, f32::INFINITY), Some(3.0));
+    }
+
+    #[test]
+    fn invalid_rays_are_flagged() {
+        assert!(!Ray::new(Vec3::ZERO, Vec3::ZERO).is_valid());
+        assert!(!Ray::new(Vec3::NAN, Vec3::X).is_valid());
+        assert!(!Ray::new(Vec3::ZERO, Vec3::new(f32::INFINITY, 0.0, 0.0)).is_valid());
+        assert!(Ray::new(Vec3::ZERO, Vec3::new(1e-40, 0.0, 1.0)).is_valid());
+        assert_eq!(Ray::new(Vec3::ZERO, Vec3::new(1e-40, 0.0, 1.0)).dir.x, 0.0);
+    }
+
+    #[test]
+    fn range_limits_are_honoured() {
+        let b = Aabb::new(Vec3::new(0.0, 0.0, 5.0), Vec3::new(1.0, 1.0, 6.0));
+        let r = Ray::new(Vec3::new(0.5, 0.5, 0.0), Vec3::Z);
+        assert_eq!(r.intersect_aabb(&b, f32::INFINITY), Some(5.0));
+        assert!(r.intersect_aabb(&b, 4.9).is_none());
+        let r = Ray::with_range(Vec3::new(0.5, 0.5, 0.0), Vec3::Z, 6.5, 10.0);
+        assert!(r.intersect_aabb(&b, 10.0).is_none());
+    }
+}

@@ -1,0 +1,189 @@
+//! The watertight ray–triangle test of Woop, Benthin & Wald, "Watertight Ray/Triangle Intersection"
+//! (JCGT 2013).
+//!
+//! The ray is turned into a frame where it runs along +z through the origin (a permutation of the axes and
+//! a shear, computed once per ray by [`TriangleRay::new`]); each triangle vertex is transformed the same way
+//! and the three 2D edge functions decide the hit. Two triangles sharing an edge compute that edge's function
+//! from the same transformed vertices, with exactly opposite signs, so a ray can never slip between them —
+//! through an edge or a vertex it hits both, and the closest-hit rule (smallest `t`, then smallest primitive
+//! index) keeps exactly one. An edge function that is exactly zero is recomputed in `f64`, where the products
+//! of two `f32` are exact, so its sign is always right.
+//!
+//! Zero-area triangles (repeated vertices, collinear vertices) have a zero determinant and never hit.
+
+use super::Ray;
+use glam::Vec3;
+
+/// Per-ray constants of the watertight test: the axis permutation and the shear.
+#[derive(Clone, Copy, Debug)]
+pub struct TriangleRay {
+    origin: Vec3,
+    kx: usize,
+    ky: usize,
+    kz: usize,
+    sx: f32,
+    sy: f32,
+    sz: f32,
+}
+
+/// Where a ray meets a triangle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleHit {
+    /// Distance along the ray, in units of its direction.
+    pub t: f32,
+    /// Barycentric weight of the triangle's second vertex.
+    pub u: f32,
+    /// Barycentric weight of the third vertex (the first has `1 - u - v`).
+    pub v: f32,
+}
+
+impl TriangleRay {
+    /// Precomputes the transform for `ray` (which must be valid, see [`Ray::is_valid`]).
+    #[inline]
+    pub fn new(ray: &Ray) -> Self {
+        let a = ray.dir.abs();
+        let kz = if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        // Keep the winding of the projected triangle independent of the ray's direction sign.
+        if ray.dir[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let dz = ray.dir[kz];
+        Self {
+            origin: ray.origin,
+            kx,
+            ky,
+            kz,
+            sx: ray.dir[kx] / dz,
+            sy: ray.dir[ky] / dz,
+            sz: 1.0 / dz,
+        }
+    }
+
+    /// Tests the triangle `(v0, v1, v2)`; a hit counts when `tmin <= t <= tmax`. Both faces are hit.
+    #[inline]
+    pub fn intersect(
+        &self,
+        v0: Vec3,
+        v1: Vec3,
+        v2: Vec3,
+        tmin: f32,
+        tmax: f32,
+    ) -> Option<TriangleHit> {
+        let a = v0 - self.origin;
+        let b = v1 - self.origin;
+        let c = v2 - self.origin;
+        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
+        let ax = a[kx] - self.sx * a[kz];
+        let ay = a[ky] - self.sy * a[kz];
+        let bx = b[kx] - self.sx * b[kz];
+        let by = b[ky] - self.sy * b[kz];
+        let cx = c[kx] - self.sx * c[kz];
+        let cy = c[ky] - self.sy * c[kz];
+        let mut u = cx * by - cy * bx;
+        let mut v = ax * cy - ay * cx;
+        let mut w = bx * ay - by * ax;
+        if u == 0.0 || v == 0.0 || w == 0.0 {
+            let edge = |px: f32, py: f32, qx: f32, qy: f32| {
+                (px as f64 * qy as f64 - py as f64 * qx as f64) as f32
+            };
+            u = edge(cx, cy, bx, by);
+            v = edge(ax, ay, cx, cy);
+            w = edge(bx, by, ax, ay);
+        }
+        if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+            return None;
+        }
+        let det = u + v + w;
+        if det == 0.0 {
+            return None;
+        }
+        let az = self.sz * a[kz];
+        let bz = self.sz * b[kz];
+        let cz = self.sz * c[kz];
+        let big_t = u * az + v * bz + w * cz;
+        let rcp = 1.0 / det;
+        let t = big_t * rcp;
+        if !(t >= tmin && t <= tmax) {
+            return None;
+        }
+        Some(TriangleHit {
+            t,
+            u: v * rcp,
+            v: w * rcp,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn hit(o: Vec3, d: Vec3, tri: [Vec3; 3]) -> Option<TriangleHit> {
+        let r = Ray::new(o, d);
+        TriangleRay::new(&r).intersect(tri[0], tri[1], tri[2], r.tmin, r.tmax)
+    }
+
+    #[test]
+    fn analytic_hit_and_barycentrics() {
+        let tri = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let h = hit(Vec3::new(0.25, 0.5, 2.0), -Vec3::Z * 2.0, tri).unwrap();
+        assert!((h.t - 1.0).abs() < 1e-7);
+        assert!((h.u - 0.25).abs() < 1e-7 && (h.v - 0.5).abs() < 1e-7);
+        // Back face is hit too.
+        let h = hit(Vec3::new(0.25, 0.5, -2.0), Vec3::Z, tri).unwrap();
+        assert!((h.t - 2.0).abs() < 1e-7);
+        // Outside.
+        assert!(hit(Vec3::new(0.6, 0.6, 2.0), -Vec3::Z, tri).is_none());
+        // Behind the origin.
+        assert!(hit(Vec3::new(0.25, 0.25, 2.0), Vec3::Z, tri).is_none());
+    }
+
+    #[test]
+    fn zero_area_triangles_never_hit() {
+        let o = Vec3::new(1.0, 1.0, 5.0);
+        for tri in [
+            [Vec3::ONE, Vec3::ONE, Vec3::ONE],
+            [Vec3::ZERO, Vec3::ONE, Vec3::ONE],
+            [Vec3::ZERO, Vec3::ONE, Vec3::splat(2.0)],
+            [
+                Vec3::new(0.0, 1.0, 0.0),
+                Vec3::new(1.0, 1.0, 0.0),
+                Vec3::new(2.0, 1.0, 0.0),
+            ],
+        ] {
+            for d in [-Vec3::Z, Vec3::new(-0.2, -0.2, -1.0), -Vec3::ONE] {
+                assert!(hit(o, d, tri).is_none(), "{tri:?} {d:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn shared_edge_and_vertex_hit_both_sides() {
+        // Two triangles sharing the diagonal of the unit square; rays exactly through the diagonal and corners.
+        let (p0, p1, p2, p3) = (Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y);
+        let t1 = [p0, p1, p2];
+        let t2 = [p0, p2, p3];
+        // Straight down (exact origin) through every point of the diagonal, corners included; slanted rays
+        // through interior points (rounding moves the origin slightly, still inside the quad).
+        for (s, d) in [0.0f32, 0.1, 0.37, 0.5, 0.9, 1.0]
+            .map(|s| (s, -Vec3::Z))
+            .into_iter()
+            .chain([0.1f32, 0.37, 0.5, 0.9].map(|s| (s, Vec3::new(0.1, -0.3, -1.0))))
+        {
+            {
+                let o = Vec3::new(s, s, 0.0) - d * 3.0;
+                let a = hit(o, d, t1).is_some();
+                let b = hit(o, d, t2).is_some();
+                assert!(a || b, "slipped through at s={s} d={d:?}");
+            }
+        }
+    }
+}

@@ -1,0 +1,68 @@
+//! The few parallel primitives the crate uses: rayon's when the `parallel` feature is on, sequential
+//! stand-ins with the same results otherwise. Every caller is deterministic either way.
+
+/// Runs both closures, in parallel when the feature is on and `parallel` is true.
+#[inline]
+pub(crate) fn join<A, B, RA, RB>(parallel: bool, a: A, b: B) -> (RA, RB)
+where
+    A: FnOnce() -> RA + Send,
+    B: FnOnce() -> RB + Send,
+    RA: Send,
+    RB: Send,
+{
+    #[cfg(feature = "parallel")]
+    if parallel {
+        return rayon::join(a, b);
+    }
+    let _ = parallel;
+    (a(), b())
+}
+
+/// Sets `out[i] = f(i)` for every index, in parallel chunks of `chunk` when asked.
+pub(crate) fn fill<T: Send>(
+    parallel: bool,
+    out: &mut [T],
+    chunk: usize,
+    f: impl Fn(usize) -> T + Sync + Send,
+) {
+    let chunk = chunk.max(1);
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        out.par_chunks_mut(chunk).enumerate().for_each(|(c, o)| {
+            for (j, x) in o.iter_mut().enumerate() {
+                *x = f(c * chunk + j);
+            }
+        });
+        return;
+    }
+    let _ = parallel;
+    for (i, x) in out.iter_mut().enumerate() {
+        *x = f(i);
+    }
+}
+
+/// Maps every chunk of `input` with `map` and folds the results with `reduce` (in chunk order).
+pub(crate) fn map_reduce<I: Sync, R: Send>(
+    parallel: bool,
+    input: &[I],
+    chunk: usize,
+    identity: R,
+    map: impl Fn(&[I]) -> R + Sync + Send,
+    reduce: impl Fn(R, R) -> R + Sync + Send,
+) -> R
+where
+    R: Clone + Sync,
+{
+    let chunk = chunk.max(1);
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        return input
+            .par_chunks(chunk)
+            .map(&map)
+            .reduce(|| identity.clone(), &reduce);
+    }
+    let _ = parallel;
+    input.chunks(chunk).map(map).fold(identity, reduce)
+}
