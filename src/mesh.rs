@@ -111,7 +111,7 @@ pub(crate) fn check_positions(positions: &[Vec3]) -> Result<()> {
 }
 
 fn check_indices(indices: &[u32], vertex_count: usize) -> Result<()> {
-    if indices.len() % 3 != 0 {
+    if !indices.len().is_multiple_of(3) {
         return Err(Error::IndexCountNotMultipleOfThree {
             count: indices.len(),
         });

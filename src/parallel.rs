@@ -43,7 +43,7 @@ pub(crate) fn fill<T: Send>(
 }
 
 /// Maps every chunk of `input` with `map` and folds the results with `reduce` (in chunk order).
-pub(crate) fn map_reduce<I: Sync, R: Send>(
+pub(crate) fn map_reduce<I: Sync, R>(
     parallel: bool,
     input: &[I],
     chunk: usize,
@@ -52,7 +52,7 @@ pub(crate) fn map_reduce<I: Sync, R: Send>(
     reduce: impl Fn(R, R) -> R + Sync + Send,
 ) -> R
 where
-    R: Clone + Sync,
+    R: Clone + Send + Sync,
 {
     let chunk = chunk.max(1);
     #[cfg(feature = "parallel")]

@@ -28,9 +28,11 @@ pub struct Hit {
 /// Memory: 32 bytes per node (about 64 per triangle with one triangle per leaf), 36 bytes of corners and 12
 /// of indices per triangle.
 ///
-/// Closest-hit queries return the smallest `t`; on an exact tie the lowest triangle index wins, so the answer
-/// does not depend on the tree, the builder or the device. A ray through a shared edge or vertex of a closed
-/// mesh therefore gets exactly one hit.
+/// Closest-hit queries return the smallest `t`, and exactly one hit, also for a ray through a shared edge or
+/// vertex of a closed mesh. Among triangles hit at exactly the same `t`, the lowest index that traversal
+/// reaches wins: the box test and the triangle test round differently, so at a vertex fan a tied triangle in
+/// another box may be skipped, and two trees can name different triangles of the fan — always at the same
+/// distance.
 ///
 /// ```
 /// use kinetrace::{Mesh, MeshBvh, Ray, bvh::BuildOptions};

@@ -69,7 +69,7 @@ mod tests {
                     s ^= s << 13;
                     s ^= s >> 7;
                     s ^= s << 17;
-                    (s % 97) * (s >> 40) & ((1u64 << bits) - 1)
+                    ((s % 97) * (s >> 40)) & ((1u64 << bits) - 1)
                 })
                 .collect();
             let mut expect: Vec<(u64, u32)> = keys.iter().copied().zip(0..).collect();

@@ -149,7 +149,8 @@ impl Aabb {
 pub fn sa_ratio(parent: &Aabb, left: &Aabb, right: &Aabb) -> f32 {
     let pe = parent.extent();
     let scale = pe.max_element();
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 || scale.is_infinite() {
+        // A point (or extents past f32::MAX, which only coordinates near ±3e38 produce): nothing to compare.
         return 1.0;
     }
     let inv = 1.0 / scale;
