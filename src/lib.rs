@@ -44,6 +44,7 @@ mod error;
 pub mod geometry;
 mod mesh;
 mod parallel;
+pub mod scenes;
 
 pub use bvh::{Hit, MeshBvh};
 pub use error::{Error, Result};
@@ -56,3 +57,8 @@ pub mod prelude {
     pub use crate::geometry::{Aabb, Ray};
     pub use crate::{Error, Mesh, Result};
 }
+
+/// The README's example, compiled and run as a doctest.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;

@@ -1,5 +1,5 @@
 //! Test support: scene generators and brute-force oracles that share no traversal code with the crate.
-#![allow(dead_code)] // each test binary uses a different part
+#![allow(dead_code, unused_imports)] // each test binary uses a different part
 
 use glam::{DVec3, Vec3};
 use kinetrace::geometry::TriangleRay;
@@ -30,118 +30,7 @@ pub fn rand_dir(r: &mut SmallRng) -> Vec3 {
     }
 }
 
-/// `n` random triangles in the unit cube with sizes spread over two orders of magnitude.
-pub fn soup(seed: u64, n: usize) -> Mesh {
-    let mut r = rng(seed);
-    let mut pos = Vec::with_capacity(3 * n);
-    for _ in 0..n {
-        let c = rand_vec(&mut r, 0.0, 1.0);
-        let s = 0.002 * 10f32.powf(r.random_range(0.0..2.0));
-        for _ in 0..3 {
-            pos.push(c + rand_vec(&mut r, -s, s));
-        }
-    }
-    let idx = (0..3 * n as u32).collect::<Vec<_>>();
-    Mesh::new(pos, idx).unwrap()
-}
-
-/// A closed icosphere of radius 1 around the origin, `subdiv` times subdivided (20·4^subdiv triangles),
-/// vertices shared between triangles.
-pub fn icosphere(subdiv: u32) -> Mesh {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut pos: Vec<Vec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut tris: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdiv {
-        let mut mid = std::collections::HashMap::new();
-        let mut midpoint = |a: u32, b: u32, pos: &mut Vec<Vec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                pos.push(((pos[a as usize] + pos[b as usize]) * 0.5).normalize());
-                pos.len() as u32 - 1
-            })
-        };
-        let mut next = Vec::with_capacity(tris.len() * 4);
-        for [a, b, c] in tris {
-            let ab = midpoint(a, b, &mut pos);
-            let bc = midpoint(b, c, &mut pos);
-            let ca = midpoint(c, a, &mut pos);
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        tris = next;
-    }
-    Mesh::new(pos, tris.concat()).unwrap()
-}
-
-/// A closed cube-sphere: the six faces of a cube split into `n × n` quads (two triangles each, shared
-/// vertices along face seams), projected onto the unit sphere.
-pub fn cube_sphere(n: u32) -> Mesh {
-    let mut pos = Vec::new();
-    let mut map = std::collections::HashMap::new();
-    let mut vid = |p: [i32; 3], pos: &mut Vec<Vec3>| {
-        *map.entry(p).or_insert_with(|| {
-            let v = Vec3::new(p[0] as f32, p[1] as f32, p[2] as f32) / n as f32 * 2.0 - Vec3::ONE;
-            pos.push(v.normalize());
-            pos.len() as u32 - 1
-        })
-    };
-    let n = n as i32;
-    let mut idx = Vec::new();
-    for axis in 0..3 {
-        for side in [0, n] {
-            for i in 0..n {
-                for j in 0..n {
-                    let p = |a: i32, b: i32| {
-                        let mut q = [0; 3];
-                        q[axis] = side;
-                        q[(axis + 1) % 3] = a;
-                        q[(axis + 2) % 3] = b;
-                        q
-                    };
-                    let [a, b, c, d] = [p(i, j), p(i + 1, j), p(i + 1, j + 1), p(i, j + 1)]
-                        .map(|q| vid(q, &mut pos));
-                    idx.extend([a, b, c, a, c, d]);
-                }
-            }
-        }
-    }
-    Mesh::new(pos, idx).unwrap()
-}
+pub use kinetrace::scenes::{cube_sphere, icosphere, soup};
 
 /// The mesh with every vertex mapped by `f`.
 pub fn map_mesh(m: &Mesh, f: impl Fn(Vec3) -> Vec3) -> Mesh {

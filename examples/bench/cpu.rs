@@ -1,0 +1,344 @@
+//! Suite `cpu`: builders, refit and queries on one thread and on all threads, and the Rust peers obvhs and
+//! the bvh crate on the same triangles and rays.
+
+use crate::peers::{self, BenchRay, PeerResult};
+use crate::record::{Records, best_of};
+use glam::Vec3;
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::scenes::{SceneRng, bumpy_torus, soup};
+use kinetrace::{Hit, Mesh, MeshBvh, Ray};
+
+const SUITE: &str = "cpu";
+/// The bvh crate's traversal has no ray interval to shrink: it gets a subset of the rays.
+const BVH_CRATE_RAYS: usize = 8192;
+
+pub fn run(rec: &mut Records) {
+    println!(
+        "suite cpu on {} (kinetrace/peer ratios above 1 mean kinetrace is faster)",
+        crate::record::machine()
+    );
+    let sizes: &[usize] = if rec.quick {
+        &[100_000]
+    } else {
+        &[100_000, 1_000_000]
+    };
+    for &n in sizes {
+        for (kind, mesh) in [("surface", bumpy_torus(n)), ("scattered", soup(7, n))] {
+            scene(
+                rec,
+                &format!("{kind} {}k", mesh.triangle_count() / 1000),
+                &mesh,
+            );
+        }
+    }
+}
+
+/// Runs `f` on a one-thread rayon pool: the single-thread figures.
+fn one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("a thread pool")
+        .install(f)
+}
+
+/// Camera rays over the mesh (row-major, coherent) and random rays through its box (incoherent).
+fn ray_sets(mesh: &Mesh, n: usize) -> [(&'static str, Vec<BenchRay>); 2] {
+    let b = mesh
+        .triangle_bounds()
+        .iter()
+        .fold(kinetrace::Aabb::EMPTY, |a, t| a.union(t));
+    let (c, size) = (b.center(), b.extent().length());
+    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let side = (n as f64).sqrt() as usize;
+    let camera = (0..side * side)
+        .map(|i| {
+            let (x, y) = (
+                (i % side) as f32 / side as f32 - 0.5,
+                (i / side) as f32 / side as f32 - 0.5,
+            );
+            BenchRay {
+                origin: eye,
+                dir: (fwd + right * x * 0.9 + up * y * 0.9).normalize(),
+                tmax: f32::INFINITY,
+            }
+        })
+        .collect();
+    let mut r = SceneRng::new(99);
+    let random = (0..side * side)
+        .map(|_| {
+            let o = b.min + (b.max - b.min) * r.vec3(0.0, 1.0);
+            BenchRay {
+                origin: o,
+                dir: r.direction(),
+                tmax: f32::INFINITY,
+            }
+        })
+        .collect();
+    [("coherent", camera), ("random", random)]
+}
+
+fn to_rays(rays: &[BenchRay]) -> Vec<Ray> {
+    rays.iter()
+        .map(|r| Ray::with_range(r.origin, r.dir, 0.0, r.tmax))
+        .collect()
+}
+
+fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
+    let n = mesh.triangle_count() as f64;
+    let reps = rec.reps();
+    println!("\n{name}: {} triangles", mesh.triangle_count());
+
+    // Builders: one thread and all threads, and the SAH cost of each tree.
+    let mut lbvh_1t = 0.0;
+    let mut sah_1t = 0.0;
+    let mut sah_cost = 0.0;
+    for b in Builder::ALL {
+        let (t1, bvh) = one_thread(|| {
+            best_of(reps, || {
+                MeshBvh::build(mesh, &BuildOptions::new(b).parallel(false)).unwrap()
+            })
+        });
+        let (tn, _) = best_of(reps, || {
+            MeshBvh::build(mesh, &BuildOptions::new(b)).unwrap()
+        });
+        rec.add(
+            SUITE,
+            name,
+            &format!("kinetrace {}", b.name()),
+            "build 1 thread",
+            n / t1 / 1e6,
+            "Mtris/s",
+        );
+        rec.add(
+            SUITE,
+            name,
+            &format!("kinetrace {}", b.name()),
+            "build all threads",
+            n / tn / 1e6,
+            "Mtris/s",
+        );
+        let cost = bvh.bvh().sah_cost();
+        rec.add(
+            SUITE,
+            name,
+            &format!("kinetrace {}", b.name()),
+            "SAH cost",
+            cost,
+            "",
+        );
+        match b {
+            Builder::Lbvh { .. } => lbvh_1t = t1,
+            Builder::Sah { .. } => (sah_1t, sah_cost) = (t1, cost),
+            _ => {}
+        }
+    }
+
+    // Refit, one thread, alternating between two poses so every call really moves the boxes.
+    let mut bvh = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+    let poses: [Vec<Vec3>; 2] = [
+        mesh.positions().to_vec(),
+        mesh.positions()
+            .iter()
+            .map(|p| *p + Vec3::new((p.y * 9.0).sin(), 0.0, (p.x * 7.0).cos()) * 0.01)
+            .collect(),
+    ];
+    let mut k = 0;
+    let (t_refit, _) = best_of(reps * 4, || {
+        k += 1;
+        bvh.refit(&poses[k % 2]).unwrap()
+    });
+    rec.add(
+        SUITE,
+        name,
+        "kinetrace refit",
+        "refit 1 thread",
+        n / t_refit / 1e6,
+        "Mtris/s",
+    );
+    let bvh = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+
+    // Peers on the same triangles.
+    let ray_count = if rec.quick { 1 << 16 } else { 1 << 18 };
+    let sets = ray_sets(mesh, ray_count);
+    let mut obvhs: Vec<Vec<PeerResult>> = Vec::new();
+    let mut bvh_crate: Vec<Vec<PeerResult>> = Vec::new();
+    for (_, rays) in &sets {
+        obvhs.push(peers::measure_obvhs(
+            mesh.positions(),
+            mesh.indices(),
+            rays,
+            reps,
+            false,
+        ));
+        bvh_crate.push(peers::measure_bvh_crate(
+            mesh.positions(),
+            mesh.indices(),
+            &rays[..BVH_CRATE_RAYS],
+            reps,
+        ));
+    }
+    for p in obvhs[0].iter().chain(&bvh_crate[0]) {
+        rec.add(
+            SUITE,
+            name,
+            p.name,
+            "build 1 thread",
+            n / p.build_s / 1e6,
+            "Mtris/s",
+        );
+        if let Some(c) = p.sah_cost {
+            rec.add(SUITE, name, p.name, "SAH cost", c, "");
+        }
+    }
+    let fastest = peer(&obvhs[0], "obvhs ploc-fastest bvh2");
+    let medium = peer(&obvhs[0], "obvhs ploc-medium bvh2");
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "lbvh/obvhs-fastest build",
+        fastest.build_s / lbvh_1t,
+        "x (target >= 2)",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "sah/obvhs-medium build",
+        medium.build_s / sah_1t,
+        "x (target >= 1)",
+    );
+    if let Some(c) = medium.sah_cost {
+        rec.add(
+            SUITE,
+            name,
+            "ratio",
+            "sah/obvhs-medium cost",
+            sah_cost / c,
+            "x (target <= 1)",
+        );
+    }
+
+    // Queries on the SAH tree: one thread per ray loop, and batched on all threads.
+    for (set, (kind, brays)) in sets.iter().enumerate() {
+        let rays = to_rays(brays);
+        let m = rays.len() as f64;
+        let (tc, hits) = one_thread(|| {
+            best_of(reps, || {
+                rays.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
+            })
+        });
+        let (ta, _) =
+            one_thread(|| best_of(reps, || rays.iter().filter(|r| bvh.any_hit(r)).count()));
+        let mut out = vec![None; rays.len()];
+        let (tcn, _) = best_of(reps, || bvh.closest_hits(&rays, &mut out));
+        let subject = format!("kinetrace sah {kind}");
+        rec.add(
+            SUITE,
+            name,
+            &subject,
+            "closest 1 thread",
+            m / tc / 1e6,
+            "Mrays/s",
+        );
+        rec.add(
+            SUITE,
+            name,
+            &subject,
+            "any-hit 1 thread",
+            m / ta / 1e6,
+            "Mrays/s",
+        );
+        rec.add(
+            SUITE,
+            name,
+            &subject,
+            "closest all threads",
+            m / tcn / 1e6,
+            "Mrays/s",
+        );
+        for p in &obvhs[set] {
+            let s = format!("{} {kind}", p.name);
+            if let Some(t) = p.closest_s {
+                rec.add(SUITE, name, &s, "closest 1 thread", m / t / 1e6, "Mrays/s");
+                rec.add(
+                    SUITE,
+                    name,
+                    "ratio",
+                    leak(format!("closest/{} {kind}", p.name)),
+                    t / tc,
+                    "x",
+                );
+            }
+            if let Some(t) = p.any_s {
+                rec.add(SUITE, name, &s, "any-hit 1 thread", m / t / 1e6, "Mrays/s");
+            }
+            if let Some(h) = &p.closest_hits {
+                rec.add(
+                    SUITE,
+                    name,
+                    &s,
+                    "hits differing",
+                    differing(&hits, h) as f64,
+                    "rays",
+                );
+            }
+        }
+        // The bvh crate traced a prefix of the rays; time ours on the same prefix.
+        let sub = &rays[..BVH_CRATE_RAYS];
+        let (tcs, _) = one_thread(|| {
+            best_of(reps, || {
+                sub.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
+            })
+        });
+        for p in &bvh_crate[set] {
+            if let Some(t) = p.closest_s {
+                let s = format!("{} {kind}", p.name);
+                rec.add(
+                    SUITE,
+                    name,
+                    &s,
+                    "closest 1 thread",
+                    BVH_CRATE_RAYS as f64 / t / 1e6,
+                    "Mrays/s",
+                );
+                rec.add(
+                    SUITE,
+                    name,
+                    "ratio",
+                    leak(format!("closest/{} {kind}", p.name)),
+                    t / tcs,
+                    "x",
+                );
+            }
+        }
+    }
+}
+
+fn peer<'a>(v: &'a [PeerResult], name: &str) -> &'a PeerResult {
+    v.iter().find(|p| p.name == name).expect("peer measured")
+}
+
+/// Rays whose closest hit differs between two answers by more than a different triangle at an (almost) equal
+/// distance: a sanity check of the comparison, since peers use other triangle tests.
+fn differing(ours: &[Option<Hit>], theirs: &[Option<(u32, f32)>]) -> usize {
+    ours.iter()
+        .zip(theirs)
+        .filter(|(a, b)| match (a, b) {
+            (Some(a), Some((p, t))) => {
+                a.primitive != *p && (a.t - t).abs() > 1e-4 * t.abs().max(1.0)
+            }
+            (None, None) => false,
+            _ => true,
+        })
+        .count()
+}
+
+/// Metric names are `&'static str` in the records; the few built at run time live for the whole run anyway.
+fn leak(s: String) -> &'static str {
+    Box::leak(s.into_boxed_str())
+}
