@@ -25,12 +25,21 @@ pub(crate) struct Slot<'a> {
 }
 
 impl<'a> Slot<'a> {
-    /// Makes the root a leaf over all primitives of the subtree, its box the union of theirs.
+    /// Makes the root a leaf over all primitives of the subtree, its box the union of theirs (`prim_bounds`
+    /// indexed by primitive id).
     pub fn leaf(self, prim_bounds: &[Aabb]) -> usize {
         let b = self
             .prims
             .iter()
             .fold(Aabb::EMPTY, |b, &p| b.union(&prim_bounds[p as usize]));
+        *self.node = Node::leaf(self.prim_at, self.prims.len() as u32, &b);
+        1
+    }
+
+    /// The same with the subtree's primitive boxes given in slot order.
+    pub fn leaf_over(self, slot_bounds: &[Aabb]) -> usize {
+        debug_assert_eq!(slot_bounds.len(), self.prims.len());
+        let b = slot_bounds.iter().fold(Aabb::EMPTY, |b, x| b.union(x));
         *self.node = Node::leaf(self.prim_at, self.prims.len() as u32, &b);
         1
     }
