@@ -87,21 +87,33 @@ impl Ray {
     /// covers the rounding of the subtractions and products, so a box the ray touches is never culled. It may
     /// accept boxes the ray misses by a rounding error; the triangle test settles those.
     ///
-    /// The near and far planes of each axis are chosen by the direction's sign, and the per-axis distances
-    /// are combined with `f32::max` / `f32::min`, which ignore NaN. On an axis where the direction is zero the
-    /// distances are `±∞` (origin inside or outside the slab) or NaN (origin exactly on a plane): the NaN drops
-    /// out of the combination, so a ray running inside a face of the box keeps it, on the min face and on the
-    /// max face alike.
+    /// The near and far planes of each axis are chosen by the direction's sign. On an axis where the
+    /// direction is zero the distances are `±∞` (origin inside or outside the slab) or NaN (origin exactly
+    /// on a plane). The per-axis distances are combined with `if a > b { a } else { b }` and the running
+    /// value second — exactly what `maxss`/`minss` do — so a NaN axis falls out and a ray running inside a
+    /// face of the box keeps it, on the min face and on the max face alike.
     #[inline]
     pub fn intersect_aabb(&self, b: &Aabb, tmax: f32) -> Option<f32> {
         let t0 = (b.min - self.origin) * self.inv_dir;
         let t1 = (b.max - self.origin) * self.inv_dir;
         let near = Vec3::select(self.dir_neg, t1, t0);
         let far = Vec3::select(self.dir_neg, t0, t1);
-        let tnear = near.x.max(near.y).max(near.z).max(self.tmin);
-        let tfar = far.x.min(far.y).min(far.z) * ROBUST_TMAX_SCALE;
-        (tnear <= tfar.min(tmax)).then_some(tnear)
+        let tnear = max_keep(near.x, max_keep(near.y, max_keep(near.z, self.tmin)));
+        let tfar = min_keep(far.x, min_keep(far.y, min_keep(far.z, f32::INFINITY)));
+        (tnear <= min_keep(tfar * ROBUST_TMAX_SCALE, tmax)).then_some(tnear)
     }
+}
+
+/// `max(x, acc)`, returning `acc` when `x` is NaN (one `maxss`).
+#[inline(always)]
+fn max_keep(x: f32, acc: f32) -> f32 {
+    if x > acc { x } else { acc }
+}
+
+/// `min(x, acc)`, returning `acc` when `x` is NaN (one `minss`).
+#[inline(always)]
+fn min_keep(x: f32, acc: f32) -> f32 {
+    if x < acc { x } else { acc }
 }
 
 /// `1 + 2 ulp(1)`, Ize's factor for the far slab distance.

@@ -14,16 +14,19 @@
 use super::Ray;
 use glam::Vec3;
 
-/// Per-ray constants of the watertight test: the axis permutation and the shear.
+/// Per-ray constants of the watertight test: the axis permutation and the shear, as three row vectors.
+///
+/// The paper's transformed coordinates are `x = A[kx] − Sx·A[kz]`, `y = A[ky] − Sy·A[kz]`, `z = Sz·A[kz]`
+/// for a vertex `A` relative to the origin. Here they are `row_x · A`, `row_y · A`, `row_z · A` with
+/// `row_x = e_kx − Sx·e_kz` and so on: each row has one coefficient exactly 1 and one exactly 0, so the dot
+/// product rounds exactly like the paper's expression (adding ±0 changes nothing), with no data-dependent
+/// indexing in the inner loop.
 #[derive(Clone, Copy, Debug)]
 pub struct TriangleRay {
     origin: Vec3,
-    kx: usize,
-    ky: usize,
-    kz: usize,
-    sx: f32,
-    sy: f32,
-    sz: f32,
+    row_x: Vec3,
+    row_y: Vec3,
+    row_z: Vec3,
 }
 
 /// Where a ray meets a triangle.
@@ -56,14 +59,20 @@ impl TriangleRay {
             std::mem::swap(&mut kx, &mut ky);
         }
         let dz = ray.dir[kz];
+        let (sx, sy, sz) = (ray.dir[kx] / dz, ray.dir[ky] / dz, 1.0 / dz);
+        let mut row_x = Vec3::ZERO;
+        row_x[kx] = 1.0;
+        row_x[kz] = -sx;
+        let mut row_y = Vec3::ZERO;
+        row_y[ky] = 1.0;
+        row_y[kz] = -sy;
+        let mut row_z = Vec3::ZERO;
+        row_z[kz] = sz;
         Self {
             origin: ray.origin,
-            kx,
-            ky,
-            kz,
-            sx: ray.dir[kx] / dz,
-            sy: ray.dir[ky] / dz,
-            sz: 1.0 / dz,
+            row_x,
+            row_y,
+            row_z,
         }
     }
 
@@ -80,13 +89,9 @@ impl TriangleRay {
         let a = v0 - self.origin;
         let b = v1 - self.origin;
         let c = v2 - self.origin;
-        let (kx, ky, kz) = (self.kx, self.ky, self.kz);
-        let ax = a[kx] - self.sx * a[kz];
-        let ay = a[ky] - self.sy * a[kz];
-        let bx = b[kx] - self.sx * b[kz];
-        let by = b[ky] - self.sy * b[kz];
-        let cx = c[kx] - self.sx * c[kz];
-        let cy = c[ky] - self.sy * c[kz];
+        let (ax, ay) = (self.row_x.dot(a), self.row_y.dot(a));
+        let (bx, by) = (self.row_x.dot(b), self.row_y.dot(b));
+        let (cx, cy) = (self.row_x.dot(c), self.row_y.dot(c));
         let mut u = cx * by - cy * bx;
         let mut v = ax * cy - ay * cx;
         let mut w = bx * ay - by * ax;
@@ -105,9 +110,7 @@ impl TriangleRay {
         if det == 0.0 {
             return None;
         }
-        let az = self.sz * a[kz];
-        let bz = self.sz * b[kz];
-        let cz = self.sz * c[kz];
+        let (az, bz, cz) = (self.row_z.dot(a), self.row_z.dot(b), self.row_z.dot(c));
         let big_t = u * az + v * bz + w * cz;
         let rcp = 1.0 / det;
         let t = big_t * rcp;
