@@ -55,6 +55,12 @@ pub enum Error {
         /// Vertices passed now.
         got: usize,
     },
+    /// No GPU adapter could be found (or a device could not be created on it). Callers fall back to the CPU.
+    #[error("no usable GPU: {0}")]
+    NoGpu(String),
+    /// The GPU reported an error while running kernels (validation, out of memory, lost device).
+    #[error("GPU error: {0}")]
+    Gpu(String),
     /// A build option is out of its range.
     #[error("invalid build option: {0}")]
     InvalidOption(String),

@@ -39,9 +39,12 @@
 
 #![warn(missing_docs)]
 
+pub mod anim;
 pub mod bvh;
 mod error;
 pub mod geometry;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 mod mesh;
 mod parallel;
 pub mod scenes;

@@ -263,6 +263,12 @@ impl Bvh {
         Ok(Bvh { nodes, prims })
     }
 
+    /// A tree from its parts, as read back from the GPU builder.
+    #[cfg(feature = "gpu")]
+    pub(crate) fn from_parts(nodes: Vec<Node>, prims: Vec<u32>) -> Bvh {
+        Bvh { nodes, prims }
+    }
+
     /// The nodes, root first. These are the bytes uploaded to the GPU.
     pub fn nodes(&self) -> &[Node] {
         &self.nodes

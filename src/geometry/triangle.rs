@@ -76,6 +76,12 @@ impl TriangleRay {
         }
     }
 
+    /// The shear as three rows (x, y, z of the ray's frame), for the GPU kernels.
+    #[cfg(feature = "gpu")]
+    pub(crate) fn rows(&self) -> [Vec3; 3] {
+        [self.row_x, self.row_y, self.row_z]
+    }
+
     /// Tests the triangle `(v0, v1, v2)`; a hit counts when `tmin <= t <= tmax`. Both faces are hit.
     #[inline]
     pub fn intersect(

@@ -1,0 +1,45 @@
+// Shared definitions, prepended to every kernel module by src/gpu/kernels.rs.
+
+// The crate's 32-byte node (src/bvh/node.rs): inner nodes hold the left child index (right = left + 1),
+// leaves set bit 31, the count in bits 27..=30 and the first slot in bits 0..=26.
+struct Node {
+    min: vec3<f32>,
+    index: u32,
+    max: vec3<f32>,
+    sa_ratio: f32,
+}
+
+const LEAF_BIT: u32 = 0x80000000u;
+const WG: u32 = 256u;
+const MAX_RATIO: f32 = 1024.0;
+
+fn is_leaf(n: Node) -> bool { return (n.index & LEAF_BIT) != 0u; }
+fn leaf_first(n: Node) -> u32 { return n.index & 0x07ffffffu; }
+fn leaf_count(n: Node) -> u32 { return (n.index >> 27u) & 0xfu; }
+
+// The largest finite f32: the identity of min/max over finite data (WGSL implementations may assume that no
+// infinity occurs, so none is used).
+fn fmax() -> f32 { return bitcast<f32>(0x7f7fffffu); }
+
+// The linear invocation index of a 1D dispatch that may be folded into x and y (more than 65535 groups).
+fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return gid.x + gid.y * nwg.x * WG;
+}
+
+// SA(parent) / (SA(left) + SA(right)), scale-free and guarded exactly as geometry::sa_ratio on the CPU.
+fn half_area_scaled(e: vec3<f32>, inv: f32) -> f32 {
+    let s = max(e * inv, vec3<f32>(0.0));
+    return s.x * s.y + s.y * s.z + s.z * s.x;
+}
+
+fn sa_ratio(pmin: vec3<f32>, pmax: vec3<f32>, lmin: vec3<f32>, lmax: vec3<f32>, rmin: vec3<f32>, rmax: vec3<f32>) -> f32 {
+    let pe = pmax - pmin;
+    let scale = max(max(pe.x, pe.y), pe.z);
+    if !(scale > 0.0 && scale <= fmax()) { return 1.0; }
+    let inv = 1.0 / scale;
+    let sp = half_area_scaled(pe, inv);
+    let sc = half_area_scaled(lmax - lmin, inv) + half_area_scaled(rmax - rmin, inv);
+    if sp <= 0.0 { return 1.0; }
+    if sc <= 0.0 { return MAX_RATIO; }
+    return min(sp / sc, MAX_RATIO);
+}

@@ -1,0 +1,117 @@
+// Bottom-up passes over a tree in the crate's layout without arrival counters: nodes are bucketed by depth
+// once per topology (level_count, level_offsets, level_scatter), then `bounds_level` runs once per depth,
+// deepest first, one indirect dispatch each, so a parent only ever reads children written by an earlier
+// dispatch. The same passes serve LBVH construction (storing the build-time SA ratios) and refit
+// (producing the per-node terms of the degradation metric, summed by `reduce_terms`).
+
+const MAX_DEPTH: u32 = 64u;
+
+struct LevelParams { nodes: u32, mode: u32, level: u32, _pad: u32 }
+
+@group(0) @binding(0) var<storage, read> positions: array<f32>;
+@group(0) @binding(1) var<storage, read> slot_tris: array<vec4<u32>>;
+@group(0) @binding(2) var<storage, read_write> nodes: array<Node>;
+@group(0) @binding(3) var<storage, read> depths: array<u32>;
+// [0, 64): nodes per depth; [64, 128): cursors; [128, 192): offsets.
+@group(0) @binding(4) var<storage, read_write> levels: array<atomic<u32>>;
+@group(0) @binding(5) var<storage, read_write> order: array<u32>;
+@group(0) @binding(6) var<storage, read_write> terms: array<f32>;
+@group(0) @binding(7) var<uniform> params: LevelParams;
+// Indirect dispatch arguments of bounds_level, 3 words per depth. A buffer used for indirect arguments
+// cannot be bound as storage by the same dispatch, so bounds_level binds a stand-in here.
+@group(0) @binding(8) var<storage, read_write> args: array<u32>;
+
+const CURSOR: u32 = 64u;
+const OFFSET: u32 = 128u;
+const MODE_BUILD: u32 = 0u;
+
+var<workgroup> local_count: array<atomic<u32>, 64>;
+
+@compute @workgroup_size(256)
+fn level_count(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
+               @builtin(num_workgroups) nwg: vec3<u32>) {
+    if lid.x < MAX_DEPTH { atomicStore(&local_count[lid.x], 0u); }
+    workgroupBarrier();
+    let i = linear_id(gid, nwg);
+    if i < params.nodes { atomicAdd(&local_count[depths[i]], 1u); }
+    workgroupBarrier();
+    if lid.x < MAX_DEPTH {
+        let c = atomicLoad(&local_count[lid.x]);
+        if c > 0u { atomicAdd(&levels[lid.x], c); }
+    }
+}
+
+// One invocation: offsets, zeroed cursors, and the indirect dispatch arguments of every level.
+@compute @workgroup_size(1)
+fn level_offsets() {
+    var sum = 0u;
+    for (var d = 0u; d < MAX_DEPTH; d++) {
+        let c = atomicLoad(&levels[d]);
+        atomicStore(&levels[OFFSET + d], sum);
+        atomicStore(&levels[CURSOR + d], 0u);
+        args[3u * d] = (c + WG - 1u) / WG;
+        args[3u * d + 1u] = 1u;
+        args[3u * d + 2u] = 1u;
+        sum += c;
+    }
+}
+
+@compute @workgroup_size(256)
+fn level_scatter(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if i >= params.nodes { return; }
+    let d = depths[i];
+    let at = atomicLoad(&levels[OFFSET + d]) + atomicAdd(&levels[CURSOR + d], 1u);
+    order[at] = i;
+}
+
+fn vertex(i: u32) -> vec3<f32> {
+    return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
+}
+
+// Boxes of every node at depth params.level: leaves from their triangles' current vertices, inner nodes
+// from their children. Build mode stores the SA ratio; refit mode writes ratio − stored ratio to `terms`.
+@compute @workgroup_size(256)
+fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let k = gid.x; // levels are dispatched indirectly with at most 65535 workgroups each
+    let d = params.level;
+    let count = atomicLoad(&levels[d]);
+    if k >= count { return; }
+    let i = order[atomicLoad(&levels[OFFSET + d]) + k];
+    var node = nodes[i];
+    if is_leaf(node) {
+        var lo = vec3<f32>(fmax());
+        var hi = vec3<f32>(-fmax());
+        let f = leaf_first(node);
+        for (var s = f; s < f + leaf_count(node); s++) {
+            let t = slot_tris[s];
+            let a = vertex(t.x);
+            let b = vertex(t.y);
+            let c = vertex(t.z);
+            lo = min(lo, min(min(a, b), c));
+            hi = max(hi, max(max(a, b), c));
+        }
+        node.min = lo;
+        node.max = hi;
+        terms[i] = 0.0;
+    } else {
+        let l = nodes[node.index];
+        let r = nodes[node.index + 1u];
+        node.min = min(l.min, r.min);
+        node.max = max(l.max, r.max);
+        let ratio = sa_ratio(node.min, node.max, l.min, l.max, r.min, r.max);
+        if params.mode == MODE_BUILD {
+            node.sa_ratio = ratio;
+            terms[i] = 0.0;
+        } else {
+            terms[i] = ratio - node.sa_ratio;
+        }
+    }
+    nodes[i] = node;
+}
+
+// Zeroes the per-depth counts before level_count.
+@compute @workgroup_size(64)
+fn level_reset(@builtin(local_invocation_id) lid: vec3<u32>) {
+    atomicStore(&levels[lid.x], 0u);
+}

@@ -1,0 +1,25 @@
+// Linear-blend skinning, 4 joints per vertex: p' = Σ w_k · (M_{j_k} · (p, 1)). Writes the positions that
+// the refit and LBVH kernels read, in the same flat xyz layout, with no CPU round trip.
+
+struct SkinParams { vertices: u32, _a: u32, _b: u32, _c: u32 }
+
+@group(0) @binding(0) var<storage, read> rest: array<f32>;
+@group(0) @binding(1) var<storage, read> joints: array<vec4<u32>>;
+@group(0) @binding(2) var<storage, read> weights: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read> matrices: array<mat4x4<f32>>;
+@group(0) @binding(4) var<storage, read_write> positions: array<f32>;
+@group(0) @binding(5) var<uniform> params: SkinParams;
+
+@compute @workgroup_size(256)
+fn skin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if i >= params.vertices { return; }
+    let p = vec4<f32>(rest[3u * i], rest[3u * i + 1u], rest[3u * i + 2u], 1.0);
+    let j = joints[i];
+    let w = weights[i];
+    let q = w.x * (matrices[j.x] * p) + w.y * (matrices[j.y] * p) + w.z * (matrices[j.z] * p)
+          + w.w * (matrices[j.w] * p);
+    positions[3u * i] = q.x;
+    positions[3u * i + 1u] = q.y;
+    positions[3u * i + 2u] = q.z;
+}

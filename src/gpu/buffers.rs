@@ -1,0 +1,224 @@
+//! Buffers that grow geometrically and are reused, uniform parameter slots, and asynchronous read-back.
+
+use super::GpuContext;
+use crate::{Error, Result};
+use bytemuck::Pod;
+use std::marker::PhantomData;
+use std::sync::{Arc, Mutex};
+
+/// A storage buffer reused across frames: [`ensure`](Self::ensure) grows it by doubling, never shrinks it,
+/// so a mesh whose size wobbles does not reallocate every frame.
+pub(crate) struct GpuBuffer {
+    buffer: wgpu::Buffer,
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+}
+
+/// Storage buffers also take copies in both directions (uploads, read-back, clears).
+pub(crate) const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+    .union(wgpu::BufferUsages::COPY_DST)
+    .union(wgpu::BufferUsages::COPY_SRC);
+
+impl GpuBuffer {
+    pub fn new(
+        ctx: &GpuContext,
+        label: &'static str,
+        bytes: u64,
+        usage: wgpu::BufferUsages,
+    ) -> Self {
+        Self {
+            buffer: create(ctx, label, bytes, usage),
+            label,
+            usage,
+        }
+    }
+
+    /// A storage buffer of at least `bytes`.
+    pub fn storage(ctx: &GpuContext, label: &'static str, bytes: u64) -> Self {
+        Self::new(ctx, label, bytes, STORAGE)
+    }
+
+    /// Makes room for `bytes`; returns true when the buffer was replaced (bind groups must be rebuilt).
+    pub fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> bool {
+        if bytes <= self.buffer.size() {
+            return false;
+        }
+        let grown = bytes.max(self.buffer.size() * 2);
+        self.buffer = create(ctx, self.label, grown, self.usage);
+        true
+    }
+
+    pub fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
+    /// The whole buffer as a binding.
+    pub fn binding(&self) -> wgpu::BindingResource<'_> {
+        self.buffer.as_entire_binding()
+    }
+
+    /// Writes `data` at the start (queued; lands before the next submission runs).
+    pub fn write<T: Pod>(&self, ctx: &GpuContext, data: &[T]) {
+        if !data.is_empty() {
+            ctx.queue
+                .write_buffer(&self.buffer, 0, bytemuck::cast_slice(data));
+        }
+    }
+}
+
+/// Sizes are rounded up to 256 bytes (and at least that): copy alignment, and never a zero-sized binding.
+fn create(
+    ctx: &GpuContext,
+    label: &'static str,
+    bytes: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: bytes.max(256).next_multiple_of(256),
+        usage,
+        mapped_at_creation: false,
+    })
+}
+
+/// Per-dispatch parameters (four u32 each) in one uniform buffer, 256 bytes apart, selected with dynamic
+/// offsets. Written when a tree is (re)sized, not per frame.
+pub(crate) struct ParamSlots {
+    buffer: wgpu::Buffer,
+}
+
+/// Dynamic uniform offsets must be multiples of this (the WebGPU minimum alignment limit).
+const SLOT: u64 = 256;
+
+impl ParamSlots {
+    pub fn new(ctx: &GpuContext, slots: &[[u32; 4]]) -> Self {
+        let buffer = create(
+            ctx,
+            "kinetrace params",
+            slots.len().max(1) as u64 * SLOT,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
+        let mut bytes = vec![0u8; slots.len() * SLOT as usize];
+        for (i, s) in slots.iter().enumerate() {
+            bytes[i * SLOT as usize..][..16].copy_from_slice(bytemuck::bytes_of(s));
+        }
+        if !bytes.is_empty() {
+            ctx.queue.write_buffer(&buffer, 0, &bytes);
+        }
+        Self { buffer }
+    }
+
+    /// The binding (one slot wide); pick the slot with [`offset`](Self::offset).
+    pub fn binding(&self) -> wgpu::BindingResource<'_> {
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: &self.buffer,
+            offset: 0,
+            size: wgpu::BufferSize::new(16),
+        })
+    }
+
+    pub fn offset(slot: usize) -> u32 {
+        (slot as u64 * SLOT) as u32
+    }
+}
+
+/// A bind group over `entries` (binding indices in order) for `layout`.
+pub(crate) fn bind_group(
+    ctx: &GpuContext,
+    layout: &wgpu::BindGroupLayout,
+    entries: &[wgpu::BindingResource<'_>],
+) -> wgpu::BindGroup {
+    let entries: Vec<wgpu::BindGroupEntry> = entries
+        .iter()
+        .enumerate()
+        .map(|(i, r)| wgpu::BindGroupEntry {
+            binding: i as u32,
+            resource: r.clone(),
+        })
+        .collect();
+    ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout,
+        entries: &entries,
+    })
+}
+
+/// Workgroup counts for `threads` invocations of `group` each, folded into y past 65535 groups (kernels
+/// recover the linear index from `num_workgroups`).
+pub(crate) fn groups(threads: u32, group: u32) -> (u32, u32) {
+    let n = threads.div_ceil(group).max(1);
+    if n <= 65535 {
+        (n, 1)
+    } else {
+        (65535, n.div_ceil(65535))
+    }
+}
+
+/// Results of GPU work on their way back to the CPU: recorded in the same encoder as the work, mapped when
+/// that submission completes. [`try_take`](Self::try_take) never blocks, so frame N's results can be
+/// collected while frame N+1 is recorded; [`wait`](Self::wait) is the blocking convenience.
+pub struct Readback<T> {
+    staging: wgpu::Buffer,
+    len: usize,
+    state: Arc<Mutex<Option<std::result::Result<(), String>>>>,
+    _t: PhantomData<T>,
+}
+
+impl<T: Pod> Readback<T> {
+    /// Records a copy of `len` elements of `src` (from byte 0) and its mapping at submission.
+    pub(crate) fn record(
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        src: &wgpu::Buffer,
+        len: usize,
+    ) -> Self {
+        let bytes = (len * std::mem::size_of::<T>()) as u64;
+        let staging = create(
+            ctx,
+            "kinetrace readback",
+            bytes,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
+        let copy = bytes.next_multiple_of(4);
+        if copy > 0 {
+            encoder.copy_buffer_to_buffer(src, 0, &staging, 0, copy);
+        }
+        let state = Arc::new(Mutex::new(None));
+        let s = state.clone();
+        encoder.map_buffer_on_submit(&staging, wgpu::MapMode::Read, .., move |r| {
+            *s.lock().expect("readback state") = Some(r.map_err(|e| e.to_string()));
+        });
+        Self {
+            staging,
+            len,
+            state,
+            _t: PhantomData,
+        }
+    }
+
+    /// The results if the GPU has finished, without blocking.
+    pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<Vec<T>>> {
+        ctx.poll();
+        let done = self.state.lock().expect("readback state").take()?;
+        Some(done.map_err(Error::Gpu).map(|()| self.read()))
+    }
+
+    /// Blocks until the results are there.
+    pub fn wait(self, ctx: &GpuContext) -> Result<Vec<T>> {
+        loop {
+            if let Some(r) = self.try_take(ctx) {
+                return r;
+            }
+            ctx.wait()?;
+        }
+    }
+
+    fn read(&self) -> Vec<T> {
+        let bytes = self.len * std::mem::size_of::<T>();
+        let view = self.staging.get_mapped_range(..).expect("buffer is mapped");
+        let out = bytemuck::pod_collect_to_vec(&view[..bytes]);
+        drop(view);
+        self.staging.unmap();
+        out
+    }
+}

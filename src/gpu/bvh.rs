@@ -1,0 +1,402 @@
+//! One mesh's BVH on the GPU: LBVH construction, refit with the degradation metric, and the buffers the
+//! ray kernels read. The node buffer holds exactly the CPU [`Bvh`] layout.
+
+use super::GpuContext;
+use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group, groups};
+use super::sort::RadixSort;
+use crate::bvh::{Bvh, MeshBvh, Node};
+use crate::{Error, Mesh, Result};
+use glam::Vec3;
+
+/// Depth buckets of the level schedule (no tree is deeper than [`crate::bvh::MAX_DEPTH`]).
+const LEVELS: usize = 64;
+/// The `levels` buffer (u32s): counts, cursors and offsets per depth.
+const LEVEL_WORDS: u64 = 3 * LEVELS as u64;
+
+/// A mesh's BVH kept on the GPU.
+///
+/// [`record_build`](Self::record_build) rebuilds it with LBVH (30-bit Morton codes, one triangle per leaf)
+/// and [`record_refit`](Self::record_refit) refits it to the current vertex positions — uploaded with
+/// [`upload_positions`](Self::upload_positions) or written by the skinning kernel into
+/// [`positions`](Self::positions) with no CPU round trip. Both record into the caller's encoder, so a
+/// frame's work for all meshes goes into one submission. Buffers are allocated once per mesh size.
+///
+/// Memory: about 112 bytes per triangle during construction including the tree (nodes 64, sort keys and
+/// values with scratch 16, radix-tree links 16, depths and level order 16), plus the mesh itself.
+pub struct GpuMeshBvh {
+    tris: u32,
+    vertices: u32,
+    positions: GpuBuffer,
+    _indices: GpuBuffer,
+    nodes: GpuBuffer,
+    slot_tris: GpuBuffer,
+    vals: GpuBuffer,
+    level_args: GpuBuffer,
+    depths: GpuBuffer,
+    sums: GpuBuffer,
+    _params: ParamSlots,
+    sort: RadixSort,
+    lbvh_group: wgpu::BindGroup,
+    /// For the schedule kernels (writes the indirect arguments).
+    levels_group: wgpu::BindGroup,
+    /// For bounds_level (a stand-in where the indirect arguments are bound).
+    bounds_group: wgpu::BindGroup,
+    reduce_group: wgpu::BindGroup,
+    built: bool,
+    /// False for an uploaded CPU tree with several triangles per leaf: traceable, not refittable here.
+    refittable: bool,
+    _scratch: Vec<GpuBuffer>,
+}
+
+/// Parameter slots: 0 mesh, 1 node count (level passes), 2..66 build levels, 66..130 refit levels,
+/// 130 sum over nodes, 131 sum over pairs.
+const SLOT_MESH: usize = 0;
+const SLOT_NODES: usize = 1;
+const SLOT_BUILD: usize = 2;
+const SLOT_REFIT: usize = SLOT_BUILD + LEVELS;
+const SLOT_SUM: usize = SLOT_REFIT + LEVELS;
+const SLOT_PAIRS: usize = SLOT_SUM + 1;
+
+impl GpuMeshBvh {
+    /// Uploads `mesh` and allocates everything its tree needs. Nothing is built until
+    /// [`record_build`](Self::record_build).
+    pub fn new(ctx: &GpuContext, mesh: &Mesh) -> Result<Self> {
+        let tris = mesh.triangle_count() as u32;
+        let vertices = mesh.positions().len() as u32;
+        let n = tris.max(1) as u64;
+        let node_count = (2 * n - 1) as u32;
+        let positions = GpuBuffer::storage(ctx, "positions", vertices as u64 * 12);
+        positions.write(ctx, mesh.positions());
+        let indices = GpuBuffer::storage(ctx, "indices", tris as u64 * 12);
+        indices.write(ctx, mesh.indices());
+        let centroids = GpuBuffer::storage(ctx, "centroids", n * 16);
+        let partials = GpuBuffer::storage(ctx, "partials", n.div_ceil(256) * 32);
+        let keys = GpuBuffer::storage(ctx, "morton", n * 4);
+        let vals = GpuBuffer::storage(ctx, "sorted ids", n * 4);
+        let children = GpuBuffer::storage(ctx, "children", n * 8);
+        let parents = GpuBuffer::storage(ctx, "parents", 2 * n * 4);
+        let first = GpuBuffer::storage(ctx, "first", n * 4);
+        let nodes = GpuBuffer::storage(ctx, "nodes", node_count as u64 * 32);
+        let depths = GpuBuffer::storage(ctx, "depths", node_count as u64 * 4);
+        let slot_tris = GpuBuffer::storage(ctx, "slot triangles", n * 16);
+        let levels = GpuBuffer::storage(ctx, "levels", LEVEL_WORDS * 4);
+        let level_args = GpuBuffer::new(
+            ctx,
+            "level dispatch args",
+            12 * LEVELS as u64,
+            super::buffers::STORAGE | wgpu::BufferUsages::INDIRECT,
+        );
+        let stand_in = GpuBuffer::storage(ctx, "stand-in", 16);
+        let order = GpuBuffer::storage(ctx, "level order", node_count as u64 * 4);
+        let terms = GpuBuffer::storage(ctx, "degradation terms", node_count as u64 * 4);
+        let sum_blocks = node_count.div_ceil(256);
+        let sums = GpuBuffer::storage(ctx, "degradation sums", sum_blocks as u64 * 8);
+        if tris == 1 {
+            // No inner node writes the root's parent link: mark it here.
+            parents.write(ctx, &[u32::MAX]);
+        }
+        let mut slots = vec![[0u32; 4]; SLOT_PAIRS + 1];
+        slots[SLOT_MESH] = [tris, 0, 0, 0];
+        slots[SLOT_NODES] = [node_count, 0, 0, 0];
+        for d in 0..LEVELS {
+            slots[SLOT_BUILD + d] = [node_count, 0, d as u32, 0];
+            slots[SLOT_REFIT + d] = [node_count, 1, d as u32, 0];
+        }
+        slots[SLOT_SUM] = [node_count, 0, 0, 0];
+        slots[SLOT_PAIRS] = [sum_blocks, 0, 0, 0];
+        let params = ParamSlots::new(ctx, &slots);
+        let k = &ctx.kernels;
+        let lbvh_group = bind_group(
+            ctx,
+            &k.lbvh.layout,
+            &[
+                positions.binding(),
+                indices.binding(),
+                centroids.binding(),
+                partials.binding(),
+                keys.binding(),
+                vals.binding(),
+                children.binding(),
+                parents.binding(),
+                first.binding(),
+                nodes.binding(),
+                depths.binding(),
+                slot_tris.binding(),
+                params.binding(),
+            ],
+        );
+        let levels_with = |args: &GpuBuffer| {
+            bind_group(
+                ctx,
+                &k.levels.layout,
+                &[
+                    positions.binding(),
+                    slot_tris.binding(),
+                    nodes.binding(),
+                    depths.binding(),
+                    levels.binding(),
+                    order.binding(),
+                    terms.binding(),
+                    params.binding(),
+                    args.binding(),
+                ],
+            )
+        };
+        let levels_group = levels_with(&level_args);
+        let bounds_group = levels_with(&stand_in);
+        let reduce_group = bind_group(
+            ctx,
+            &k.reduce.layout,
+            &[terms.binding(), sums.binding(), params.binding()],
+        );
+        let sort = RadixSort::new(ctx, &keys, &vals, tris, 30);
+        Ok(Self {
+            tris,
+            vertices,
+            positions,
+            _indices: indices,
+            nodes,
+            slot_tris,
+            vals,
+            level_args,
+            depths,
+            sums,
+            _params: params,
+            sort,
+            lbvh_group,
+            levels_group,
+            bounds_group,
+            reduce_group,
+            built: false,
+            refittable: true,
+            _scratch: vec![
+                centroids, partials, keys, children, parents, first, order, terms, levels, stand_in,
+            ],
+        })
+    }
+
+    /// Uploads a CPU-built tree (any builder, any leaf size) so the GPU can trace it. With one triangle per
+    /// leaf it can be refitted on the GPU too.
+    pub fn from_cpu(ctx: &GpuContext, mesh: &Mesh, bvh: &MeshBvh) -> Result<Self> {
+        let mut g = Self::new(ctx, mesh)?;
+        let slot_tris: Vec<[u32; 4]> = bvh
+            .slot_indices()
+            .iter()
+            .zip(bvh.bvh().prim_indices())
+            .map(|(t, &p)| [t[0], t[1], t[2], p])
+            .collect();
+        g.nodes.write(ctx, bvh.bvh().nodes());
+        g.slot_tris.write(ctx, &slot_tris);
+        g.vals.write(ctx, bvh.bvh().prim_indices());
+        g.built = true;
+        g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
+        if g.refittable {
+            g.cpu_levels(ctx, bvh.bvh());
+        }
+        Ok(g)
+    }
+
+    /// The depth of every node of a CPU-built tree, uploaded so refit's level schedule can be made on the
+    /// GPU as for an LBVH build.
+    fn cpu_levels(&self, ctx: &GpuContext, bvh: &Bvh) {
+        let nodes = bvh.nodes();
+        let mut depth = vec![0u32; nodes.len()];
+        for (i, n) in nodes.iter().enumerate() {
+            if !n.is_leaf() {
+                depth[n.left()] = depth[i] + 1;
+                depth[n.left() + 1] = depth[i] + 1;
+            }
+        }
+        self.depths.write(ctx, &depth);
+        let mut enc = ctx.encoder();
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            self.record_schedule(ctx, &mut pass);
+        }
+        ctx.submit(enc);
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> u32 {
+        self.tris
+    }
+
+    fn node_count(&self) -> u32 {
+        (2 * self.tris.max(1) - 1) * (self.tris > 0) as u32
+    }
+
+    /// The vertex positions the kernels read (flat `x, y, z` f32 triples): the skinning kernel's output.
+    pub fn positions(&self) -> &wgpu::Buffer {
+        self.positions.buffer()
+    }
+
+    /// The node buffer (the CPU [`Node`] layout), for the ray kernels.
+    pub(crate) fn nodes(&self) -> &wgpu::Buffer {
+        self.nodes.buffer()
+    }
+
+    /// Per slot: the triangle's three vertex indices and its id.
+    pub(crate) fn slot_tris(&self) -> &wgpu::Buffer {
+        self.slot_tris.buffer()
+    }
+
+    /// Replaces the vertex positions (same count as the mesh); takes effect at the next submission.
+    pub fn upload_positions(&self, ctx: &GpuContext, positions: &[Vec3]) -> Result<()> {
+        if positions.len() != self.vertices as usize {
+            return Err(Error::VertexCountMismatch {
+                expected: self.vertices as usize,
+                got: positions.len(),
+            });
+        }
+        crate::mesh::check_positions(positions)?;
+        self.positions.write(ctx, positions);
+        Ok(())
+    }
+
+    /// Records a full LBVH rebuild from the current positions: bounds, Morton codes, sort, radix tree,
+    /// layout, level schedule, then boxes and build-time SA ratios bottom-up.
+    pub fn record_build(&mut self, ctx: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
+        if self.tris == 0 {
+            return;
+        }
+        let k = &ctx.kernels;
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("kinetrace lbvh"),
+            timestamp_writes: None,
+        });
+        let mesh = [ParamSlots::offset(SLOT_MESH)];
+        let run = |pass: &mut wgpu::ComputePass<'_>, entry: &str, threads: u32| {
+            let (x, y) = groups(threads, 256);
+            pass.set_pipeline(k.lbvh.pipeline(entry));
+            pass.set_bind_group(0, &self.lbvh_group, &mesh);
+            pass.dispatch_workgroups(x, y, 1);
+        };
+        run(&mut pass, "tri_bounds", self.tris);
+        run(&mut pass, "reduce_bounds", 1);
+        run(&mut pass, "morton", self.tris);
+        self.sort.record(ctx, &mut pass);
+        run(&mut pass, "karras", self.tris);
+        run(&mut pass, "walk_up", self.node_count());
+        self.record_schedule(ctx, &mut pass);
+        self.record_levels(ctx, &mut pass, SLOT_BUILD);
+        self.built = true;
+    }
+
+    /// Buckets the nodes by depth (once per topology).
+    fn record_schedule(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
+        let k = &ctx.kernels;
+        let off = [ParamSlots::offset(SLOT_NODES)];
+        pass.set_bind_group(0, &self.levels_group, &off);
+        // level_count adds to zeroed counts; level_offsets rewrites everything else.
+        pass.set_pipeline(k.levels.pipeline("level_reset"));
+        pass.dispatch_workgroups(1, 1, 1);
+        let (x, y) = groups(self.node_count(), 256);
+        pass.set_pipeline(k.levels.pipeline("level_count"));
+        pass.dispatch_workgroups(x, y, 1);
+        pass.set_pipeline(k.levels.pipeline("level_offsets"));
+        pass.dispatch_workgroups(1, 1, 1);
+        pass.set_pipeline(k.levels.pipeline("level_scatter"));
+        pass.dispatch_workgroups(x, y, 1);
+    }
+
+    /// One indirect dispatch per depth, deepest first.
+    fn record_levels(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>, first_slot: usize) {
+        let k = &ctx.kernels;
+        pass.set_pipeline(k.levels.pipeline("bounds_level"));
+        for d in (0..LEVELS).rev() {
+            pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(first_slot + d)]);
+            pass.dispatch_workgroups_indirect(self.level_args.buffer(), 12 * d as u64);
+        }
+    }
+
+    /// Records a refit to the current positions and the degradation metric's reduction. The metric arrives
+    /// through [`record_degradation`](Self::record_degradation).
+    pub fn record_refit(&self, ctx: &GpuContext, encoder: &mut wgpu::CommandEncoder) -> Result<()> {
+        if self.tris == 0 {
+            return Ok(());
+        }
+        if !self.built {
+            return Err(Error::Gpu("refit before the tree was built".into()));
+        }
+        if !self.refittable {
+            return Err(Error::Gpu(
+                "this uploaded tree has several triangles per leaf; GPU refit needs one".into(),
+            ));
+        }
+        let k = &ctx.kernels;
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("kinetrace refit"),
+            timestamp_writes: None,
+        });
+        self.record_levels(ctx, &mut pass, SLOT_REFIT);
+        let (x, y) = groups(self.node_count(), 256);
+        pass.set_pipeline(k.reduce.pipeline("sum_blocks"));
+        pass.set_bind_group(0, &self.reduce_group, &[ParamSlots::offset(SLOT_SUM)]);
+        pass.dispatch_workgroups(x, y, 1);
+        pass.set_pipeline(k.reduce.pipeline("sum_pairs"));
+        pass.set_bind_group(0, &self.reduce_group, &[ParamSlots::offset(SLOT_PAIRS)]);
+        pass.dispatch_workgroups(1, 1, 1);
+        Ok(())
+    }
+
+    /// Records the read-back of the last refit's degradation metric.
+    pub fn record_degradation(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+    ) -> DegradationReadback {
+        DegradationReadback {
+            sum: Readback::record(ctx, encoder, self.sums.buffer(), 1),
+            inner: self.tris.saturating_sub(1),
+        }
+    }
+
+    /// Reads the current vertex positions back (blocking), e.g. after GPU skinning.
+    pub fn read_positions(&self, ctx: &GpuContext) -> Result<Vec<Vec3>> {
+        let mut enc = ctx.encoder();
+        let r = Readback::<Vec3>::record(
+            ctx,
+            &mut enc,
+            self.positions.buffer(),
+            self.vertices as usize,
+        );
+        ctx.submit(enc);
+        r.wait(ctx)
+    }
+
+    /// Reads the tree back (blocking): the same [`Bvh`] a CPU build produces.
+    pub fn read_tree(&self, ctx: &GpuContext) -> Result<Bvh> {
+        if self.tris == 0 {
+            return Ok(Bvh::default());
+        }
+        let mut enc = ctx.encoder();
+        let nodes = Readback::<Node>::record(
+            ctx,
+            &mut enc,
+            self.nodes.buffer(),
+            self.node_count() as usize,
+        );
+        let prims = Readback::<u32>::record(ctx, &mut enc, self.vals.buffer(), self.tris as usize);
+        ctx.submit(enc);
+        Ok(Bvh::from_parts(nodes.wait(ctx)?, prims.wait(ctx)?))
+    }
+}
+
+/// The degradation metric of a GPU refit on its way back.
+pub struct DegradationReadback {
+    sum: Readback<[f32; 2]>,
+    inner: u32,
+}
+
+impl DegradationReadback {
+    /// The metric (see [`Bvh::refit`]), blocking until the GPU is done.
+    pub fn wait(self, ctx: &GpuContext) -> Result<f32> {
+        let s = self.sum.wait(ctx)?[0];
+        let total = s[0] as f64 + s[1] as f64;
+        Ok(if self.inner == 0 {
+            0.0
+        } else {
+            (total / self.inner as f64) as f32
+        })
+    }
+}

@@ -1,0 +1,138 @@
+//! The GPU device, its queue, and the compiled kernels.
+
+use super::kernels::Kernels;
+use crate::{Error, Result};
+use std::sync::Arc;
+
+/// A headless wgpu device for compute work, with every kernel compiled once.
+///
+/// Creating one is expensive (adapter discovery, device creation, shader compilation: tens to hundreds of
+/// milliseconds): make one per application and share it (`Clone` is cheap). Honours `WGPU_BACKEND`,
+/// `WGPU_ADAPTER_NAME` and `WGPU_POWER_PREF` like wgpu's own tools.
+///
+/// ```no_run
+/// match kinetrace::gpu::GpuContext::new() {
+///     Ok(gpu) => println!("running on {}", gpu.adapter_name()),
+///     Err(e) => eprintln!("{e}; using the CPU path"),
+/// }
+/// ```
+#[derive(Clone)]
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    pub(crate) kernels: Arc<Kernels>,
+    info: wgpu::AdapterInfo,
+    timestamps: bool,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuContext")
+            .field("adapter", &self.info.name)
+            .finish_non_exhaustive()
+    }
+}
+
+impl GpuContext {
+    /// Finds an adapter and creates a device. [`Error::NoGpu`] when there is none: callers fall back to the
+    /// CPU path (and should say so once in their log).
+    pub fn new() -> Result<Self> {
+        pollster::block_on(Self::new_async())
+    }
+
+    async fn new_async() -> Result<Self> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+            .await
+            .map_err(|e| Error::NoGpu(e.to_string()))?;
+        let info = adapter.get_info();
+        let wanted = wgpu::Features::TIMESTAMP_QUERY;
+        let features = adapter.features() & wanted;
+        // Ask for what the adapter can do: big meshes need big storage buffers.
+        let limits = adapter.limits();
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("kinetrace"),
+                required_features: features,
+                required_limits: limits,
+                ..Default::default()
+            })
+            .await
+            .map_err(|e| Error::NoGpu(format!("{} ({:?}): {e}", info.name, info.backend)))?;
+        let kernels = Arc::new(Kernels::new(&device));
+        Ok(Self {
+            device,
+            queue,
+            kernels,
+            info,
+            timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
+        })
+    }
+
+    /// The adapter's name, e.g. "NVIDIA H100" or "llvmpipe (LLVM 15.0.6, 256 bits)".
+    pub fn adapter_name(&self) -> &str {
+        &self.info.name
+    }
+
+    /// Backend and driver, for logs.
+    pub fn adapter_details(&self) -> String {
+        format!(
+            "{:?}, {} {}",
+            self.info.backend, self.info.driver, self.info.driver_info
+        )
+    }
+
+    /// Whether the device can time passes with timestamp queries.
+    pub fn has_timestamps(&self) -> bool {
+        self.timestamps
+    }
+
+    /// A command encoder to record a frame's GPU work into.
+    pub fn encoder(&self) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("kinetrace frame"),
+            })
+    }
+
+    /// Submits recorded work; it runs asynchronously.
+    pub fn submit(&self, encoder: wgpu::CommandEncoder) -> wgpu::SubmissionIndex {
+        self.queue.submit([encoder.finish()])
+    }
+
+    /// Blocks until all submitted work has finished. Surfaces device loss as [`Error::Gpu`].
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(e.to_string()))
+    }
+
+    /// Polls without blocking, driving pending read-backs forward.
+    pub fn poll(&self) {
+        let _ = self.device.poll(wgpu::PollType::Poll);
+    }
+}
+
+/// The shared context for tests and examples: created once per process, `None` (with the reason printed
+/// once) where no adapter exists. With `KINETRACE_REQUIRE_GPU=1` set, a missing adapter panics instead, so
+/// that CI cannot pass by skipping.
+pub fn shared_for_tests() -> Option<GpuContext> {
+    use std::sync::OnceLock;
+    static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
+    CTX.get_or_init(|| match GpuContext::new() {
+        Ok(c) => {
+            eprintln!("kinetrace: GPU tests run on {} ({})", c.adapter_name(), c.adapter_details());
+            Some(c)
+        }
+        Err(e) => {
+            if std::env::var("KINETRACE_REQUIRE_GPU").is_ok_and(|v| v == "1") {
+                panic!("KINETRACE_REQUIRE_GPU=1 but no GPU: {e}");
+            }
+            eprintln!("\n*** kinetrace: SKIPPING GPU TESTS: {e} ***\n*** (install mesa-vulkan-drivers for lavapipe, or set KINETRACE_REQUIRE_GPU=1 to fail) ***\n");
+            None
+        }
+    })
+    .clone()
+}

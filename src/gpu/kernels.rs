@@ -1,0 +1,170 @@
+//! Every WGSL kernel of the crate, compiled once per device, with explicit bind group layouts (one per
+//! shader file, shared by its entry points; the uniform parameters use dynamic offsets so one buffer holds
+//! the parameters of many dispatches).
+
+use std::collections::HashMap;
+
+/// How a binding is used by a shader file.
+#[derive(Clone, Copy)]
+enum B {
+    /// `var<storage, read>`
+    Read,
+    /// `var<storage, read_write>`
+    Write,
+    /// `var<uniform>` with a dynamic offset
+    Uniform,
+}
+
+/// One shader file: its layout and a pipeline per entry point.
+pub(crate) struct Module {
+    pub layout: wgpu::BindGroupLayout,
+    pipelines: HashMap<&'static str, wgpu::ComputePipeline>,
+}
+
+impl Module {
+    fn new(
+        device: &wgpu::Device,
+        name: &'static str,
+        source: &'static str,
+        bindings: &[B],
+        entries: &[&'static str],
+    ) -> Self {
+        let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupLayoutEntry {
+                binding: i as u32,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: match b {
+                        B::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                        B::Write => wgpu::BufferBindingType::Storage { read_only: false },
+                        B::Uniform => wgpu::BufferBindingType::Uniform,
+                    },
+                    has_dynamic_offset: matches!(b, B::Uniform),
+                    min_binding_size: None,
+                },
+                count: None,
+            })
+            .collect();
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(name),
+            entries: &layout_entries,
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(name),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(name),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
+        let pipelines = entries
+            .iter()
+            .map(|&e| {
+                let p = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(e),
+                    layout: Some(&pipeline_layout),
+                    module: &shader,
+                    entry_point: Some(e),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+                (e, p)
+            })
+            .collect();
+        Self { layout, pipelines }
+    }
+
+    /// The pipeline of an entry point.
+    pub fn pipeline(&self, entry: &str) -> &wgpu::ComputePipeline {
+        &self.pipelines[entry]
+    }
+}
+
+macro_rules! shader {
+    ($file:literal) => {
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!(concat!("../../shaders/", $file))
+        )
+    };
+}
+
+/// All kernels of the crate.
+pub(crate) struct Kernels {
+    pub scan: Module,
+    pub sort: Module,
+    pub lbvh: Module,
+    pub levels: Module,
+    pub reduce: Module,
+    pub trace: Module,
+    pub skin: Module,
+}
+
+impl Kernels {
+    pub fn new(device: &wgpu::Device) -> Self {
+        use B::*;
+        Self {
+            scan: Module::new(
+                device,
+                "scan",
+                shader!("scan.wgsl"),
+                &[Write, Write, Uniform],
+                &["scan_blocks", "add_offsets"],
+            ),
+            sort: Module::new(
+                device,
+                "sort",
+                shader!("sort.wgsl"),
+                &[Read, Read, Write, Write, Write, Uniform],
+                &["count", "scatter"],
+            ),
+            lbvh: Module::new(
+                device,
+                "lbvh",
+                shader!("lbvh.wgsl"),
+                &[
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
+                    Write, Uniform,
+                ],
+                &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
+            ),
+            levels: Module::new(
+                device,
+                "levels",
+                shader!("levels.wgsl"),
+                &[Read, Read, Write, Read, Write, Write, Write, Uniform, Write],
+                &[
+                    "level_reset",
+                    "level_count",
+                    "level_offsets",
+                    "level_scatter",
+                    "bounds_level",
+                ],
+            ),
+            reduce: Module::new(
+                device,
+                "reduce",
+                shader!("reduce.wgsl"),
+                &[Read, Write, Uniform],
+                &["sum_blocks", "sum_pairs"],
+            ),
+            trace: Module::new(
+                device,
+                "trace",
+                shader!("trace.wgsl"),
+                &[Read, Read, Read, Read, Write, Uniform],
+                &["closest", "any_hit"],
+            ),
+            skin: Module::new(
+                device,
+                "skin",
+                shader!("skin.wgsl"),
+                &[Read, Read, Read, Read, Write, Uniform],
+                &["skin"],
+            ),
+        }
+    }
+}

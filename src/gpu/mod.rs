@@ -1,0 +1,41 @@
+//! The GPU back end on wgpu: LBVH rebuild, refit with the degradation metric, closest-hit and any-hit ray
+//! queries, and linear-blend skinning, as WGSL compute kernels in `shaders/` driven by thin Rust here.
+//!
+//! Results equal the CPU path's on the same input: the tree has the CPU [`Bvh`](crate::bvh::Bvh) layout,
+//! and rays carry the CPU's precomputed watertight-test constants. Nothing here relies on WGSL guarantees it
+//! does not give: no subgroup operations, no float atomics, no spinning between workgroups, and every read
+//! of another invocation's results is separated from its write by a dispatch boundary (bottom-up passes
+//! run one dispatch per tree level).
+//!
+//! ```no_run
+//! use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuRays, Query};
+//! use kinetrace::{Mesh, Ray, scenes};
+//! use glam::Vec3;
+//! # fn main() -> kinetrace::Result<()> {
+//! let gpu = GpuContext::new()?; // Error::NoGpu when there is none: use the CPU path instead
+//! let mesh = scenes::icosphere(4);
+//! let mut bvh = GpuMeshBvh::new(&gpu, &mesh)?;
+//! let mut rays = GpuRays::new(&gpu);
+//! let mut frame = gpu.encoder();
+//! bvh.record_build(&gpu, &mut frame);
+//! let hits = rays.record(&gpu, &mut frame, &bvh, &[Ray::new(Vec3::new(0.0, 0.0, -3.0), Vec3::Z)], Query::Closest);
+//! gpu.submit(frame);
+//! let hits = hits.wait(&gpu)?; // or try_take() next frame, without stalling
+//! assert!(hits[0].primitive().is_some());
+//! # Ok(()) }
+//! ```
+
+mod buffers;
+mod bvh;
+mod context;
+mod kernels;
+mod skin;
+mod sort;
+mod trace;
+
+pub use buffers::Readback;
+pub use bvh::{DegradationReadback, GpuMeshBvh};
+pub use context::{GpuContext, shared_for_tests};
+pub use skin::GpuSkin;
+pub use sort::sort_pairs;
+pub use trace::{GpuHit, GpuRays, Query};

@@ -1,0 +1,328 @@
+//! GPU kernels against their CPU references, on lavapipe in CI (`KINETRACE_REQUIRE_GPU=1` makes a missing
+//! adapter a failure; without it these tests skip and say so).
+
+mod common;
+use common::*;
+use glam::{Mat4, Quat, Vec3};
+use kinetrace::anim::{SkinWeights, skin_positions};
+use kinetrace::bvh::{BuildOptions, Builder, Bvh, radix_sort};
+use kinetrace::gpu::{
+    GpuContext, GpuMeshBvh, GpuRays, GpuSkin, Query, shared_for_tests, sort_pairs,
+};
+use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
+use rand::Rng;
+
+fn gpu() -> Option<GpuContext> {
+    shared_for_tests()
+}
+
+const SIZES: [usize; 6] = [0, 1, 2, 3, 1023, 1025];
+const BIG: usize = (1 << 20) + 7;
+
+#[test]
+fn radix_sort_equals_cpu_stable_sort() {
+    let Some(g) = gpu() else { return };
+    let mut r = rng(1);
+    for n in SIZES.into_iter().chain([BIG]) {
+        for spread in [1u32 << 30, 37] {
+            let keys: Vec<u32> = (0..n).map(|_| r.random_range(0..spread)).collect();
+            let vals: Vec<u32> = (0..n as u32).collect();
+            let (gk, gv) = sort_pairs(&g, &keys, &vals, 30).unwrap();
+            let (mut ck, mut cv) = (
+                keys.iter().map(|&k| k as u64).collect::<Vec<_>>(),
+                vals.clone(),
+            );
+            radix_sort::sort_pairs(&mut ck, &mut cv, 30);
+            assert_eq!(
+                gk,
+                ck.iter().map(|&k| k as u32).collect::<Vec<_>>(),
+                "keys, n = {n}"
+            );
+            assert_eq!(gv, cv, "values (stability), n = {n}");
+        }
+    }
+}
+
+fn gpu_lbvh(g: &GpuContext, m: &Mesh) -> (GpuMeshBvh, Bvh) {
+    let mut bvh = GpuMeshBvh::new(g, m).unwrap();
+    let mut enc = g.encoder();
+    bvh.record_build(g, &mut enc);
+    g.submit(enc);
+    let tree = bvh.read_tree(g).unwrap();
+    (bvh, tree)
+}
+
+#[test]
+fn lbvh_build_equals_cpu_lbvh() {
+    let Some(g) = gpu() else { return };
+    for n in SIZES.into_iter().chain([BIG]) {
+        let m = soup(n as u64 + 5, n);
+        let (_, tree) = gpu_lbvh(&g, &m);
+        let bounds = m.triangle_bounds();
+        tree.validate(Some(&bounds))
+            .unwrap_or_else(|e| panic!("n = {n}: {e}"));
+        let cpu = Bvh::build(&bounds, &BuildOptions::new(Builder::LBVH)).unwrap();
+        let (gc, cc) = (tree.sah_cost(), cpu.sah_cost());
+        assert!(
+            (gc - cc).abs() <= 1e-3 * cc.max(1e-30),
+            "n = {n}: SAH {gc} vs {cc}"
+        );
+        // Same codes give the same tree: boxes are exact; ratios may differ by the GPU's division.
+        let same = tree
+            .nodes()
+            .iter()
+            .zip(cpu.nodes())
+            .filter(|(a, b)| a.index == b.index && a.min == b.min && a.max == b.max)
+            .count();
+        assert!(
+            same as f64 >= 0.999 * cpu.nodes().len() as f64,
+            "n = {n}: {same} of {} nodes equal",
+            cpu.nodes().len()
+        );
+    }
+}
+
+#[test]
+fn refit_equals_cpu_refit() {
+    let Some(g) = gpu() else { return };
+    for n in [1usize, 2, 3, 1023, 1025, 50_000] {
+        let m = soup(n as u64 + 9, n);
+        let (bvh, mut tree) = gpu_lbvh(&g, &m);
+        let mut r = rng(n as u64);
+        let moved: Vec<Vec3> = m
+            .positions()
+            .iter()
+            .map(|p| *p + rand_vec(&mut r, -0.05, 0.05))
+            .collect();
+        bvh.upload_positions(&g, &moved).unwrap();
+        let mut enc = g.encoder();
+        bvh.record_refit(&g, &mut enc).unwrap();
+        let d = bvh.record_degradation(&g, &mut enc);
+        g.submit(enc);
+        let gpu_d = d.wait(&g).unwrap();
+        let after = bvh.read_tree(&g).unwrap();
+        let m2 = m.with_positions(moved).unwrap();
+        let cpu_d = tree.refit(&m2.triangle_bounds()).unwrap();
+        for (i, (a, b)) in after.nodes().iter().zip(tree.nodes()).enumerate() {
+            assert_eq!(
+                (a.min, a.max, a.index),
+                (b.min, b.max, b.index),
+                "n = {n}: node {i}"
+            );
+        }
+        assert!(
+            (gpu_d - cpu_d).abs() <= 1e-5 * cpu_d.abs().max(1e-3),
+            "n = {n}: degradation {gpu_d} vs {cpu_d}"
+        );
+    }
+}
+
+fn check_traversal(g: &GpuContext, m: &Mesh, rays: &[Ray], what: &str) -> usize {
+    let mut gr = GpuRays::new(g);
+    let mut hits = 0;
+    for opt in [
+        BuildOptions::new(Builder::SAH),
+        BuildOptions::new(Builder::LBVH).max_leaf_size(4),
+    ] {
+        let cpu = MeshBvh::build(m, &opt).unwrap();
+        let gb = GpuMeshBvh::from_cpu(g, m, &cpu).unwrap();
+        let closest = gr.run(g, &gb, rays, Query::Closest).unwrap();
+        let any = gr.run(g, &gb, rays, Query::Any).unwrap();
+        hits = 0;
+        for (i, ray) in rays.iter().enumerate() {
+            let c = cpu.closest_hit(ray);
+            let gh = closest[i];
+            match c {
+                Some(h) => {
+                    hits += 1;
+                    let t_ok = (gh.t - h.t).abs() <= 1e-5 * h.t.abs().max(1e-30);
+                    assert!(t_ok, "{what} {opt:?} ray {i}: t {} vs {}", gh.t, h.t);
+                    if gh.primitive() != Some(h.primitive) {
+                        // Only an exact tie may name another triangle (see MeshBvh's docs).
+                        assert_same_hit(
+                            m,
+                            ray,
+                            gh.primitive().map(|p| (p, gh.t)),
+                            Some((h.primitive, h.t)),
+                            what,
+                        );
+                    }
+                }
+                None => assert_eq!(gh.primitive(), None, "{what} {opt:?} ray {i}"),
+            }
+            assert_eq!(
+                any[i].primitive().is_some(),
+                cpu.any_hit(ray),
+                "{what} {opt:?} any-hit ray {i}"
+            );
+        }
+    }
+    hits
+}
+
+fn random_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
+    let b = m
+        .triangle_bounds()
+        .iter()
+        .fold(Aabb::EMPTY, |a, t| a.union(t));
+    let mut r = rng(seed);
+    (0..n)
+        .map(|i| {
+            let o = b.min + b.extent() * Vec3::new(r.random(), r.random(), r.random());
+            if i % 2 == 0 {
+                Ray::new(o, rand_dir(&mut r))
+            } else {
+                let [a, bb, c] = m.triangle(r.random_range(0..m.triangle_count()));
+                Ray::new(o - b.extent(), (a + bb + c) / 3.0 - (o - b.extent()))
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn ray_queries_equal_cpu_queries() {
+    let Some(g) = gpu() else { return };
+    let m = soup(3, 3000);
+    assert!(check_traversal(&g, &m, &random_rays(&m, 4, 4000), "soup") > 1000);
+    let m = icosphere(3);
+    assert!(check_traversal(&g, &m, &random_rays(&m, 5, 4000), "icosphere") > 1000);
+    // GPU-built tree: the same answers.
+    let (gb, _) = gpu_lbvh(&g, &m);
+    let rays = random_rays(&m, 6, 2000);
+    let hits = GpuRays::new(&g)
+        .run(&g, &gb, &rays, Query::Closest)
+        .unwrap();
+    for (ray, h) in rays.iter().zip(&hits) {
+        assert_same_hit(
+            &m,
+            ray,
+            h.primitive().map(|p| (p, h.t)),
+            brute_closest(&m, ray),
+            "gpu lbvh",
+        );
+    }
+}
+
+#[test]
+fn extreme_scenes_on_the_gpu() {
+    let Some(g) = gpu() else { return };
+    // Identical centroids.
+    let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(500)).unwrap();
+    let (_, tree) = gpu_lbvh(&g, &same);
+    tree.validate(Some(&same.triangle_bounds())).unwrap();
+    check_traversal(&g, &same, &random_rays(&same, 7, 300), "identical");
+    // Offsets of 1e7 (sphere radius 1e3 so the f32 grid resolves it) and a 1e-6 teapot in a 1e4 stadium.
+    let far = map_mesh(&icosphere(2), |p| p * 1e3 + Vec3::new(1e7, -1e7, 5e6));
+    check_traversal(&g, &far, &random_rays(&far, 8, 500), "1e7 offset");
+    let tiny = map_mesh(&icosphere(2), |p| p * 1e-6 + Vec3::splat(0.25));
+    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
+    let mut pos = tiny.positions().to_vec();
+    let mut idx = tiny.indices().to_vec();
+    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
+    pos.extend_from_slice(stadium.positions());
+    let teapot = Mesh::new(pos, idx).unwrap();
+    let mut rays: Vec<Ray> = [Vec3::X, -Vec3::Y, -Vec3::Z]
+        .iter()
+        .map(|&d| Ray::new(Vec3::splat(0.25) - d * 4e3, d))
+        .collect();
+    rays.extend((0..200).map(|i| {
+        Ray::new(
+            Vec3::splat(0.25) + Vec3::new(0.0, 0.0, 3e-6),
+            Vec3::new((i as f32).sin(), (i as f32).cos(), -3.0),
+        )
+    }));
+    check_traversal(&g, &teapot, &rays, "teapot");
+    let (_, tree) = gpu_lbvh(&g, &teapot);
+    tree.validate(Some(&teapot.triangle_bounds())).unwrap();
+    // Axis-parallel rays with exact zero components, inside face planes of a box.
+    let cube = map_mesh(&cube_sphere(1), |p| p.signum());
+    let mut rays = Vec::new();
+    for x in [-1.0f32, -0.5, 0.0, 0.5, 1.0] {
+        for y in [-1.0f32, 0.0, 0.3, 1.0] {
+            for d in [Vec3::X, -Vec3::X, Vec3::Y, -Vec3::Y, Vec3::Z, -Vec3::Z] {
+                rays.push(Ray::new(Vec3::new(x, y, x * 0.5) - d * 3.0, d));
+                rays.push(Ray::new(Vec3::new(x, y, 0.0), d));
+            }
+        }
+    }
+    check_traversal(&g, &cube, &rays, "axis-parallel");
+    // Watertightness: rays from inside closed meshes never miss, on a GPU-built tree.
+    for m in [icosphere(4), cube_sphere(24)] {
+        let (gb, _) = gpu_lbvh(&g, &m);
+        let mut r = rng(9);
+        let rays: Vec<Ray> = (0..200_000)
+            .map(|_| {
+                Ray::new(
+                    rand_dir(&mut r) * r.random_range(0.0f32..0.9),
+                    rand_dir(&mut r),
+                )
+            })
+            .collect();
+        let hits = GpuRays::new(&g)
+            .run(&g, &gb, &rays, Query::Closest)
+            .unwrap();
+        assert_eq!(hits.iter().filter(|h| h.primitive().is_none()).count(), 0);
+    }
+}
+
+#[test]
+fn gpu_skinning_equals_cpu_skinning_and_feeds_refit() {
+    let Some(g) = gpu() else { return };
+    let m = cube_sphere(20);
+    let n = m.positions().len();
+    let skin = SkinWeights {
+        joints: (0..n)
+            .map(|i| [(i % 3) as u16, ((i + 1) % 3) as u16, 2, 0])
+            .collect(),
+        weights: m
+            .positions()
+            .iter()
+            .map(|p| {
+                let a = 0.5 + 0.5 * p.y;
+                [a * 0.7, (1.0 - a) * 0.7, 0.2, 0.1]
+            })
+            .collect(),
+    };
+    let mats = [
+        Mat4::from_rotation_translation(Quat::from_rotation_z(0.4), Vec3::new(0.1, 0.2, 0.0)),
+        Mat4::from_scale_rotation_translation(
+            Vec3::splat(1.2),
+            Quat::from_rotation_x(-0.3),
+            Vec3::ZERO,
+        ),
+        Mat4::from_translation(Vec3::new(0.0, -0.3, 0.5)),
+    ];
+    let mut cpu = vec![Vec3::ZERO; n];
+    skin_positions(m.positions(), &skin, &mats, &mut cpu).unwrap();
+    let (bvh, _) = gpu_lbvh(&g, &m);
+    let gskin = GpuSkin::new(&g, m.positions(), &skin, 3, &bvh).unwrap();
+    let mut enc = g.encoder();
+    gskin.record(&g, &mut enc, &mats).unwrap();
+    bvh.record_refit(&g, &mut enc).unwrap();
+    g.submit(enc);
+    let skinned = bvh.read_positions(&g).unwrap();
+    let worst = skinned
+        .iter()
+        .zip(&cpu)
+        .map(|(a, b)| (*a - *b).abs().max_element())
+        .fold(0.0, f32::max);
+    assert!(worst <= 1e-5, "GPU and CPU skinning differ by {worst}");
+    assert!(
+        skinned
+            .iter()
+            .zip(m.positions())
+            .any(|(a, b)| (*a - *b).length() > 0.1),
+        "nothing moved"
+    );
+    // The refit read the skinned positions on the GPU: its tree bounds exactly the GPU-skinned triangles.
+    let tree = bvh.read_tree(&g).unwrap();
+    tree.validate(Some(&m.with_positions(skinned).unwrap().triangle_bounds()))
+        .unwrap();
+    // Bad palettes are errors.
+    assert!(gskin.record(&g, &mut g.encoder(), &mats[..2]).is_err());
+    let bad = SkinWeights {
+        joints: vec![[0, 0, 0, 7]; n],
+        weights: skin.weights.clone(),
+    };
+    assert!(GpuSkin::new(&g, m.positions(), &bad, 3, &bvh).is_err());
+}
