@@ -3,19 +3,21 @@
 //! ```text
 //! cargo run --release --example bench -- [SUITE ...] [--quick] [--json FILE]
 //! ```
-//! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays).
+//! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays),
+//! `gpu` (LBVH build, refit and ray queries on the wgpu back end).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
 //! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
 
 mod cpu;
+mod gpu;
 mod peers;
 mod record;
 
 use record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 1] = ["cpu"];
+const SUITES: [&str; 2] = ["cpu", "gpu"];
 
 fn main() -> ExitCode {
     let mut quick = false;
@@ -41,6 +43,7 @@ fn main() -> ExitCode {
     for s in &suites {
         match s.as_str() {
             "cpu" => cpu::run(&mut rec),
+            "gpu" => gpu::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

@@ -18,6 +18,7 @@ pub struct Records {
     pub quick: bool,
     pub threads: usize,
     rows: Vec<Record>,
+    notes: Vec<(String, String)>,
 }
 
 impl Records {
@@ -26,6 +27,7 @@ impl Records {
             quick,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             rows: Vec::new(),
+            notes: Vec::new(),
         }
     }
 
@@ -50,6 +52,11 @@ impl Records {
         });
     }
 
+    /// A fact about the run (e.g. the GPU adapter), written to the JSON.
+    pub fn note(&mut self, key: &str, value: &str) {
+        self.notes.push((key.to_string(), value.to_string()));
+    }
+
     /// Repetitions of each timed step.
     pub fn reps(&self) -> usize {
         if self.quick { 2 } else { 5 }
@@ -65,6 +72,9 @@ impl Records {
             self.threads,
             esc(&machine())
         );
+        for (k, v) in &self.notes {
+            let _ = write!(s, "\n  \"{}\": \"{}\",", esc(k), esc(v));
+        }
         for (i, r) in self.rows.iter().enumerate() {
             let v = if r.value.is_finite() {
                 format!("{}", r.value)

@@ -216,6 +216,25 @@ impl GpuMeshBvh {
         ctx.submit(enc);
     }
 
+    /// GPU memory held for this mesh (buffers of the mesh, the tree and all build scratch), in bytes.
+    pub fn memory_bytes(&self) -> u64 {
+        let own = [
+            &self.positions,
+            &self._indices,
+            &self.nodes,
+            &self.slot_tris,
+            &self.vals,
+            &self.level_args,
+            &self.depths,
+            &self.sums,
+        ];
+        own.iter()
+            .chain(self._scratch.iter().collect::<Vec<_>>().iter())
+            .map(|b| b.buffer().size())
+            .sum::<u64>()
+            + self.sort.memory_bytes()
+    }
+
     /// Number of triangles.
     pub fn triangle_count(&self) -> u32 {
         self.tris

@@ -94,6 +94,11 @@ impl RadixSort {
         }
     }
 
+    /// Scratch memory held, in bytes.
+    pub fn memory_bytes(&self) -> u64 {
+        self._scratch.iter().map(|b| b.buffer().size()).sum()
+    }
+
     /// Records the sort. An even number of passes leaves the result in the original buffers; an odd one
     /// in the scratch pair, so passes are always made even (a pass over zero bits is a stable no-op copy).
     pub fn record(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {

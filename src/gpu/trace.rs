@@ -44,7 +44,10 @@ impl GpuRay {
             bits |= (ray.dir[k].is_sign_negative() as u32) << k;
             bits |= ((ray.dir[k] == 0.0) as u32) << (3 + k);
         }
-        let inv = ray.inv_dir.to_array().map(|i| if i.is_finite() { i } else { 0.0 });
+        let inv = ray
+            .inv_dir
+            .to_array()
+            .map(|i| if i.is_finite() { i } else { 0.0 });
         GpuRay {
             origin: ray.origin.to_array(),
             tmin: ray.tmin.max(0.0),

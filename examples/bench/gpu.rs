@@ -1,0 +1,124 @@
+//! Suite `gpu`: LBVH build, refit, and closest/any-hit throughput on the GPU, for 100k, 1M and 4M
+//! triangles (quick: 100k), with 1M coherent and 1M random rays (quick: 64k). Wall-clock per submitted
+//! phase, waited for: on a real GPU this includes submission latency, so small sizes understate throughput.
+
+use crate::record::{Records, best_of};
+use glam::Vec3;
+use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuRays, Query};
+use kinetrace::scenes::{SceneRng, bumpy_torus};
+use kinetrace::{Aabb, Mesh, Ray};
+
+const SUITE: &str = "gpu";
+
+pub fn run(rec: &mut Records) {
+    let ctx = match GpuContext::new() {
+        Ok(c) => c,
+        Err(e) => {
+            println!("suite gpu skipped: {e}");
+            return;
+        }
+    };
+    println!(
+        "suite gpu on {} ({})",
+        ctx.adapter_name(),
+        ctx.adapter_details()
+    );
+    rec.note("gpu adapter", ctx.adapter_name());
+    let sizes: &[usize] = if rec.quick {
+        &[100_000]
+    } else {
+        &[100_000, 1_000_000, 4_000_000]
+    };
+    let ray_count = if rec.quick { 1 << 16 } else { 1 << 20 };
+    for &n in sizes {
+        let mesh = bumpy_torus(n);
+        scene(
+            rec,
+            &ctx,
+            &format!("surface {}k", mesh.triangle_count() / 1000),
+            &mesh,
+            ray_count,
+        );
+    }
+}
+
+fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count: usize) {
+    let n = mesh.triangle_count() as f64;
+    let reps = rec.reps();
+    println!("\n{name}: {} triangles", mesh.triangle_count());
+    let mut bvh = GpuMeshBvh::new(ctx, mesh).expect("upload");
+    let (t_build, _) = best_of(reps, || {
+        let mut enc = ctx.encoder();
+        bvh.record_build(ctx, &mut enc);
+        ctx.submit(enc);
+        ctx.wait().expect("gpu")
+    });
+    rec.add(
+        SUITE,
+        name,
+        "gpu lbvh",
+        "build",
+        n / t_build / 1e6,
+        "Mtris/s",
+    );
+    let (t_refit, _) = best_of(reps, || {
+        let mut enc = ctx.encoder();
+        bvh.record_refit(ctx, &mut enc).expect("built");
+        ctx.submit(enc);
+        ctx.wait().expect("gpu")
+    });
+    rec.add(
+        SUITE,
+        name,
+        "gpu refit",
+        "refit",
+        n / t_refit / 1e6,
+        "Mtris/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "gpu lbvh",
+        "memory during build",
+        bvh.memory_bytes() as f64 / n,
+        "bytes/tri",
+    );
+
+    let b = mesh
+        .triangle_bounds()
+        .iter()
+        .fold(Aabb::EMPTY, |a, t| a.union(t));
+    let (c, size) = (b.center(), b.extent().length());
+    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let side = (ray_count as f64).sqrt() as usize;
+    let camera: Vec<Ray> = (0..side * side)
+        .map(|i| {
+            let (x, y) = (
+                (i % side) as f32 / side as f32 - 0.5,
+                (i / side) as f32 / side as f32 - 0.5,
+            );
+            Ray::new(eye, (fwd + right * x * 0.9 + up * y * 0.9).normalize())
+        })
+        .collect();
+    let mut r = SceneRng::new(5);
+    let random: Vec<Ray> = (0..side * side)
+        .map(|_| Ray::new(b.min + b.extent() * r.vec3(0.0, 1.0), r.direction()))
+        .collect();
+    let mut gr = GpuRays::new(ctx);
+    for (kind, rays) in [("coherent", &camera), ("random", &random)] {
+        for (q, metric) in [(Query::Closest, "closest"), (Query::Any, "any-hit")] {
+            let (t, _) = best_of(reps, || gr.run(ctx, &bvh, rays, q).expect("gpu"));
+            rec.add(
+                SUITE,
+                name,
+                &format!("gpu {kind}"),
+                metric,
+                rays.len() as f64 / t / 1e6,
+                "Mrays/s",
+            );
+        }
+    }
+}
