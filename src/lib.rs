@@ -41,6 +41,7 @@
 
 pub mod anim;
 pub mod bvh;
+pub mod ecs;
 mod error;
 pub mod geometry;
 #[cfg(feature = "gpu")]

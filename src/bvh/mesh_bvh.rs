@@ -151,6 +151,31 @@ impl MeshBvh {
         self.any_with(ray, stats)
     }
 
+    /// Every hit within the ray's range, appended to `out` in no particular order (sort by `t` if needed).
+    /// The work of a closest-hit query that never shrinks its range.
+    pub fn all_hits(&self, ray: &Ray, out: &mut Vec<Hit>) {
+        if !ray.is_valid() {
+            return;
+        }
+        let tr = TriangleRay::new(ray);
+        let prims = self.bvh.prim_indices();
+        traverse(&self.bvh.nodes, ray, &mut (), |slots, _| {
+            for s in slots {
+                let [a, b, c] = self.tris[s];
+                if let Some(h) = tr.intersect(a, b, c, ray.tmin, ray.tmax) {
+                    out.push(Hit {
+                        t: h.t,
+                        primitive: prims[s],
+                        u: h.u,
+                        v: h.v,
+                        normal: (b - a).cross(c - a).normalize_or_zero(),
+                    });
+                }
+            }
+            false
+        });
+    }
+
     /// [`closest_hit`](Self::closest_hit) for every ray, on all threads with the `parallel` feature.
     /// `out` must be as long as `rays`.
     pub fn closest_hits(&self, rays: &[Ray], out: &mut [Option<Hit>]) {

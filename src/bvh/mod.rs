@@ -34,6 +34,7 @@ pub use build_sah::MAX_BINS;
 pub use mesh_bvh::{Hit, MeshBvh};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub use traverse::TraversalStats;
+pub(crate) use traverse::traverse;
 
 use crate::geometry::Aabb;
 use crate::{Error, Result};

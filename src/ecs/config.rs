@@ -1,0 +1,83 @@
+//! Settings of the plugin, and the pluggable rebuild policy.
+
+use super::MotionHint;
+use crate::bvh::Builder;
+use bevy_ecs::prelude::*;
+
+/// When batched query results become readable.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Latency {
+    /// In the frame the requests were pushed, after [`TraceSet::Queries`](super::TraceSet::Queries).
+    #[default]
+    SameFrame,
+    /// One frame later: frame N's answers are published in frame N+1 (the mode that lets a GPU back end
+    /// answer without stalling the frame).
+    NextFrame,
+}
+
+/// What the policy sees about one mesh that was just refitted.
+#[derive(Clone, Copy, Debug)]
+pub struct PolicyInput {
+    /// The entity's hint.
+    pub hint: MotionHint,
+    /// Triangles of the mesh.
+    pub triangles: usize,
+    /// The degradation metric after this frame's refit (thesis §4.1.5).
+    pub degradation: f32,
+    /// Frames since the tree was last built.
+    pub frames_since_rebuild: u32,
+    /// The configured threshold ([`TraceConfig::rebuild_threshold`]).
+    pub threshold: f32,
+    /// Rays queried against the world last frame (immediate and batched).
+    pub rays_last_frame: usize,
+}
+
+/// What to do with a refitted mesh.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Decision {
+    /// Keep the refitted tree.
+    Keep,
+    /// Rebuild it now with this builder.
+    Rebuild(Builder),
+}
+
+/// The policy: called once per refitted mesh per frame. Untouched meshes never reach it (they cost
+/// nothing), new meshes and topology changes always rebuild.
+pub type Policy = fn(&PolicyInput) -> Decision;
+
+/// Lauterbach's criterion (thesis §4.1.5): rebuild with LBVH when the degradation metric exceeds the
+/// threshold (0.40 by default).
+pub fn lauterbach_policy(input: &PolicyInput) -> Decision {
+    if input.degradation > input.threshold {
+        Decision::Rebuild(Builder::LBVH)
+    } else {
+        Decision::Keep
+    }
+}
+
+/// The plugin's settings, a resource that may be changed at run time.
+#[derive(Resource, Clone, Debug)]
+pub struct TraceConfig {
+    /// When batched results are published.
+    pub latency: Latency,
+    /// Degradation above which the default policy rebuilds (0.40).
+    pub rebuild_threshold: f32,
+    /// Builder for new deforming and rigid meshes and topology changes.
+    pub builder: Builder,
+    /// Builder for [`MotionHint::Static`] meshes (built once, so the best trees).
+    pub static_builder: Builder,
+    /// Refit-or-rebuild decision.
+    pub policy: Policy,
+}
+
+impl Default for TraceConfig {
+    fn default() -> Self {
+        Self {
+            latency: Latency::SameFrame,
+            rebuild_threshold: 0.40,
+            builder: Builder::LBVH,
+            static_builder: Builder::SAH,
+            policy: lauterbach_policy,
+        }
+    }
+}

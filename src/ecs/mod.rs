@@ -1,0 +1,69 @@
+//! `bevy_ecs` integration: components to make entities traceable, a plugin whose systems keep their trees
+//! current each frame, an immediate query parameter ([`SpatialRays`]) and batched queries ([`RayQueue`] →
+//! [`RayResults`]).
+//!
+//! Change detection decides the work: an untouched mesh costs nothing; a moved entity only updates the top
+//! level; a deformed mesh ([`VertexPositions`] or [`TraceSkin`] changed) is refitted and rebuilt when the
+//! policy says so (Lauterbach's 0.40 by default); a new index buffer means a rebuild.
+//!
+//! A complete program on bare `bevy_ecs` — what the main loop must do each frame is run the schedule and
+//! clear the world's change trackers (the plugin updates its messages itself):
+//!
+//! ```
+//! use bevy_ecs::prelude::*;
+//! use glam::{Affine3A, Vec3};
+//! use kinetrace::ecs::*;
+//! use kinetrace::{Ray, scenes};
+//!
+//! #[derive(Resource, Default)]
+//! struct Seen(Vec<f32>);
+//!
+//! fn spin(mut q: Query<&mut TraceTransform>, stats: Res<TraceStats>) {
+//!     for mut t in &mut q {
+//!         t.0 = Affine3A::from_rotation_y(stats.frame as f32 * 0.1);
+//!     }
+//! }
+//!
+//! fn look(rays: SpatialRays, mut queue: ResMut<RayQueue>, results: Res<RayResults>, mut seen: ResMut<Seen>) {
+//!     let ray = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z);
+//!     if let Some(hit) = rays.cast_ray(&ray, 100.0, &QueryFilter::default()) {
+//!         seen.0.push(hit.distance);
+//!     }
+//!     queue.shadow(7, Vec3::new(0.0, 5.0, 0.0), Vec3::new(0.0, -5.0, 0.0), QueryFilter::default());
+//!     let _ = &results.shadows; // last batch's answers, readable after TraceSet::Queries
+//! }
+//!
+//! let mut world = World::new();
+//! let mut schedule = Schedule::default();
+//! KinetracePlugin::default().build(&mut world, &mut schedule);
+//! world.init_resource::<Seen>();
+//! schedule.add_systems((spin.before(TraceSet::TopLevel), look.after(TraceSet::TopLevel).before(TraceSet::Queries)));
+//! world.spawn((TraceMesh(scenes::icosphere(2)), MotionHint::Rigid));
+//!
+//! for _frame in 0..3 {
+//!     schedule.run(&mut world);
+//!     world.clear_trackers(); // so that next frame's Changed<_> and RemovedComponents see only new changes
+//! }
+//! assert_eq!(world.resource::<Seen>().0.len(), 3);
+//! assert!((world.resource::<Seen>().0[0] - 4.0).abs() < 0.05); // the unit sphere's surface
+//! assert_eq!(world.resource::<RayResults>().shadows, vec![(7, true)]);
+//! ```
+
+mod batch;
+mod components;
+mod config;
+mod filter;
+mod params;
+mod plugin;
+mod stats;
+mod systems;
+mod world;
+
+pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
+pub use components::*;
+pub use config::{Decision, Latency, Policy, PolicyInput, TraceConfig, lauterbach_policy};
+pub use filter::{QueryFilter, RayHit};
+pub use params::SpatialRays;
+pub use plugin::{KinetracePlugin, Plugin, TraceSet};
+pub use stats::{MeshAction, MeshStats, RebuildReason, TraceStats};
+pub use world::TraceWorld;

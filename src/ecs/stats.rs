@@ -1,0 +1,76 @@
+//! What the crate did this frame, and why.
+
+use crate::bvh::Builder;
+use bevy_ecs::prelude::*;
+use std::time::Duration;
+
+/// What happened to one mesh this frame. Meshes that did nothing are not listed (they cost nothing).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MeshAction {
+    /// Refitted, keeping the tree (its degradation is in [`MeshStats::degradation`]).
+    Refit,
+    /// Built from scratch.
+    Rebuild {
+        /// With which builder.
+        builder: Builder,
+        /// Why.
+        reason: RebuildReason,
+    },
+    /// Only moved: the top level followed, the tree was untouched.
+    Moved,
+    /// Left out after an error (see [`TraceError`](super::TraceError)).
+    Failed,
+}
+
+/// Why a tree was rebuilt.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RebuildReason {
+    /// The entity is new (or recovered from an error).
+    New,
+    /// Its index buffer changed.
+    Topology,
+    /// The policy asked for it after a refit.
+    Policy,
+}
+
+/// One mesh's work this frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeshStats {
+    /// The entity.
+    pub entity: Entity,
+    /// What was done.
+    pub action: MeshAction,
+    /// Degradation metric after the refit (0 for fresh builds).
+    pub degradation: f32,
+    /// Time spent on it.
+    pub time: Duration,
+}
+
+/// Per-frame diagnostics, overwritten each frame.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct TraceStats {
+    /// Frames run so far.
+    pub frame: u64,
+    /// Meshes that did work.
+    pub meshes: Vec<MeshStats>,
+    /// Refits, rebuilds, and meshes only moved.
+    pub refits: usize,
+    /// Rebuilds.
+    pub rebuilds: usize,
+    /// Meshes whose only change was their transform.
+    pub moved: usize,
+    /// Whether the top level was refitted or rebuilt.
+    pub top_level_updated: bool,
+    /// Batched closest-hit and occlusion requests answered.
+    pub batched_rays: usize,
+    /// The same count of the previous frame (what the policy sees).
+    pub rays_last_frame: usize,
+    /// Time per phase.
+    pub skin_time: Duration,
+    /// Refit and rebuild of meshes.
+    pub maintain_time: Duration,
+    /// Transforms and the top level.
+    pub top_level_time: Duration,
+    /// Batched queries.
+    pub query_time: Duration,
+}

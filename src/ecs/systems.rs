@@ -1,0 +1,314 @@
+//! The per-frame systems of the plugin.
+
+use super::world::{Instance, topology_id};
+use super::*;
+use crate::bvh::Builder;
+use crate::{Error, parallel};
+use bevy_ecs::prelude::*;
+use std::time::Instant;
+
+/// Starts the frame's statistics.
+pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
+    let frame = stats.frame + 1;
+    let mut meshes = std::mem::take(&mut stats.meshes);
+    meshes.clear();
+    *stats = TraceStats {
+        frame,
+        meshes,
+        rays_last_frame: stats.batched_rays,
+        ..Default::default()
+    };
+}
+
+/// Marks an entity as failed: error component, message, and out of the world.
+fn fail(
+    e: Entity,
+    error: Error,
+    world: &mut TraceWorld,
+    commands: &mut Commands,
+    errors: &mut MessageWriter<TraceErrorMessage>,
+    stats: &mut TraceStats,
+) {
+    log::warn!("kinetrace: {e} left out of queries: {error}");
+    world.remove(e);
+    commands.entity(e).insert(TraceError(error.clone()));
+    errors.write(TraceErrorMessage { entity: e, error });
+    stats.meshes.push(MeshStats {
+        entity: e,
+        action: MeshAction::Failed,
+        degradation: 0.0,
+        time: Default::default(),
+    });
+}
+
+type SkinData<'a> = (
+    Entity,
+    &'a TraceMesh,
+    &'a TraceSkin,
+    &'a mut VertexPositions,
+);
+
+/// [`TraceSet::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
+pub(crate) fn skin_system(
+    mut skinned: Query<SkinData, (Changed<TraceSkin>, Without<TraceError>)>,
+    mut world: ResMut<TraceWorld>,
+    mut stats: ResMut<TraceStats>,
+    mut commands: Commands,
+    mut errors: MessageWriter<TraceErrorMessage>,
+) {
+    let t = Instant::now();
+    for (e, mesh, skin, mut out) in &mut skinned {
+        let rest = mesh.0.positions();
+        out.0.resize(rest.len(), glam::Vec3::ZERO);
+        if let Err(err) =
+            crate::anim::skin_positions(rest, &skin.weights, &skin.joint_matrices, &mut out.0)
+        {
+            fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+        }
+    }
+    stats.skin_time = t.elapsed();
+}
+
+type MeshData<'a> = (
+    Entity,
+    &'a TraceMesh,
+    Option<&'a VertexPositions>,
+    Option<&'a MotionHint>,
+    &'a TraceTransform,
+    &'a QueryLayers,
+);
+/// Meshes whose geometry changed this frame.
+type GeometryChanged = (
+    Without<TraceError>,
+    Or<(Changed<TraceMesh>, Changed<VertexPositions>)>,
+);
+/// Traceable entities that moved or changed layers this frame.
+type PlacementChanged = (
+    With<TraceMesh>,
+    Without<TraceError>,
+    Or<(Changed<TraceTransform>, Changed<QueryLayers>)>,
+);
+
+/// The transform as an instance needs it: finite and invertible.
+fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Error> {
+    let det = t.0.matrix3.determinant();
+    if t.0.is_finite() && det != 0.0 && det.is_finite() {
+        Ok(t.0)
+    } else {
+        Err(Error::InvalidOption(format!(
+            "transform is not finite and invertible: {:?}",
+            t.0
+        )))
+    }
+}
+
+/// [`TraceSet::Maintain`]: per changed mesh, refit (then ask the policy) or rebuild; forget removed ones.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn maintain_system(
+    changed: Query<MeshData, GeometryChanged>,
+    all: Query<MeshData, Without<TraceError>>,
+    mut removed: RemovedComponents<TraceMesh>,
+    mut recovered: RemovedComponents<TraceError>,
+    mut world: ResMut<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut stats: ResMut<TraceStats>,
+    mut commands: Commands,
+    mut errors: MessageWriter<TraceErrorMessage>,
+) {
+    let start = Instant::now();
+    for e in removed.read() {
+        world.remove(e);
+    }
+    let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
+    let rays_last_frame = stats.rays_last_frame;
+    for (e, mesh, vp, hint, transform, layers) in changed
+        .iter()
+        .chain(retry.iter().filter_map(|&e| all.get(e).ok()))
+    {
+        let t = Instant::now();
+        let hint = hint.copied().unwrap_or_default();
+        let positions = match vp {
+            Some(v) if !v.0.is_empty() => &v.0[..],
+            _ => mesh.0.positions(),
+        };
+        let same_topology = world
+            .instances
+            .get(&e)
+            .is_some_and(|i| i.topology == topology_id(&mesh.0));
+        let mut action = None;
+        let mut degradation = 0.0;
+        if same_topology {
+            let inst = world.instances.get_mut(&e).expect("checked above");
+            match inst.bvh.refit(positions) {
+                Ok(d) => {
+                    degradation = d;
+                    inst.frames_since_rebuild += 1;
+                    let input = PolicyInput {
+                        hint,
+                        triangles: mesh.0.triangle_count(),
+                        degradation: d,
+                        frames_since_rebuild: inst.frames_since_rebuild,
+                        threshold: config.rebuild_threshold,
+                        rays_last_frame,
+                    };
+                    action = Some(match (config.policy)(&input) {
+                        Decision::Keep => MeshAction::Refit,
+                        Decision::Rebuild(builder) => MeshAction::Rebuild {
+                            builder,
+                            reason: RebuildReason::Policy,
+                        },
+                    });
+                }
+                Err(err) => {
+                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                    continue;
+                }
+            }
+        }
+        let action = match action {
+            Some(a) => a,
+            None => MeshAction::Rebuild {
+                builder: if hint == MotionHint::Static {
+                    config.static_builder
+                } else {
+                    config.builder
+                },
+                reason: if world.contains(e) {
+                    RebuildReason::Topology
+                } else {
+                    RebuildReason::New
+                },
+            },
+        };
+        if let MeshAction::Rebuild { builder, reason } = action {
+            match rebuild(mesh, positions, builder, transform, layers) {
+                Ok(inst) => {
+                    log::debug!(
+                        "kinetrace: rebuilt {e} with {} ({reason:?}), {} triangles",
+                        builder.name(),
+                        mesh.0.triangle_count()
+                    );
+                    if world.instances.insert(e, inst).is_none() {
+                        world.membership_changed = true;
+                    }
+                }
+                Err(err) => {
+                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                    continue;
+                }
+            }
+            stats.rebuilds += 1;
+        } else {
+            stats.refits += 1;
+            world
+                .instances
+                .get_mut(&e)
+                .expect("refitted")
+                .update_world_bounds();
+        }
+        world.tlas_dirty = true;
+        stats.meshes.push(MeshStats {
+            entity: e,
+            action,
+            degradation,
+            time: t.elapsed(),
+        });
+    }
+    stats.maintain_time = start.elapsed();
+}
+
+/// A fresh instance of the mesh at its current positions.
+fn rebuild(
+    mesh: &TraceMesh,
+    positions: &[glam::Vec3],
+    builder: Builder,
+    transform: &TraceTransform,
+    layers: &QueryLayers,
+) -> Result<Instance, Error> {
+    let transform = checked_transform(transform)?;
+    let current = if std::ptr::eq(positions, mesh.0.positions()) {
+        mesh.0.clone()
+    } else {
+        mesh.0.with_positions(positions.to_vec())?
+    };
+    let mut inst = Instance::build(&current, builder)?;
+    // Keep the index buffer's identity of the component's mesh (with_positions shares it).
+    inst.topology = topology_id(&mesh.0);
+    inst.layers = layers.0;
+    inst.set_transform(transform);
+    Ok(inst)
+}
+
+/// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows.
+pub(crate) fn top_level_system(
+    moved: Query<(Entity, &TraceTransform, &QueryLayers), PlacementChanged>,
+    mut world: ResMut<TraceWorld>,
+    mut stats: ResMut<TraceStats>,
+    mut commands: Commands,
+    mut errors: MessageWriter<TraceErrorMessage>,
+) {
+    let t = Instant::now();
+    for (e, transform, layers) in &moved {
+        let checked = checked_transform(transform);
+        let Some(inst) = world.instances.get_mut(&e) else {
+            continue;
+        };
+        match checked {
+            Ok(tr) => {
+                if inst.transform != tr {
+                    inst.set_transform(tr);
+                    if !stats.meshes.iter().any(|m| m.entity == e) {
+                        stats.moved += 1;
+                        stats.meshes.push(MeshStats {
+                            entity: e,
+                            action: MeshAction::Moved,
+                            degradation: 0.0,
+                            time: Default::default(),
+                        });
+                    }
+                }
+                inst.layers = layers.0;
+                world.tlas_dirty = true;
+            }
+            Err(err) => fail(e, err, &mut world, &mut commands, &mut errors, &mut stats),
+        }
+    }
+    stats.top_level_updated = world.update_tlas();
+    stats.top_level_time = t.elapsed();
+}
+
+/// [`TraceSet::Queries`]: answers every queued request, on all threads.
+pub(crate) fn queries_system(
+    world: Res<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut queue: ResMut<RayQueue>,
+    mut results: ResMut<RayResults>,
+    mut pending: Local<RayResults>,
+    mut stats: ResMut<TraceStats>,
+) {
+    let t = Instant::now();
+    let out: &mut RayResults = match config.latency {
+        Latency::SameFrame => &mut results,
+        Latency::NextFrame => {
+            // Publish last frame's answers, compute this frame's for the next.
+            std::mem::swap(&mut *results, &mut *pending);
+            &mut pending
+        }
+    };
+    out.frame = stats.frame;
+    let (rays, shadows) = (&queue.rays, &queue.shadows);
+    out.hits.resize(rays.len(), (0, None));
+    parallel::fill(true, &mut out.hits, 64, |i| {
+        let r = &rays[i];
+        (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter))
+    });
+    out.shadows.resize(shadows.len(), (0, false));
+    parallel::fill(true, &mut out.shadows, 64, |i| {
+        let s = &shadows[i];
+        (s.tag, world.occluded(s.from, s.to, &s.filter))
+    });
+    stats.batched_rays = queue.len();
+    queue.rays.clear();
+    queue.shadows.clear();
+    stats.query_time = t.elapsed();
+}

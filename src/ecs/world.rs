@@ -1,0 +1,268 @@
+//! The acceleration structures of a world: one BLAS per entity in object space, a TLAS over the entities'
+//! world boxes, and the two-level queries.
+
+use super::{QueryFilter, RayHit};
+use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, traverse};
+use crate::geometry::{Aabb, Ray};
+use crate::{Mesh, Result};
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Mat3A, Vec2, Vec3};
+use std::collections::HashMap;
+
+/// One traceable entity's state.
+pub(crate) struct Instance {
+    pub bvh: MeshBvh,
+    /// Identity of the index buffer the tree was built for: a different one means a topology change.
+    pub topology: usize,
+    pub transform: Affine3A,
+    pub inverse: Affine3A,
+    /// Inverse transpose of the linear part, for normals.
+    pub normal_matrix: Mat3A,
+    pub world_bounds: Aabb,
+    pub layers: u32,
+    pub frames_since_rebuild: u32,
+}
+
+impl Instance {
+    /// Builds the entity's tree.
+    pub fn build(mesh: &Mesh, builder: Builder) -> Result<Instance> {
+        let bvh = MeshBvh::build(mesh, &BuildOptions::new(builder))?;
+        let mut inst = Instance {
+            bvh,
+            topology: topology_id(mesh),
+            transform: Affine3A::IDENTITY,
+            inverse: Affine3A::IDENTITY,
+            normal_matrix: Mat3A::IDENTITY,
+            world_bounds: Aabb::EMPTY,
+            layers: u32::MAX,
+            frames_since_rebuild: 0,
+        };
+        inst.update_world_bounds();
+        Ok(inst)
+    }
+
+    /// Sets the transform (which must be finite and invertible).
+    pub fn set_transform(&mut self, t: Affine3A) {
+        self.transform = t;
+        self.inverse = t.inverse();
+        self.normal_matrix = self.inverse.matrix3.transpose();
+        self.update_world_bounds();
+    }
+
+    /// The world box of the transformed root box (its eight corners).
+    pub fn update_world_bounds(&mut self) {
+        let b = self.bvh.bvh().bounds();
+        self.world_bounds = if b.is_empty() {
+            Aabb::EMPTY
+        } else {
+            (0..8).fold(Aabb::EMPTY, |acc, i| {
+                let c = Vec3::new(
+                    if i & 1 == 0 { b.min.x } else { b.max.x },
+                    if i & 2 == 0 { b.min.y } else { b.max.y },
+                    if i & 4 == 0 { b.min.z } else { b.max.z },
+                );
+                let mut acc = acc;
+                acc.grow(self.transform.transform_point3(c));
+                acc
+            })
+        };
+    }
+
+    /// The world ray in object space: same `t` values, since origin and direction go through the same
+    /// affine map.
+    fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
+        Ray::with_range(
+            self.inverse.transform_point3(ray.origin),
+            self.inverse.transform_vector3(ray.dir),
+            ray.tmin,
+            tmax,
+        )
+    }
+
+    fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
+        RayHit {
+            entity,
+            distance: h.t,
+            point: ray.at(h.t),
+            normal: (self.normal_matrix * glam::Vec3A::from(h.normal))
+                .normalize_or_zero()
+                .into(),
+            triangle: h.primitive,
+            barycentrics: Vec2::new(h.u, h.v),
+        }
+    }
+}
+
+/// A stable identity for a mesh's index buffer (its address; meshes share indices through `Arc`).
+pub(crate) fn topology_id(mesh: &Mesh) -> usize {
+    mesh.indices().as_ptr() as usize
+}
+
+/// Every traceable entity's tree and the top-level tree over them: what queries read. Maintained by the
+/// plugin's systems; read it through [`SpatialRays`](super::SpatialRays) or directly.
+#[derive(Resource, Default)]
+pub struct TraceWorld {
+    pub(crate) instances: HashMap<Entity, Instance>,
+    tlas: Bvh,
+    /// TLAS primitive id → entity.
+    tlas_entities: Vec<Entity>,
+    tlas_bounds: Vec<Aabb>,
+    /// Set when an entity was added, removed, moved or refitted since the TLAS was made.
+    pub(crate) tlas_dirty: bool,
+    /// Set when the set of entities changed (the TLAS is rebuilt rather than refitted).
+    pub(crate) membership_changed: bool,
+}
+
+impl TraceWorld {
+    /// Number of traceable entities.
+    pub fn len(&self) -> usize {
+        self.instances.len()
+    }
+
+    /// True when nothing is traceable.
+    pub fn is_empty(&self) -> bool {
+        self.instances.is_empty()
+    }
+
+    /// Whether the entity is traceable right now.
+    pub fn contains(&self, e: Entity) -> bool {
+        self.instances.contains_key(&e)
+    }
+
+    /// The entity's object-space tree.
+    pub fn blas(&self, e: Entity) -> Option<&MeshBvh> {
+        self.instances.get(&e).map(|i| &i.bvh)
+    }
+
+    /// The top-level tree (primitives are entities, see [`tlas_entity`](Self::tlas_entity)).
+    pub fn tlas(&self) -> &Bvh {
+        &self.tlas
+    }
+
+    /// The entity of a TLAS primitive id.
+    pub fn tlas_entity(&self, prim: u32) -> Entity {
+        self.tlas_entities[prim as usize]
+    }
+
+    pub(crate) fn remove(&mut self, e: Entity) -> bool {
+        let gone = self.instances.remove(&e).is_some();
+        if gone {
+            self.tlas_dirty = true;
+            self.membership_changed = true;
+        }
+        gone
+    }
+
+    /// Brings the TLAS up to date: a refit when only boxes moved, a rebuild (binned SAH over the entity
+    /// boxes) when entities came or went. Returns whether anything was done.
+    pub(crate) fn update_tlas(&mut self) -> bool {
+        if !self.tlas_dirty {
+            return false;
+        }
+        if self.membership_changed || self.tlas_entities.len() != self.instances.len() {
+            self.tlas_entities.clear();
+            self.tlas_entities.extend(self.instances.keys().copied());
+            // HashMap order is arbitrary: sort so the tree does not depend on it.
+            self.tlas_entities.sort_unstable();
+        }
+        self.tlas_bounds.clear();
+        let inst = &self.instances;
+        // An entity whose mesh is empty still takes a slot, with a point box that no ray reaches twice.
+        self.tlas_bounds.extend(self.tlas_entities.iter().map(|e| {
+            let b = inst[e].world_bounds;
+            if b.is_empty() {
+                Aabb::from_point(Vec3::ZERO)
+            } else {
+                b
+            }
+        }));
+        let refitted = !self.membership_changed && self.tlas.refit(&self.tlas_bounds).is_ok();
+        if !refitted {
+            self.tlas = Bvh::build(
+                &self.tlas_bounds,
+                &BuildOptions::new(Builder::SAH).parallel(false),
+            )
+            .expect("entity boxes are finite and few");
+        }
+        self.tlas_dirty = false;
+        self.membership_changed = false;
+        true
+    }
+
+    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts.
+    pub fn cast_ray(&self, ray: &Ray, max_t: f32, filter: &QueryFilter) -> Option<RayHit> {
+        let ray = Ray::with_range(ray.origin, ray.dir, ray.tmin, ray.tmax.min(max_t));
+        if !ray.is_valid() {
+            return None;
+        }
+        let mut best: Option<(Entity, Hit)> = None;
+        traverse(self.tlas.nodes(), &ray, &mut (), |slots, tmax| {
+            for s in slots {
+                let e = self.tlas_entities[self.tlas.prim_indices()[s] as usize];
+                let inst = &self.instances[&e];
+                if !filter.accepts(e, inst.layers) {
+                    continue;
+                }
+                if let Some(h) = inst.bvh.closest_hit(&inst.object_ray(&ray, *tmax))
+                    && best.is_none_or(|(_, b)| h.t < b.t)
+                {
+                    *tmax = h.t;
+                    best = Some((e, h));
+                }
+            }
+            false
+        });
+        best.map(|(e, h)| self.instances[&e].world_hit(e, &ray, &h))
+    }
+
+    /// True when an accepted entity lies on the segment from `from` to `to` (shadow / line of sight).
+    pub fn occluded(&self, from: Vec3, to: Vec3, filter: &QueryFilter) -> bool {
+        let ray = Ray::segment(from, to);
+        if !ray.is_valid() {
+            return false;
+        }
+        let mut hit = false;
+        traverse(self.tlas.nodes(), &ray, &mut (), |slots, tmax| {
+            for s in slots {
+                let e = self.tlas_entities[self.tlas.prim_indices()[s] as usize];
+                let inst = &self.instances[&e];
+                if filter.accepts(e, inst.layers) && inst.bvh.any_hit(&inst.object_ray(&ray, *tmax))
+                {
+                    hit = true;
+                    return true;
+                }
+            }
+            false
+        });
+        hit
+    }
+
+    /// Every hit along the ray on accepted entities, nearest first, into `out` (cleared first).
+    pub fn ray_hits(&self, ray: &Ray, filter: &QueryFilter, out: &mut Vec<RayHit>) {
+        out.clear();
+        if !ray.is_valid() {
+            return;
+        }
+        let mut local = Vec::new();
+        traverse(self.tlas.nodes(), ray, &mut (), |slots, _| {
+            for s in slots {
+                let e = self.tlas_entities[self.tlas.prim_indices()[s] as usize];
+                let inst = &self.instances[&e];
+                if !filter.accepts(e, inst.layers) {
+                    continue;
+                }
+                local.clear();
+                inst.bvh
+                    .all_hits(&inst.object_ray(ray, ray.tmax), &mut local);
+                out.extend(local.iter().map(|h| inst.world_hit(e, ray, h)));
+            }
+            false
+        });
+        out.sort_by(|a, b| {
+            a.distance
+                .total_cmp(&b.distance)
+                .then(a.entity.cmp(&b.entity))
+                .then(a.triangle.cmp(&b.triangle))
+        });
+    }
+}

@@ -1,0 +1,472 @@
+//! The ECS layer: decisions per mesh kind, queries against world-space brute force, filters, despawns,
+//! a soak run with bounded memory, and bad input.
+
+mod common;
+use bevy_ecs::prelude::*;
+use common::*;
+use glam::{Affine3A, Mat4, Quat, Vec3};
+use kinetrace::Ray;
+use kinetrace::anim::SkinWeights;
+use kinetrace::ecs::*;
+use kinetrace::geometry::TriangleRay;
+use rand::Rng;
+use std::sync::Arc;
+
+fn app() -> (World, Schedule) {
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    KinetracePlugin::default().build(&mut world, &mut schedule);
+    (world, schedule)
+}
+
+fn frame(world: &mut World, schedule: &mut Schedule) {
+    schedule.run(world);
+    world.clear_trackers();
+}
+
+/// Brute force over every triangle of every accepted entity, in world space: (entity, triangle, t).
+fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Entity, u32, f32)> {
+    let mut q = world.query_filtered::<(
+        Entity,
+        &TraceMesh,
+        Option<&VertexPositions>,
+        &TraceTransform,
+        &QueryLayers,
+    ), Without<TraceError>>();
+    let tr = TriangleRay::new(ray);
+    let mut best: Option<(Entity, u32, f32)> = None;
+    for (e, m, vp, t, l) in q.iter(world) {
+        if !filter.accepts(e, l.0) {
+            continue;
+        }
+        let pos = match vp {
+            Some(v) if !v.0.is_empty() => &v.0[..],
+            _ => m.0.positions(),
+        };
+        for (i, tri) in m.0.indices().chunks(3).enumerate() {
+            let [a, b, c] = [0, 1, 2].map(|k| t.0.transform_point3(pos[tri[k] as usize]));
+            if (b - a).cross(c - a) == Vec3::ZERO {
+                continue;
+            }
+            if let Some(h) = tr.intersect(a, b, c, ray.tmin, ray.tmax)
+                && best.is_none_or(|(_, _, bt)| h.t < bt)
+            {
+                best = Some((e, i as u32, h.t));
+            }
+        }
+    }
+    best
+}
+
+/// The world and brute force agree: same entity and triangle at the same distance (1e-4 relative: the
+/// world traces in object space), or an equally near hit elsewhere (a tie).
+fn agree(got: Option<&RayHit>, expect: Option<(Entity, u32, f32)>, what: &str) {
+    match (got, expect) {
+        (None, None) => {}
+        (Some(h), Some((e, tri, t))) => {
+            let close = (h.distance - t).abs() <= 1e-4 * t.abs().max(1.0);
+            assert!(close, "{what}: t {} vs {t}", h.distance);
+            if (h.entity, h.triangle) != (e, tri) {
+                assert!(
+                    (h.distance - t).abs() <= 1e-5 * t.abs().max(1.0),
+                    "{what}: {h:?} vs {expect:?}"
+                );
+            }
+        }
+        _ => panic!("{what}: {got:?} vs {expect:?}"),
+    }
+}
+
+#[test]
+fn static_rigid_and_deforming_meshes_for_300_frames() {
+    let (mut world, mut schedule) = app();
+    let stat = world
+        .spawn((
+            TraceMesh(cube_sphere(3)),
+            MotionHint::Static,
+            TraceTransform(Affine3A::from_translation(Vec3::new(-3.0, 0.0, 0.0))),
+        ))
+        .id();
+    let rigid = world
+        .spawn((TraceMesh(icosphere(2)), MotionHint::Rigid))
+        .id();
+    let rest = icosphere(2);
+    let deform = world
+        .spawn((
+            TraceMesh(rest.clone()),
+            VertexPositions(rest.positions().to_vec()),
+            TraceTransform(Affine3A::from_translation(Vec3::new(3.0, 0.0, 0.0))),
+        ))
+        .id();
+    let mut r = rng(1);
+    for f in 0..300u32 {
+        let time = f as f32 * 0.05;
+        world.get_mut::<TraceTransform>(rigid).unwrap().0 = Affine3A::from_rotation_translation(
+            Quat::from_rotation_y(time),
+            Vec3::new(0.0, time.sin(), 0.0),
+        );
+        let mut vp = world.get_mut::<VertexPositions>(deform).unwrap();
+        for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+            *p = *q * (1.0 + 0.3 * (time + q.y * 3.0).sin());
+        }
+        // Batched requests for this frame.
+        let rays: Vec<Ray> = (0..20)
+            .map(|_| Ray::new(rand_vec(&mut r, -6.0, 6.0), rand_dir(&mut r)))
+            .collect();
+        {
+            let mut queue = world.resource_mut::<RayQueue>();
+            for (i, ray) in rays.iter().enumerate() {
+                queue.cast(i as u64, *ray, QueryFilter::default());
+            }
+        }
+        frame(&mut world, &mut schedule);
+        let stats = world.resource::<TraceStats>().clone();
+        let action = |e: Entity| {
+            stats
+                .meshes
+                .iter()
+                .find(|m| m.entity == e)
+                .map(|m| m.action)
+        };
+        if f == 0 {
+            assert!(matches!(
+                action(stat),
+                Some(MeshAction::Rebuild {
+                    reason: RebuildReason::New,
+                    ..
+                })
+            ));
+        } else {
+            assert_eq!(action(stat), None, "frame {f}: the static mesh did work");
+            assert_eq!(
+                action(rigid),
+                Some(MeshAction::Moved),
+                "frame {f}: the rigid mesh did BLAS work"
+            );
+            assert!(
+                matches!(
+                    action(deform),
+                    Some(
+                        MeshAction::Refit
+                            | MeshAction::Rebuild {
+                                reason: RebuildReason::Policy,
+                                ..
+                            }
+                    )
+                ),
+                "frame {f}: {:?}",
+                action(deform)
+            );
+        }
+        // Batched answers equal brute force, as do immediate ones.
+        let results = world.resource::<RayResults>().clone();
+        assert_eq!(results.hits.len(), rays.len());
+        for (i, ray) in rays.iter().enumerate() {
+            let expect = brute(&mut world, ray, &QueryFilter::default());
+            agree(
+                results.hits[i].1.as_ref(),
+                expect,
+                &format!("frame {f} batched ray {i}"),
+            );
+            let immediate = world.resource::<TraceWorld>().cast_ray(
+                ray,
+                f32::INFINITY,
+                &QueryFilter::default(),
+            );
+            agree(
+                immediate.as_ref(),
+                expect,
+                &format!("frame {f} immediate ray {i}"),
+            );
+            let occluded = world.resource::<TraceWorld>().occluded(
+                ray.origin,
+                ray.at(4.0),
+                &QueryFilter::default(),
+            );
+            let seg = Ray::segment(ray.origin, ray.at(4.0));
+            assert_eq!(
+                occluded,
+                brute(&mut world, &seg, &QueryFilter::default()).is_some(),
+                "frame {f} shadow {i}"
+            );
+        }
+    }
+    let stats = world.resource::<TraceStats>();
+    assert!(stats.refits + stats.rebuilds == 1);
+}
+
+#[test]
+fn ray_hits_lists_every_crossing_in_order() {
+    let (mut world, mut schedule) = app();
+    for x in [0.0f32, 3.0, 6.0] {
+        world.spawn((
+            TraceMesh(icosphere(2)),
+            TraceTransform(Affine3A::from_translation(Vec3::new(x, 0.0, 0.0))),
+        ));
+    }
+    frame(&mut world, &mut schedule);
+    let mut hits = Vec::new();
+    world.resource::<TraceWorld>().ray_hits(
+        &Ray::new(Vec3::new(-5.0, 0.01, 0.02), Vec3::X),
+        &QueryFilter::default(),
+        &mut hits,
+    );
+    assert_eq!(hits.len(), 6, "{hits:?}");
+    assert!(hits.windows(2).all(|w| w[0].distance <= w[1].distance));
+    for (h, expect) in hits.iter().zip([4.0f32, 6.0, 7.0, 9.0, 10.0, 12.0]) {
+        assert!(
+            (h.distance - expect).abs() < 0.05,
+            "{} vs {expect}",
+            h.distance
+        );
+        assert!((h.point - Vec3::new(-5.0, 0.01, 0.02) - Vec3::X * h.distance).length() < 1e-4);
+        assert!((h.normal.length() - 1.0).abs() < 1e-5);
+    }
+}
+
+#[test]
+fn filters_respect_layers_exclusions_and_predicates() {
+    let (mut world, mut schedule) = app();
+    let near = world
+        .spawn((TraceMesh(icosphere(2)), QueryLayers(0b01)))
+        .id();
+    let far = world
+        .spawn((
+            TraceMesh(icosphere(2)),
+            QueryLayers(0b10),
+            TraceTransform(Affine3A::from_translation(Vec3::Z * 5.0)),
+        ))
+        .id();
+    frame(&mut world, &mut schedule);
+    let ray = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z);
+    let tw = world.resource::<TraceWorld>();
+    let hit = |f: QueryFilter| tw.cast_ray(&ray, f32::INFINITY, &f).map(|h| h.entity);
+    assert_eq!(hit(QueryFilter::default()), Some(near));
+    assert_eq!(hit(QueryFilter::default().layers(0b10)), Some(far));
+    assert_eq!(hit(QueryFilter::default().exclude(near)), Some(far));
+    assert_eq!(hit(QueryFilter::default().exclude(near).exclude(far)), None);
+    assert_eq!(
+        hit(QueryFilter::default().predicate(move |e| e == far)),
+        Some(far)
+    );
+    assert_eq!(hit(QueryFilter::default().layers(0b100)), None);
+    assert!(!tw.occluded(
+        Vec3::new(0.0, 0.0, -5.0),
+        Vec3::new(0.0, 0.0, 10.0),
+        &QueryFilter::default().layers(0b100)
+    ));
+    // Changing layers at run time is seen next frame.
+    world.get_mut::<QueryLayers>(near).unwrap().0 = 0b10;
+    frame(&mut world, &mut schedule);
+    let tw = world.resource::<TraceWorld>();
+    assert_eq!(
+        tw.cast_ray(&ray, f32::INFINITY, &QueryFilter::default().layers(0b10))
+            .map(|h| h.entity),
+        Some(near)
+    );
+}
+
+#[test]
+fn despawns_leave_no_stale_hits_and_no_leaks() {
+    let (mut world, mut schedule) = app();
+    let base = world.spawn(TraceMesh(cube_sphere(2))).id();
+    frame(&mut world, &mut schedule);
+    let baseline_entities = world.entities().count_spawned();
+    let ray = Ray::new(Vec3::new(0.0, 0.0, -10.0), Vec3::Z);
+    for round in 0..20 {
+        let extra: Vec<Entity> = (0..5)
+            .map(|i| {
+                world
+                    .spawn((
+                        TraceMesh(icosphere(1)),
+                        TraceTransform(Affine3A::from_translation(Vec3::new(
+                            0.0,
+                            0.0,
+                            -8.0 + i as f32 * 0.5,
+                        ))),
+                    ))
+                    .id()
+            })
+            .collect();
+        frame(&mut world, &mut schedule);
+        assert_eq!(world.resource::<TraceWorld>().len(), 6);
+        let hit = world
+            .resource::<TraceWorld>()
+            .cast_ray(&ray, f32::INFINITY, &QueryFilter::default())
+            .unwrap();
+        assert_eq!(hit.entity, extra[0], "round {round}");
+        // Despawn mid-loop, some by removing the component instead.
+        for (i, e) in extra.iter().enumerate() {
+            if i % 2 == 0 {
+                world.despawn(*e);
+            } else {
+                world.entity_mut(*e).remove::<TraceMesh>();
+                world.despawn(*e);
+            }
+        }
+        frame(&mut world, &mut schedule);
+        let tw = world.resource::<TraceWorld>();
+        assert_eq!(tw.len(), 1);
+        assert_eq!(tw.tlas().primitive_count(), 1);
+        assert_eq!(
+            tw.cast_ray(&ray, f32::INFINITY, &QueryFilter::default())
+                .unwrap()
+                .entity,
+            base
+        );
+    }
+    assert_eq!(world.entities().count_spawned(), baseline_entities);
+}
+
+#[test]
+fn soak_10000_frames_with_spawns_and_despawns_stays_bounded() {
+    let (mut world, mut schedule) = app();
+    let rest = icosphere(1);
+    let mut live: Vec<Entity> = Vec::new();
+    let mut r = rng(3);
+    let mut peak_nodes = 0;
+    for f in 0..10_000u32 {
+        if live.len() < 12 || r.random_bool(0.3) {
+            let e = world
+                .spawn((
+                    TraceMesh(rest.clone()),
+                    VertexPositions(rest.positions().to_vec()),
+                    TraceTransform(Affine3A::from_translation(rand_vec(&mut r, -5.0, 5.0))),
+                ))
+                .id();
+            live.push(e);
+        }
+        if live.len() > 20 || r.random_bool(0.3) {
+            let e = live.swap_remove(r.random_range(0..live.len()));
+            world.despawn(e);
+        }
+        let t = f as f32 * 0.01;
+        for &e in &live {
+            let mut vp = world.get_mut::<VertexPositions>(e).unwrap();
+            for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+                *p = *q * (1.0 + 0.2 * (t + q.x * 5.0).sin());
+            }
+        }
+        world.resource_mut::<RayQueue>().cast(
+            0,
+            Ray::new(Vec3::ZERO, Vec3::X),
+            QueryFilter::default(),
+        );
+        frame(&mut world, &mut schedule);
+        let tw = world.resource::<TraceWorld>();
+        assert_eq!(tw.len(), live.len());
+        peak_nodes = peak_nodes.max(tw.tlas().nodes().len());
+        assert!(tw.tlas().nodes().len() <= 2 * 21, "frame {f}");
+        assert_eq!(world.resource::<RayResults>().hits.len(), 1);
+        assert!(world.resource::<RayQueue>().is_empty());
+    }
+    assert!(peak_nodes > 0);
+    assert!(world.resource::<TraceStats>().meshes.capacity() < 1000);
+}
+
+#[test]
+fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
+    let (mut world, mut schedule) = app();
+    let good = world.spawn(TraceMesh(icosphere(2))).id();
+    let m = icosphere(1);
+    let n = m.positions().len();
+    let weights = Arc::new(SkinWeights {
+        joints: vec![[0, 1, 0, 0]; n],
+        weights: vec![[0.5, 0.5, 0.0, 0.0]; n],
+    });
+    let bad_joint = world
+        .spawn((
+            TraceMesh(m.clone()),
+            TraceSkin {
+                weights: weights.clone(),
+                joint_matrices: vec![Mat4::IDENTITY],
+            },
+        ))
+        .id();
+    let nan = world
+        .spawn((
+            TraceMesh(m.clone()),
+            TraceSkin {
+                weights: weights.clone(),
+                joint_matrices: vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::NAN)],
+            },
+        ))
+        .id();
+    let bad_transform = world
+        .spawn((
+            TraceMesh(m.clone()),
+            TraceTransform(Affine3A::from_scale(Vec3::ZERO)),
+        ))
+        .id();
+    let ok_skin = world
+        .spawn((
+            TraceMesh(m.clone()),
+            TraceSkin {
+                weights,
+                joint_matrices: vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::Y * 9.0)],
+            },
+        ))
+        .id();
+    frame(&mut world, &mut schedule);
+    for e in [bad_joint, nan, bad_transform] {
+        assert!(world.get::<TraceError>(e).is_some(), "{e} has no error");
+        assert!(!world.resource::<TraceWorld>().contains(e));
+    }
+    let messages = world.resource::<Messages<TraceErrorMessage>>();
+    assert_eq!(messages.len(), 3);
+    let tw = world.resource::<TraceWorld>();
+    assert!(tw.contains(good) && tw.contains(ok_skin));
+    // The good skin moved the mesh halfway up: it is hit where the skinned positions are.
+    let hit = tw
+        .cast_ray(
+            &Ray::new(Vec3::new(0.0, 4.5, -5.0), Vec3::Z),
+            f32::INFINITY,
+            &QueryFilter::default(),
+        )
+        .unwrap();
+    assert_eq!(hit.entity, ok_skin);
+    // Fixing the cause and removing the error brings the entity back.
+    world.get_mut::<TraceTransform>(bad_transform).unwrap().0 = Affine3A::IDENTITY;
+    world.entity_mut(bad_transform).remove::<TraceError>();
+    frame(&mut world, &mut schedule);
+    assert!(world.resource::<TraceWorld>().contains(bad_transform));
+    // An invalid ray is no hit, not a panic.
+    assert!(
+        world
+            .resource::<TraceWorld>()
+            .cast_ray(&Ray::new(Vec3::NAN, Vec3::X), 1.0, &QueryFilter::default())
+            .is_none()
+    );
+}
+
+#[test]
+fn next_frame_latency_publishes_one_frame_later() {
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    KinetracePlugin {
+        config: TraceConfig {
+            latency: Latency::NextFrame,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+    .build(&mut world, &mut schedule);
+    world.spawn(TraceMesh(icosphere(2)));
+    let ray = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z);
+    world
+        .resource_mut::<RayQueue>()
+        .cast(41, ray, QueryFilter::default());
+    frame(&mut world, &mut schedule);
+    assert!(world.resource::<RayResults>().hits.is_empty());
+    frame(&mut world, &mut schedule);
+    let r = world.resource::<RayResults>();
+    assert_eq!(r.hits.len(), 1);
+    assert_eq!(r.hits[0].0, 41);
+    assert!(r.hits[0].1.is_some());
+    assert_eq!(r.frame, 1, "answers of frame 1's requests");
+    frame(&mut world, &mut schedule);
+    assert!(
+        world.resource::<RayResults>().hits.is_empty(),
+        "frame 2 queued nothing"
+    );
+}
