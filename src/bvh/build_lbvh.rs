@@ -13,7 +13,7 @@
 //! pass that lays the tree out in the crate's node order and computes the bounds bottom-up.
 
 use super::layout::Slot;
-use super::topdown::{self, BALANCED_DEPTH, ObjectMedian, PARALLEL_SUBTREE, centroid_bounds};
+use super::topdown::{self, BALANCED_DEPTH, ObjectMedian, PARALLEL_SUBTREE, bounds_of};
 use super::{BuildInput, MortonBits, radix_sort};
 use crate::geometry::{Aabb, morton30, morton63};
 use crate::parallel;
@@ -54,7 +54,9 @@ pub(crate) fn build(
 
 /// Morton codes of the primitives' centroids in the centroids' box, sorted; `prims` is reordered with them.
 pub(crate) fn sorted_codes(input: &BuildInput, prims: &mut [u32], bits: MortonBits) -> Vec<u64> {
-    let cb = centroid_bounds(input, prims);
+    let cb = bounds_of(input.parallel, prims, |&p| {
+        input.centroids[p as usize].into()
+    });
     let mut codes = vec![0u64; prims.len()];
     parallel::fill(input.parallel, &mut codes, 1 << 14, |i| {
         let c = input.centroids[prims[i] as usize];
@@ -132,7 +134,10 @@ impl Writer<'_> {
             || (m <= self.input.max_leaf && self.below.is_none_or(|(levels, _)| depth < levels))
         {
             let first = slot.prim_at as usize;
-            return slot.leaf_over(&self.sorted[first..first + m]);
+            let b = self.sorted[first..first + m]
+                .iter()
+                .fold(Aabb::EMPTY, |b, x| b.union(x));
+            return slot.leaf(&b);
         }
         if let Some((levels, finish)) = self.below
             && depth >= levels
@@ -145,8 +150,8 @@ impl Writer<'_> {
         let first = slot.prim_at as usize;
         let [l, r] = self.children[split as usize];
         let par = self.input.parallel && m >= PARALLEL_SUBTREE;
-        slot.split(split as usize + 1 - first, par, |child, left| {
-            self.write(child, if left { l } else { r }, depth + 1)
+        slot.split(split as usize + 1 - first, par, [l, r], |child, s| {
+            self.write(child, s, depth + 1)
         })
     }
 }

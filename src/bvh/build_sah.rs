@@ -11,29 +11,30 @@
 
 use super::BuildInput;
 use super::quality::{C_ISECT, C_TRAV};
-use super::topdown::{SplitRule, centroid_bounds, partition};
+use super::topdown::{Box3A, Cut, Prim, Sides, SplitRule, centroid_bounds, partition};
 use crate::geometry::Aabb;
 use crate::parallel;
-use glam::Vec3;
+use glam::{UVec3, Vec3A};
 
 /// Largest number of bins per axis.
 pub const MAX_BINS: u32 = 64;
+const MAX: usize = MAX_BINS as usize;
 
 /// Per-axis bins of one node: primitive count and bounds of the primitives whose centroid falls in each.
 /// Only the first `n` bins of each axis are in use.
 #[derive(Clone)]
 struct Bins {
     n: usize,
-    count: [[u32; MAX_BINS as usize]; 3],
-    bounds: [[Aabb; MAX_BINS as usize]; 3],
+    count: [[u32; MAX]; 3],
+    bounds: [[Box3A; MAX]; 3],
 }
 
 impl Bins {
     fn new(n: usize) -> Self {
         Self {
             n,
-            count: [[0; MAX_BINS as usize]; 3],
-            bounds: [[Aabb::EMPTY; MAX_BINS as usize]; 3],
+            count: [[0; MAX]; 3],
+            bounds: [[Box3A::EMPTY; MAX]; 3],
         }
     }
 
@@ -42,18 +43,18 @@ impl Bins {
         self.n = n;
         for a in 0..3 {
             self.count[a][..n].fill(0);
-            self.bounds[a][..n].fill(Aabb::EMPTY);
+            self.bounds[a][..n].fill(Box3A::EMPTY);
         }
     }
 
-    fn add(&mut self, input: &BuildInput, binner: &Binner, prims: &[u32]) {
-        for &p in prims {
-            let c = input.centroids[p as usize];
-            let b = &input.bounds[p as usize];
+    /// Adds the primitives, one sequential pass: one centroid and three bin indices per primitive.
+    fn add(&mut self, binner: &Binner, prims: &[Prim]) {
+        for p in prims {
+            let i = binner.bins(p.centroid());
             for axis in 0..3 {
-                let i = binner.bin(c, axis);
-                self.count[axis][i] += 1;
-                self.bounds[axis][i] = self.bounds[axis][i].union(b);
+                let b = i[axis] as usize;
+                self.count[axis][b] += 1;
+                self.bounds[axis][b].grow_prim(p);
             }
         }
     }
@@ -72,18 +73,18 @@ impl Bins {
     /// the lower axis and bin; and the node's box. `None` when no cut leaves both sides non-empty.
     fn best_cut(&self, m: usize) -> (Option<(f64, usize, usize)>, Aabb) {
         let mut best: Option<(f64, u64, usize, usize)> = None;
-        let mut node = Aabb::EMPTY;
+        let mut node = Box3A::EMPTY;
         for axis in 0..3 {
             let (count, bounds) = (&self.count[axis][..self.n], &self.bounds[axis][..self.n]);
-            let mut right_cost = [0f64; MAX_BINS as usize];
-            let (mut rb, mut rn) = (Aabb::EMPTY, 0u64);
+            let mut right_cost = [0f64; MAX];
+            let (mut rb, mut rn) = (Box3A::EMPTY, 0u64);
             for i in (1..self.n).rev() {
                 rb = rb.union(&bounds[i]);
                 rn += count[i] as u64;
-                right_cost[i] = rb.half_area_f64() * rn as f64;
+                right_cost[i] = rb.aabb().half_area_f64() * rn as f64;
             }
             node = node.union(&rb).union(&bounds[0]);
-            let (mut lb, mut ln) = (Aabb::EMPTY, 0u64);
+            let (mut lb, mut ln) = (Box3A::EMPTY, 0u64);
             for i in 1..self.n {
                 lb = lb.union(&bounds[i - 1]);
                 ln += count[i - 1] as u64;
@@ -91,14 +92,14 @@ impl Bins {
                 if ln == 0 || rn == 0 {
                     continue;
                 }
-                let cost = lb.half_area_f64() * ln as f64 + right_cost[i];
+                let cost = lb.aabb().half_area_f64() * ln as f64 + right_cost[i];
                 let imbalance = ln.abs_diff(rn);
                 if best.is_none_or(|(c, im, _, _)| cost < c || (cost == c && imbalance < im)) {
                     best = Some((cost, imbalance, axis, i));
                 }
             }
         }
-        (best.map(|(c, _, a, i)| (c, a, i)), node)
+        (best.map(|(c, _, a, i)| (c, a, i)), node.aabb())
     }
 }
 
@@ -107,19 +108,28 @@ thread_local! {
     static SCRATCH: std::cell::RefCell<Bins> = std::cell::RefCell::new(Bins::new(0));
 }
 
-/// Maps a centroid coordinate to its bin on one axis.
+/// Maps centroids to bins: `min(⌊(c - min)·scale⌋, last)` per axis.
 #[derive(Clone, Copy)]
 struct Binner {
-    min: Vec3,
-    scale: Vec3,
-    last: usize,
+    min: Vec3A,
+    scale: Vec3A,
+    last: u32,
 }
 
 impl Binner {
+    /// The bin on all three axes at once.
     #[inline]
-    fn bin(&self, c: Vec3, axis: usize) -> usize {
-        // Saturating float→int casts: NaN (0·∞ on a subnormal extent) gives 0, +∞ gives usize::MAX.
-        (((c[axis] - self.min[axis]) * self.scale[axis]) as usize).min(self.last)
+    fn bins(&self, c: Vec3A) -> UVec3 {
+        // Saturating float→int casts: NaN (0·∞ on a subnormal extent) gives 0, +∞ gives u32::MAX.
+        ((c - self.min) * self.scale)
+            .as_uvec3()
+            .min(UVec3::splat(self.last))
+    }
+
+    /// The bin on one axis.
+    #[inline]
+    fn bin(&self, c: Vec3A, axis: usize) -> u32 {
+        (((c[axis] - self.min[axis]) * self.scale[axis]) as u32).min(self.last)
     }
 }
 
@@ -136,31 +146,39 @@ fn keep_leaf(input: &BuildInput, m: usize, node: &Aabb, cut_cost: f64) -> bool {
 }
 
 impl SplitRule for BinnedSah {
-    fn split(&self, input: &BuildInput, prims: &mut [u32]) -> Option<usize> {
+    /// Cost: above the bin count, one binning pass and one partitioning pass over the node's primitives (the
+    /// partition also finds the children's centroid bounds); binning is parallel from 64k primitives. At
+    /// most the bin count, see [`exact_split`].
+    fn split(
+        &self,
+        input: &BuildInput,
+        prims: &mut [Prim],
+        centroids: Option<Aabb>,
+    ) -> Option<Cut> {
         let m = prims.len();
         if m <= self.bins as usize {
             return exact_split(input, prims);
         }
-        let cb = centroid_bounds(input, prims);
-        let extent = cb.extent();
+        let cb = centroids.unwrap_or_else(|| centroid_bounds(input, prims));
+        let extent = Vec3A::from(cb.extent());
         if extent.max_element() <= 0.0 {
             // All centroids coincide: no spatial cut exists; the driver makes a leaf or an object median.
             return None;
         }
         let nbins = self.bins as usize;
         let binner = Binner {
-            min: cb.min,
-            scale: Vec3::select(
-                extent.cmpgt(Vec3::ZERO),
-                Vec3::splat(nbins as f32) / extent,
-                Vec3::ZERO,
+            min: cb.min.into(),
+            scale: Vec3A::select(
+                extent.cmpgt(Vec3A::ZERO),
+                Vec3A::splat(nbins as f32) / extent,
+                Vec3A::ZERO,
             ),
-            last: nbins - 1,
+            last: nbins as u32 - 1,
         };
         let (best, node) = if input.parallel && m >= 1 << 16 {
-            let fill = |ps: &[u32]| {
+            let fill = |ps: &[Prim]| {
                 let mut b = Bins::new(nbins);
-                b.add(input, &binner, ps);
+                b.add(&binner, ps);
                 b
             };
             parallel::map_reduce(true, prims, 1 << 14, Bins::new(nbins), fill, Bins::merge)
@@ -168,7 +186,7 @@ impl SplitRule for BinnedSah {
         } else {
             SCRATCH.with_borrow_mut(|b| {
                 b.reset(nbins);
-                b.add(input, &binner, prims);
+                b.add(&binner, prims);
                 b.best_cut(m)
             })
         };
@@ -176,52 +194,104 @@ impl SplitRule for BinnedSah {
         if keep_leaf(input, m, &node, cost) {
             return None;
         }
+        let cut = cut as u32;
+        let mut sides = Sides::new();
         let k = partition(prims, |p| {
-            binner.bin(input.centroids[p as usize], axis) < cut
+            let c = p.centroid();
+            let left = binner.bin(c, axis) < cut;
+            sides.add(c, left);
+            left
         });
         debug_assert!(0 < k && k < m);
-        Some(k)
+        Some(sides.cut(k))
     }
 }
 
 /// Full SAH for a node no bigger than the bin count (thesis §5.2.2: with as many candidates as primitives,
-/// take the primitives' own positions): every cut between centroids sorted along each axis.
-fn exact_split(input: &BuildInput, prims: &mut [u32]) -> Option<usize> {
+/// take the primitives' own positions): every cut between centroids sorted along each axis, ties in
+/// position order. Cost: per axis, one sort of `m` integer keys and two sweeps over the node's primitives
+/// (all in L1); then one in-place permutation along the chosen axis.
+fn exact_split(input: &BuildInput, prims: &mut [Prim]) -> Option<Cut> {
     let m = prims.len();
-    let mut best: Option<(f64, u64, usize, usize)> = None; // (cost, imbalance, axis, left count)
-    let mut node = Aabb::EMPTY;
-    let mut order = [0u32; MAX_BINS as usize];
-    let order = &mut order[..m];
-    let mut right_cost = [0f64; MAX_BINS as usize];
+    debug_assert!(m <= MAX);
+    let mut best: Option<(f64, u64, usize)> = None; // (cost, imbalance, left count)
+    let mut best_order = [0u8; MAX];
+    let mut node = Box3A::EMPTY;
+    let mut keys = [0u64; MAX];
+    let keys = &mut keys[..m];
+    let mut right_cost = [0f64; MAX];
     for axis in 0..3 {
-        order.copy_from_slice(prims);
-        let key = |p: u32| input.centroids[p as usize][axis];
-        order.sort_unstable_by(|&a, &b| key(a).total_cmp(&key(b)).then(a.cmp(&b)));
-        let mut rb = Aabb::EMPTY;
-        for i in (1..m).rev() {
-            rb = rb.union(&input.bounds[order[i] as usize]);
-            right_cost[i] = rb.half_area_f64() * (m - i) as f64;
+        // Key: the centroid coordinate as an order-preserving integer (`f32::total_cmp`), then the position.
+        for (i, (k, p)) in keys.iter_mut().zip(prims.iter()).enumerate() {
+            let bits = p.centroid()[axis].to_bits();
+            let ordered = if bits >> 31 == 1 {
+                !bits
+            } else {
+                bits | 1 << 31
+            };
+            *k = u64::from(ordered) << 32 | i as u64;
         }
-        node = rb.union(&input.bounds[order[0] as usize]);
-        let mut lb = Aabb::EMPTY;
-        for i in 1..m {
-            lb = lb.union(&input.bounds[order[i - 1] as usize]);
+        keys.sort_unstable();
+        let at = |i: usize| &prims[keys[i] as u32 as usize];
+        let mut rb = Box3A::EMPTY;
+        for i in (1..m).rev() {
+            rb.grow_prim(at(i));
+            right_cost[i] = rb.aabb().half_area_f64() * (m - i) as f64;
+        }
+        rb.grow_prim(at(0));
+        node = rb;
+        let mut lb = Box3A::EMPTY;
+        let mut improved = false;
+        for (i, &right) in right_cost[..m].iter().enumerate().skip(1) {
+            lb.grow_prim(at(i - 1));
             // Only cut between distinct centroids, so that equal centroids stay together as binning keeps them.
-            if key(order[i - 1]) == key(order[i]) {
+            if at(i - 1).centroid()[axis] == at(i).centroid()[axis] {
                 continue;
             }
-            let cost = lb.half_area_f64() * i as f64 + right_cost[i];
+            let cost = lb.aabb().half_area_f64() * i as f64 + right;
             let imbalance = (2 * i).abs_diff(m) as u64;
-            if best.is_none_or(|(c, im, _, _)| cost < c || (cost == c && imbalance < im)) {
-                best = Some((cost, imbalance, axis, i));
+            if best.is_none_or(|(c, im, _)| cost < c || (cost == c && imbalance < im)) {
+                best = Some((cost, imbalance, i));
+                improved = true;
+            }
+        }
+        if improved {
+            for (o, &k) in best_order.iter_mut().zip(keys.iter()) {
+                *o = k as u8;
             }
         }
     }
-    let (cost, _, axis, k) = best?;
-    if keep_leaf(input, m, &node, cost) {
+    let (cost, _, k) = best?;
+    if keep_leaf(input, m, &node.aabb(), cost) {
         return None;
     }
-    let key = |p: u32| input.centroids[p as usize][axis];
-    prims.sort_unstable_by(|&a, &b| key(a).total_cmp(&key(b)).then(a.cmp(&b)));
-    Some(k)
+    permute(prims, &best_order[..m]);
+    Some(Cut {
+        left: k,
+        centroids: [None, None],
+    })
+}
+
+/// Reorders `items` (at most 64) so that `items[i]` becomes the old `items[order[i]]`, in place by following
+/// the permutation's cycles. O(len).
+fn permute<T: Copy>(items: &mut [T], order: &[u8]) {
+    debug_assert!(items.len() <= 64 && order.len() == items.len());
+    let mut done = 0u64;
+    for start in 0..items.len() {
+        if done >> start & 1 == 1 {
+            continue;
+        }
+        let first = items[start];
+        let mut j = start;
+        loop {
+            done |= 1 << j;
+            let src = order[j] as usize;
+            if src == start {
+                items[j] = first;
+                break;
+            }
+            items[j] = items[src];
+            j = src;
+        }
+    }
 }

@@ -25,31 +25,25 @@ pub(crate) struct Slot<'a> {
 }
 
 impl<'a> Slot<'a> {
-    /// Makes the root a leaf over all primitives of the subtree, its box the union of theirs (`prim_bounds`
-    /// indexed by primitive id).
-    pub fn leaf(self, prim_bounds: &[Aabb]) -> usize {
-        let b = self
-            .prims
-            .iter()
-            .fold(Aabb::EMPTY, |b, &p| b.union(&prim_bounds[p as usize]));
-        *self.node = Node::leaf(self.prim_at, self.prims.len() as u32, &b);
-        1
-    }
-
-    /// The same with the subtree's primitive boxes given in slot order.
-    pub fn leaf_over(self, slot_bounds: &[Aabb]) -> usize {
-        debug_assert_eq!(slot_bounds.len(), self.prims.len());
-        let b = slot_bounds.iter().fold(Aabb::EMPTY, |b, x| b.union(x));
-        *self.node = Node::leaf(self.prim_at, self.prims.len() as u32, &b);
+    /// Makes the root a leaf over all primitives of the subtree with the given box (the union of theirs).
+    /// O(1): the caller has the box and has put the primitives' ids in [`prims`](Self::prims).
+    pub fn leaf(self, bounds: &Aabb) -> usize {
+        *self.node = Node::leaf(self.prim_at, self.prims.len() as u32, bounds);
         1
     }
 
     /// Splits into children over the first `left_count` primitives and the rest, builds them with
-    /// `build(child, is_left)` (in parallel when asked), then sets the root's box and build-time SA ratio.
-    /// Returns the number of nodes used.
-    pub fn split<F>(self, left_count: usize, parallel: bool, build: F) -> usize
+    /// `build(child, data)` where `data` is `[left, right]` (in parallel when asked), then sets the root's box
+    /// and build-time SA ratio. Returns the number of nodes used.
+    pub fn split<T: Send, F>(
+        self,
+        left_count: usize,
+        parallel: bool,
+        data: [T; 2],
+        build: F,
+    ) -> usize
     where
-        F: Fn(Slot<'_>, bool) -> usize + Sync + Send,
+        F: Fn(Slot<'_>, T) -> usize + Sync + Send,
     {
         let count = self.prims.len();
         debug_assert!(0 < left_count && left_count < count);
@@ -72,8 +66,8 @@ impl<'a> Slot<'a> {
             desc_at: self.desc_at + 2 * left_count as u32,
             prim_at: self.prim_at + left_count as u32,
         };
-        let (nl, nr) =
-            crate::parallel::join(parallel, || build(left, true), || build(right, false));
+        let [ld, rd] = data;
+        let (nl, nr) = crate::parallel::join(parallel, || build(left, ld), || build(right, rd));
         let (lb, rb) = (l[0].aabb(), r[0].aabb());
         let bounds = lb.union(&rb);
         *self.node = Node::inner(self.desc_at, &bounds, sa_ratio(&bounds, &lb, &rb));
