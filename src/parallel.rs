@@ -25,10 +25,10 @@ pub(crate) fn fill<T: Send>(
     chunk: usize,
     f: impl Fn(usize) -> T + Sync + Send,
 ) {
-    let chunk = chunk.max(1);
     #[cfg(feature = "parallel")]
     if parallel {
         use rayon::prelude::*;
+        let chunk = chunk.max(1);
         out.par_chunks_mut(chunk).enumerate().for_each(|(c, o)| {
             for (j, x) in o.iter_mut().enumerate() {
                 *x = f(c * chunk + j);
@@ -36,7 +36,7 @@ pub(crate) fn fill<T: Send>(
         });
         return;
     }
-    let _ = parallel;
+    let _ = (parallel, chunk);
     for (i, x) in out.iter_mut().enumerate() {
         *x = f(i);
     }

@@ -1,5 +1,6 @@
 //! GPU kernels against their CPU references, on lavapipe in CI (`KINETRACE_REQUIRE_GPU=1` makes a missing
 //! adapter a failure; without it these tests skip and say so).
+#![cfg(feature = "gpu")]
 
 mod common;
 use common::*;

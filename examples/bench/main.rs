@@ -4,12 +4,14 @@
 //! cargo run --release --example bench -- [SUITE ...] [--quick] [--json FILE]
 //! ```
 //! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays),
-//! `gpu` (LBVH build, refit and ray queries on the wgpu back end).
+//! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
+//! overhead).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
 //! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
 
 mod cpu;
+mod ecs;
 mod gpu;
 mod peers;
 mod record;
@@ -17,7 +19,7 @@ mod record;
 use record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 2] = ["cpu", "gpu"];
+const SUITES: [&str; 3] = ["cpu", "gpu", "ecs"];
 
 fn main() -> ExitCode {
     let mut quick = false;
@@ -44,6 +46,7 @@ fn main() -> ExitCode {
         match s.as_str() {
             "cpu" => cpu::run(&mut rec),
             "gpu" => gpu::run(&mut rec),
+            "ecs" => ecs::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

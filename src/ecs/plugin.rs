@@ -33,6 +33,11 @@ pub enum TraceSet {
 
 /// Adds ray queries over every entity with a [`TraceMesh`].
 ///
+/// The plugin's systems run one after another, so a schedule made mostly of them is best served by
+/// `bevy_ecs::schedule::SingleThreadedExecutor` (set with `Schedule::set_executor`): bevy's default
+/// multi-threaded executor spent about 0.1 ms per frame waking threads in our measurements, the
+/// single-threaded one about 1 µs (docs/BENCHMARKS.md). Batched queries use all threads either way.
+///
 /// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`]; message
 /// [`TraceErrorMessage`]. With [`update_messages`](Self::update_messages) (the default) the plugin also
 /// runs bevy's `message_update_system` once per frame, before [`TraceSet::Animate`]; turn it off when your

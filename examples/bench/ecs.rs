@@ -1,0 +1,154 @@
+//! Suite `ecs`: frame cost of the plugin for 1, 10 and 100 deforming meshes of 10k triangles with 10k
+//! batched rays, split by phase; the ECS layer's own overhead (frame time minus the work of the phases:
+//! scheduling, change detection, bookkeeping); and the frame time of an idle world of 1,000 static meshes.
+
+use crate::record::Records;
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Vec3};
+use kinetrace::Ray;
+use kinetrace::ecs::*;
+use kinetrace::scenes::{SceneRng, bumpy_torus};
+use std::time::{Duration, Instant};
+
+const SUITE: &str = "ecs";
+
+pub fn run(rec: &mut Records) {
+    println!("suite ecs on {}", crate::record::machine());
+    let counts: &[usize] = if rec.quick { &[1, 10] } else { &[1, 10, 100] };
+    let frames = if rec.quick { 10 } else { 30 };
+    for &n in counts {
+        deforming(rec, n, frames);
+    }
+    idle(rec, if rec.quick { 200 } else { 1000 });
+}
+
+/// The plugin's systems run in a chain, so a single-threaded executor suits them: the multi-threaded one
+/// costs tens of microseconds per frame in thread wake-ups alone. (Queries still use all threads.)
+fn app() -> (World, Schedule) {
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    KinetracePlugin::default().build(&mut world, &mut schedule);
+    (world, schedule)
+}
+
+fn deforming(rec: &mut Records, n: usize, frames: usize) {
+    let scene = format!("{n} deforming x 10k tris + 10k rays");
+    println!("\n{scene}");
+    let (mut world, mut schedule) = app();
+    let rest = bumpy_torus(10_000);
+    let ents: Vec<Entity> = (0..n)
+        .map(|i| {
+            let at = Vec3::new((i % 10) as f32 * 3.0, 0.0, (i / 10) as f32 * 3.0);
+            world
+                .spawn((
+                    TraceMesh(rest.clone()),
+                    VertexPositions(rest.positions().to_vec()),
+                    TraceTransform(Affine3A::from_translation(at)),
+                ))
+                .id()
+        })
+        .collect();
+    let mut r = SceneRng::new(1);
+    // Rays down onto the meshes, most of which hit.
+    let rays: Vec<Ray> = (0..10_000)
+        .map(|i| {
+            let m = i % n;
+            let at = Vec3::new(
+                (m % 10) as f32 * 3.0 + r.range(-1.4, 1.4),
+                3.0,
+                (m / 10) as f32 * 3.0 + r.range(-1.4, 1.4),
+            );
+            Ray::new(at, Vec3::new(r.range(-0.2, 0.2), -1.0, r.range(-0.2, 0.2)))
+        })
+        .collect();
+    let (mut total, mut phases, mut maintain, mut top, mut queries) = (
+        Duration::ZERO,
+        Duration::ZERO,
+        Duration::ZERO,
+        Duration::ZERO,
+        Duration::ZERO,
+    );
+    for f in 0..frames + 1 {
+        let t = f as f32 * 0.05;
+        for &e in &ents {
+            let mut vp = world.get_mut::<VertexPositions>(e).expect("spawned");
+            for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+                *p = *q * (1.0 + 0.05 * (t + q.x * 3.0).sin());
+            }
+        }
+        {
+            let mut queue = world.resource_mut::<RayQueue>();
+            for (i, ray) in rays.iter().enumerate() {
+                queue.cast(i as u64, *ray, QueryFilter::default());
+            }
+        }
+        let start = Instant::now();
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let elapsed = start.elapsed();
+        if f == 0 {
+            continue; // the first frame builds everything
+        }
+        let s = world.resource::<TraceStats>();
+        total += elapsed;
+        maintain += s.maintain_time;
+        top += s.top_level_time;
+        queries += s.query_time;
+        phases += s.skin_time + s.maintain_time + s.top_level_time + s.query_time;
+    }
+    let per = |d: Duration| d.as_secs_f64() * 1e3 / frames as f64;
+    rec.add(SUITE, &scene, "frame", "total", per(total), "ms");
+    rec.add(
+        SUITE,
+        &scene,
+        "maintain (refit/rebuild)",
+        "phase",
+        per(maintain),
+        "ms",
+    );
+    rec.add(SUITE, &scene, "top level", "phase", per(top), "ms");
+    rec.add(
+        SUITE,
+        &scene,
+        "batched queries",
+        "phase",
+        per(queries),
+        "ms",
+    );
+    let overhead = per(total) - per(phases);
+    rec.add(SUITE, &scene, "ECS layer overhead", "time", overhead, "ms");
+    rec.add(
+        SUITE,
+        &scene,
+        "ECS layer overhead",
+        "share",
+        100.0 * overhead / per(total),
+        "% (target < 5)",
+    );
+}
+
+fn idle(rec: &mut Records, n: usize) {
+    let scene = format!("idle world, {n} static meshes");
+    println!("\n{scene}");
+    let (mut world, mut schedule) = app();
+    let mesh = bumpy_torus(500);
+    for i in 0..n {
+        let at = Vec3::new((i % 32) as f32 * 3.0, 0.0, (i / 32) as f32 * 3.0);
+        world.spawn((
+            TraceMesh(mesh.clone()),
+            MotionHint::Static,
+            TraceTransform(Affine3A::from_translation(at)),
+        ));
+    }
+    schedule.run(&mut world);
+    world.clear_trackers();
+    let frames = 200;
+    let start = Instant::now();
+    for _ in 0..frames {
+        schedule.run(&mut world);
+        world.clear_trackers();
+    }
+    let per = start.elapsed().as_secs_f64() * 1e6 / frames as f64;
+    rec.add(SUITE, &scene, "frame", "total", per, "us (target < 50)");
+}
