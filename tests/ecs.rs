@@ -470,3 +470,144 @@ fn next_frame_latency_publishes_one_frame_later() {
         "frame 2 queued nothing"
     );
 }
+
+/// Batched answers of the CPU and GPU modes on the same deforming, moving scene.
+#[cfg(feature = "gpu")]
+#[test]
+fn cpu_and_gpu_modes_give_identical_batched_results() {
+    if kinetrace::gpu::shared_for_tests().is_none() {
+        return;
+    }
+    for latency in [Latency::SameFrame, Latency::NextFrame] {
+        let make = |mode| {
+            let mut world = World::new();
+            let mut schedule = Schedule::default();
+            KinetracePlugin {
+                config: TraceConfig {
+                    mode,
+                    latency,
+                    ..Default::default()
+                },
+                ..Default::default()
+            }
+            .try_build(&mut world, &mut schedule)
+            .expect("a GPU is there");
+            (world, schedule)
+        };
+        let (mut cpu, mut cs) = make(TraceMode::Cpu);
+        let (mut gpu, mut gs) = make(TraceMode::GpuRequired);
+        assert!(gpu.get_resource::<GpuQueries>().is_some());
+        let rest = icosphere(2);
+        let mut ents = vec![];
+        for w in [&mut cpu, &mut gpu] {
+            ents.push(
+                (0..6)
+                    .map(|k| {
+                        let at = Vec3::new((k % 3) as f32 * 2.5, (k / 3) as f32 * 2.5, 0.0);
+                        w.spawn((
+                            TraceMesh(rest.clone()),
+                            VertexPositions(rest.positions().to_vec()),
+                            TraceTransform(Affine3A::from_translation(at)),
+                            QueryLayers(1 << (k % 2)),
+                        ))
+                        .id()
+                    })
+                    .collect::<Vec<_>>(),
+            );
+        }
+        let mut r = rng(5);
+        let mut compared = 0;
+        for f in 0..20 {
+            let t = f as f32 * 0.1;
+            let rays: Vec<Ray> = (0..300)
+                .map(|_| {
+                    Ray::new(
+                        Vec3::new(r.random_range(-2.0..7.0), r.random_range(-2.0..5.0), -6.0),
+                        Vec3::new(r.random_range(-0.2..0.2), r.random_range(-0.2..0.2), 1.0),
+                    )
+                })
+                .collect();
+            for (w, es) in [(&mut cpu, &ents[0]), (&mut gpu, &ents[1])] {
+                for (k, &e) in es.iter().enumerate() {
+                    let mut vp = w.get_mut::<VertexPositions>(e).unwrap();
+                    for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+                        *p = *q * (1.0 + 0.2 * (t + q.y * 4.0 + k as f32).sin());
+                    }
+                    w.get_mut::<TraceTransform>(e).unwrap().0 = Affine3A::from_rotation_translation(
+                        Quat::from_rotation_z(t * 0.3),
+                        Vec3::new((k % 3) as f32 * 2.5, (k / 3) as f32 * 2.5, t.sin()),
+                    );
+                }
+                let mut q = w.resource_mut::<RayQueue>();
+                for (i, ray) in rays.iter().enumerate() {
+                    let filter = match i % 4 {
+                        0 => QueryFilter::default(),
+                        1 => QueryFilter::default().layers(0b10),
+                        2 => QueryFilter::default().exclude(es[0]),
+                        _ => {
+                            let keep = es[1];
+                            QueryFilter::default().predicate(move |e| e != keep) // stays on the CPU
+                        }
+                    };
+                    q.cast(i as u64, *ray, filter.clone());
+                    q.shadow(i as u64, ray.origin, ray.at(8.0), filter);
+                }
+            }
+            frame(&mut cpu, &mut cs);
+            frame(&mut gpu, &mut gs);
+            let (a, b) = (
+                cpu.resource::<RayResults>().clone(),
+                gpu.resource::<RayResults>().clone(),
+            );
+            assert_eq!(a.frame, b.frame);
+            assert_eq!(a.hits.len(), b.hits.len(), "frame {f}");
+            // The worlds' entity ids differ (resources are entities too): compare which spawned mesh was hit.
+            let which = |es: &Vec<Entity>, e: Entity| es.iter().position(|&x| x == e);
+            for ((ta, ha), (tb, hb)) in a.hits.iter().zip(&b.hits) {
+                assert_eq!(ta, tb);
+                match (ha, hb) {
+                    (None, None) => {}
+                    (Some(x), Some(y)) => {
+                        assert_eq!(
+                            which(&ents[0], x.entity),
+                            which(&ents[1], y.entity),
+                            "frame {f} ray {ta}: {x:?} vs {y:?}"
+                        );
+                        assert!(
+                            (x.distance - y.distance).abs() <= 1e-5 * x.distance.abs().max(1.0),
+                            "frame {f} ray {ta}"
+                        );
+                        if x.triangle != y.triangle {
+                            assert!(
+                                (x.distance - y.distance).abs() <= 1e-6 * x.distance.abs().max(1.0),
+                                "frame {f} ray {ta}: tie expected"
+                            );
+                        } else {
+                            assert!(
+                                (x.normal - y.normal).length() < 1e-4,
+                                "frame {f} ray {ta}: normals {x:?} {y:?}"
+                            );
+                        }
+                        assert!(
+                            (x.point - y.point).length() < 1e-4 * x.distance.max(1.0),
+                            "frame {f} ray {ta}: points {x:?} {y:?}"
+                        );
+                    }
+                    _ => panic!("frame {f} ray {ta}: {ha:?} vs {hb:?}"),
+                }
+            }
+            assert_eq!(a.shadows, b.shadows, "frame {f}");
+            compared += a.hits.iter().filter(|h| h.1.is_some()).count();
+            if latency == Latency::NextFrame && f == 0 {
+                assert!(
+                    a.hits.is_empty() && b.hits.is_empty(),
+                    "nothing is published before frame 1"
+                );
+            }
+        }
+        assert!(
+            compared > 1000,
+            "{latency:?}: only {compared} hits compared"
+        );
+    }
+}

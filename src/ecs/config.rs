@@ -4,6 +4,21 @@ use super::MotionHint;
 use crate::bvh::Builder;
 use bevy_ecs::prelude::*;
 
+/// Where batched queries run. Immediate queries ([`SpatialRays`](super::SpatialRays)) and tree maintenance
+/// run on the CPU in every mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum TraceMode {
+    /// CPU only; no GPU device is ever created.
+    #[default]
+    Cpu,
+    /// Batched queries on the GPU when an adapter exists (feature `gpu`), else on the CPU, said once in the
+    /// log.
+    GpuWhenAvailable,
+    /// Batched queries on the GPU; [`KinetracePlugin::try_build`](super::KinetracePlugin::try_build) fails
+    /// with [`Error::NoGpu`](crate::Error::NoGpu) without one.
+    GpuRequired,
+}
+
 /// When batched query results become readable.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Latency {
@@ -58,6 +73,8 @@ pub fn lauterbach_policy(input: &PolicyInput) -> Decision {
 /// The plugin's settings, a resource that may be changed at run time.
 #[derive(Resource, Clone, Debug)]
 pub struct TraceConfig {
+    /// CPU or GPU for batched queries.
+    pub mode: TraceMode,
     /// When batched results are published.
     pub latency: Latency,
     /// Degradation above which the default policy rebuilds (0.40).
@@ -73,6 +90,7 @@ pub struct TraceConfig {
 impl Default for TraceConfig {
     fn default() -> Self {
         Self {
+            mode: TraceMode::Cpu,
             latency: Latency::SameFrame,
             rebuild_threshold: 0.40,
             builder: Builder::LBVH,

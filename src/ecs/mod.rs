@@ -53,6 +53,7 @@ mod batch;
 mod components;
 mod config;
 mod filter;
+mod gpu_queries;
 mod params;
 mod plugin;
 mod stats;
@@ -61,8 +62,11 @@ mod world;
 
 pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
 pub use components::*;
-pub use config::{Decision, Latency, Policy, PolicyInput, TraceConfig, lauterbach_policy};
+pub use config::{
+    Decision, Latency, Policy, PolicyInput, TraceConfig, TraceMode, lauterbach_policy,
+};
 pub use filter::{QueryFilter, RayHit};
+pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
 pub use plugin::{KinetracePlugin, Plugin, TraceSet};
 pub use stats::{MeshAction, MeshStats, RebuildReason, TraceStats};

@@ -60,13 +60,26 @@ impl Default for KinetracePlugin {
 }
 
 impl Plugin for KinetracePlugin {
+    /// [`try_build`](KinetracePlugin::try_build), logging a failure (batched queries then run on the CPU).
     fn build(&self, world: &mut World, schedule: &mut Schedule) {
+        if let Err(e) = self.try_build(world, schedule) {
+            log::error!("kinetrace: {e}; batched queries run on the CPU");
+        }
+    }
+}
+
+impl KinetracePlugin {
+    /// Installs the plugin; in a GPU mode also creates the GPU device. Fails only for
+    /// [`TraceMode::GpuRequired`] without a usable GPU, with [`Error::NoGpu`](crate::Error::NoGpu) — after
+    /// installing everything else, so the app still runs on the CPU if the caller chooses to go on.
+    pub fn try_build(&self, world: &mut World, schedule: &mut Schedule) -> crate::Result<()> {
         world.insert_resource(self.config.clone());
         world.init_resource::<TraceWorld>();
         world.init_resource::<RayQueue>();
         world.init_resource::<RayResults>();
         world.init_resource::<TraceStats>();
         MessageRegistry::register_message::<TraceErrorMessage>(world);
+        world.remove_resource::<GpuQueries>();
         schedule.configure_sets(
             (
                 TraceSet::Animate,
@@ -88,5 +101,41 @@ impl Plugin for KinetracePlugin {
             top_level_system.in_set(TraceSet::TopLevel),
             queries_system.in_set(TraceSet::Queries),
         ));
+        self.start_gpu(world)
+    }
+
+    #[cfg(feature = "gpu")]
+    fn start_gpu(&self, world: &mut World) -> crate::Result<()> {
+        if self.config.mode == TraceMode::Cpu {
+            return Ok(());
+        }
+        match crate::gpu::GpuContext::new() {
+            Ok(ctx) => {
+                log::info!("kinetrace: batched queries on {}", ctx.adapter_name());
+                world.insert_resource(GpuQueries::new(ctx));
+                Ok(())
+            }
+            Err(e) if self.config.mode == TraceMode::GpuRequired => Err(e),
+            Err(e) => {
+                log::warn!("kinetrace: {e}; batched queries run on the CPU");
+                Ok(())
+            }
+        }
+    }
+
+    #[cfg(not(feature = "gpu"))]
+    fn start_gpu(&self, _world: &mut World) -> crate::Result<()> {
+        match self.config.mode {
+            TraceMode::GpuRequired => Err(crate::Error::NoGpu(
+                "kinetrace was built without the gpu feature".into(),
+            )),
+            TraceMode::GpuWhenAvailable => {
+                log::warn!(
+                    "kinetrace: built without the gpu feature; batched queries run on the CPU"
+                );
+                Ok(())
+            }
+            TraceMode::Cpu => Ok(()),
+        }
     }
 }

@@ -277,25 +277,9 @@ pub(crate) fn top_level_system(
     stats.top_level_time = t.elapsed();
 }
 
-/// [`TraceSet::Queries`]: answers every queued request, on all threads.
-pub(crate) fn queries_system(
-    world: Res<TraceWorld>,
-    config: Res<TraceConfig>,
-    mut queue: ResMut<RayQueue>,
-    mut results: ResMut<RayResults>,
-    mut pending: Local<RayResults>,
-    mut stats: ResMut<TraceStats>,
-) {
-    let t = Instant::now();
-    let out: &mut RayResults = match config.latency {
-        Latency::SameFrame => &mut results,
-        Latency::NextFrame => {
-            // Publish last frame's answers, compute this frame's for the next.
-            std::mem::swap(&mut *results, &mut *pending);
-            &mut pending
-        }
-    };
-    out.frame = stats.frame;
+/// The CPU answers to every queued request, on all threads, into `out`.
+fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut RayResults) {
+    out.frame = frame;
     let (rays, shadows) = (&queue.rays, &queue.shadows);
     out.hits.resize(rays.len(), (0, None));
     parallel::fill(true, &mut out.hits, 64, |i| {
@@ -307,8 +291,61 @@ pub(crate) fn queries_system(
         let s = &shadows[i];
         (s.tag, world.occluded(s.from, s.to, &s.filter))
     });
+}
+
+/// [`TraceSet::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
+/// CPU threads — and publishes them now ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`],
+/// when a GPU batch is collected without having stalled the frame that submitted it).
+pub(crate) fn queries_system(
+    world: Res<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut queue: ResMut<RayQueue>,
+    mut results: ResMut<RayResults>,
+    mut pending: Local<RayResults>,
+    gpu: Option<ResMut<GpuQueries>>,
+    mut stats: ResMut<TraceStats>,
+) {
+    let t = Instant::now();
+    let frame = stats.frame;
+    let next_frame = config.latency == Latency::NextFrame;
+    #[cfg(feature = "gpu")]
+    if let Some(mut gpu) = gpu {
+        let publish = |r: Option<crate::Result<RayResults>>, results: &mut RayResults| match r {
+            Some(Ok(r)) => *results = r,
+            Some(Err(e)) => log::error!("kinetrace: GPU batch lost: {e}"),
+            None => {
+                results.hits.clear();
+                results.shadows.clear();
+            }
+        };
+        if next_frame {
+            let previous = gpu.collect();
+            publish(previous, &mut results);
+            gpu.submit(&world, &queue, frame);
+        } else {
+            gpu.submit(&world, &queue, frame);
+            let now = gpu.collect();
+            publish(now, &mut results);
+        }
+        finish(&mut queue, &mut stats, t);
+        return;
+    }
+    #[cfg(not(feature = "gpu"))]
+    let _ = gpu;
+    if next_frame {
+        // Publish last frame's answers, compute this frame's for the next.
+        std::mem::swap(&mut *results, &mut *pending);
+        answer_on_cpu(&world, &queue, frame, &mut pending);
+    } else {
+        answer_on_cpu(&world, &queue, frame, &mut results);
+    }
+    finish(&mut queue, &mut stats, t);
+}
+
+/// Empties the queue (keeping its memory) and records the phase.
+fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     stats.batched_rays = queue.len();
     queue.rays.clear();
     queue.shadows.clear();
-    stats.query_time = t.elapsed();
+    stats.query_time = start.elapsed();
 }

@@ -111,6 +111,8 @@ pub struct TraceWorld {
     pub(crate) tlas_dirty: bool,
     /// Set when the set of entities changed (the TLAS is rebuilt rather than refitted).
     pub(crate) membership_changed: bool,
+    /// Incremented whenever anything a query reads changed (for GPU uploads).
+    pub(crate) version: u64,
 }
 
 impl TraceWorld {
@@ -186,6 +188,7 @@ impl TraceWorld {
         }
         self.tlas_dirty = false;
         self.membership_changed = false;
+        self.version += 1;
         true
     }
 

@@ -83,10 +83,18 @@ impl Module {
     }
 }
 
+/// A kernel file with common.wgsl (and, for `rays`, the ray tests) prepended: WGSL has no includes.
 macro_rules! shader {
     ($file:literal) => {
         concat!(
             include_str!("../../shaders/common.wgsl"),
+            include_str!(concat!("../../shaders/", $file))
+        )
+    };
+    (rays $file:literal) => {
+        concat!(
+            include_str!("../../shaders/common.wgsl"),
+            include_str!("../../shaders/ray_tests.wgsl"),
             include_str!(concat!("../../shaders/", $file))
         )
     };
@@ -100,6 +108,7 @@ pub(crate) struct Kernels {
     pub levels: Module,
     pub reduce: Module,
     pub trace: Module,
+    pub scene: Module,
     pub skin: Module,
 }
 
@@ -154,9 +163,16 @@ impl Kernels {
             trace: Module::new(
                 device,
                 "trace",
-                shader!("trace.wgsl"),
+                shader!(rays "trace.wgsl"),
                 &[Read, Read, Read, Read, Write, Uniform],
                 &["closest", "any_hit"],
+            ),
+            scene: Module::new(
+                device,
+                "scene",
+                shader!(rays "scene.wgsl"),
+                &[Read, Read, Read, Read, Read, Read, Read, Write, Uniform],
+                &["scene_trace"],
             ),
             skin: Module::new(
                 device,

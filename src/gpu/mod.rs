@@ -29,6 +29,7 @@ mod buffers;
 mod bvh;
 mod context;
 mod kernels;
+pub(crate) mod scene;
 mod skin;
 mod sort;
 mod trace;

@@ -10,7 +10,7 @@ use bytemuck::{Pod, Zeroable};
 /// on the CPU so both devices intersect with identical edge functions. 80 bytes.
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuRay {
+pub(crate) struct GpuRay {
     origin: [f32; 3],
     tmin: f32,
     inv_dir: [f32; 3],
@@ -31,7 +31,7 @@ impl GpuRay {
     /// The GPU form of `ray`. The kernel avoids infinities (WGSL may assume none): `tmax = ∞` becomes
     /// `f32::MAX` (same answers, hits are finite), zero direction components get a zero reciprocal and a
     /// flag, and a negative `tmin` is raised to 0.
-    fn new(ray: &Ray) -> Self {
+    pub(crate) fn new(ray: &Ray) -> Self {
         if !ray.is_valid() {
             return GpuRay {
                 dir_bits: 1 << 31,
@@ -60,6 +60,16 @@ impl GpuRay {
             row_z: row_z.to_array(),
             _pad1: 0,
         }
+    }
+}
+
+impl GpuRay {
+    /// The form scene.wgsl takes: triangles are tested in each entity's object space, so instead of the
+    /// world-space shear rows it needs the world direction, sent in `row_x`.
+    pub(crate) fn for_scene(ray: &Ray) -> Self {
+        let mut r = Self::new(ray);
+        r.row_x = ray.dir.to_array();
+        r
     }
 }
 

@@ -1,0 +1,101 @@
+// Ray–box and ray–triangle tests shared by the single-mesh (trace.wgsl) and two-level (scene.wgsl) ray
+// kernels; prepended after common.wgsl.
+
+struct GpuRay {
+    origin: vec3<f32>,
+    tmin: f32,
+    inv_dir: vec3<f32>,
+    tmax: f32,
+    row_x: vec3<f32>,
+    dir_bits: u32,    // bit k: component k of the direction has its sign bit set; bit 3 + k: it is zero
+    row_y: vec3<f32>,
+    _pad0: u32,
+    row_z: vec3<f32>,
+    _pad1: u32,
+}
+
+const MISS: u32 = 0xffffffffu;
+
+const ROBUST_TMAX_SCALE: f32 = 1.0000002384185791; // 1 + 2 ulp
+
+const BIG: f32 = 3.0e38;
+
+fn bits3(b: u32) -> vec3<bool> {
+    return vec3<bool>((b & 1u) != 0u, (b & 2u) != 0u, (b & 4u) != 0u);
+}
+
+// Entry distance into the node's box within [tmin, tmax], or -1 for a miss (tmin >= 0 is enforced on
+// upload). WGSL lets implementations assume no NaN or infinity, so instead of the CPU's 0·∞ = NaN that
+// drops out of max/min, an axis along which the ray does not move (its inv_dir is uploaded as 0) is
+// decided by whether the origin lies within the slab: unbounded if it does, empty if not. Same answers.
+fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
+    let t0 = (n.min - ray.origin) * ray.inv_dir;
+    let t1 = (n.max - ray.origin) * ray.inv_dir;
+    let neg = bits3(ray.dir_bits);
+    let zero = bits3(ray.dir_bits >> 3u);
+    let inside = (ray.origin >= n.min) & (ray.origin <= n.max);
+    let near = select(select(t0, t1, neg), select(vec3<f32>(BIG), vec3<f32>(-BIG), inside), zero);
+    let far = select(select(t1, t0, neg), select(vec3<f32>(-BIG), vec3<f32>(BIG), inside), zero);
+    let tnear = max(near.x, max(near.y, max(near.z, ray.tmin)));
+    let tfar = min(far.x, min(far.y, far.z));
+    if tnear <= min(tfar * ROBUST_TMAX_SCALE, tmax) { return tnear; }
+    return -1.0;
+}
+
+// Veltkamp split of a (no overflow for |a| < 2^115): a = hi + lo exactly, each with at most 12 bits.
+fn split(a: f32) -> vec2<f32> {
+    let c = 4097.0 * a;
+    let hi = c - (c - a);
+    return vec2<f32>(hi, a - hi);
+}
+
+// The exact error of fl(a * b): a * b = fl(a * b) + err (Dekker).
+fn product_error(a: f32, b: f32, p: f32) -> f32 {
+    let x = split(a);
+    let y = split(b);
+    return ((x.x * y.x - p) + x.x * y.y + x.y * y.x) + x.y * y.y;
+}
+
+// p·q' − p'·q rounded once: when the two rounded products are equal, the exact difference is the
+// difference of their rounding errors, which is what the CPU's f64 fallback rounds to f32.
+fn edge(px: f32, py: f32, qx: f32, qy: f32) -> f32 {
+    let a = px * qy;
+    let b = py * qx;
+    if a != b { return a - b; }
+    return product_error(px, qy, a) - product_error(py, qx, b);
+}
+
+struct TriHit { ok: bool, t: f32, u: f32, v: f32 }
+
+fn intersect(ray: GpuRay, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, tmax: f32) -> TriHit {
+    var miss = TriHit(false, 0.0, 0.0, 0.0);
+    // Zero-area triangles never hit (the CPU stores them collapsed to a point).
+    let n = cross(v1 - v0, v2 - v0);
+    if all(n == vec3<f32>(0.0)) { return miss; }
+    let a = v0 - ray.origin;
+    let b = v1 - ray.origin;
+    let c = v2 - ray.origin;
+    let ax = dot(ray.row_x, a);
+    let ay = dot(ray.row_y, a);
+    let bx = dot(ray.row_x, b);
+    let by = dot(ray.row_y, b);
+    let cx = dot(ray.row_x, c);
+    let cy = dot(ray.row_y, c);
+    var u = cx * by - cy * bx;
+    var v = ax * cy - ay * cx;
+    var w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        u = edge(cx, cy, bx, by);
+        v = edge(ax, ay, cx, cy);
+        w = edge(bx, by, ax, ay);
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) { return miss; }
+    let det = u + v + w;
+    if det == 0.0 { return miss; }
+    let big_t = u * dot(ray.row_z, a) + v * dot(ray.row_z, b) + w * dot(ray.row_z, c);
+    let rcp = 1.0 / det;
+    let t = big_t * rcp;
+    if !(t >= ray.tmin && t <= tmax) { return miss; }
+    return TriHit(true, t, v * rcp, w * rcp);
+}
+

@@ -1,0 +1,139 @@
+//! Batched queries on the GPU for [`TraceMode::GpuWhenAvailable`](super::TraceMode) and
+//! [`TraceMode::GpuRequired`](super::TraceMode).
+
+use bevy_ecs::prelude::*;
+
+/// The GPU state of batched queries, present when a GPU mode found an adapter.
+#[derive(Resource)]
+pub struct GpuQueries {
+    #[cfg(feature = "gpu")]
+    inner: imp::Inner,
+}
+
+#[cfg(feature = "gpu")]
+mod imp {
+    use super::*;
+    use crate::ecs::{RayQueue, RayResults, TraceWorld};
+    use crate::geometry::Ray;
+    use crate::gpu::GpuContext;
+    use crate::gpu::scene::{GpuScene, SceneReadback, SceneRequest};
+
+    /// A batch submitted but not yet collected: the CPU-answered part is in `fresh`, the GPU answers
+    /// arrive through the read-backs and go to the recorded indices.
+    pub(crate) struct Pending {
+        fresh: RayResults,
+        ray_at: Vec<usize>,
+        ray_requests: Vec<SceneRequest>,
+        closest: SceneReadback,
+        shadow_at: Vec<usize>,
+        shadows: SceneReadback,
+    }
+
+    pub(crate) struct Inner {
+        ctx: GpuContext,
+        scene: GpuScene,
+        pending: Option<Pending>,
+    }
+
+    impl GpuQueries {
+        pub(crate) fn new(ctx: GpuContext) -> Self {
+            let scene = GpuScene::new(&ctx);
+            GpuQueries {
+                inner: Inner {
+                    ctx,
+                    scene,
+                    pending: None,
+                },
+            }
+        }
+
+        /// The adapter answering the queries.
+        pub fn adapter_name(&self) -> &str {
+            self.inner.ctx.adapter_name()
+        }
+
+        /// Answers `queue` (requests the GPU cannot take — predicates, several exclusions — on the CPU) and
+        /// submits; the answers come back through [`collect`](Self::collect).
+        pub(crate) fn submit(&mut self, world: &TraceWorld, queue: &RayQueue, frame: u64) {
+            let inner = &mut self.inner;
+            inner.scene.sync(&inner.ctx, world);
+            let mut fresh = RayResults {
+                frame,
+                hits: Vec::with_capacity(queue.rays.len()),
+                shadows: Vec::with_capacity(queue.shadows.len()),
+            };
+            let gpu_ok =
+                |f: &super::super::QueryFilter| f.predicate.is_none() && f.excluded.len() <= 1;
+            let (mut ray_at, mut ray_requests, mut shadow_at, mut shadow_requests) =
+                (vec![], vec![], vec![], vec![]);
+            for (i, r) in queue.rays.iter().enumerate() {
+                if gpu_ok(&r.filter) {
+                    ray_at.push(i);
+                    ray_requests.push(SceneRequest {
+                        ray: r.ray,
+                        layers: r.filter.layers,
+                        exclude: r.filter.excluded.first().copied(),
+                    });
+                    fresh.hits.push((r.tag, None));
+                } else {
+                    fresh
+                        .hits
+                        .push((r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter)));
+                }
+            }
+            for (i, s) in queue.shadows.iter().enumerate() {
+                if gpu_ok(&s.filter) {
+                    shadow_at.push(i);
+                    shadow_requests.push(SceneRequest {
+                        ray: Ray::segment(s.from, s.to),
+                        layers: s.filter.layers,
+                        exclude: s.filter.excluded.first().copied(),
+                    });
+                    fresh.shadows.push((s.tag, false));
+                } else {
+                    fresh
+                        .shadows
+                        .push((s.tag, world.occluded(s.from, s.to, &s.filter)));
+                }
+            }
+            let mut enc = inner.ctx.encoder();
+            let closest = inner
+                .scene
+                .record(&inner.ctx, &mut enc, &ray_requests, false);
+            let shadows = inner
+                .scene
+                .record(&inner.ctx, &mut enc, &shadow_requests, true);
+            inner.ctx.submit(enc);
+            inner.pending = Some(Pending {
+                fresh,
+                ray_at,
+                ray_requests,
+                closest,
+                shadow_at,
+                shadows,
+            });
+        }
+
+        /// The answers of the last submitted batch (blocking until the GPU is done), or `None` when there is
+        /// none.
+        pub(crate) fn collect(&mut self) -> Option<crate::Result<RayResults>> {
+            let inner = &mut self.inner;
+            let p = inner.pending.take()?;
+            let mut fresh = p.fresh;
+            let run = || -> crate::Result<RayResults> {
+                let hits = inner
+                    .scene
+                    .closest_hits(&inner.ctx, p.closest, &p.ray_requests)?;
+                for (at, h) in p.ray_at.iter().zip(hits) {
+                    fresh.hits[*at].1 = h;
+                }
+                let blocked = inner.scene.occluded(&inner.ctx, p.shadows)?;
+                for (at, b) in p.shadow_at.iter().zip(blocked) {
+                    fresh.shadows[*at].1 = b;
+                }
+                Ok(fresh)
+            };
+            Some(run())
+        }
+    }
+}
