@@ -50,6 +50,11 @@ impl Mesh {
         &self.indices
     }
 
+    /// The shared index buffer.
+    pub(crate) fn indices_arc(&self) -> Arc<[u32]> {
+        self.indices.clone()
+    }
+
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.indices.len() / 3

@@ -198,3 +198,31 @@ fn refit_rejects_bad_positions_and_leaves_the_tree_unchanged() {
     tree.refit(&boxes).unwrap();
     tree.validate(Some(&boxes)).unwrap();
 }
+
+#[test]
+fn refit_of_a_mesh_past_the_gather_threshold_is_exact_too() {
+    // 500k unshared triangles: 1.5M vertices, 18 MB, above GATHER_BELOW_BYTES: the scatter path.
+    let m = soup(12, 500_000);
+    assert!(std::mem::size_of_val(m.positions()) > kinetrace::bvh::GATHER_BELOW_BYTES);
+    let mut bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH)).unwrap();
+    let mut r = rng(13);
+    let dirs: Vec<Vec3> = (0..m.triangle_count())
+        .map(|_| rand_dir(&mut r) * 0.03)
+        .collect();
+    let pos = moved(&m, |i, p| p + dirs[i / 3]);
+    let d = bvh.refit(&pos).unwrap();
+    assert_eq!(d, bvh.bvh().degradation());
+    let m2 = m.with_positions(pos).unwrap();
+    bvh.bvh().validate(Some(&m2.triangle_bounds())).unwrap();
+    for i in 0..40 {
+        let ray = Ray::new(rand_vec(&mut r, -0.5, 1.5), rand_dir(&mut r));
+        let got = bvh.closest_hit(&ray).map(|h| (h.primitive, h.t));
+        assert_same_hit(
+            &m2,
+            &ray,
+            got,
+            brute_closest(&m2, &ray),
+            &format!("ray {i}"),
+        );
+    }
+}

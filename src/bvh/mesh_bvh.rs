@@ -6,6 +6,7 @@ use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
 use glam::Vec3;
+use std::sync::Arc;
 
 /// The nearest intersection of a ray with a mesh.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -55,7 +56,17 @@ pub struct MeshBvh {
     /// Vertex indices of each slot's triangle.
     slot_indices: Vec<[u32; 3]>,
     vertex_count: usize,
+    /// The mesh's index buffer (shared with it) and each triangle's slot: refit walks triangles in mesh
+    /// order and scatters to slots, so the vertex reads stream through memory.
+    indices: Arc<[u32]>,
+    slot_of: Vec<u32>,
+    /// Refit scratch: each slot's triangle box, kept between calls.
+    slot_bounds: Vec<Aabb>,
 }
+
+/// Vertex arrays up to this size (about 1.4M vertices) are refitted by reading vertices in leaf order;
+/// larger ones by walking triangles in mesh order (see [`MeshBvh::refit`]).
+pub const GATHER_BELOW_BYTES: usize = 16 << 20;
 
 /// The corners a query tests: the triangle itself, or a single point for a zero-area triangle (exactly zero
 /// cross product in `f32`), so that rounding in the ray's frame can never turn a degenerate triangle into a hit.
@@ -87,16 +98,28 @@ impl MeshBvh {
             .iter()
             .map(|t| query_corners(t.map(|i| pos[i as usize])))
             .collect();
+        let mut slot_of = vec![0u32; bounds.len()];
+        for (slot, &p) in bvh.prim_indices().iter().enumerate() {
+            slot_of[p as usize] = slot as u32;
+        }
         Ok(MeshBvh {
             bvh,
             tris,
             slot_indices,
             vertex_count: pos.len(),
+            indices: mesh.indices_arc(),
+            slot_of,
+            slot_bounds: vec![Aabb::EMPTY; bounds.len()],
         })
     }
 
     /// Refits to new vertex positions (same count and topology as the mesh it was built from) and returns the
     /// degradation metric (see [`Bvh::refit`]). O(n), no allocation.
+    ///
+    /// Up to [`GATHER_BELOW_BYTES`] of vertices it reads each leaf's vertices in leaf order; above, it walks
+    /// the triangles in mesh order and scatters to leaf slots first (one thread, 2-core VM: a 1M-triangle soup
+    /// with 3M unshared vertices 14 → 37 Mtris/s; a 1M-triangle surface with 0.5M shared vertices, whose
+    /// leaf-order reads stay in cache, 69 Mtris/s gathering against 54 scattering).
     ///
     /// Errors: [`Error::VertexCountMismatch`], [`Error::NonFiniteVertex`]; the tree is unchanged then.
     pub fn refit(&mut self, positions: &[Vec3]) -> Result<f32> {
@@ -107,12 +130,25 @@ impl MeshBvh {
             });
         }
         check_positions(positions)?;
-        let (tris, idx) = (&mut self.tris, &self.slot_indices);
-        Ok(refit_nodes(&mut self.bvh.nodes, |slot| {
-            let [a, b, c] = idx[slot].map(|i| positions[i as usize]);
-            tris[slot] = query_corners([a, b, c]);
-            Aabb::from_triangle(a, b, c)
-        }))
+        if std::mem::size_of_val(positions) <= GATHER_BELOW_BYTES {
+            // The vertices stay in cache: read them in leaf order, straight into the node pass.
+            let (tris, idx) = (&mut self.tris, &self.slot_indices);
+            return Ok(refit_nodes(&mut self.bvh.nodes, |slot| {
+                let [a, b, c] = idx[slot].map(|i| positions[i as usize]);
+                tris[slot] = query_corners([a, b, c]);
+                Aabb::from_triangle(a, b, c)
+            }));
+        }
+        // Triangles in mesh order (vertex reads follow the mesh's own layout), results scattered to slots:
+        // stores do not stall the way a gather of vertices in leaf order does once they miss the cache.
+        for (t, tri) in self.indices.chunks_exact(3).enumerate() {
+            let [a, b, c] = [tri[0], tri[1], tri[2]].map(|i| positions[i as usize]);
+            let slot = self.slot_of[t] as usize;
+            self.tris[slot] = query_corners([a, b, c]);
+            self.slot_bounds[slot] = Aabb::from_triangle(a, b, c);
+        }
+        let boxes = &self.slot_bounds;
+        Ok(refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot]))
     }
 
     /// The tree.

@@ -31,7 +31,7 @@ mod traverse;
 mod validate;
 
 pub use build_sah::MAX_BINS;
-pub use mesh_bvh::{Hit, MeshBvh};
+pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub use traverse::TraversalStats;
 pub(crate) use traverse::traverse;
