@@ -13,6 +13,15 @@ const LEVELS: usize = 64;
 /// The `levels` buffer (u32s): counts, cursors and offsets per depth.
 const LEVEL_WORDS: u64 = 3 * LEVELS as u64;
 
+/// The two halves of an LBVH build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BuildPhase {
+    /// Triangle bounds, scene bounds, Morton codes and their radix sort.
+    Sort,
+    /// Radix tree, layout, level schedule, and boxes bottom-up.
+    Tree,
+}
+
 /// A mesh's BVH kept on the GPU.
 ///
 /// [`record_build`](Self::record_build) rebuilds it with LBVH (30-bit Morton codes, one triangle per leaf)
@@ -275,12 +284,27 @@ impl GpuMeshBvh {
     /// Records a full LBVH rebuild from the current positions: bounds, Morton codes, sort, radix tree,
     /// layout, level schedule, then boxes and build-time SA ratios bottom-up.
     pub fn record_build(&mut self, ctx: &GpuContext, encoder: &mut wgpu::CommandEncoder) {
+        self.record_build_phase(ctx, encoder, BuildPhase::Sort);
+        self.record_build_phase(ctx, encoder, BuildPhase::Tree);
+    }
+
+    /// Records one phase of [`record_build`](Self::record_build), so that the phases can be timed apart;
+    /// [`BuildPhase::Tree`] must follow a [`BuildPhase::Sort`] of the same positions.
+    pub fn record_build_phase(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        phase: BuildPhase,
+    ) {
         if self.tris == 0 {
             return;
         }
         let k = &ctx.kernels;
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("kinetrace lbvh"),
+            label: Some(match phase {
+                BuildPhase::Sort => "kinetrace lbvh sort",
+                BuildPhase::Tree => "kinetrace lbvh tree",
+            }),
             timestamp_writes: None,
         });
         let mesh = [ParamSlots::offset(SLOT_MESH)];
@@ -290,15 +314,21 @@ impl GpuMeshBvh {
             pass.set_bind_group(0, &self.lbvh_group, &mesh);
             pass.dispatch_workgroups(x, y, 1);
         };
-        run(&mut pass, "tri_bounds", self.tris);
-        run(&mut pass, "reduce_bounds", 1);
-        run(&mut pass, "morton", self.tris);
-        self.sort.record(ctx, &mut pass);
-        run(&mut pass, "karras", self.tris);
-        run(&mut pass, "walk_up", self.node_count());
-        self.record_schedule(ctx, &mut pass);
-        self.record_levels(ctx, &mut pass, SLOT_BUILD);
-        self.built = true;
+        match phase {
+            BuildPhase::Sort => {
+                run(&mut pass, "tri_bounds", self.tris);
+                run(&mut pass, "reduce_bounds", 1);
+                run(&mut pass, "morton", self.tris);
+                self.sort.record(ctx, &mut pass);
+            }
+            BuildPhase::Tree => {
+                run(&mut pass, "karras", self.tris);
+                run(&mut pass, "walk_up", self.node_count());
+                self.record_schedule(ctx, &mut pass);
+                self.record_levels(ctx, &mut pass, SLOT_BUILD);
+                self.built = true;
+            }
+        }
     }
 
     /// Buckets the nodes by depth (once per topology).
