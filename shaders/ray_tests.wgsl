@@ -99,3 +99,36 @@ fn intersect(ray: GpuRay, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, tmax: f32
     return TriHit(true, t, v * rcp, w * rcp);
 }
 
+
+// The traversal stack of one ray: farther children waiting, with their entry distances. 64 entries: no
+// tree is deeper (src/bvh/node.rs MAX_DEPTH).
+struct Stack {
+    node: array<u32, 64>,
+    t: array<f32, 64>,
+    sp: u32,
+}
+
+// After testing an inner node's children (at `c` and `c + 1`, entry distances `ta`, `tb`, negative for a
+// miss): the child to visit next, the nearer one, with the farther pushed; MISS when neither was hit.
+fn descend(stack: ptr<function, Stack>, c: u32, ta: f32, tb: f32) -> u32 {
+    if ta >= 0.0 && tb >= 0.0 {
+        let a_first = ta <= tb;
+        (*stack).node[(*stack).sp] = select(c, c + 1u, a_first);
+        (*stack).t[(*stack).sp] = select(ta, tb, a_first);
+        (*stack).sp += 1u;
+        return select(c + 1u, c, a_first);
+    }
+    if ta >= 0.0 { return c; }
+    if tb >= 0.0 { return c + 1u; }
+    return MISS;
+}
+
+// The next waiting subtree that can still hold something within `tmax`, or MISS when none is left.
+fn pop(stack: ptr<function, Stack>, tmax: f32) -> u32 {
+    loop {
+        if (*stack).sp == 0u { return MISS; }
+        (*stack).sp -= 1u;
+        if (*stack).t[(*stack).sp] <= tmax { return (*stack).node[(*stack).sp]; }
+    }
+    return MISS;
+}

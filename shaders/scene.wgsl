@@ -92,9 +92,8 @@ fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
     var best = Best(ray.tmax, MISS, 0.0, 0.0, vec3<f32>(0.0), false);
     let root = blas[inst.node_offset];
     if slab(ray, root, best.t) < 0.0 { return best; }
-    var stack_node: array<u32, 64>;
-    var stack_t: array<f32, 64>;
-    var sp = 0u;
+    var stack: Stack;
+    stack.sp = 0u;
     var cur = 0u;
     loop {
         let n = blas[inst.node_offset + cur];
@@ -115,29 +114,12 @@ fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
             }
         } else {
             let c = n.index;
-            let ta = slab(ray, blas[inst.node_offset + c], best.t);
-            let tb = slab(ray, blas[inst.node_offset + c + 1u], best.t);
-            if ta >= 0.0 && tb >= 0.0 {
-                let a_first = ta <= tb;
-                next = select(c + 1u, c, a_first);
-                stack_node[sp] = select(c, c + 1u, a_first);
-                stack_t[sp] = select(ta, tb, a_first);
-                sp += 1u;
-            } else if ta >= 0.0 {
-                next = c;
-            } else if tb >= 0.0 {
-                next = c + 1u;
-            }
+            let o = inst.node_offset;
+            next = descend(&stack, c, slab(ray, blas[o + c], best.t), slab(ray, blas[o + c + 1u], best.t));
         }
         if next == MISS {
-            loop {
-                if sp == 0u { return best; }
-                sp -= 1u;
-                if stack_t[sp] <= best.t {
-                    next = stack_node[sp];
-                    break;
-                }
-            }
+            next = pop(&stack, best.t);
+            if next == MISS { return best; }
         }
         cur = next;
     }
@@ -164,9 +146,8 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         hits[i] = out;
         return;
     }
-    var stack_node: array<u32, 64>;
-    var stack_t: array<f32, 64>;
-    var sp = 0u;
+    var stack: Stack;
+    stack.sp = 0u;
     var cur = 0u;
     loop {
         let n = tlas[cur];
@@ -181,42 +162,17 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
                     let n = normalize(b.normal);
                     let wn = normalize(inst.n0.xyz * n.x + inst.n1.xyz * n.y + inst.n2.xyz * n.z);
                     out = SceneHit(b.t, b.prim, b.u, b.v, s, 0u, 0u, 0u, wn, 0.0);
-                    if any {
-                        hits[i] = out;
-                        return;
-                    }
+                    if any { break; }
                 }
             }
+            if any && out.prim != MISS { break; }
         } else {
             let c = n.index;
-            let ta = slab(ray, tlas[c], out.t);
-            let tb = slab(ray, tlas[c + 1u], out.t);
-            if ta >= 0.0 && tb >= 0.0 {
-                let a_first = ta <= tb;
-                next = select(c + 1u, c, a_first);
-                stack_node[sp] = select(c, c + 1u, a_first);
-                stack_t[sp] = select(ta, tb, a_first);
-                sp += 1u;
-            } else if ta >= 0.0 {
-                next = c;
-            } else if tb >= 0.0 {
-                next = c + 1u;
-            }
+            next = descend(&stack, c, slab(ray, tlas[c], out.t), slab(ray, tlas[c + 1u], out.t));
         }
         if next == MISS {
-            var done = false;
-            loop {
-                if sp == 0u {
-                    done = true;
-                    break;
-                }
-                sp -= 1u;
-                if stack_t[sp] <= out.t {
-                    next = stack_node[sp];
-                    break;
-                }
-            }
-            if done { break; }
+            next = pop(&stack, out.t);
+            if next == MISS { break; }
         }
         cur = next;
     }

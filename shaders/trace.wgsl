@@ -24,9 +24,8 @@ fn trace(ray: GpuRay, any: bool) -> GpuHit {
     var best = GpuHit(ray.tmax, MISS, 0.0, 0.0);
     if (ray.dir_bits & 0x80000000u) != 0u { return best; } // invalid ray
     if arrayLength(&nodes) == 0u || slab(ray, nodes[0], ray.tmax) < 0.0 { return best; }
-    var stack_node: array<u32, 64>;
-    var stack_t: array<f32, 64>;
-    var sp = 0u;
+    var stack: Stack;
+    stack.sp = 0u;
     var cur = 0u;
     loop {
         let n = nodes[cur];
@@ -43,30 +42,11 @@ fn trace(ray: GpuRay, any: bool) -> GpuHit {
             }
         } else {
             let c = n.index;
-            let ta = slab(ray, nodes[c], best.t);
-            let tb = slab(ray, nodes[c + 1u], best.t);
-            if ta >= 0.0 && tb >= 0.0 {
-                let a_first = ta <= tb;
-                next = select(c + 1u, c, a_first);
-                stack_node[sp] = select(c, c + 1u, a_first);
-                stack_t[sp] = select(ta, tb, a_first);
-                sp += 1u;
-            } else if ta >= 0.0 {
-                next = c;
-            } else if tb >= 0.0 {
-                next = c + 1u;
-            }
+            next = descend(&stack, c, slab(ray, nodes[c], best.t), slab(ray, nodes[c + 1u], best.t));
         }
         if next == MISS {
-            // Pop the next subtree that can still hold something nearer than the best hit.
-            loop {
-                if sp == 0u { return best; }
-                sp -= 1u;
-                if stack_t[sp] <= best.t {
-                    next = stack_node[sp];
-                    break;
-                }
-            }
+            next = pop(&stack, best.t);
+            if next == MISS { return best; }
         }
         cur = next;
     }

@@ -5,7 +5,7 @@ use crate::peers::{self, BenchRay, PeerResult};
 use crate::record::{Records, best_of};
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
-use kinetrace::scenes::{SceneRng, bumpy_torus, soup};
+use kinetrace::scenes::{bumpy_torus, soup};
 use kinetrace::{Hit, Mesh, MeshBvh, Ray};
 
 const SUITE: &str = "cpu";
@@ -42,43 +42,19 @@ fn one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
         .install(f)
 }
 
-/// Camera rays over the mesh (row-major, coherent) and random rays through its box (incoherent).
+/// The suite's ray sets in the peers' form.
 fn ray_sets(mesh: &Mesh, n: usize) -> [(&'static str, Vec<BenchRay>); 2] {
-    let b = mesh
-        .triangle_bounds()
-        .iter()
-        .fold(kinetrace::Aabb::EMPTY, |a, t| a.union(t));
-    let (c, size) = (b.center(), b.extent().length());
-    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
-    let side = (n as f64).sqrt() as usize;
-    let camera = (0..side * side)
-        .map(|i| {
-            let (x, y) = (
-                (i % side) as f32 / side as f32 - 0.5,
-                (i / side) as f32 / side as f32 - 0.5,
-            );
-            BenchRay {
-                origin: eye,
-                dir: (fwd + right * x * 0.9 + up * y * 0.9).normalize(),
-                tmax: f32::INFINITY,
-            }
-        })
-        .collect();
-    let mut r = SceneRng::new(99);
-    let random = (0..side * side)
-        .map(|_| {
-            let o = b.min + (b.max - b.min) * r.vec3(0.0, 1.0);
-            BenchRay {
-                origin: o,
-                dir: r.direction(),
-                tmax: f32::INFINITY,
-            }
-        })
-        .collect();
-    [("coherent", camera), ("random", random)]
+    crate::rays::camera_and_random(mesh, n).map(|(kind, rays)| {
+        let rays = rays
+            .iter()
+            .map(|r| BenchRay {
+                origin: r.origin,
+                dir: r.dir,
+                tmax: r.tmax,
+            })
+            .collect();
+        (kind, rays)
+    })
 }
 
 fn to_rays(rays: &[BenchRay]) -> Vec<Ray> {

@@ -3,10 +3,9 @@
 //! phase, waited for: on a real GPU this includes submission latency, so small sizes understate throughput.
 
 use crate::record::{Records, best_of};
-use glam::Vec3;
+use kinetrace::Mesh;
 use kinetrace::gpu::{BuildPhase, GpuContext, GpuMeshBvh, GpuRays, Query};
-use kinetrace::scenes::{SceneRng, bumpy_torus};
-use kinetrace::{Aabb, Mesh, Ray};
+use kinetrace::scenes::bumpy_torus;
 
 const SUITE: &str = "gpu";
 
@@ -106,29 +105,7 @@ fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count
         "bytes/tri",
     );
 
-    let b = mesh
-        .triangle_bounds()
-        .iter()
-        .fold(Aabb::EMPTY, |a, t| a.union(t));
-    let (c, size) = (b.center(), b.extent().length());
-    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
-    let side = (ray_count as f64).sqrt() as usize;
-    let camera: Vec<Ray> = (0..side * side)
-        .map(|i| {
-            let (x, y) = (
-                (i % side) as f32 / side as f32 - 0.5,
-                (i / side) as f32 / side as f32 - 0.5,
-            );
-            Ray::new(eye, (fwd + right * x * 0.9 + up * y * 0.9).normalize())
-        })
-        .collect();
-    let mut r = SceneRng::new(5);
-    let random: Vec<Ray> = (0..side * side)
-        .map(|_| Ray::new(b.min + b.extent() * r.vec3(0.0, 1.0), r.direction()))
-        .collect();
+    let [(_, camera), (_, random)] = crate::rays::camera_and_random(mesh, ray_count);
     let mut gr = GpuRays::new(ctx);
     for (kind, rays) in [("coherent", &camera), ("random", &random)] {
         for (q, metric) in [(Query::Closest, "closest"), (Query::Any, "any-hit")] {

@@ -14,6 +14,7 @@ mod cpu;
 mod ecs;
 mod gpu;
 mod peers;
+mod rays;
 mod record;
 
 use record::Records;
