@@ -8,6 +8,19 @@ use bevy_ecs::prelude::*;
 pub struct GpuQueries {
     #[cfg(feature = "gpu")]
     inner: imp::Inner,
+    /// Without the `gpu` feature there is never one.
+    #[cfg(not(feature = "gpu"))]
+    never: std::convert::Infallible,
+}
+
+impl GpuQueries {
+    /// The adapter answering the queries.
+    pub fn adapter_name(&self) -> &str {
+        #[cfg(feature = "gpu")]
+        return self.inner.ctx.adapter_name();
+        #[cfg(not(feature = "gpu"))]
+        match self.never {}
+    }
 }
 
 #[cfg(feature = "gpu")]
@@ -30,7 +43,7 @@ mod imp {
     }
 
     pub(crate) struct Inner {
-        ctx: GpuContext,
+        pub(super) ctx: GpuContext,
         scene: GpuScene,
         pending: Option<Pending>,
     }
@@ -45,11 +58,6 @@ mod imp {
                     pending: None,
                 },
             }
-        }
-
-        /// The adapter answering the queries.
-        pub fn adapter_name(&self) -> &str {
-            self.inner.ctx.adapter_name()
         }
 
         /// Answers `queue` (requests the GPU cannot take — predicates, several exclusions — on the CPU) and

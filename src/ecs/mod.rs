@@ -49,6 +49,7 @@
 //! assert_eq!(world.resource::<RayResults>().shadows, vec![(7, true)]);
 //! ```
 
+mod animation;
 mod batch;
 mod components;
 mod config;
@@ -60,6 +61,7 @@ mod stats;
 mod systems;
 mod world;
 
+pub use animation::{AnimationClock, AnimationPlayer};
 pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
 pub use components::*;
 pub use config::{

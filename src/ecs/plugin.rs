@@ -78,6 +78,7 @@ impl KinetracePlugin {
         world.init_resource::<RayQueue>();
         world.init_resource::<RayResults>();
         world.init_resource::<TraceStats>();
+        world.init_resource::<super::AnimationClock>();
         MessageRegistry::register_message::<TraceErrorMessage>(world);
         world.remove_resource::<GpuQueries>();
         schedule.configure_sets(
@@ -96,6 +97,7 @@ impl KinetracePlugin {
         }
         schedule.add_systems((
             begin_frame.before(TraceSet::Animate),
+            super::animation::animate_system.in_set(TraceSet::Animate),
             skin_system.in_set(TraceSet::Skin),
             maintain_system.in_set(TraceSet::Maintain),
             top_level_system.in_set(TraceSet::TopLevel),

@@ -168,11 +168,11 @@ impl GpuScene {
             });
         }
         for (buf, bytes) in [
-            (&mut self.tlas, tlas.nodes().len() * 32),
-            (&mut self.instances, instances.len() * 96),
-            (&mut self.blas, nodes.len() * 32),
-            (&mut self.slot_tris, slot_tris.len() * 16),
-            (&mut self.corners, corners.len() * 12),
+            (&mut self.tlas, std::mem::size_of_val(tlas.nodes())),
+            (&mut self.instances, std::mem::size_of_val(&instances[..])),
+            (&mut self.blas, std::mem::size_of_val(&nodes[..])),
+            (&mut self.slot_tris, std::mem::size_of_val(&slot_tris[..])),
+            (&mut self.corners, std::mem::size_of_val(&corners[..])),
         ] {
             buf.ensure(ctx, bytes as u64);
         }
@@ -203,9 +203,12 @@ impl GpuScene {
             let [lo, hi] = r.exclude.map_or([u32::MAX; 2], split);
             [r.layers, lo, hi, 0]
         }));
-        b.rays.ensure(ctx, n as u64 * 80);
-        b.filters.ensure(ctx, n as u64 * 16);
-        b.hits.ensure(ctx, n as u64 * 48);
+        b.rays
+            .ensure(ctx, std::mem::size_of_val(&b.up_rays[..]) as u64);
+        b.filters
+            .ensure(ctx, std::mem::size_of_val(&b.up_filters[..]) as u64);
+        b.hits
+            .ensure(ctx, n as u64 * std::mem::size_of::<SceneHit>() as u64);
         b.rays.write(ctx, &b.up_rays);
         b.filters.write(ctx, &b.up_filters);
         ctx.queue.write_buffer(

@@ -1,0 +1,448 @@
+//! The main demo: a crowd of skinned, animated characters walking on a ground, their trees kept current
+//! every frame, queried by gameplay systems, and ray traced to PNG.
+//!
+//! ```text
+//! cargo run --release --example crowd -- [--characters 64] [--triangles 10000] [--frames 600]
+//!                                         [--cpu] [--png-every 120] [--out target/crowd]
+//! ```
+//! Gameplay each frame: every character checks line of sight (shadow rays, batched) to its two nearest
+//! neighbours and probes the ground under it (immediate ray); a turret sweeps the crowd and reports which
+//! character, triangle and joint its ray hits. Once per simulated second a table line shows the frame time by
+//! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
+//! shadows from the sun, the turret's hits marked red. Batched queries run on the GPU when one is found
+//! (`--cpu` keeps them on the CPU).
+
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Quat, Vec2, Vec3};
+use kinetrace::anim::humanoid;
+use kinetrace::ecs::*;
+use kinetrace::{Mesh, Ray};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Characters in the crowd.
+    pub characters: usize,
+    /// Triangles per character.
+    pub triangles: usize,
+    /// Frames to simulate (at 60 per simulated second).
+    pub frames: usize,
+    /// Batched queries on the GPU when there is one.
+    pub gpu: bool,
+    /// Write a PNG every this many frames (0: never), and after the last frame.
+    pub png_every: usize,
+    /// Where the PNGs go.
+    pub out: PathBuf,
+    /// Image size.
+    pub width: u32,
+    /// Image size.
+    pub height: u32,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            characters: 64,
+            triangles: 10_000,
+            frames: 600,
+            gpu: true,
+            png_every: 120,
+            out: PathBuf::from("target/crowd"),
+            width: 480,
+            height: 270,
+        }
+    }
+}
+
+/// What a run did, for the caller (and the integration test).
+#[derive(Debug, Default)]
+pub struct Summary {
+    /// PNG files written.
+    pub pngs: Vec<PathBuf>,
+    /// Frames whose ground probe found the ground under every character.
+    pub grounded_frames: usize,
+    /// Turret rays that hit a character.
+    pub turret_hits: usize,
+    /// Line-of-sight checks answered.
+    pub sight_checks: usize,
+    /// Rebuilds and refits over the run.
+    pub rebuilds: usize,
+    /// Refits over the run.
+    pub refits: usize,
+}
+
+const CHARACTERS: u32 = 1 << 0;
+const GROUND: u32 = 1 << 1;
+const DT: f32 = 1.0 / 60.0;
+
+#[derive(Component)]
+struct Walker {
+    pos: Vec2,
+    heading: f32,
+    speed: f32,
+    turn: f32,
+}
+
+#[derive(Resource)]
+struct Crowd {
+    summary: Summary,
+    turret_marks: Vec<Vec3>,
+}
+
+/// Moves every walker: forward along its heading, turning gently, pushed apart from near neighbours and
+/// kept inside the arena.
+fn walk(mut q: Query<(Entity, &mut Walker, &mut TraceTransform)>) {
+    let snapshot: Vec<(Entity, Vec2)> = q.iter().map(|(e, w, _)| (e, w.pos)).collect();
+    for (e, mut w, mut t) in &mut q {
+        let mut push = Vec2::ZERO;
+        for &(o, p) in &snapshot {
+            let d = w.pos - p;
+            if o != e && d.length_squared() < 0.8 * 0.8 && d.length_squared() > 1e-8 {
+                push += d.normalize() * (0.8 - d.length());
+            }
+        }
+        let home = -w.pos * (w.pos.length() - 12.0).max(0.0) * 0.05;
+        w.heading += w.turn * DT;
+        let dir = Vec2::new(w.heading.sin(), w.heading.cos());
+        let step = dir * w.speed * DT + push * 0.5 + home * DT;
+        w.pos += step;
+        t.0 = Affine3A::from_rotation_translation(
+            Quat::from_rotation_y(w.heading),
+            Vec3::new(w.pos.x, 0.0, w.pos.y),
+        );
+    }
+}
+
+/// Line of sight to the two nearest neighbours (batched occlusion) and a ground probe (immediate).
+fn look_and_probe(
+    walkers: Query<(Entity, &Walker)>,
+    rays: SpatialRays,
+    mut queue: ResMut<RayQueue>,
+    mut crowd: ResMut<Crowd>,
+) {
+    let all: Vec<(Entity, Vec2)> = walkers.iter().map(|(e, w)| (e, w.pos)).collect();
+    let mut grounded = true;
+    for (i, &(e, p)) in all.iter().enumerate() {
+        let mut near: Vec<(f32, Vec2)> = all
+            .iter()
+            .filter(|(o, _)| *o != e)
+            .map(|(_, q)| ((*q - p).length_squared(), *q))
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let eye = Vec3::new(p.x, 1.7, p.y);
+        for (k, (_, q)) in near.iter().take(2).enumerate() {
+            let target = Vec3::new(q.x, 1.7, q.y);
+            // Stop short of the neighbour's head: we ask whether anyone else is in between.
+            let to = target - (target - eye).normalize_or_zero() * 0.35;
+            queue.shadow(
+                (i * 2 + k) as u64,
+                eye,
+                to,
+                QueryFilter::default().layers(CHARACTERS).exclude(e),
+            );
+        }
+        let probe = Ray::new(Vec3::new(p.x, 1.0, p.y), -Vec3::Y);
+        grounded &= rays
+            .cast_ray(&probe, 5.0, &QueryFilter::default().layers(GROUND))
+            .is_some_and(|h| (h.distance - 1.0).abs() < 0.01);
+    }
+    crowd.summary.grounded_frames += grounded as usize;
+}
+
+/// The turret sweeps the crowd; a hit reports character, triangle and the joint that moves it most.
+fn turret(
+    rays: SpatialRays,
+    stats: Res<TraceStats>,
+    mut crowd: ResMut<Crowd>,
+    players: Query<&AnimationPlayer>,
+) {
+    let a = stats.frame as f32 * 0.02;
+    let origin = Vec3::new(0.0, 3.0, -16.0);
+    let aim = Vec3::new(10.0 * a.sin(), 1.2, 6.0 * (0.7 * a).cos());
+    let Some(hit) = rays.cast_ray(
+        &Ray::new(origin, (aim - origin).normalize()),
+        60.0,
+        &QueryFilter::default().layers(CHARACTERS),
+    ) else {
+        return;
+    };
+    let Ok(player) = players.get(hit.entity) else {
+        return;
+    };
+    let mesh = &player.asset.mesh;
+    let v = mesh.indices()[3 * hit.triangle as usize] as usize;
+    let (joints, weights) = (
+        &player.asset.weights.joints[v],
+        &player.asset.weights.weights[v],
+    );
+    let k = (0..4)
+        .max_by(|&i, &j| weights[i].total_cmp(&weights[j]))
+        .unwrap_or(0);
+    let joint = &player.asset.skeleton.joints[joints[k] as usize].name;
+    if stats.frame.is_multiple_of(60) {
+        println!(
+            "    turret: {} triangle {} ({joint}) at {:.2} m",
+            hit.entity, hit.triangle, hit.distance
+        );
+    }
+    crowd.summary.turret_hits += 1;
+    crowd.turret_marks.push(hit.point);
+    if crowd.turret_marks.len() > 240 {
+        crowd.turret_marks.remove(0);
+    }
+}
+
+/// Runs the demo.
+pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
+    std::fs::create_dir_all(&opt.out)?;
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    let mode = if opt.gpu {
+        TraceMode::GpuWhenAvailable
+    } else {
+        TraceMode::Cpu
+    };
+    KinetracePlugin {
+        config: TraceConfig {
+            mode,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+    .try_build(&mut world, &mut schedule)?;
+    let device = world
+        .get_resource::<GpuQueries>()
+        .map_or("the CPU".to_string(), |g| {
+            format!("the GPU ({})", g.adapter_name())
+        });
+    let asset = Arc::new(humanoid(opt.triangles));
+    println!(
+        "crowd: {} characters x {} triangles ({} in all), batched queries on {device}",
+        opt.characters,
+        asset.mesh.triangle_count(),
+        opt.characters * asset.mesh.triangle_count()
+    );
+    let ground = Mesh::new(
+        vec![
+            Vec3::new(-30.0, 0.0, -30.0),
+            Vec3::new(30.0, 0.0, -30.0),
+            Vec3::new(30.0, 0.0, 30.0),
+            Vec3::new(-30.0, 0.0, 30.0),
+        ],
+        vec![0, 2, 1, 0, 3, 2],
+    )?;
+    world.spawn((TraceMesh(ground), MotionHint::Static, QueryLayers(GROUND)));
+    let walk_clip = asset.clip("walk").unwrap_or(0);
+    let run_clip = asset.clip("run").unwrap_or(0);
+    let flail_clip = asset.clip("flail").unwrap_or(0);
+    for i in 0..opt.characters {
+        let a = i as f32 * 2.399; // golden-angle spiral
+        let r = 1.5 * (i as f32 + 1.0).sqrt();
+        let clip = match i % 7 {
+            0 => flail_clip,
+            1 | 2 => run_clip,
+            _ => walk_clip,
+        };
+        let speed = if clip == run_clip {
+            3.0
+        } else if clip == flail_clip {
+            0.3
+        } else {
+            1.4
+        };
+        world.spawn((
+            AnimationPlayer::bundle(&asset, clip, i as f32 * 0.13),
+            TraceTransform(Affine3A::from_translation(Vec3::new(
+                r * a.cos(),
+                0.0,
+                r * a.sin(),
+            ))),
+            QueryLayers(CHARACTERS),
+            Walker {
+                pos: Vec2::new(r * a.cos(), r * a.sin()),
+                heading: a,
+                speed,
+                turn: 0.3 * ((i % 5) as f32 - 2.0) / 2.0,
+            },
+        ));
+    }
+    world.insert_resource(Crowd {
+        summary: Summary::default(),
+        turret_marks: Vec::new(),
+    });
+    schedule.add_systems((
+        walk.before(TraceSet::TopLevel),
+        (look_and_probe, turret)
+            .after(TraceSet::TopLevel)
+            .before(TraceSet::Queries),
+    ));
+    println!(
+        "  second |  frame ms | animate+skin | maintain | top level | queries | refits rebuilds | rays"
+    );
+    let (mut acc, mut phases, mut work) = (
+        Duration::ZERO,
+        [Duration::ZERO; 4],
+        (0usize, 0usize, 0usize),
+    );
+    for f in 0..opt.frames {
+        let t = Instant::now();
+        schedule.run(&mut world);
+        world.clear_trackers();
+        acc += t.elapsed();
+        let s = world.resource::<TraceStats>().clone();
+        for (p, d) in
+            phases
+                .iter_mut()
+                .zip([s.skin_time, s.maintain_time, s.top_level_time, s.query_time])
+        {
+            *p += d;
+        }
+        work.0 += s.refits;
+        work.1 += s.rebuilds;
+        work.2 += s.batched_rays;
+        {
+            let sight = world.resource::<RayResults>().shadows.len();
+            let mut crowd = world.resource_mut::<Crowd>();
+            crowd.summary.refits += s.refits;
+            crowd.summary.rebuilds += s.rebuilds;
+            crowd.summary.sight_checks += sight;
+        }
+        if (f + 1) % 60 == 0 {
+            let ms = |d: Duration| d.as_secs_f64() * 1e3 / 60.0;
+            println!(
+                "  {:>6} | {:>9.2} | {:>12.2} | {:>8.2} | {:>9.2} | {:>7.2} | {:>6} {:>8} | {}",
+                (f + 1) / 60,
+                ms(acc),
+                ms(phases[0]),
+                ms(phases[1]),
+                ms(phases[2]),
+                ms(phases[3]),
+                work.0,
+                work.1,
+                work.2
+            );
+            (acc, phases, work) = (Duration::ZERO, [Duration::ZERO; 4], (0, 0, 0));
+        }
+        if (opt.png_every > 0 && (f + 1) % opt.png_every == 0) || f + 1 == opt.frames {
+            let path = opt.out.join(format!("crowd_{:05}.png", f + 1));
+            render(&world, opt.width, opt.height, &path)?;
+            world.resource_mut::<Crowd>().summary.pngs.push(path);
+        }
+    }
+    let crowd = world.remove_resource::<Crowd>().expect("inserted");
+    let s = &crowd.summary;
+    println!(
+        "{} frames: {} refits, {} rebuilds, {} line-of-sight checks, turret hit a character {} times, ground found under everyone in {} frames; images: {}",
+        opt.frames,
+        s.refits,
+        s.rebuilds,
+        s.sight_checks,
+        s.turret_hits,
+        s.grounded_frames,
+        s.pngs
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    Ok(crowd.summary)
+}
+
+/// Ray traces the world from a fixed camera: Lambert shading, hard shadows from the sun, turret hits red.
+fn render(
+    world: &World,
+    w: u32,
+    h: u32,
+    path: &std::path::Path,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let tw = world.resource::<TraceWorld>();
+    let marks = &world.resource::<Crowd>().turret_marks;
+    let sun = Vec3::new(0.4, 1.0, -0.3).normalize();
+    let eye = Vec3::new(0.0, 14.0, -24.0);
+    let fwd = (Vec3::new(0.0, 0.5, 0.0) - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let aspect = w as f32 / h as f32;
+    let all = QueryFilter::default();
+    let mut img = image::RgbImage::new(w, h);
+    for (x, y, px) in img.enumerate_pixels_mut() {
+        let (u, v) = (
+            (x as f32 + 0.5) / w as f32 - 0.5,
+            0.5 - (y as f32 + 0.5) / h as f32,
+        );
+        let ray = Ray::new(
+            eye,
+            (fwd + right * u * aspect * 0.9 + up * v * 0.9).normalize(),
+        );
+        let c = match tw.cast_ray(&ray, 200.0, &all) {
+            None => Vec3::new(0.55, 0.7, 0.9) * (0.8 + 0.2 * v),
+            Some(hit) => {
+                let n = if hit.normal.dot(ray.dir) > 0.0 {
+                    -hit.normal
+                } else {
+                    hit.normal
+                };
+                let lit = !tw.occluded(hit.point + n * 1e-3, hit.point + sun * 100.0, &all);
+                let albedo = if hit.point.y.abs() < 1e-3 && hit.normal.y.abs() > 0.99 {
+                    let check = ((hit.point.x.floor() + hit.point.z.floor()) as i32 & 1) as f32;
+                    Vec3::splat(0.55 + 0.1 * check)
+                } else {
+                    let k = hit.entity.index_u32() as f32;
+                    Vec3::new(
+                        0.6 + 0.3 * (k * 1.3).sin(),
+                        0.5 + 0.3 * (k * 2.1).sin(),
+                        0.5 + 0.3 * (k * 0.7).cos(),
+                    )
+                };
+                let near_mark = marks.iter().any(|m| (*m - hit.point).length() < 0.06);
+                if near_mark {
+                    Vec3::new(1.0, 0.1, 0.1)
+                } else {
+                    albedo * (0.25 + if lit { 0.75 * n.dot(sun).max(0.0) } else { 0.0 })
+                }
+            }
+        };
+        *px = image::Rgb(c.to_array().map(|x| (x.clamp(0.0, 1.0) * 255.0) as u8));
+    }
+    img.save(path)?;
+    Ok(())
+}
+
+#[allow(dead_code)] // the integration test uses `run` only
+fn main() {
+    let mut opt = Options::default();
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut num = |what: &str| -> usize {
+            args.next().and_then(|v| v.parse().ok()).unwrap_or_else(|| {
+                eprintln!("{a} needs a number ({what})");
+                std::process::exit(2)
+            })
+        };
+        match a.as_str() {
+            "--characters" => opt.characters = num("characters"),
+            "--triangles" => opt.triangles = num("triangles per character"),
+            "--frames" => opt.frames = num("frames"),
+            "--png-every" => opt.png_every = num("frames between images"),
+            "--cpu" => opt.gpu = false,
+            "--gpu" => opt.gpu = true,
+            "--out" => {
+                opt.out = PathBuf::from(args.next().unwrap_or_else(|| "target/crowd".into()))
+            }
+            _ => {
+                eprintln!(
+                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR]"
+                );
+                std::process::exit(2);
+            }
+        }
+    }
+    if let Err(e) = run(&opt) {
+        eprintln!("crowd: {e}");
+        std::process::exit(1);
+    }
+}
