@@ -61,6 +61,17 @@ pub enum Error {
     /// The GPU reported an error while running kernels (validation, out of memory, lost device).
     #[error("GPU error: {0}")]
     Gpu(String),
+    /// A glTF file could not be used; the message names the element (mesh, accessor, animation...).
+    #[error("glTF: {0}")]
+    Gltf(String),
+    /// A file could not be read.
+    #[error("{path}: {message}")]
+    Io {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        message: String,
+    },
     /// A build option is out of its range.
     #[error("invalid build option: {0}")]
     InvalidOption(String),

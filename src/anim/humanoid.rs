@@ -198,6 +198,7 @@ fn skeleton() -> Skeleton {
     Skeleton {
         joints,
         inverse_bind,
+        root: Mat4::IDENTITY,
     }
 }
 

@@ -59,6 +59,8 @@ pub struct Skeleton {
     pub joints: Vec<Joint>,
     /// One per joint.
     pub inverse_bind: Vec<Mat4>,
+    /// World transform of whatever the root joints hang from (glTF nodes above the skin's joints).
+    pub root: Mat4,
 }
 
 impl Skeleton {
@@ -75,7 +77,7 @@ impl Skeleton {
             let local = pose[i].matrix();
             out[i] = match j.parent {
                 Some(p) => out[p] * local,
-                None => local,
+                None => self.root * local,
             };
         }
         for (m, ib) in out.iter_mut().zip(&self.inverse_bind) {
