@@ -5,7 +5,7 @@
 //! ```
 //! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays),
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
-//! overhead).
+//! overhead), `skinning` (skinning throughput and crowd frame times).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
 //! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
@@ -16,11 +16,12 @@ mod gpu;
 mod peers;
 mod rays;
 mod record;
+mod skinning;
 
 use record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 3] = ["cpu", "gpu", "ecs"];
+const SUITES: [&str; 4] = ["cpu", "gpu", "ecs", "skinning"];
 
 fn main() -> ExitCode {
     let mut quick = false;
@@ -48,6 +49,7 @@ fn main() -> ExitCode {
             "cpu" => cpu::run(&mut rec),
             "gpu" => gpu::run(&mut rec),
             "ecs" => ecs::run(&mut rec),
+            "skinning" => skinning::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

@@ -65,7 +65,9 @@ pub struct TraceStats {
     pub batched_rays: usize,
     /// The same count of the previous frame (what the policy sees).
     pub rays_last_frame: usize,
-    /// Time per phase.
+    /// Time per phase: clip sampling and joint matrices.
+    pub animate_time: Duration,
+    /// Skinning.
     pub skin_time: Duration,
     /// Refit and rebuild of meshes.
     pub maintain_time: Duration,
