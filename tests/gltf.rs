@@ -359,3 +359,33 @@ fn malformed_files_are_errors_naming_the_problem() {
         Err(Error::Io { .. })
     ));
 }
+
+#[test]
+fn the_procedural_character_round_trips_through_glb() {
+    let h = kinetrace::anim::humanoid(3_000);
+    let bytes = kinetrace::anim::character_to_glb(&h);
+    let loaded = load_gltf_slice(&bytes, None).expect("our own GLB loads");
+    assert_eq!(loaded.len(), 1);
+    let back = loaded[0].character.as_ref().expect("skinned");
+    assert_eq!(loaded[0].mesh.indices(), h.mesh.indices());
+    assert_eq!(loaded[0].mesh.positions(), h.mesh.positions());
+    assert_eq!(back.weights.joints, h.weights.joints);
+    assert_eq!(back.skeleton.inverse_bind, h.skeleton.inverse_bind);
+    assert_eq!(back.clips.len(), h.clips.len());
+    // Every clip poses the skeleton identically at any time.
+    let (mut a, mut b) = (h.skeleton.rest_pose(), back.skeleton.rest_pose());
+    let (mut ma, mut mb) = (vec![Mat4::IDENTITY; a.len()], vec![Mat4::IDENTITY; b.len()]);
+    for (ca, cb) in h.clips.iter().zip(&back.clips) {
+        assert_eq!(ca.name, cb.name);
+        for k in 0..13 {
+            let t = k as f32 / 12.0 * ca.duration * 1.1;
+            ca.sample(t, &mut a);
+            cb.sample(t, &mut b);
+            h.skeleton.skin_matrices(&a, &mut ma);
+            back.skeleton.skin_matrices(&b, &mut mb);
+            for (x, y) in ma.iter().zip(&mb) {
+                assert!(x.abs_diff_eq(*y, 1e-5), "{} at {t}: {x} vs {y}", ca.name);
+            }
+        }
+    }
+}
