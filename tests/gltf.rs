@@ -197,7 +197,7 @@ impl Doc {
         let mut bin = Vec::new();
         let mut views = Vec::new();
         let mut push = |bytes: &[u8]| {
-            while bin.len() % 4 != 0 {
+            while !bin.len().is_multiple_of(4) {
                 bin.push(0);
             }
             views.push((bin.len(), bytes.len()));

@@ -17,7 +17,7 @@ pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
     // index); returns that index.
     let mut next = 0usize;
     let mut add = |bytes: &[u8], count: usize, component: u32, kind: &str, extra: &str| -> usize {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let (n, sep) = (next, if next == 0 { "" } else { "," });
@@ -189,7 +189,7 @@ pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
         .map(|(i, _)| i.to_string())
         .collect();
     let joint_list: Vec<String> = (0..n).map(|i| i.to_string()).collect();
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let json = format!(
@@ -202,7 +202,7 @@ pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
         bin.len()
     );
     let mut json = json.into_bytes();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let total = 12 + 8 + json.len() + 8 + bin.len();
