@@ -377,19 +377,16 @@ fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
     let bad_joint = world
         .spawn((
             TraceMesh(m.clone()),
-            TraceSkin {
-                weights: weights.clone(),
-                joint_matrices: vec![Mat4::IDENTITY],
-            },
+            TraceSkin::new(weights.clone(), vec![Mat4::IDENTITY]),
         ))
         .id();
     let nan = world
         .spawn((
             TraceMesh(m.clone()),
-            TraceSkin {
-                weights: weights.clone(),
-                joint_matrices: vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::NAN)],
-            },
+            TraceSkin::new(
+                weights.clone(),
+                vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::NAN)],
+            ),
         ))
         .id();
     let bad_transform = world
@@ -401,10 +398,10 @@ fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
     let ok_skin = world
         .spawn((
             TraceMesh(m.clone()),
-            TraceSkin {
+            TraceSkin::new(
                 weights,
-                joint_matrices: vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::Y * 9.0)],
-            },
+                vec![Mat4::IDENTITY, Mat4::from_translation(Vec3::Y * 9.0)],
+            ),
         ))
         .id();
     frame(&mut world, &mut schedule);

@@ -164,6 +164,9 @@ struct Doc {
     rotations: Vec<[f32; 4]>,
     mode: u32,
     index_count_extra: usize,
+    /// One morph target's displacement per vertex (none when empty), with weights keyed at `times`.
+    morph: Vec<[f32; 3]>,
+    morph_weights: Vec<f32>,
 }
 
 impl Doc {
@@ -190,6 +193,8 @@ impl Doc {
             ],
             mode: 4,
             index_count_extra: 0,
+            morph: Vec::new(),
+            morph_weights: Vec::new(),
         }
     }
 
@@ -209,6 +214,11 @@ impl Doc {
         push(bytemuck::cast_slice(&self.weights));
         push(bytemuck::cast_slice(&self.times));
         push(bytemuck::cast_slice(&self.rotations));
+        let morphed = !self.morph.is_empty();
+        if morphed {
+            push(bytemuck::cast_slice(&self.morph));
+            push(bytemuck::cast_slice(&self.morph_weights));
+        }
         let b64 = base64::engine::general_purpose::STANDARD.encode(&bin);
         let views_json: Vec<String> = views
             .iter()
@@ -230,7 +240,7 @@ impl Doc {
                 "0".into()
             }
         };
-        format!(
+        let json = format!(
             r#"{{"asset":{{"version":"2.0"}},
 "buffers":[{{"byteLength":{},"uri":"data:application/octet-stream;base64,{b64}"}}],
 "bufferViews":[{}],
@@ -263,7 +273,29 @@ impl Doc {
             t(self.times.last().copied().unwrap_or(0.0)),
             self.rotations.len(),
             self.mode
-        )
+        );
+        if !morphed {
+            return json;
+        }
+        // Accessors 6 (the target's displacements) and 7 (its weight per key), the target on the primitive,
+        // a default weight on the mesh, and a weights channel on the mesh node.
+        let (dl, dh) = self
+            .morph
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(l, h), d| (l.min(d[2]), h.max(d[2])));
+        let extra = format!(
+            r#"}},
+ {{"bufferView":6,"componentType":5126,"count":{},"type":"VEC3","min":[0,0,{dl}],"max":[0,0,{dh}]}},
+ {{"bufferView":7,"componentType":5126,"count":{},"type":"SCALAR"}}],
+"meshes""#,
+            self.morph.len(),
+            self.morph_weights.len()
+        );
+        json.replacen("}],\n\"meshes\"", &extra, 1)
+            .replacen("\"mode\":", "\"targets\":[{\"POSITION\":6}],\"mode\":", 1)
+            .replacen("]}],\n\"skins\"", "],\"weights\":[0]}],\n\"skins\"", 1)
+            .replacen("\"path\":\"rotation\"}}]", "\"path\":\"rotation\"}},{\"sampler\":1,\"target\":{\"node\":0,\"path\":\"weights\"}}]", 1)
+            .replacen("\"interpolation\":\"LINEAR\"}]", "\"interpolation\":\"LINEAR\"},{\"input\":4,\"output\":7,\"interpolation\":\"LINEAR\"}]", 1)
     }
 
     fn load(&self) -> kinetrace::Result<Vec<kinetrace::anim::GltfMesh>> {
@@ -386,6 +418,44 @@ fn the_procedural_character_round_trips_through_glb() {
             for (x, y) in ma.iter().zip(&mb) {
                 assert!(x.abs_diff_eq(*y, 1e-5), "{} at {t}: {x} vs {y}", ca.name);
             }
+        }
+    }
+}
+
+#[test]
+fn morph_target_weights_animate_the_rest_pose() {
+    let plain = Doc::new();
+    let mut morphing = Doc::new();
+    morphing.morph = vec![[0.0, 0.0, 1.0]; 4];
+    morphing.morph_weights = vec![0.0, 1.0];
+    let run = |d: &Doc| {
+        let m = d.load().unwrap();
+        let asset = Arc::new(m[0].character.clone().unwrap());
+        let mut world = World::new();
+        let mut schedule = Schedule::default();
+        KinetracePlugin::default().build(&mut world, &mut schedule);
+        world.resource_mut::<AnimationClock>().delta = 0.25;
+        let e = world.spawn(AnimationPlayer::bundle(&asset, 0, 0.0)).id();
+        let mut out = Vec::new();
+        for _ in 0..3 {
+            schedule.run(&mut world);
+            world.clear_trackers();
+            out.push(world.get::<VertexPositions>(e).unwrap().0.clone());
+        }
+        (asset, out)
+    };
+    let (asset, with) = run(&morphing);
+    let (_, without) = run(&plain);
+    let morphs = asset.morphs.as_ref().expect("the target was loaded");
+    assert_eq!(morphs.deltas, vec![vec![Vec3::Z; 4]]);
+    // The joints only turn about z, which keeps z: the morph adds exactly (0, 0, weight), weight = time.
+    for (frame, (a, b)) in with.iter().zip(&without).enumerate() {
+        let w = 0.25 * (frame + 1) as f32;
+        for (p, q) in a.iter().zip(b) {
+            assert!(
+                (*p - *q - Vec3::Z * w).length() < 1e-5,
+                "frame {frame}: {p} vs {q}"
+            );
         }
     }
 }

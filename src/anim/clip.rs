@@ -23,6 +23,11 @@ pub enum Property {
     Rotation,
     /// Scale (xyz).
     Scale,
+    /// Morph target weights `first .. first + 4` (a channel per group of four targets).
+    Weights {
+        /// The group's first target.
+        first: usize,
+    },
 }
 
 /// One joint property over time. Values are `Vec4` (w unused for translation and scale); for
@@ -109,6 +114,9 @@ impl Clip {
     /// Overwrites the driven properties of `pose` with their values at time `t`.
     pub fn sample(&self, t: f32, pose: &mut [Transform]) {
         for c in &self.channels {
+            if matches!(c.property, Property::Weights { .. }) {
+                continue;
+            }
             let Some(j) = pose.get_mut(c.joint) else {
                 continue;
             };
@@ -117,6 +125,19 @@ impl Clip {
                 Property::Translation => j.translation = v.truncate(),
                 Property::Rotation => j.rotation = Quat::from_vec4(v).normalize(),
                 Property::Scale => j.scale = Vec3::new(v.x, v.y, v.z),
+                Property::Weights { .. } => {}
+            }
+        }
+    }
+
+    /// Overwrites the animated morph target weights in `weights` with their values at time `t`.
+    pub fn sample_weights(&self, t: f32, weights: &mut [f32]) {
+        for c in &self.channels {
+            if let Property::Weights { first } = c.property {
+                let v = c.sample(t).to_array();
+                for (k, w) in weights.iter_mut().skip(first).take(4).enumerate() {
+                    *w = v[k];
+                }
             }
         }
     }

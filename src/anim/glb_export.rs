@@ -8,7 +8,7 @@ use std::fmt::Write;
 ///
 /// Layout: joints are nodes 0..n with their rest translation/rotation/scale; node n holds the mesh and the
 /// skin; one scene holds the root joints and the mesh node. Positions f32, indices u32, JOINTS_0 u16,
-/// WEIGHTS_0 f32, one animation per clip.
+/// WEIGHTS_0 f32, one animation per clip. Morph targets are not written.
 pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
     let mut bin: Vec<u8> = Vec::new();
     let mut views = String::new();
@@ -79,7 +79,12 @@ pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
     let mut animations = String::new();
     for (k, clip) in c.clips.iter().enumerate() {
         let (mut channels, mut samplers) = (String::new(), String::new());
-        for (i, ch) in clip.channels.iter().enumerate() {
+        for (i, ch) in clip
+            .channels
+            .iter()
+            .filter(|c| !matches!(c.property, Property::Weights { .. }))
+            .enumerate()
+        {
             let (tmin, tmax) = (
                 ch.times.first().copied().unwrap_or(0.0),
                 ch.times.last().copied().unwrap_or(0.0),
@@ -92,6 +97,7 @@ pub fn character_to_glb(c: &CharacterAsset) -> Vec<u8> {
                 &format!(",\"min\":[{tmin}],\"max\":[{tmax}]"),
             );
             let (path, values): (&str, Vec<f32>) = match ch.property {
+                Property::Weights { .. } => unreachable!("filtered out above"),
                 Property::Rotation => (
                     "rotation",
                     ch.values.iter().flat_map(|v| v.to_array()).collect(),

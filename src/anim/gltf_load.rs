@@ -3,7 +3,8 @@
 //! [`Error::Gltf`] naming what is wrong, never a panic.
 
 use super::{
-    Channel, CharacterAsset, Clip, Interpolation, Joint, Property, Skeleton, SkinWeights, Transform,
+    Channel, CharacterAsset, Clip, Interpolation, Joint, MorphTargets, Property, Skeleton,
+    SkinWeights, Transform,
 };
 use crate::{Error, Mesh, Result};
 use base64::Engine;
@@ -73,7 +74,7 @@ pub fn load_gltf_slice(bytes: &[u8], base: Option<&Path>) -> Result<Vec<GltfMesh
         let name = n
             .name()
             .map_or_else(|| format!("node {}", n.index()), str::to_string);
-        let (mesh, skin_weights) = read_mesh(&m, &buffers, n.skin().is_some())?;
+        let (mesh, skin_weights, morphs) = read_mesh(&m, &buffers, n.skin().is_some())?;
         let character = match n.skin() {
             None => None,
             Some(skin) => {
@@ -101,13 +102,22 @@ pub fn load_gltf_slice(bytes: &[u8], base: Option<&Path>) -> Result<Vec<GltfMesh
                 };
                 let clips = doc
                     .animations()
-                    .map(|a| read_clip(&a, &buffers, &node_to_joint))
+                    .map(|a| {
+                        read_clip(
+                            &a,
+                            &buffers,
+                            &node_to_joint,
+                            n.index(),
+                            morphs.as_ref().map_or(0, |m| m.deltas.len()),
+                        )
+                    })
                     .collect::<Result<Vec<_>>>()?;
                 Some(CharacterAsset {
                     mesh: mesh.clone(),
                     skeleton,
                     weights,
                     clips,
+                    morphs: morphs.map(Arc::new),
                 })
             }
         };
@@ -224,9 +234,16 @@ fn check_accessor(
 use gltf::accessor::{DataType as T, Dimensions as D};
 
 /// Merged triangles of every primitive, with joints and weights (renormalised) when skinned.
-fn read_mesh(m: &gltf::Mesh, buffers: &[Vec<u8>], skinned: bool) -> Result<(Mesh, SkinWeights)> {
+/// Morph targets too, when the mesh has them.
+fn read_mesh(
+    m: &gltf::Mesh,
+    buffers: &[Vec<u8>],
+    skinned: bool,
+) -> Result<(Mesh, SkinWeights, Option<MorphTargets>)> {
     let (mut pos, mut idx, mut joints, mut weights) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    let targets = m.primitives().next().map_or(0, |p| p.morph_targets().len());
+    let mut deltas: Vec<Vec<Vec3>> = vec![Vec::new(); targets];
     for p in m.primitives() {
         let what = format!("mesh {} primitive {}", m.index(), p.index());
         let reader = p.reader(|b| Some(&buffers[b.index()][..]));
@@ -280,6 +297,31 @@ fn read_mesh(m: &gltf::Mesh, buffers: &[Vec<u8>], skinned: bool) -> Result<(Mesh
             }
         };
         idx.extend(tris.iter().map(|i| i + base));
+        if p.morph_targets().len() != targets {
+            return Err(err(format!(
+                "{what}: {} morph targets, but the mesh's first primitive has {targets}",
+                p.morph_targets().len()
+            )));
+        }
+        for (k, (t, (read, _, _))) in p
+            .morph_targets()
+            .zip(reader.read_morph_targets())
+            .enumerate()
+        {
+            match (t.positions(), read) {
+                (Some(a), Some(r)) => {
+                    check_accessor(&a, buffers, &[D::Vec3], &[T::F32], &what)?;
+                    if a.count() != n {
+                        return Err(err(format!(
+                            "{what}: morph target {k} moves {} of {n} vertices",
+                            a.count()
+                        )));
+                    }
+                    deltas[k].extend(r.map(Vec3::from_array));
+                }
+                _ => deltas[k].extend(std::iter::repeat_n(Vec3::ZERO, n)),
+            }
+        }
         if skinned {
             let ja = p
                 .get(&gltf::Semantic::Joints(0))
@@ -317,7 +359,25 @@ fn read_mesh(m: &gltf::Mesh, buffers: &[Vec<u8>], skinned: bool) -> Result<(Mesh
         }
     }
     let mesh = Mesh::new(pos, idx).map_err(|e| err(format!("mesh {}: {e}", m.index())))?;
-    Ok((mesh, SkinWeights { joints, weights }))
+    if let Some((k, v)) = deltas
+        .iter()
+        .enumerate()
+        .find_map(|(k, d)| d.iter().position(|v| !v.is_finite()).map(|v| (k, v)))
+    {
+        return Err(err(format!(
+            "mesh {}: morph target {k} moves vertex {v} by a non-finite amount",
+            m.index()
+        )));
+    }
+    let morphs = (targets > 0).then(|| {
+        let mut default_weights = m.weights().map(<[f32]>::to_vec).unwrap_or_default();
+        default_weights.resize(targets, 0.0);
+        MorphTargets {
+            deltas,
+            default_weights,
+        }
+    });
+    Ok((mesh, SkinWeights { joints, weights }, morphs))
 }
 
 fn read_skeleton(
@@ -406,23 +466,25 @@ fn read_skeleton(
     })
 }
 
+/// The animation's channels on the skin's joints, and the morph target weights (`targets` per key) when
+/// they drive the mesh node.
 fn read_clip(
     a: &gltf::Animation,
     buffers: &[Vec<u8>],
     node_to_joint: &[Option<usize>],
+    mesh_node: usize,
+    targets: usize,
 ) -> Result<Clip> {
     let mut channels = Vec::new();
     let mut duration = 0f32;
     for ch in a.channels() {
         let what = format!("animation {} channel {}", a.index(), ch.index());
-        let Some(joint) = node_to_joint[ch.target().node().index()] else {
-            continue;
-        };
-        let property = match ch.target().property() {
-            gltf::animation::Property::Translation => Property::Translation,
-            gltf::animation::Property::Rotation => Property::Rotation,
-            gltf::animation::Property::Scale => Property::Scale,
-            gltf::animation::Property::MorphTargetWeights => continue, // morph targets are not applied yet
+        let node = ch.target().node().index();
+        let weights = ch.target().property() == gltf::animation::Property::MorphTargetWeights;
+        let joint = match (weights, node_to_joint[node]) {
+            (true, _) if node == mesh_node && targets > 0 => 0,
+            (false, Some(j)) => j,
+            _ => continue, // drives a node this character does not have
         };
         let sampler = ch.sampler();
         let interpolation = match sampler.interpolation() {
@@ -431,8 +493,13 @@ fn read_clip(
             gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
         };
         check_accessor(&sampler.input(), buffers, &[D::Scalar], &[T::F32], &what)?;
-        let (dims, types): (&[D], &[T]) = match property {
-            Property::Rotation => (&[D::Vec4], &[T::F32, T::I8, T::U8, T::I16, T::U16]),
+        let (dims, types): (&[D], &[T]) = match ch.target().property() {
+            gltf::animation::Property::Rotation => {
+                (&[D::Vec4], &[T::F32, T::I8, T::U8, T::I16, T::U16])
+            }
+            gltf::animation::Property::MorphTargetWeights => {
+                (&[D::Scalar], &[T::F32, T::I8, T::U8, T::I16, T::U16])
+            }
             _ => (&[D::Vec3], &[T::F32]),
         };
         check_accessor(&sampler.output(), buffers, dims, types, &what)?;
@@ -441,51 +508,80 @@ fn read_clip(
             .read_inputs()
             .ok_or_else(|| err(format!("{what}: unreadable times")))?
             .collect();
-        let values: Vec<Vec4> = match reader
-            .read_outputs()
-            .ok_or_else(|| err(format!("{what}: unreadable values")))?
-        {
-            gltf::animation::util::ReadOutputs::Translations(t) => {
-                t.map(|v| Vec3::from_array(v).extend(0.0)).collect()
-            }
-            gltf::animation::util::ReadOutputs::Scales(s) => {
-                s.map(|v| Vec3::from_array(v).extend(0.0)).collect()
-            }
-            gltf::animation::util::ReadOutputs::Rotations(r) => r
-                .into_f32()
-                .map(|q| Vec4::from(Quat::from_array(q)))
-                .collect(),
-            gltf::animation::util::ReadOutputs::MorphTargetWeights(_) => continue,
-        };
         if let Some(k) = times.iter().position(|t| !t.is_finite()) {
             return Err(err(format!("{what}: key time {k} is {}", times[k])));
         }
         if let Some(k) = times.windows(2).position(|w| w[1] < w[0]) {
             return Err(err(format!("{what}: key times decrease at key {}", k + 1)));
         }
-        if let Some(k) = values.iter().position(|v| !v.is_finite()) {
-            return Err(err(format!("{what}: value {k} is not finite")));
-        }
         let per_key = if interpolation == Interpolation::CubicSpline {
             3
         } else {
             1
         };
-        if values.len() != times.len() * per_key {
-            return Err(err(format!(
-                "{what}: {} values for {} keys",
-                values.len(),
-                times.len()
-            )));
+        // One channel per property, or per group of four morph targets: values as Vec4.
+        let mut groups: Vec<(Property, Vec<Vec4>)> = match reader
+            .read_outputs()
+            .ok_or_else(|| err(format!("{what}: unreadable values")))?
+        {
+            gltf::animation::util::ReadOutputs::Translations(t) => vec![(
+                Property::Translation,
+                t.map(|v| Vec3::from_array(v).extend(0.0)).collect(),
+            )],
+            gltf::animation::util::ReadOutputs::Scales(s) => vec![(
+                Property::Scale,
+                s.map(|v| Vec3::from_array(v).extend(0.0)).collect(),
+            )],
+            gltf::animation::util::ReadOutputs::Rotations(r) => vec![(
+                Property::Rotation,
+                r.into_f32()
+                    .map(|q| Vec4::from(Quat::from_array(q)))
+                    .collect(),
+            )],
+            gltf::animation::util::ReadOutputs::MorphTargetWeights(w) => {
+                let flat: Vec<f32> = w.into_f32().collect();
+                if flat.len() != times.len() * per_key * targets {
+                    return Err(err(format!(
+                        "{what}: {} weights for {} keys of {targets} targets",
+                        flat.len(),
+                        times.len()
+                    )));
+                }
+                (0..targets)
+                    .step_by(4)
+                    .map(|first| {
+                        let values = flat
+                            .chunks(targets)
+                            .map(|key| {
+                                let g = |k: usize| key.get(first + k).copied().unwrap_or(0.0);
+                                Vec4::new(g(0), g(1), g(2), g(3))
+                            })
+                            .collect();
+                        (Property::Weights { first }, values)
+                    })
+                    .collect()
+            }
+        };
+        for (property, values) in groups.drain(..) {
+            if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+                return Err(err(format!("{what}: value {k} is not finite")));
+            }
+            if values.len() != times.len() * per_key {
+                return Err(err(format!(
+                    "{what}: {} values for {} keys",
+                    values.len(),
+                    times.len()
+                )));
+            }
+            channels.push(Channel {
+                joint,
+                property,
+                interpolation,
+                times: times.clone(),
+                values,
+            });
         }
         duration = duration.max(times.last().copied().unwrap_or(0.0));
-        channels.push(Channel {
-            joint,
-            property,
-            interpolation,
-            times,
-            values,
-        });
     }
     Ok(Clip {
         name: a

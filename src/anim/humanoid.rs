@@ -19,6 +19,31 @@ pub struct CharacterAsset {
     pub weights: Arc<SkinWeights>,
     /// Animations.
     pub clips: Vec<Clip>,
+    /// Morph targets (blend shapes), applied to the rest positions before skinning.
+    pub morphs: Option<Arc<MorphTargets>>,
+}
+
+/// Morph targets of a mesh: per target, a displacement per vertex; and the mesh's default weights.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct MorphTargets {
+    /// `deltas[target][vertex]`.
+    pub deltas: Vec<Vec<Vec3>>,
+    /// One per target.
+    pub default_weights: Vec<f32>,
+}
+
+impl MorphTargets {
+    /// `out[v] = rest[v] + Σ_k weights[k] · deltas[k][v]`.
+    pub fn apply(&self, rest: &[Vec3], weights: &[f32], out: &mut [Vec3]) {
+        out.copy_from_slice(rest);
+        for (d, &w) in self.deltas.iter().zip(weights) {
+            if w != 0.0 {
+                for (o, dv) in out.iter_mut().zip(d) {
+                    *o += *dv * w;
+                }
+            }
+        }
+    }
 }
 
 impl CharacterAsset {
@@ -175,6 +200,7 @@ pub fn humanoid(triangles: usize) -> CharacterAsset {
         ],
         skeleton,
         weights: Arc::new(SkinWeights { joints, weights }),
+        morphs: None,
     }
 }
 

@@ -11,6 +11,6 @@ mod skin;
 pub use clip::{Channel, Clip, Interpolation, Property};
 pub use glb_export::character_to_glb;
 pub use gltf_load::{GltfMesh, load_gltf, load_gltf_slice};
-pub use humanoid::{CharacterAsset, humanoid};
+pub use humanoid::{CharacterAsset, MorphTargets, humanoid};
 pub use pose::{Joint, Skeleton, Transform};
 pub use skin::{SkinWeights, skin_positions};

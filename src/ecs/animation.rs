@@ -47,6 +47,11 @@ impl AnimationPlayer {
             TraceSkin {
                 weights: asset.weights.clone(),
                 joint_matrices: vec![Mat4::IDENTITY; asset.skeleton.joints.len()],
+                morphs: asset.morphs.clone(),
+                morph_weights: asset
+                    .morphs
+                    .as_ref()
+                    .map_or_else(Vec::new, |m| m.default_weights.clone()),
             },
             AnimationPlayer {
                 asset: asset.clone(),
@@ -88,5 +93,10 @@ pub(crate) fn animate_system(
         asset
             .skeleton
             .skin_matrices(&pose, &mut skin.joint_matrices);
+        if let Some(m) = &asset.morphs {
+            skin.morph_weights.clear();
+            skin.morph_weights.extend_from_slice(&m.default_weights);
+            clip.sample_weights(t, &mut skin.morph_weights);
+        }
     }
 }

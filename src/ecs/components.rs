@@ -1,6 +1,6 @@
 //! The components users put on entities.
 
-use crate::anim::SkinWeights;
+use crate::anim::{MorphTargets, SkinWeights};
 use crate::{Error, Mesh};
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat4, Vec3};
@@ -26,8 +26,9 @@ pub struct TraceTransform(pub Affine3A);
 pub struct VertexPositions(pub Vec<Vec3>);
 
 /// Linear-blend skinning of a [`TraceMesh`]: its weights and this frame's joint matrices (joint world
-/// transform × inverse bind matrix, in the mesh's object space). Changing the matrices re-skins the mesh
-/// into [`VertexPositions`] during [`TraceSet::Skin`](super::TraceSet::Skin).
+/// transform × inverse bind matrix, in the mesh's object space), and optionally morph targets with this
+/// frame's weights, applied to the rest positions first. Changing it re-skins the mesh into
+/// [`VertexPositions`] during [`TraceSet::Skin`](super::TraceSet::Skin).
 #[derive(Component, Clone, Debug)]
 #[require(VertexPositions)]
 pub struct TraceSkin {
@@ -35,6 +36,22 @@ pub struct TraceSkin {
     pub weights: Arc<SkinWeights>,
     /// The joint palette.
     pub joint_matrices: Vec<Mat4>,
+    /// Blend shapes of the mesh, if any.
+    pub morphs: Option<Arc<MorphTargets>>,
+    /// Their weights this frame (one per target).
+    pub morph_weights: Vec<f32>,
+}
+
+impl TraceSkin {
+    /// A skin with these weights and matrices, no morph targets.
+    pub fn new(weights: Arc<SkinWeights>, joint_matrices: Vec<Mat4>) -> Self {
+        Self {
+            weights,
+            joint_matrices,
+            morphs: None,
+            morph_weights: Vec::new(),
+        }
+    }
 }
 
 /// Which query layers an entity is on (a bit mask; all by default). A query sees an entity when the masks

@@ -55,10 +55,18 @@ pub(crate) fn skin_system(
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,
     mut errors: MessageWriter<TraceErrorMessage>,
+    mut morphed: Local<Vec<glam::Vec3>>,
 ) {
     let t = Instant::now();
     for (e, mesh, skin, mut out) in &mut skinned {
-        let rest = mesh.0.positions();
+        let mut rest = mesh.0.positions();
+        if let Some(m) = &skin.morphs
+            && skin.morph_weights.iter().any(|&w| w != 0.0)
+        {
+            morphed.resize(rest.len(), glam::Vec3::ZERO);
+            m.apply(rest, &skin.morph_weights, &mut morphed);
+            rest = &morphed;
+        }
         out.0.resize(rest.len(), glam::Vec3::ZERO);
         if let Err(err) =
             crate::anim::skin_positions(rest, &skin.weights, &skin.joint_matrices, &mut out.0)
