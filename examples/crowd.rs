@@ -198,6 +198,15 @@ fn turret(
 /// Runs the demo.
 pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&opt.out)?;
+    let (mut world, mut schedule) = setup(opt)?;
+    println!(
+        "  second |  frame ms | animate+skin | maintain | top level | queries | refits rebuilds | rays"
+    );
+    run_frames(opt, &mut world, &mut schedule)
+}
+
+/// The world and schedule of the demo: plugin, ground, characters and the gameplay systems.
+pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Error>> {
     let mut world = World::new();
     let mut schedule = Schedule::default();
     schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
@@ -280,9 +289,20 @@ pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
             .after(TraceSet::TopLevel)
             .before(TraceSet::Queries),
     ));
-    println!(
-        "  second |  frame ms | animate+skin | maintain | top level | queries | refits rebuilds | rays"
-    );
+    Ok((world, schedule))
+}
+
+/// Simulates one frame.
+pub fn step(world: &mut World, schedule: &mut Schedule) {
+    schedule.run(world);
+    world.clear_trackers();
+}
+
+fn run_frames(
+    opt: &Options,
+    world: &mut World,
+    schedule: &mut Schedule,
+) -> Result<Summary, Box<dyn std::error::Error>> {
     let (mut acc, mut phases, mut work) = (
         Duration::ZERO,
         [Duration::ZERO; 4],
@@ -290,8 +310,7 @@ pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
     );
     for f in 0..opt.frames {
         let t = Instant::now();
-        schedule.run(&mut world);
-        world.clear_trackers();
+        step(world, schedule);
         acc += t.elapsed();
         let s = world.resource::<TraceStats>().clone();
         for (p, d) in
@@ -329,7 +348,14 @@ pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
         }
         if (opt.png_every > 0 && (f + 1) % opt.png_every == 0) || f + 1 == opt.frames {
             let path = opt.out.join(format!("crowd_{:05}.png", f + 1));
-            render(&world, opt.width, opt.height, &path)?;
+            render(
+                world,
+                opt.width,
+                opt.height,
+                &Camera::default(),
+                View::Shaded,
+            )
+            .save(&path)?;
             world.resource_mut::<Crowd>().summary.pngs.push(path);
         }
     }
@@ -352,18 +378,42 @@ pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
     Ok(crowd.summary)
 }
 
-/// Ray traces the world from a fixed camera: Lambert shading, hard shadows from the sun, turret hits red.
-fn render(
-    world: &World,
-    w: u32,
-    h: u32,
-    path: &std::path::Path,
-) -> Result<(), Box<dyn std::error::Error>> {
+/// Where the images are taken from.
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    /// The eye.
+    pub eye: Vec3,
+    /// The point looked at.
+    pub target: Vec3,
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Self {
+            eye: Vec3::new(0.0, 14.0, -24.0),
+            target: Vec3::new(0.0, 0.5, 0.0),
+        }
+    }
+}
+
+/// What an image shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum View {
+    /// Lambert shading, hard shadows from the sun, the turret's hits in red.
+    Shaded,
+    /// Nodes visited and triangles tested per primary ray, blue (little) to red (much).
+    Heatmap,
+    /// Shaded, with every entity's world box and its tree's top two levels drawn in yellow.
+    Boxes,
+}
+
+/// Ray traces the world from `camera`.
+pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> image::RgbImage {
     let tw = world.resource::<TraceWorld>();
     let marks = &world.resource::<Crowd>().turret_marks;
     let sun = Vec3::new(0.4, 1.0, -0.3).normalize();
-    let eye = Vec3::new(0.0, 14.0, -24.0);
-    let fwd = (Vec3::new(0.0, 0.5, 0.0) - eye).normalize();
+    let eye = camera.eye;
+    let fwd = (camera.target - eye).normalize();
     let right = fwd.cross(Vec3::Y).normalize();
     let up = right.cross(fwd);
     let aspect = w as f32 / h as f32;
@@ -378,7 +428,16 @@ fn render(
             eye,
             (fwd + right * u * aspect * 0.9 + up * v * 0.9).normalize(),
         );
-        let c = match tw.cast_ray(&ray, 200.0, &all) {
+        let mut work = kinetrace::bvh::TraversalStats::default();
+        let hit = tw.cast_ray_counted(&ray, 200.0, &all, &mut work);
+        if view == View::Heatmap {
+            let cost = (work.inner_visits + work.prim_tests) as f32;
+            let k = (cost / 150.0).min(1.0);
+            let c = Vec3::new(0.1, 0.2, 0.9).lerp(Vec3::new(1.0, 0.15, 0.05), k);
+            *px = image::Rgb(c.to_array().map(|x| (x * 255.0) as u8));
+            continue;
+        }
+        let c = match hit {
             None => Vec3::new(0.55, 0.7, 0.9) * (0.8 + 0.2 * v),
             Some(hit) => {
                 let n = if hit.normal.dot(ray.dir) > 0.0 {
@@ -408,8 +467,67 @@ fn render(
         };
         *px = image::Rgb(c.to_array().map(|x| (x.clamp(0.0, 1.0) * 255.0) as u8));
     }
-    img.save(path)?;
-    Ok(())
+    if view == View::Boxes {
+        let project = |p: Vec3| -> Option<(f32, f32)> {
+            let d = p - eye;
+            let z = d.dot(fwd);
+            (z > 0.1).then(|| {
+                let (u, v) = (d.dot(right) / z / (aspect * 0.9), d.dot(up) / z / 0.9);
+                ((u + 0.5) * w as f32, (0.5 - v) * h as f32)
+            })
+        };
+        let yellow = image::Rgb([255, 220, 40]);
+        let mut boxes = Vec::new();
+        for e in tw.tlas().prim_indices().iter().map(|&p| tw.tlas_entity(p)) {
+            let Some(blas) = tw.blas(e) else { continue };
+            let t = world
+                .get::<TraceTransform>(e)
+                .map_or(glam::Affine3A::IDENTITY, |t| t.0);
+            let nodes = blas.bvh().nodes();
+            let top: Vec<usize> = match nodes.first() {
+                Some(r) if !r.is_leaf() => vec![0, r.left(), r.left() + 1],
+                Some(_) => vec![0],
+                None => vec![],
+            };
+            boxes.extend(top.into_iter().map(|i| (t, nodes[i].aabb())));
+        }
+        for (t, b) in boxes {
+            let corner = |i: usize| {
+                t.transform_point3(Vec3::new(
+                    if i & 1 == 0 { b.min.x } else { b.max.x },
+                    if i & 2 == 0 { b.min.y } else { b.max.y },
+                    if i & 4 == 0 { b.min.z } else { b.max.z },
+                ))
+            };
+            for (a, c) in [
+                (0, 1),
+                (2, 3),
+                (4, 5),
+                (6, 7),
+                (0, 2),
+                (1, 3),
+                (4, 6),
+                (5, 7),
+                (0, 4),
+                (1, 5),
+                (2, 6),
+                (3, 7),
+            ] {
+                if let (Some(p), Some(q)) = (project(corner(a)), project(corner(c))) {
+                    let steps = ((q.0 - p.0).abs().max((q.1 - p.1).abs()) as usize)
+                        .clamp(1, 4 * (w + h) as usize);
+                    for k in 0..=steps {
+                        let f = k as f32 / steps as f32;
+                        let (x, y) = (p.0 + (q.0 - p.0) * f, p.1 + (q.1 - p.1) * f);
+                        if x >= 0.0 && y >= 0.0 && (x as u32) < w && (y as u32) < h {
+                            img.put_pixel(x as u32, y as u32, yellow);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    img
 }
 
 #[allow(dead_code)] // the integration test uses `run` only

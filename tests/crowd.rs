@@ -40,3 +40,43 @@ fn crowd_runs_120_frames_and_writes_pngs() {
     );
     std::fs::remove_dir_all(out).ok();
 }
+
+#[test]
+fn debug_views_show_costs_and_boxes() {
+    let opt = crowd::Options {
+        characters: 6,
+        triangles: 1_000,
+        gpu: false,
+        ..Default::default()
+    };
+    let (mut world, mut schedule) = crowd::setup(&opt).unwrap();
+    for _ in 0..5 {
+        crowd::step(&mut world, &mut schedule);
+    }
+    let cam = crowd::Camera::default();
+    let shaded = crowd::render(&world, 120, 68, &cam, crowd::View::Shaded);
+    let heat = crowd::render(&world, 120, 68, &cam, crowd::View::Heatmap);
+    let boxes = crowd::render(&world, 120, 68, &cam, crowd::View::Boxes);
+    // Heatmap: every pixel on the blue-to-red ramp (green stays low), and not all the same cost.
+    assert!(
+        heat.pixels().all(|p| p.0[1] <= 60),
+        "heatmap colours leave the ramp"
+    );
+    let reds: Vec<u8> = heat.pixels().map(|p| p.0[0]).collect();
+    assert!(reds.iter().max() > reds.iter().min(), "uniform heatmap");
+    // Boxes: the shaded image with yellow box edges drawn over it, and nothing else changed.
+    let yellow = [255, 220, 40];
+    let drawn = boxes.pixels().filter(|p| p.0 == yellow).count();
+    assert!(drawn > 50, "{drawn} box pixels");
+    let changed = boxes
+        .pixels()
+        .zip(shaded.pixels())
+        .filter(|(a, b)| a != b)
+        .count();
+    let over = boxes
+        .pixels()
+        .zip(shaded.pixels())
+        .filter(|(a, b)| a != b && a.0 == yellow)
+        .count();
+    assert_eq!(changed, over);
+}

@@ -2,7 +2,7 @@
 //! world boxes, and the two-level queries.
 
 use super::{QueryFilter, RayHit};
-use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, traverse};
+use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::geometry::{Aabb, Ray};
 use crate::{Mesh, Result};
 use bevy_ecs::prelude::*;
@@ -194,19 +194,48 @@ impl TraceWorld {
 
     /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts.
     pub fn cast_ray(&self, ray: &Ray, max_t: f32, filter: &QueryFilter) -> Option<RayHit> {
+        self.cast(ray, max_t, filter, None)
+    }
+
+    /// [`cast_ray`](Self::cast_ray), adding the work of both levels to `stats` (for cost heatmaps).
+    pub fn cast_ray_counted(
+        &self,
+        ray: &Ray,
+        max_t: f32,
+        filter: &QueryFilter,
+        stats: &mut TraversalStats,
+    ) -> Option<RayHit> {
+        self.cast(ray, max_t, filter, Some(stats))
+    }
+
+    fn cast(
+        &self,
+        ray: &Ray,
+        max_t: f32,
+        filter: &QueryFilter,
+        stats: Option<&mut TraversalStats>,
+    ) -> Option<RayHit> {
         let ray = Ray::with_range(ray.origin, ray.dir, ray.tmin, ray.tmax.min(max_t));
         if !ray.is_valid() {
             return None;
         }
+        let counting = stats.is_some();
+        let (mut top, mut bottom) = (TraversalStats::default(), TraversalStats::default());
         let mut best: Option<(Entity, Hit)> = None;
-        traverse(self.tlas.nodes(), &ray, &mut (), |slots, tmax| {
+        traverse(self.tlas.nodes(), &ray, &mut top, |slots, tmax| {
             for s in slots {
                 let e = self.tlas_entities[self.tlas.prim_indices()[s] as usize];
                 let inst = &self.instances[&e];
                 if !filter.accepts(e, inst.layers) {
                     continue;
                 }
-                if let Some(h) = inst.bvh.closest_hit(&inst.object_ray(&ray, *tmax))
+                let oray = inst.object_ray(&ray, *tmax);
+                let h = if counting {
+                    inst.bvh.closest_hit_counted(&oray, &mut bottom)
+                } else {
+                    inst.bvh.closest_hit(&oray)
+                };
+                if let Some(h) = h
                     && best.is_none_or(|(_, b)| h.t < b.t)
                 {
                     *tmax = h.t;
@@ -215,6 +244,10 @@ impl TraceWorld {
             }
             false
         });
+        if let Some(s) = stats {
+            s.add(&top);
+            s.add(&bottom);
+        }
         best.map(|(e, h)| self.instances[&e].world_hit(e, &ray, &h))
     }
 
