@@ -154,11 +154,49 @@ pub(crate) fn groups(threads: u32, group: u32) -> (u32, u32) {
     }
 }
 
+/// Read-back staging buffers waiting for reuse (sizes are powers of two), so that a frame's read-backs do
+/// not allocate GPU memory once the pool has warmed up.
+#[derive(Default)]
+pub(crate) struct StagingPool(Mutex<Vec<wgpu::Buffer>>);
+
+impl StagingPool {
+    /// Most buffers kept.
+    const KEEP: usize = 16;
+
+    /// The smallest pooled buffer of at least `bytes`, or a new one.
+    fn take(&self, ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
+        let mut pool = self.0.lock().expect("staging pool");
+        let best = pool
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| b.size() >= bytes)
+            .min_by_key(|(_, b)| b.size())
+            .map(|(i, _)| i);
+        match best {
+            Some(i) => pool.swap_remove(i),
+            None => create(
+                ctx,
+                "kinetrace readback",
+                bytes.next_power_of_two().max(256),
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+        }
+    }
+
+    fn give_back(&self, buffer: wgpu::Buffer) {
+        let mut pool = self.0.lock().expect("staging pool");
+        if pool.len() < Self::KEEP {
+            pool.push(buffer);
+        }
+    }
+}
+
 /// Results of GPU work on their way back to the CPU: recorded in the same encoder as the work, mapped when
 /// that submission completes. [`try_take`](Self::try_take) never blocks, so frame N's results can be
-/// collected while frame N+1 is recorded; [`wait`](Self::wait) is the blocking convenience.
+/// collected while frame N+1 is recorded; [`wait`](Self::wait) is the blocking convenience. The staging
+/// buffer comes from, and returns to, the context's pool.
 pub struct Readback<T> {
-    staging: wgpu::Buffer,
+    staging: Mutex<Option<wgpu::Buffer>>,
     len: usize,
     state: Arc<Mutex<Option<std::result::Result<(), String>>>>,
     _t: PhantomData<T>,
@@ -172,24 +210,22 @@ impl<T: Pod> Readback<T> {
         src: &wgpu::Buffer,
         len: usize,
     ) -> Self {
-        let bytes = (len * std::mem::size_of::<T>()) as u64;
-        let staging = create(
-            ctx,
-            "kinetrace readback",
-            bytes,
-            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-        );
-        let copy = bytes.next_multiple_of(4);
-        if copy > 0 {
-            encoder.copy_buffer_to_buffer(src, 0, &staging, 0, copy);
-        }
+        let copy = ((len * std::mem::size_of::<T>()) as u64).next_multiple_of(4);
         let state = Arc::new(Mutex::new(None));
-        let s = state.clone();
-        encoder.map_buffer_on_submit(&staging, wgpu::MapMode::Read, .., move |r| {
-            *s.lock().expect("readback state") = Some(r.map_err(|e| e.to_string()));
+        let staging = (copy > 0).then(|| {
+            let staging = ctx.staging.take(ctx, copy);
+            encoder.copy_buffer_to_buffer(src, 0, &staging, 0, copy);
+            let s = state.clone();
+            encoder.map_buffer_on_submit(&staging, wgpu::MapMode::Read, ..copy, move |r| {
+                *s.lock().expect("readback state") = Some(r.map_err(|e| e.to_string()));
+            });
+            staging
         });
+        if staging.is_none() {
+            *state.lock().expect("readback state") = Some(Ok(()));
+        }
         Self {
-            staging,
+            staging: Mutex::new(staging),
             len,
             state,
             _t: PhantomData,
@@ -200,7 +236,7 @@ impl<T: Pod> Readback<T> {
     pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<Vec<T>>> {
         ctx.poll();
         let done = self.state.lock().expect("readback state").take()?;
-        Some(done.map_err(Error::Gpu).map(|()| self.read()))
+        Some(done.map_err(Error::Gpu).map(|()| self.read(ctx)))
     }
 
     /// Blocks until the results are there.
@@ -213,12 +249,18 @@ impl<T: Pod> Readback<T> {
         }
     }
 
-    fn read(&self) -> Vec<T> {
+    fn read(&self, ctx: &GpuContext) -> Vec<T> {
+        let Some(staging) = self.staging.lock().expect("staging").take() else {
+            return Vec::new();
+        };
         let bytes = self.len * std::mem::size_of::<T>();
-        let view = self.staging.get_mapped_range(..).expect("buffer is mapped");
+        let view = staging
+            .get_mapped_range(..(bytes as u64).next_multiple_of(4))
+            .expect("buffer is mapped");
         let out = bytemuck::pod_collect_to_vec(&view[..bytes]);
         drop(view);
-        self.staging.unmap();
+        staging.unmap();
+        ctx.staging.give_back(staging);
         out
     }
 }

@@ -21,6 +21,7 @@ pub struct GpuContext {
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     pub(crate) kernels: Arc<Kernels>,
+    pub(crate) staging: Arc<super::buffers::StagingPool>,
     info: wgpu::AdapterInfo,
     timestamps: bool,
 }
@@ -65,6 +66,7 @@ impl GpuContext {
             device,
             queue,
             kernels,
+            staging: Default::default(),
             info,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
         })

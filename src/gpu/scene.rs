@@ -91,6 +91,16 @@ pub(crate) struct GpuScene {
     entities: Vec<Entity>,
     version: Option<u64>,
     batches: [Batch; 2],
+    upload: Upload,
+}
+
+/// What [`GpuScene::sync`] sends, built on the CPU.
+#[derive(Default)]
+struct Upload {
+    nodes: Vec<Node>,
+    slot_tris: Vec<[u32; 4]>,
+    corners: Vec<Vec3>,
+    instances: Vec<GpuInstance>,
 }
 
 /// A recorded batch on its way back.
@@ -109,6 +119,7 @@ impl GpuScene {
             entities: Vec::new(),
             version: None,
             batches: [Batch::new(ctx), Batch::new(ctx)],
+            upload: Upload::default(),
         }
     }
 
@@ -123,12 +134,17 @@ impl GpuScene {
         let tlas = world.tlas();
         let n = tlas.primitive_count();
         self.entities.clear();
-        let (mut nodes, mut slot_tris, mut corners, mut instances) = (
-            Vec::<Node>::new(),
-            Vec::<[u32; 4]>::new(),
-            Vec::<Vec3>::new(),
-            Vec::with_capacity(n),
-        );
+        // The upload arrays keep their memory from one sync to the next.
+        let Upload {
+            nodes,
+            slot_tris,
+            corners,
+            instances,
+        } = &mut self.upload;
+        nodes.clear();
+        slot_tris.clear();
+        corners.clear();
+        instances.clear();
         for slot in 0..n {
             let e = world.tlas_entity(tlas.prim_indices()[slot]);
             self.entities.push(e);
