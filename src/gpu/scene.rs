@@ -193,10 +193,10 @@ impl GpuScene {
             buf.ensure(ctx, bytes as u64);
         }
         self.tlas.write(ctx, tlas.nodes());
-        self.instances.write(ctx, &instances);
-        self.blas.write(ctx, &nodes);
-        self.slot_tris.write(ctx, &slot_tris);
-        self.corners.write(ctx, &corners);
+        self.instances.write(ctx, instances);
+        self.blas.write(ctx, nodes);
+        self.slot_tris.write(ctx, slot_tris);
+        self.corners.write(ctx, corners);
     }
 
     /// Records one batch (`any`: occlusion, else closest hits). Batch 0 and 1 have separate buffers, so one
