@@ -41,6 +41,7 @@
 
 pub mod anim;
 pub mod bvh;
+pub mod characterize;
 pub mod ecs;
 mod error;
 pub mod geometry;
