@@ -608,3 +608,49 @@ fn cpu_and_gpu_modes_give_identical_batched_results() {
         );
     }
 }
+
+#[test]
+fn profiles_are_refreshed_only_when_the_mesh_changed_enough() {
+    let (mut world, mut schedule) = app();
+    let stat = world
+        .spawn((TraceMesh(icosphere(3)), MotionHint::Static))
+        .id();
+    let rigid = world
+        .spawn((TraceMesh(icosphere(3)), MotionHint::Rigid))
+        .id();
+    let rest = soup(4, 2_000);
+    let scatter = world
+        .spawn((
+            TraceMesh(rest.clone()),
+            VertexPositions(rest.positions().to_vec()),
+        ))
+        .id();
+    let mut r = rng(6);
+    let dirs: Vec<Vec3> = (0..rest.triangle_count())
+        .map(|_| rand_dir(&mut r))
+        .collect();
+    let mut refreshed = std::collections::HashMap::<Entity, usize>::new();
+    for f in 0..60u32 {
+        world.get_mut::<TraceTransform>(rigid).unwrap().0 =
+            Affine3A::from_translation(Vec3::X * f as f32 * 0.1);
+        let mut vp = world.get_mut::<VertexPositions>(scatter).unwrap();
+        for (i, (p, q)) in vp.0.iter_mut().zip(rest.positions()).enumerate() {
+            *p = *q + dirs[i / 3] * 0.004 * f as f32;
+        }
+        frame(&mut world, &mut schedule);
+        for (e, p) in &world.resource::<TraceStats>().profiles {
+            *refreshed.entry(*e).or_default() += 1;
+            assert_eq!(p.primitives, if *e == scatter { 2_000 } else { 1_280 });
+        }
+    }
+    let tw = world.resource::<TraceWorld>();
+    // Static and rigid meshes: profiled once, when they arrived.
+    assert_eq!(refreshed.get(&stat), Some(&1));
+    assert_eq!(refreshed.get(&rigid), Some(&1));
+    // The scattering soup: a few refreshes as it degraded (or was rebuilt), far fewer than frames.
+    let n = refreshed[&scatter];
+    assert!((2..30).contains(&n), "{n} refreshes");
+    assert!(tw.profile(scatter).is_some());
+    assert!(tw.motion_incoherence(scatter).unwrap() >= 0.0);
+    assert_eq!(tw.motion_incoherence(rigid), Some(0.0));
+}

@@ -2,6 +2,7 @@
 
 use super::MotionHint;
 use crate::bvh::Builder;
+use crate::characterize::SceneProfile;
 use bevy_ecs::prelude::*;
 
 /// Where batched queries run. Immediate queries ([`SpatialRays`](super::SpatialRays)) and tree maintenance
@@ -32,7 +33,7 @@ pub enum Latency {
 
 /// What the policy sees about one mesh that was just refitted.
 #[derive(Clone, Copy, Debug)]
-pub struct PolicyInput {
+pub struct PolicyInput<'a> {
     /// The entity's hint.
     pub hint: MotionHint,
     /// Triangles of the mesh.
@@ -45,6 +46,10 @@ pub struct PolicyInput {
     pub threshold: f32,
     /// Rays queried against the world last frame (immediate and batched).
     pub rays_last_frame: usize,
+    /// The characteriser's profile of the mesh, when it has one.
+    pub profile: Option<&'a SceneProfile>,
+    /// Mean rise of the degradation per refit over the last refits.
+    pub motion_incoherence: f32,
 }
 
 /// What to do with a refitted mesh.
@@ -58,11 +63,11 @@ pub enum Decision {
 
 /// The policy: called once per refitted mesh per frame. Untouched meshes never reach it (they cost
 /// nothing), new meshes and topology changes always rebuild.
-pub type Policy = fn(&PolicyInput) -> Decision;
+pub type Policy = for<'a> fn(&PolicyInput<'a>) -> Decision;
 
 /// Lauterbach's criterion (thesis §4.1.5): rebuild with LBVH when the degradation metric exceeds the
 /// threshold (0.40 by default).
-pub fn lauterbach_policy(input: &PolicyInput) -> Decision {
+pub fn lauterbach_policy(input: &PolicyInput<'_>) -> Decision {
     if input.degradation > input.threshold {
         Decision::Rebuild(Builder::LBVH)
     } else {
@@ -85,6 +90,9 @@ pub struct TraceConfig {
     pub static_builder: Builder,
     /// Refit-or-rebuild decision.
     pub policy: Policy,
+    /// A mesh is characterised again when its degradation has moved by more than this since its last
+    /// profile (hysteresis: profiles, and choices made from them, do not flip every frame). 0.2 by default.
+    pub profile_refresh: f32,
 }
 
 impl Default for TraceConfig {
@@ -96,6 +104,7 @@ impl Default for TraceConfig {
             builder: Builder::LBVH,
             static_builder: Builder::SAH,
             policy: lauterbach_policy,
+            profile_refresh: 0.2,
         }
     }
 }

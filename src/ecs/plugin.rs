@@ -21,7 +21,7 @@ pub enum TraceSet {
     Animate,
     /// Linear-blend skinning into [`VertexPositions`].
     Skin,
-    /// Scene characterisation of changed meshes (reserved for the adaptive policy).
+    /// Scene characterisation of meshes that changed enough to matter (profiles in [`TraceWorld::profile`]).
     Characterize,
     /// Refit or rebuild changed meshes.
     Maintain,
@@ -99,6 +99,7 @@ impl KinetracePlugin {
             begin_frame.before(TraceSet::Animate),
             super::animation::animate_system.in_set(TraceSet::Animate),
             skin_system.in_set(TraceSet::Skin),
+            characterize_system.in_set(TraceSet::Characterize),
             maintain_system.in_set(TraceSet::Maintain),
             top_level_system.in_set(TraceSet::TopLevel),
             queries_system.in_set(TraceSet::Queries),

@@ -53,6 +53,11 @@ pub struct TraceStats {
     pub frame: u64,
     /// Meshes that did work.
     pub meshes: Vec<MeshStats>,
+    /// Meshes characterised this frame, with their new profile (the current one of every mesh is in
+    /// [`TraceWorld::profile`](super::TraceWorld::profile)).
+    pub profiles: Vec<(Entity, std::sync::Arc<crate::characterize::SceneProfile>)>,
+    /// Time spent characterising.
+    pub characterize_time: Duration,
     /// Refits, rebuilds, and meshes only moved.
     pub refits: usize,
     /// Rebuilds.

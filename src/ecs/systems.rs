@@ -12,9 +12,12 @@ pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
     let frame = stats.frame + 1;
     let mut meshes = std::mem::take(&mut stats.meshes);
     meshes.clear();
+    let mut profiles = std::mem::take(&mut stats.profiles);
+    profiles.clear();
     *stats = TraceStats {
         frame,
         meshes,
+        profiles,
         rays_last_frame: stats.batched_rays,
         ..Default::default()
     };
@@ -151,6 +154,7 @@ pub(crate) fn maintain_system(
                 Ok(d) => {
                     degradation = d;
                     inst.frames_since_rebuild += 1;
+                    inst.remember(d);
                     let input = PolicyInput {
                         hint,
                         triangles: mesh.0.triangle_count(),
@@ -158,6 +162,8 @@ pub(crate) fn maintain_system(
                         frames_since_rebuild: inst.frames_since_rebuild,
                         threshold: config.rebuild_threshold,
                         rays_last_frame,
+                        profile: inst.profile.as_deref(),
+                        motion_incoherence: inst.motion_incoherence(),
                     };
                     action = Some(match (config.policy)(&input) {
                         Decision::Keep => MeshAction::Refit,
@@ -356,4 +362,42 @@ fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     queue.rays.clear();
     queue.shadows.clear();
     stats.query_time = start.elapsed();
+}
+
+/// [`TraceSet::Characterize`]: profiles meshes that are new, were rebuilt, or whose degradation moved by
+/// more than [`TraceConfig::profile_refresh`] since their last profile. Cost: a pass over the instances,
+/// plus one characterisation (O(n) in triangles) per mesh that needs it.
+pub(crate) fn characterize_system(
+    meshes: Query<(Entity, &TraceMesh, Option<&VertexPositions>), Without<TraceError>>,
+    mut world: ResMut<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut stats: ResMut<TraceStats>,
+) {
+    let t = Instant::now();
+    let stale: Vec<Entity> = world
+        .instances
+        .iter()
+        .filter(|(_, i)| {
+            // A rebuild makes a new instance, without a profile.
+            let now = i.history.last().copied().unwrap_or(0.0);
+            i.profile.is_none() || (now - i.profiled_at).abs() > config.profile_refresh
+        })
+        .map(|(e, _)| *e)
+        .collect();
+    for e in stale {
+        let Ok((_, mesh, vp)) = meshes.get(e) else {
+            continue;
+        };
+        let current = match vp {
+            Some(v) if !v.0.is_empty() => mesh.0.with_positions(v.0.clone()).ok(),
+            _ => Some(mesh.0.clone()),
+        };
+        let Some(current) = current else { continue };
+        let profile = std::sync::Arc::new(crate::characterize::profile_mesh(&current));
+        let inst = world.instances.get_mut(&e).expect("listed above");
+        inst.profiled_at = inst.history.last().copied().unwrap_or(0.0);
+        inst.profile = Some(profile.clone());
+        stats.profiles.push((e, profile));
+    }
+    stats.characterize_time = t.elapsed();
 }

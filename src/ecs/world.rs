@@ -3,11 +3,13 @@
 
 use super::{QueryFilter, RayHit};
 use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, TraversalStats, traverse};
+use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
 use crate::{Mesh, Result};
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::collections::HashMap;
+use std::sync::Arc;
 
 /// One traceable entity's state.
 pub(crate) struct Instance {
@@ -21,6 +23,33 @@ pub(crate) struct Instance {
     pub world_bounds: Aabb,
     pub layers: u32,
     pub frames_since_rebuild: u32,
+    /// The characteriser's last profile of the mesh, and the degradation when it was taken.
+    pub profile: Option<Arc<SceneProfile>>,
+    pub profiled_at: f32,
+    /// Degradation after each of the last refits (oldest first), for motion incoherence.
+    pub history: Vec<f32>,
+}
+
+/// Refits remembered for motion incoherence.
+pub(crate) const HISTORY: usize = 16;
+
+impl Instance {
+    /// How incoherently the mesh moves: the mean rise of the degradation metric per refit over the last
+    /// refits (0 for rigid or coherent motion; large when neighbouring primitives scatter).
+    pub fn motion_incoherence(&self) -> f32 {
+        match self.history.len() {
+            0 | 1 => 0.0,
+            n => ((self.history[n - 1] - self.history[0]) / (n - 1) as f32).max(0.0),
+        }
+    }
+
+    /// Records a refit's degradation.
+    pub fn remember(&mut self, degradation: f32) {
+        if self.history.len() == HISTORY {
+            self.history.remove(0);
+        }
+        self.history.push(degradation);
+    }
 }
 
 impl Instance {
@@ -36,6 +65,9 @@ impl Instance {
             world_bounds: Aabb::EMPTY,
             layers: u32::MAX,
             frames_since_rebuild: 0,
+            profile: None,
+            profiled_at: 0.0,
+            history: Vec::with_capacity(HISTORY),
         };
         inst.update_world_bounds();
         Ok(inst)
@@ -134,6 +166,17 @@ impl TraceWorld {
     /// The entity's object-space tree.
     pub fn blas(&self, e: Entity) -> Option<&MeshBvh> {
         self.instances.get(&e).map(|i| &i.bvh)
+    }
+
+    /// The characteriser's current profile of the entity's mesh (see [`TraceSet::Characterize`](super::TraceSet)).
+    pub fn profile(&self, e: Entity) -> Option<&Arc<SceneProfile>> {
+        self.instances.get(&e).and_then(|i| i.profile.as_ref())
+    }
+
+    /// How incoherently the entity's mesh has been moving (see `Instance::motion_incoherence`): the mean rise
+    /// of the degradation metric per refit over the last 16 refits.
+    pub fn motion_incoherence(&self, e: Entity) -> Option<f32> {
+        self.instances.get(&e).map(Instance::motion_incoherence)
     }
 
     /// The top-level tree (primitives are entities, see [`tlas_entity`](Self::tlas_entity)).
