@@ -11,6 +11,9 @@
 //! - uniform iff χ² ≤ the critical value of χ² with k − 1 degrees of freedom at upper-tail α = 0.005 (the
 //!   thesis's Algorithm 2 states the opposite; its text and standard statistics say this);
 //! - "over-full" bins hold more than the expected count (the thesis's concentration rule).
+//!
+//! On the GPU, `GpuMeshBvh::record_histogram` (feature `gpu`) counts the codes a GPU build sorted anyway,
+//! equal bin for bin to [`profile`]'s histogram for the same bin count; the moments and the test stay here.
 
 use crate::Mesh;
 use crate::geometry::{Aabb, morton30};

@@ -327,3 +327,78 @@ fn gpu_skinning_equals_cpu_skinning_and_feeds_refit() {
     };
     assert!(GpuSkin::new(&g, m.positions(), &bad, 3, &bvh).is_err());
 }
+
+/// The characteriser's histogram by definition, from the CPU's Morton codes of box centres.
+fn brute_histogram(m: &Mesh, bins: usize) -> Vec<u32> {
+    let centres: Vec<Vec3> = m.triangle_bounds().iter().map(|b| b.center()).collect();
+    let cb = centres.iter().fold(Aabb::EMPTY, |mut a, &c| {
+        a.grow(c);
+        a
+    });
+    let codes: Vec<u64> = centres
+        .iter()
+        .map(|&c| kinetrace::geometry::morton30(c, &cb) as u64)
+        .collect();
+    let (lo, hi) = (
+        codes.iter().copied().min().unwrap_or(0),
+        codes.iter().copied().max().unwrap_or(0),
+    );
+    let width = (hi - lo + 1).div_ceil(bins as u64);
+    let mut h = vec![0u32; bins];
+    for c in codes {
+        h[(((c - lo) / width) as usize).min(bins - 1)] += 1;
+    }
+    h
+}
+
+#[test]
+fn morton_histogram_equals_cpu_histogram() {
+    let Some(g) = gpu() else { return };
+    let mut r = rng(11);
+    let clusters = map_mesh(&soup(3, 20_000), |p| {
+        if p.x > 0.5 { p + Vec3::splat(1e4) } else { p }
+    });
+    let meshes: Vec<Mesh> = SIZES
+        .into_iter()
+        .chain([BIG])
+        .map(|n| soup(n as u64 + 9, n))
+        .chain([
+            clusters,
+            map_mesh(&soup(4, 3000), |p| p * 1e-30 + Vec3::splat(1e6)),
+        ])
+        .collect();
+    for m in &meshes {
+        let n = m.triangle_count();
+        let (bvh, _) = gpu_lbvh(&g, m);
+        let cpu = kinetrace::characterize::profile_mesh(m);
+        for bins in [cpu.bins, 1, r.random_range(2..=256)] {
+            let mut enc = g.encoder();
+            let h = bvh.record_histogram(&g, &mut enc, bins).unwrap();
+            g.submit(enc);
+            let h = h.wait(&g).unwrap();
+            assert_eq!(h, brute_histogram(m, bins), "n = {n}, {bins} bins");
+            if bins == cpu.bins {
+                assert_eq!(h, cpu.histogram, "n = {n}: the CPU profile's histogram");
+            }
+        }
+    }
+}
+
+#[test]
+fn histogram_misuse_is_an_error() {
+    let Some(g) = gpu() else { return };
+    let m = soup(1, 100);
+    let bvh = GpuMeshBvh::new(&g, &m).unwrap();
+    let mut enc = g.encoder();
+    assert!(
+        bvh.record_histogram(&g, &mut enc, 8).is_err(),
+        "before a build"
+    );
+    let (bvh, _) = gpu_lbvh(&g, &m);
+    for bins in [0, kinetrace::gpu::MAX_HISTOGRAM_BINS + 1] {
+        assert!(
+            bvh.record_histogram(&g, &mut enc, bins).is_err(),
+            "{bins} bins"
+        );
+    }
+}

@@ -117,6 +117,13 @@ impl ParamSlots {
         })
     }
 
+    /// Rewrites one slot; takes effect at the next submission, so every dispatch of that submission sees
+    /// the new value.
+    pub fn write(&self, ctx: &GpuContext, slot: usize, value: [u32; 4]) {
+        ctx.queue
+            .write_buffer(&self.buffer, slot as u64 * SLOT, bytemuck::bytes_of(&value));
+    }
+
     pub fn offset(slot: usize) -> u32 {
         (slot as u64 * SLOT) as u32
     }

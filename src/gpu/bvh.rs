@@ -43,7 +43,10 @@ pub struct GpuMeshBvh {
     level_args: GpuBuffer,
     depths: GpuBuffer,
     sums: GpuBuffer,
-    _params: ParamSlots,
+    params: ParamSlots,
+    /// Counts of the characteriser's Morton-code histogram (MAX_HISTOGRAM_BINS words).
+    histogram: GpuBuffer,
+    histogram_group: wgpu::BindGroup,
     sort: RadixSort,
     lbvh_group: wgpu::BindGroup,
     /// For the schedule kernels (writes the indirect arguments).
@@ -52,19 +55,26 @@ pub struct GpuMeshBvh {
     bounds_group: wgpu::BindGroup,
     reduce_group: wgpu::BindGroup,
     built: bool,
+    /// The Morton codes of the current positions are sorted in `keys` (a GPU build ran, not an upload).
+    coded: bool,
     /// False for an uploaded CPU tree with several triangles per leaf: traceable, not refittable here.
     refittable: bool,
     _scratch: Vec<GpuBuffer>,
 }
 
 /// Parameter slots: 0 mesh, 1 node count (level passes), 2..66 build levels, 66..130 refit levels,
-/// 130 sum over nodes, 131 sum over pairs.
+/// 130 sum over nodes, 131 sum over pairs, 132 histogram.
 const SLOT_MESH: usize = 0;
 const SLOT_NODES: usize = 1;
 const SLOT_BUILD: usize = 2;
 const SLOT_REFIT: usize = SLOT_BUILD + LEVELS;
 const SLOT_SUM: usize = SLOT_REFIT + LEVELS;
 const SLOT_PAIRS: usize = SLOT_SUM + 1;
+const SLOT_HISTOGRAM: usize = SLOT_PAIRS + 1;
+
+/// The most bins [`GpuMeshBvh::record_histogram`] counts (Doane's rule asks for about 40 at 10⁷ triangles
+/// even for strongly skewed codes).
+pub const MAX_HISTOGRAM_BINS: usize = 256;
 
 impl GpuMeshBvh {
     /// Uploads `mesh` and allocates everything its tree needs. Nothing is built until
@@ -104,7 +114,7 @@ impl GpuMeshBvh {
             // No inner node writes the root's parent link: mark it here.
             parents.write(ctx, &[u32::MAX]);
         }
-        let mut slots = vec![[0u32; 4]; SLOT_PAIRS + 1];
+        let mut slots = vec![[0u32; 4]; SLOT_HISTOGRAM + 1];
         slots[SLOT_MESH] = [tris, 0, 0, 0];
         slots[SLOT_NODES] = [node_count, 0, 0, 0];
         for d in 0..LEVELS {
@@ -158,6 +168,12 @@ impl GpuMeshBvh {
             &k.reduce.layout,
             &[terms.binding(), sums.binding(), params.binding()],
         );
+        let histogram = GpuBuffer::storage(ctx, "histogram", MAX_HISTOGRAM_BINS as u64 * 4);
+        let histogram_group = bind_group(
+            ctx,
+            &k.histogram.layout,
+            &[keys.binding(), histogram.binding(), params.binding()],
+        );
         let sort = RadixSort::new(ctx, &keys, &vals, tris, 30);
         Ok(Self {
             tris,
@@ -170,13 +186,16 @@ impl GpuMeshBvh {
             level_args,
             depths,
             sums,
-            _params: params,
+            params,
+            histogram,
+            histogram_group,
             sort,
             lbvh_group,
             levels_group,
             bounds_group,
             reduce_group,
             built: false,
+            coded: false,
             refittable: true,
             _scratch: vec![
                 centroids, partials, keys, children, parents, first, order, terms, levels, stand_in,
@@ -236,6 +255,7 @@ impl GpuMeshBvh {
             &self.level_args,
             &self.depths,
             &self.sums,
+            &self.histogram,
         ];
         own.iter()
             .chain(self._scratch.iter().collect::<Vec<_>>().iter())
@@ -320,6 +340,7 @@ impl GpuMeshBvh {
                 run(&mut pass, "reduce_bounds", 1);
                 run(&mut pass, "morton", self.tris);
                 self.sort.record(ctx, &mut pass);
+                self.coded = true;
             }
             BuildPhase::Tree => {
                 run(&mut pass, "karras", self.tris);
@@ -398,6 +419,60 @@ impl GpuMeshBvh {
             sum: Readback::record(ctx, encoder, self.sums.buffer(), 1),
             inner: self.tris.saturating_sub(1),
         }
+    }
+
+    /// Records the histogram of the last GPU build's Morton codes in `bins` bins, and its read-back: the
+    /// characteriser's histogram ([`crate::characterize`]), equal bin for bin to the CPU's for the same
+    /// bin count — pass [`SceneProfile::bins`](crate::characterize::SceneProfile::bins) of a CPU profile,
+    /// or [`doane_bins`](crate::characterize::doane_bins) of a skewness you track. Costs one pass over
+    /// the codes the build sorted anyway (no extra memory beyond 1 KiB of counts).
+    ///
+    /// The bin count is a per-mesh parameter written at the next submission: record one histogram per
+    /// mesh per submission. Errors before a GPU build (an uploaded CPU tree has no codes) or for a bin
+    /// count outside `1..=MAX_HISTOGRAM_BINS`.
+    pub fn record_histogram(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        bins: usize,
+    ) -> Result<Readback<u32>> {
+        if !(1..=MAX_HISTOGRAM_BINS).contains(&bins) {
+            return Err(Error::Gpu(format!(
+                "histogram bin count {bins} is outside 1..={MAX_HISTOGRAM_BINS}"
+            )));
+        }
+        if self.tris > 0 && !self.coded {
+            return Err(Error::Gpu(
+                "histogram before a GPU build: the Morton codes come from record_build".into(),
+            ));
+        }
+        self.params
+            .write(ctx, SLOT_HISTOGRAM, [self.tris, bins as u32, 0, 0]);
+        let k = &ctx.kernels;
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("kinetrace histogram"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(
+                0,
+                &self.histogram_group,
+                &[ParamSlots::offset(SLOT_HISTOGRAM)],
+            );
+            pass.set_pipeline(k.histogram.pipeline("histogram_clear"));
+            pass.dispatch_workgroups(1, 1, 1);
+            if self.tris > 0 {
+                let (x, y) = groups(self.tris, 256);
+                pass.set_pipeline(k.histogram.pipeline("histogram"));
+                pass.dispatch_workgroups(x, y, 1);
+            }
+        }
+        Ok(Readback::record(
+            ctx,
+            encoder,
+            self.histogram.buffer(),
+            bins,
+        ))
     }
 
     /// Reads the current vertex positions back (blocking), e.g. after GPU skinning.

@@ -110,6 +110,7 @@ pub(crate) struct Kernels {
     pub trace: Module,
     pub scene: Module,
     pub skin: Module,
+    pub histogram: Module,
 }
 
 impl Kernels {
@@ -180,6 +181,13 @@ impl Kernels {
                 shader!("skin.wgsl"),
                 &[Read, Read, Read, Read, Write, Uniform],
                 &["skin"],
+            ),
+            histogram: Module::new(
+                device,
+                "histogram",
+                shader!("histogram.wgsl"),
+                &[Read, Write, Uniform],
+                &["histogram_clear", "histogram"],
             ),
         }
     }

@@ -35,7 +35,7 @@ mod sort;
 mod trace;
 
 pub use buffers::Readback;
-pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh};
+pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use context::{GpuContext, shared_for_tests};
 pub use skin::GpuSkin;
 pub use sort::sort_pairs;
