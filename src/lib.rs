@@ -39,6 +39,7 @@
 
 #![warn(missing_docs)]
 
+pub mod adaptive;
 pub mod anim;
 pub mod bvh;
 pub mod characterize;

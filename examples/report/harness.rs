@@ -1,0 +1,285 @@
+//! The error-versus-run-time evaluation: every scene under every strategy, per frame: update time, query
+//! time for a fixed ray load (closest + shadow), the error against a fresh binned-SAH build of the same
+//! frame (SAH cost and traversal steps per ray), and sampled rays checked against brute force.
+
+use super::scenes::Scene;
+use glam::Vec3;
+use kinetrace::adaptive::AdaptivePolicy;
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::scenes::SceneRng;
+use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
+use std::time::Instant;
+
+/// How a strategy maintains the tree.
+#[derive(Clone, Copy, Debug)]
+pub enum Strategy {
+    Rebuild(Builder),
+    Refit,
+    RefitEvery(u32),
+    Lauterbach(f32),
+    Adaptive,
+}
+
+impl Strategy {
+    pub const ALL: [Strategy; 9] = [
+        Strategy::Rebuild(Builder::LBVH),
+        Strategy::Rebuild(Builder::HYBRID),
+        Strategy::Rebuild(Builder::SAH),
+        Strategy::Refit,
+        Strategy::RefitEvery(20),
+        Strategy::Lauterbach(0.2),
+        Strategy::Lauterbach(0.4),
+        Strategy::Lauterbach(0.8),
+        Strategy::Adaptive,
+    ];
+
+    pub fn name(&self) -> String {
+        match self {
+            Strategy::Rebuild(b) => format!("rebuild-{}", b.name()),
+            Strategy::Refit => "refit".into(),
+            Strategy::RefitEvery(k) => format!("refit-rebuild-every-{k}"),
+            Strategy::Lauterbach(t) => format!("lauterbach-{t}"),
+            Strategy::Adaptive => "adaptive".into(),
+        }
+    }
+
+    pub fn is_fixed(&self) -> bool {
+        !matches!(self, Strategy::Adaptive)
+    }
+}
+
+/// One frame of one strategy on one scene.
+#[derive(Clone, Debug)]
+pub struct FrameRecord {
+    pub frame: u32,
+    pub update_s: f64,
+    pub query_s: f64,
+    pub rebuilt: bool,
+    /// SAH cost over a fresh binned-SAH build's.
+    pub sah_ratio: f64,
+    /// Traversal steps (node visits + triangle tests) per ray over the fresh SAH tree's on the same rays.
+    pub steps_ratio: f64,
+    /// Sampled rays whose answer differs from brute force.
+    pub mismatches: u32,
+}
+
+/// The run's sizes.
+#[derive(Clone, Copy, Debug)]
+pub struct Settings {
+    pub triangles: usize,
+    pub frames: u32,
+    pub rays: usize,
+    pub checked_rays: usize,
+}
+
+impl Settings {
+    /// The `--quick` run (CI's smoke test): small scenes, few frames.
+    pub const QUICK: Settings = Settings {
+        triangles: 3000,
+        frames: 24,
+        rays: 512,
+        checked_rays: 8,
+    };
+}
+
+/// Per frame of a scene: what every strategy is compared with (a fresh SAH build's SAH cost and steps).
+struct Reference {
+    sah: f64,
+    steps: f64,
+}
+
+/// Rays of a frame: from points on a sphere around the scene towards points inside it.
+fn frame_rays(bounds: &Aabb, n: usize, frame: u32) -> Vec<Ray> {
+    let mut r = SceneRng::new(0x5eed ^ frame as u64);
+    let c = bounds.center();
+    let radius = bounds.extent().length().max(1e-3);
+    (0..n)
+        .map(|_| {
+            let from = c + r.direction() * radius;
+            let to = bounds.min + (bounds.max - bounds.min) * r.vec3(0.0, 1.0);
+            Ray::new(from, to - from)
+        })
+        .collect()
+}
+
+/// The fixed ray load: closest hits, then a shadow ray from each hit towards a light. Returns seconds and
+/// traversal steps.
+fn query(bvh: &MeshBvh, rays: &[Ray], light: Vec3) -> (f64, u64) {
+    let mut stats = TraversalStats::default();
+    let start = Instant::now();
+    for ray in rays {
+        if let Some(h) = bvh.closest_hit_counted(ray, &mut stats) {
+            let p = ray.at(h.t);
+            bvh.any_hit_counted(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
+        }
+    }
+    let seconds = start.elapsed().as_secs_f64();
+    (
+        seconds,
+        stats.inner_visits + stats.leaf_visits + stats.prim_tests,
+    )
+}
+
+/// Closest t by brute force in f64 (Möller–Trumbore), with the smallest barycentric margin of the hit, so
+/// that hits grazing an edge (where f32 and f64 may rightly disagree) are not counted as mismatches.
+fn brute(mesh: &Mesh, ray: &Ray) -> Option<(f64, f64)> {
+    let o = ray.origin.as_dvec3();
+    let d = ray.dir.as_dvec3();
+    let mut best: Option<(f64, f64)> = None;
+    for i in 0..mesh.triangle_count() {
+        let [a, b, c] = mesh.triangle(i).map(|v| v.as_dvec3());
+        let (e1, e2) = (b - a, c - a);
+        let p = d.cross(e2);
+        let det = e1.dot(p);
+        if det == 0.0 {
+            continue;
+        }
+        let s = o - a;
+        let u = s.dot(p) / det;
+        let q = s.cross(e1);
+        let v = d.dot(q) / det;
+        let t = e2.dot(q) / det;
+        let margin = u.min(v).min(1.0 - u - v);
+        if margin >= -1e-7 && t >= 0.0 && t <= ray.tmax as f64 && best.is_none_or(|(bt, _)| t < bt)
+        {
+            best = Some((t, margin));
+        }
+    }
+    best
+}
+
+fn mismatches(bvh: &MeshBvh, mesh: &Mesh, rays: &[Ray]) -> u32 {
+    let mut bad = 0;
+    for ray in rays {
+        let got = bvh.closest_hit(ray).map(|h| h.t as f64);
+        let agree = match (got, brute(mesh, ray)) {
+            (None, None) => true,
+            (Some(t), Some((bt, _))) => (t - bt).abs() <= 1e-4 * bt.max(1.0),
+            (None, Some((_, margin))) => margin < 1e-5,
+            (Some(_), None) => false,
+        };
+        bad += !agree as u32;
+    }
+    bad
+}
+
+fn build(mesh: &Mesh, builder: Builder) -> MeshBvh {
+    MeshBvh::build(mesh, &BuildOptions::new(builder)).expect("scene meshes are valid")
+}
+
+/// Runs every strategy on `scene`; returns a record list per strategy, in [`Strategy::ALL`] order.
+pub fn run_scene(scene: &Scene, settings: &Settings) -> Vec<Vec<FrameRecord>> {
+    let mut frames = Vec::with_capacity(settings.frames as usize);
+    let mut pos = Vec::new();
+    for f in 0..settings.frames {
+        scene.positions(f, &mut pos);
+        let mesh = scene.mesh(&pos);
+        let sah = build(&mesh, Builder::SAH);
+        let bounds = sah.bvh().bounds();
+        let rays = frame_rays(&bounds, settings.rays, f);
+        let light = bounds.center() + Vec3::new(0.3, 1.0, 0.2) * bounds.extent().length();
+        let (_, steps) = query(&sah, &rays, light);
+        let reference = Reference {
+            sah: sah.bvh().sah_cost(),
+            steps: steps as f64 / rays.len().max(1) as f64,
+        };
+        frames.push((mesh, rays, light, reference));
+    }
+    Strategy::ALL
+        .iter()
+        .map(|s| run_strategy(*s, &frames, settings))
+        .collect()
+}
+
+fn run_strategy(
+    strategy: Strategy,
+    frames: &[(Mesh, Vec<Ray>, Vec3, Reference)],
+    settings: &Settings,
+) -> Vec<FrameRecord> {
+    let mut adaptive = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
+    let first = match strategy {
+        Strategy::Rebuild(b) => b,
+        Strategy::Adaptive => adaptive.builder(),
+        _ => Builder::LBVH,
+    };
+    let (mesh0, ..) = &frames[0];
+    let start = Instant::now();
+    let mut bvh = build(mesh0, first);
+    adaptive.built(
+        first,
+        mesh0.triangle_count(),
+        start.elapsed().as_secs_f64(),
+        bvh.bvh().sah_cost(),
+    );
+    let mut since = 0u32;
+    let mut records = Vec::with_capacity(frames.len());
+    for (f, (mesh, rays, light, reference)) in frames.iter().enumerate() {
+        let start = Instant::now();
+        let rebuilt = if f == 0 {
+            true
+        } else {
+            match strategy {
+                Strategy::Rebuild(b) => {
+                    bvh = build(mesh, b);
+                    true
+                }
+                Strategy::Refit => {
+                    bvh.refit(mesh.positions()).expect("same topology");
+                    false
+                }
+                Strategy::RefitEvery(k) => {
+                    since += 1;
+                    if since >= k {
+                        since = 0;
+                        bvh = build(mesh, Builder::LBVH);
+                        true
+                    } else {
+                        bvh.refit(mesh.positions()).expect("same topology");
+                        false
+                    }
+                }
+                Strategy::Lauterbach(t) => {
+                    let d = bvh.refit(mesh.positions()).expect("same topology");
+                    if d > t {
+                        bvh = build(mesh, Builder::LBVH);
+                    }
+                    d > t
+                }
+                Strategy::Adaptive => {
+                    bvh.refit(mesh.positions()).expect("same topology");
+                    if adaptive.after_refit(bvh.bvh().sah_cost(), settings.rays) {
+                        let b = adaptive.builder();
+                        let t = Instant::now();
+                        bvh = build(mesh, b);
+                        let cost = bvh.bvh().sah_cost();
+                        adaptive.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
+                        true
+                    } else {
+                        false
+                    }
+                }
+            }
+        };
+        let update_s = if f == 0 {
+            0.0
+        } else {
+            start.elapsed().as_secs_f64()
+        };
+        let cost = bvh.bvh().sah_cost();
+        let (query_s, steps) = query(&bvh, rays, *light);
+        if matches!(strategy, Strategy::Adaptive) {
+            adaptive.queried(rays.len(), cost, query_s);
+        }
+        let checked = &rays[..settings.checked_rays.min(rays.len())];
+        records.push(FrameRecord {
+            frame: f as u32,
+            update_s,
+            query_s,
+            rebuilt,
+            sah_ratio: cost / reference.sah.max(1e-30),
+            steps_ratio: steps as f64 / rays.len().max(1) as f64 / reference.steps.max(1e-30),
+            mismatches: mismatches(&bvh, mesh, checked),
+        });
+    }
+    records
+}

@@ -1,0 +1,73 @@
+//! Error-versus-run-time report: every animated scene under every refit/rebuild strategy, into
+//! `target/report/` (frames.csv, summary.md, one PNG per scene).
+//!
+//! ```text
+//! cargo run --release --example report            # 300 frames, ~20k triangles per scene
+//! cargo run --release --example report -- --quick # 24 frames, ~3k triangles (what the smoke test runs)
+//! options: --frames N --triangles N --rays N --out DIR --assets DIR
+//! ```
+
+mod harness;
+mod output;
+mod scenes;
+
+use harness::Settings;
+use std::path::PathBuf;
+
+fn main() {
+    let mut settings = Settings {
+        triangles: 20_000,
+        frames: 300,
+        rays: 4096,
+        checked_rays: 16,
+    };
+    let mut out = PathBuf::from("target/report");
+    let mut assets = PathBuf::from("../shared/assets");
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = |what: &str| {
+            args.next()
+                .unwrap_or_else(|| fail(&format!("{a} needs {what}")))
+        };
+        let mut number = |what: &str| -> usize {
+            value(what)
+                .parse()
+                .unwrap_or_else(|_| fail(&format!("{a} needs {what}")))
+        };
+        match a.as_str() {
+            "--quick" => settings = Settings::QUICK,
+            "--frames" => settings.frames = number("a frame count") as u32,
+            "--triangles" => settings.triangles = number("a triangle count"),
+            "--rays" => settings.rays = number("a ray count"),
+            "--out" => out = PathBuf::from(value("a directory")),
+            "--assets" => assets = PathBuf::from(value("a directory")),
+            _ => fail(&format!("unknown option {a}")),
+        }
+    }
+    match output::write_report(&settings, &assets, &out) {
+        Ok(report) => {
+            for s in &report.skipped {
+                eprintln!("{s}");
+            }
+            let bad: u32 = report.rows.iter().map(|r| r.mismatches).sum();
+            println!(
+                "wrote {} files to {} ({} mismatches against brute force)",
+                report.files.len(),
+                out.display(),
+                bad
+            );
+            if bad > 0 {
+                std::process::exit(1);
+            }
+        }
+        Err(e) => fail(&format!(
+            "cannot write the report to {}: {e}",
+            out.display()
+        )),
+    }
+}
+
+fn fail(message: &str) -> ! {
+    eprintln!("report: {message}");
+    std::process::exit(2)
+}

@@ -1,0 +1,66 @@
+//! Smoke test of the evaluation harness (examples/report) in its `--quick` size: every file is written,
+//! every scene and strategy is reported, and no sampled ray differs from brute force.
+
+#[path = "../examples/report/harness.rs"]
+mod harness;
+#[path = "../examples/report/output.rs"]
+mod output;
+#[path = "../examples/report/scenes.rs"]
+mod scenes;
+
+use std::path::Path;
+
+#[test]
+fn quick_report_writes_every_file_with_zero_mismatches() {
+    let out = std::env::temp_dir().join(format!("kinetrace-report-{}", std::process::id()));
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets");
+    let report = output::write_report(&harness::Settings::QUICK, &assets, &out).unwrap();
+    for s in &report.skipped {
+        eprintln!("note: {s}");
+    }
+    let scenes = report
+        .files
+        .iter()
+        .filter(|f| f.extension().is_some_and(|e| e == "png"))
+        .count();
+    assert!(scenes >= 6, "a plot per scene: {:?}", report.files);
+    assert_eq!(report.rows.len(), scenes * harness::Strategy::ALL.len());
+    for f in &report.files {
+        assert!(
+            std::fs::metadata(f).unwrap().len() > 0,
+            "{} is empty",
+            f.display()
+        );
+    }
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    assert_eq!(
+        csv.lines().count(),
+        1 + report.rows.len() * harness::Settings::QUICK.frames as usize,
+        "a CSV line per frame per strategy per scene"
+    );
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(summary.contains("| adaptive |") && summary.contains("Goal "));
+    for r in &report.rows {
+        assert_eq!(
+            r.mismatches, 0,
+            "{} / {}: answers differ from brute force",
+            r.scene, r.strategy
+        );
+        assert!(
+            r.sah_mean >= 0.5 && r.total_ms > 0.0,
+            "{} / {}",
+            r.scene,
+            r.strategy
+        );
+    }
+    // Rebuilding with binned SAH every frame is the reference itself.
+    for r in report.rows.iter().filter(|r| r.strategy == "rebuild-sah") {
+        assert!(
+            (r.sah_mean - 1.0).abs() < 1e-9,
+            "{}: {}",
+            r.scene,
+            r.sah_mean
+        );
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
