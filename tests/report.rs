@@ -18,13 +18,24 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
     for s in &report.skipped {
         eprintln!("note: {s}");
     }
-    let scenes = report
+    let pngs: Vec<String> = report
         .files
         .iter()
         .filter(|f| f.extension().is_some_and(|e| e == "png"))
-        .count();
-    assert!(scenes >= 6, "a plot per scene: {:?}", report.files);
-    assert_eq!(report.rows.len(), scenes * harness::Strategy::ALL.len());
+        .map(|f| f.file_stem().unwrap().to_string_lossy().into_owned())
+        .collect();
+    let scenes: Vec<&String> = pngs.iter().filter(|s| !s.ends_with("-frames")).collect();
+    assert!(scenes.len() >= 6, "a plot per scene: {pngs:?}");
+    for s in &scenes {
+        assert!(
+            pngs.contains(&format!("{s}-frames")),
+            "per-frame curves of {s}"
+        );
+    }
+    assert_eq!(
+        report.rows.len(),
+        scenes.len() * harness::Strategy::ALL.len()
+    );
     for f in &report.files {
         assert!(
             std::fs::metadata(f).unwrap().len() > 0,

@@ -1,6 +1,6 @@
 //! The report's files: `frames.csv` (every frame of every strategy on every scene), `summary.md` (the
-//! table and the goal check) and one `SCENE.png` per scene (error against run time, one point per strategy
-//! with the per-frame spread as bars).
+//! table and the goal check) and per scene `SCENE.png` (error against run time, one point per strategy
+//! with the per-frame spread as bars) and `SCENE-frames.png` (per-frame curves of time and error).
 
 use super::harness::{FrameRecord, Settings, Strategy, run_scene};
 use super::scenes::Scene;
@@ -93,11 +93,14 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
             }
             rows.push(row(scene.name, s, recs));
         }
-        let png = out.join(format!("{}.png", scene.name));
-        plot(&rows[first..])
-            .save(&png)
-            .map_err(std::io::Error::other)?;
-        files.push(png);
+        for (suffix, img) in [
+            ("", plot(&rows[first..])),
+            ("-frames", curves(&per_strategy)),
+        ] {
+            let png = out.join(format!("{}{suffix}.png", scene.name));
+            img.save(&png).map_err(std::io::Error::other)?;
+            files.push(png);
+        }
     }
     for (name, text) in [
         ("frames.csv", csv),
@@ -158,6 +161,50 @@ fn plot(rows: &[Row]) -> RgbImage {
                     (cy + dy).saturating_sub(3),
                     Rgb(c),
                 );
+            }
+        }
+    }
+    img
+}
+
+/// Per-frame curves, one colour per strategy: update + query ms on a log scale (top half), SAH ratio
+/// (bottom half; ratios above 3 are drawn at 3).
+fn curves(per_strategy: &[Vec<FrameRecord>]) -> RgbImage {
+    let (w, h, m) = (640u32, 480u32, 20u32);
+    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
+    let frames = per_strategy.iter().map(Vec::len).max().unwrap_or(0).max(2);
+    let ms = |r: &FrameRecord| (1e3 * (r.update_s + r.query_s)).max(1e-4).log10();
+    let error = |r: &FrameRecord| r.sah_ratio.min(3.0);
+    let half = h / 2;
+    for (top, value) in [(0u32, &ms as &dyn Fn(&FrameRecord) -> f64), (half, &error)] {
+        let all = per_strategy.iter().flatten().map(value);
+        let (lo, hi) = all.fold((f64::MAX, f64::MIN), |(l, u), v| (l.min(v), u.max(v)));
+        let span = (hi - lo).max(1e-9);
+        let (y0, y1) = (top + m, top + half - m);
+        for i in m..w - m {
+            img.put_pixel(i, y1, Rgb([0, 0, 0]));
+        }
+        for (recs, c) in per_strategy.iter().zip(COLOURS) {
+            let mut last: Option<(u32, f64)> = None;
+            for (f, r) in recs.iter().enumerate() {
+                let x = m + (f as u64 * (w - 2 * m - 1) as u64 / (frames - 1) as u64) as u32;
+                let y = y1 as f64 - (value(r) - lo) / span * (y1 - y0) as f64;
+                // A segment from the previous point: one pixel per column, joined vertically.
+                let (x0, ya) = last.unwrap_or((x, y));
+                let mut prev = ya;
+                for i in x0..=x {
+                    let t = if x > x0 {
+                        (i - x0) as f64 / (x - x0) as f64
+                    } else {
+                        1.0
+                    };
+                    let yi = ya + (y - ya) * t;
+                    for j in prev.min(yi).round() as u32..=prev.max(yi).round() as u32 {
+                        img.put_pixel(i, j, Rgb(c));
+                    }
+                    prev = yi;
+                }
+                last = Some((x, y));
             }
         }
     }
@@ -232,7 +279,8 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
         s,
         "\nGoal {}: within 5% on every scene: {all_within}; scenes where adaptive beats lauterbach-0.4 by \
          10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.\n\nPlots: one PNG per \
-         scene, x = total ms per frame, y = SAH ratio; dot = mean, bars = per-frame range. Colours in \
+         scene, x = total ms per frame, y = SAH ratio; dot = mean, bars = per-frame range; SCENE-frames.png: \
+         per-frame curves, top = total ms (log scale), bottom = SAH ratio (capped at 3). Colours in \
          strategy order: {}.",
         if met { "MET" } else { "NOT MET" },
         Strategy::ALL
