@@ -5,11 +5,13 @@ use kinetrace::Mesh;
 use kinetrace::anim::{CharacterAsset, humanoid, skin_positions};
 use kinetrace::scenes::{SceneRng, cube_sphere, icosphere, soup};
 use std::path::Path;
+use std::sync::Arc;
 
 /// One animated scene.
 pub struct Scene {
     pub name: &'static str,
-    pub indices: Vec<u32>,
+    /// Shared by every frame's mesh.
+    indices: Arc<[u32]>,
     motion: Motion,
 }
 
@@ -61,7 +63,7 @@ impl Scene {
                 if let Some(asset) = meshes.into_iter().find_map(|m| m.character) {
                     scenes.push(Scene {
                         name: "rigged_figure",
-                        indices: asset.mesh.indices().to_vec(),
+                        indices: asset.mesh.indices().into(),
                         motion: Motion::Characters {
                             asset,
                             placements: vec![Vec3::ZERO],
@@ -88,7 +90,7 @@ impl Scene {
         let indices = concat(&parts).1;
         Scene {
             name: "crowd",
-            indices,
+            indices: indices.into(),
             motion: Motion::Characters {
                 asset,
                 placements,
@@ -113,7 +115,7 @@ impl Scene {
         }
         Scene {
             name: "cloth",
-            indices,
+            indices: indices.into(),
             motion: Motion::Cloth { rest },
         }
     }
@@ -130,7 +132,7 @@ impl Scene {
             .collect();
         Scene {
             name: "explosion",
-            indices: m.indices().to_vec(),
+            indices: m.indices().into(),
             motion: Motion::Explosion { rest, velocity },
         }
     }
@@ -146,7 +148,7 @@ impl Scene {
         .1;
         Scene {
             name: "teapot_in_stadium",
-            indices,
+            indices: indices.into(),
             motion: Motion::Characters {
                 asset,
                 placements: vec![Vec3::ZERO],
@@ -159,7 +161,7 @@ impl Scene {
         let m = soup(31, triangles);
         Scene {
             name: "soup",
-            indices: m.indices().to_vec(),
+            indices: m.indices().into(),
             motion: Motion::Soup {
                 rest: m.positions().to_vec(),
             },
@@ -174,7 +176,7 @@ impl Scene {
             .collect();
         Scene {
             name: "rigid",
-            indices: concat(&parts).1,
+            indices: concat(&parts).1.into(),
             motion: Motion::Rigid {
                 body: body.positions().to_vec(),
                 count,

@@ -50,9 +50,7 @@ impl Instance {
         }
         self.history.push(degradation);
     }
-}
 
-impl Instance {
     /// Builds the entity's tree.
     pub fn build(mesh: &Mesh, builder: Builder) -> Result<Instance> {
         let bvh = MeshBvh::build(mesh, &BuildOptions::new(builder))?;

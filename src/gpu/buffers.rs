@@ -38,6 +38,16 @@ impl GpuBuffer {
         Self::new(ctx, label, bytes, STORAGE)
     }
 
+    /// A uniform buffer of one parameter slot (256 bytes, the dynamic-offset alignment), written from the CPU.
+    pub fn uniform(ctx: &GpuContext, label: &'static str) -> Self {
+        Self::new(
+            ctx,
+            label,
+            SLOT,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        )
+    }
+
     /// Makes room for `bytes`; returns true when the buffer was replaced (bind groups must be rebuilt).
     pub fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> bool {
         if bytes <= self.buffer.size() {

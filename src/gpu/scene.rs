@@ -67,12 +67,7 @@ impl Batch {
             rays: GpuBuffer::storage(ctx, "scene rays", 80 * 1024),
             filters: GpuBuffer::storage(ctx, "scene filters", 16 * 1024),
             hits: GpuBuffer::storage(ctx, "scene hits", 48 * 1024),
-            params: GpuBuffer::new(
-                ctx,
-                "scene params",
-                256,
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            ),
+            params: GpuBuffer::uniform(ctx, "scene params"),
             up_rays: Vec::new(),
             up_filters: Vec::new(),
         }

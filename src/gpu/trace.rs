@@ -117,12 +117,7 @@ impl GpuRays {
         Self {
             rays: GpuBuffer::storage(ctx, "rays", 80 * 1024),
             hits: GpuBuffer::storage(ctx, "hits", 16 * 1024),
-            params: GpuBuffer::new(
-                ctx,
-                "trace params",
-                256,
-                wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            ),
+            params: GpuBuffer::uniform(ctx, "trace params"),
             upload: Vec::new(),
         }
     }
