@@ -123,8 +123,16 @@ impl AdaptivePolicy {
     }
 
     /// Records a rebuild: its builder, triangle count, measured seconds and the new tree's SAH cost.
+    /// A non-finite or negative cost or time is not learned from (the rebuild still resets the rent).
     pub fn built(&mut self, builder: Builder, triangles: usize, seconds: f64, sah_cost: f64) {
-        if let Some(i) = self.builders.iter().position(|b| b.builder == builder) {
+        let valid =
+            sah_cost.is_finite() && sah_cost >= 0.0 && seconds.is_finite() && seconds >= 0.0;
+        if let Some(i) = self
+            .builders
+            .iter()
+            .position(|b| b.builder == builder)
+            .filter(|_| valid)
+        {
             // Re-anchor the unit of cost to this frame (the scene's cost drifts as it moves), then learn.
             match self.builders[i].cost.0 {
                 Some(rel) if rel > 0.0 => self.reference = sah_cost / rel,
@@ -145,7 +153,9 @@ impl AdaptivePolicy {
             self.interval.add(self.frames as f64);
         }
         self.triangles = triangles;
-        self.cost_built = sah_cost;
+        if valid {
+            self.cost_built = sah_cost;
+        }
         self.rent = 0.0;
         self.frames = 0;
     }
@@ -203,6 +213,22 @@ mod tests {
         p.queried(1000, 10.0, 1e-5); // 1 ns per ray per unit of cost
         // The cost rises by 1 per frame: the rent after k frames is 1e-6 · k(k+1)/2 s, first above 1 ms
         // at k = 45.
+        let k = (1..1000)
+            .find(|&k| p.after_refit(10.0 + k as f64, 1000))
+            .unwrap();
+        assert_eq!(k, 45);
+    }
+
+    #[test]
+    fn non_finite_measurements_are_not_learned() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH]);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        p.queried(1000, 10.0, 1e-5);
+        p.built(Builder::LBVH, 1000, f64::NAN, f64::INFINITY);
+        p.queried(1000, f64::NAN, f64::NAN);
+        assert!((p.predicted_rebuild(Builder::LBVH) - 1e-3).abs() < 1e-12);
+        // Still the analytic rebuild frame of rebuilds_when_the_rent_reaches_the_rebuild_cost.
+        p.max_cost_rise = f64::INFINITY;
         let k = (1..1000)
             .find(|&k| p.after_refit(10.0 + k as f64, 1000))
             .unwrap();

@@ -75,3 +75,22 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
     }
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn zero_counts_are_errors_not_panics() {
+    let out = std::env::temp_dir().join(format!("kinetrace-report-bad-{}", std::process::id()));
+    let assets = Path::new("/nonexistent");
+    let q = harness::Settings::QUICK;
+    for bad in [
+        harness::Settings { frames: 0, ..q },
+        harness::Settings { triangles: 0, ..q },
+        harness::Settings { rays: 0, ..q },
+    ] {
+        let e = output::write_report(&bad, assets, &out)
+            .err()
+            .expect("an error");
+        assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);
+        assert!(e.to_string().contains("at least 1"), "{e}");
+    }
+    assert!(!out.exists(), "nothing is written for bad settings");
+}

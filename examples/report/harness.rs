@@ -73,6 +73,16 @@ pub struct Settings {
 }
 
 impl Settings {
+    /// Why these settings cannot run, if they cannot: every count must be at least 1.
+    pub fn problem(&self) -> Option<&'static str> {
+        match (self.frames, self.triangles, self.rays) {
+            (0, _, _) => Some("the frame count must be at least 1"),
+            (_, 0, _) => Some("the triangle count must be at least 1"),
+            (_, _, 0) => Some("the ray count must be at least 1"),
+            _ => None,
+        }
+    }
+
     /// The `--quick` run (CI's smoke test): small scenes, few frames.
     pub const QUICK: Settings = Settings {
         triangles: 3000,

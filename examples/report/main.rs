@@ -44,6 +44,9 @@ fn main() {
             _ => fail(&format!("unknown option {a}")),
         }
     }
+    if let Some(problem) = settings.problem() {
+        fail(problem);
+    }
     match output::write_report(&settings, &assets, &out) {
         Ok(report) => {
             for s in &report.skipped {

@@ -65,7 +65,14 @@ pub struct Report {
 }
 
 /// Runs every scene and strategy and writes the files.
+/// Errors: `InvalidInput` for settings with a zero count (see [`Settings::problem`]), or the I/O error.
 pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::Result<Report> {
+    if let Some(problem) = settings.problem() {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            problem,
+        ));
+    }
     std::fs::create_dir_all(out)?;
     let (scenes, skipped) = Scene::all(settings.triangles, assets);
     let mut csv = String::from(
