@@ -72,6 +72,9 @@ pub enum Error {
         /// What went wrong.
         message: String,
     },
+    /// A transform given to a query is not finite or cannot be inverted (a zero scale, say).
+    #[error("transform is not finite or not invertible: {0}")]
+    InvalidTransform(String),
     /// A build option is out of its range.
     #[error("invalid build option: {0}")]
     InvalidOption(String),

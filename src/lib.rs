@@ -43,6 +43,7 @@ pub mod adaptive;
 pub mod anim;
 pub mod bvh;
 pub mod characterize;
+pub mod collide;
 pub mod ecs;
 mod error;
 pub mod geometry;

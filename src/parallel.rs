@@ -66,3 +66,29 @@ where
     let _ = parallel;
     input.chunks(chunk).map(map).fold(identity, reduce)
 }
+
+/// Calls `f(i, &mut items[i])` for every item, in parallel when the feature is on and `parallel` is true.
+pub(crate) fn for_each_mut<T: Send>(
+    parallel: bool,
+    items: &mut [T],
+    f: impl Fn(usize, &mut T) + Sync + Send,
+) {
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        items.par_iter_mut().enumerate().for_each(|(i, x)| f(i, x));
+        return;
+    }
+    let _ = parallel;
+    for (i, x) in items.iter_mut().enumerate() {
+        f(i, x);
+    }
+}
+
+/// Worker threads parallel work may use (1 without the feature).
+pub(crate) fn threads() -> usize {
+    #[cfg(feature = "parallel")]
+    return rayon::current_num_threads();
+    #[cfg(not(feature = "parallel"))]
+    1
+}

@@ -171,6 +171,34 @@ pub fn bumpy_torus(triangles: usize) -> Mesh {
     Mesh::new(pos, idx).expect("finite by construction")
 }
 
+/// A sheet of `n × n` quads (`2n²` triangles) over the unit square, folded in two along `x = 0.5`: the
+/// folded half waves through the flat one, so non-adjacent triangles cross along several lines — a
+/// self-collision test case. `phase` moves the waves (animate it for a coherently deforming cloth).
+pub fn folded_sheet(n: u32, phase: f32) -> Mesh {
+    let n = n.max(1);
+    let mut pos = Vec::with_capacity(((n + 1) * (n + 1)) as usize);
+    for j in 0..=n {
+        for i in 0..=n {
+            let (u, v) = (i as f32 / n as f32, j as f32 / n as f32);
+            pos.push(if u <= 0.5 {
+                Vec3::new(u, v, 0.01 * (8.0 * v + phase).sin())
+            } else {
+                let z = 0.08 * (10.0 * (u - 0.5) + phase).sin() * (6.0 * v - phase).cos();
+                Vec3::new(1.0 - u, v, z)
+            });
+        }
+    }
+    let at = |i: u32, j: u32| j * (n + 1) + i;
+    let mut idx = Vec::with_capacity((6 * n * n) as usize);
+    for j in 0..n {
+        for i in 0..n {
+            idx.extend([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            idx.extend([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    Mesh::new(pos, idx).expect("finite by construction")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -5,11 +5,13 @@
 //! ```
 //! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays),
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
-//! overhead), `skinning` (skinning throughput and crowd frame times).
+//! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
+//! animated characters and cloth, against parry3d).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
 //! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
 
+mod collide;
 mod cpu;
 mod ecs;
 mod gpu;
@@ -21,7 +23,7 @@ mod skinning;
 use record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 4] = ["cpu", "gpu", "ecs", "skinning"];
+const SUITES: [&str; 5] = ["cpu", "gpu", "ecs", "skinning", "collide"];
 
 fn main() -> ExitCode {
     let mut quick = false;
@@ -50,6 +52,7 @@ fn main() -> ExitCode {
             "gpu" => gpu::run(&mut rec),
             "ecs" => ecs::run(&mut rec),
             "skinning" => skinning::run(&mut rec),
+            "collide" => collide::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

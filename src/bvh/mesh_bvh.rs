@@ -7,6 +7,7 @@ use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
 use glam::Vec3;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// The nearest intersection of a ray with a mesh.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,6 +63,27 @@ pub struct MeshBvh {
     slot_of: Vec<u32>,
     /// Refit scratch: each slot's triangle box, kept between calls.
     slot_bounds: Vec<Aabb>,
+    /// Identity of this build's topology (see [`MeshBvh::topology_id`]).
+    topology: u64,
+}
+
+/// Source of [`MeshBvh::topology_id`]s.
+static BUILDS: AtomicU64 = AtomicU64::new(1);
+
+/// The vertex indices of each slot's triangle, for a tree built over a mesh's triangles.
+pub(crate) fn slot_indices(bvh: &Bvh, indices: &[u32]) -> Vec<[u32; 3]> {
+    bvh.prim_indices()
+        .iter()
+        .map(|&p| {
+            let p = p as usize * 3;
+            [indices[p], indices[p + 1], indices[p + 2]]
+        })
+        .collect()
+}
+
+/// A topology id no tree has had yet.
+pub(crate) fn next_topology_id() -> u64 {
+    BUILDS.fetch_add(1, Ordering::Relaxed)
 }
 
 /// Vertex arrays up to this size (about 1.4M vertices) are refitted by reading vertices in leaf order;
@@ -84,15 +106,7 @@ impl MeshBvh {
     pub fn build(mesh: &Mesh, options: &BuildOptions) -> Result<MeshBvh> {
         let bounds = mesh.triangle_bounds();
         let bvh = Bvh::build(&bounds, options)?;
-        let idx = mesh.indices();
-        let slot_indices: Vec<[u32; 3]> = bvh
-            .prim_indices()
-            .iter()
-            .map(|&p| {
-                let p = p as usize * 3;
-                [idx[p], idx[p + 1], idx[p + 2]]
-            })
-            .collect();
+        let slot_indices = slot_indices(&bvh, mesh.indices());
         let pos = mesh.positions();
         let tris = slot_indices
             .iter()
@@ -110,6 +124,7 @@ impl MeshBvh {
             indices: mesh.indices_arc(),
             slot_of,
             slot_bounds: vec![Aabb::EMPTY; bounds.len()],
+            topology: next_topology_id(),
         })
     }
 
@@ -149,6 +164,13 @@ impl MeshBvh {
         }
         let boxes = &self.slot_bounds;
         Ok(refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot]))
+    }
+
+    /// A number that changes with every build and stays through refits (clones keep it): two trees with
+    /// the same id have the same nodes in the same order, so per-tree caches keyed by it — such as a
+    /// collision [`PairFront`](crate::collide::PairFront) — stay valid. The empty default tree has id 0.
+    pub fn topology_id(&self) -> u64 {
+        self.topology
     }
 
     /// The tree.

@@ -32,7 +32,9 @@ mod validate;
 
 pub use build_sah::MAX_BINS;
 pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
+pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
+pub(crate) use refit::refit_nodes;
 pub use traverse::TraversalStats;
 pub(crate) use traverse::traverse;
 
@@ -273,6 +275,11 @@ impl Bvh {
     /// The nodes, root first. These are the bytes uploaded to the GPU.
     pub fn nodes(&self) -> &[Node] {
         &self.nodes
+    }
+
+    /// The nodes, for refits that compute leaf boxes their own way.
+    pub(crate) fn nodes_mut(&mut self) -> &mut [Node] {
+        &mut self.nodes
     }
 
     /// Slot → primitive id. Leaf `l` holds primitives `prim_indices()[l.slots()]`.

@@ -70,10 +70,6 @@ impl Default for QueryLayers {
     }
 }
 
-/// Opts an entity into collision queries.
-#[derive(Component, Clone, Copy, Debug, Default)]
-pub struct Collider;
-
 /// How an entity's geometry is expected to change; the policy uses it to pick the first builder and to
 /// skip work. Without a hint an entity is treated as [`MotionHint::Deforming`].
 #[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]

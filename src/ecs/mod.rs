@@ -51,6 +51,7 @@
 
 mod animation;
 mod batch;
+mod collide;
 mod components;
 mod config;
 mod filter;
@@ -63,6 +64,9 @@ mod world;
 
 pub use animation::{AnimationClock, AnimationPlayer};
 pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
+pub use collide::{
+    Collider, CollisionEnded, CollisionLayers, CollisionStarted, ContactPair, Contacts,
+};
 pub use components::*;
 pub use config::{
     Decision, Latency, Policy, PolicyInput, TraceConfig, TraceMode, lauterbach_policy,

@@ -27,7 +27,7 @@ pub enum TraceSet {
     Maintain,
     /// Follow transforms; refit or rebuild the top level.
     TopLevel,
-    /// Answer the batched requests of [`RayQueue`].
+    /// Answer the batched requests of [`RayQueue`]; test colliders ([`Contacts`]).
     Queries,
 }
 
@@ -38,8 +38,8 @@ pub enum TraceSet {
 /// multi-threaded executor spent about 0.1 ms per frame waking threads in our measurements, the
 /// single-threaded one about 1 µs (docs/BENCHMARKS.md). Batched queries use all threads either way.
 ///
-/// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`]; message
-/// [`TraceErrorMessage`]. With [`update_messages`](Self::update_messages) (the default) the plugin also
+/// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`], [`Contacts`];
+/// messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With [`update_messages`](Self::update_messages) (the default) the plugin also
 /// runs bevy's `message_update_system` once per frame, before [`TraceSet::Animate`]; turn it off when your
 /// loop already does.
 #[derive(Clone, Debug)]
@@ -79,7 +79,11 @@ impl KinetracePlugin {
         world.init_resource::<RayResults>();
         world.init_resource::<TraceStats>();
         world.init_resource::<super::AnimationClock>();
+        world.init_resource::<Contacts>();
+        world.init_resource::<super::collide::CollisionState>();
         MessageRegistry::register_message::<TraceErrorMessage>(world);
+        MessageRegistry::register_message::<CollisionStarted>(world);
+        MessageRegistry::register_message::<CollisionEnded>(world);
         world.remove_resource::<GpuQueries>();
         schedule.configure_sets(
             (
@@ -103,6 +107,9 @@ impl KinetracePlugin {
             maintain_system.in_set(TraceSet::Maintain),
             top_level_system.in_set(TraceSet::TopLevel),
             queries_system.in_set(TraceSet::Queries),
+            super::collide::collide_system
+                .run_if(super::collide::collisions_needed)
+                .in_set(TraceSet::Queries),
         ));
         self.start_gpu(world)
     }

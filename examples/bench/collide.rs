@@ -1,0 +1,422 @@
+//! Suite `collide`: discrete collision queries on animated meshes — two skinned 50k-triangle characters in
+//! contact, a 64-character crowd through the ECS plugin, and a 32k-triangle cloth against itself — on one
+//! thread and on all threads, with and without the BVTT front, and parry3d on the same meshes in the same
+//! run: its own BVH (refitted per frame, like ours) traversed pair-wise with `leaf_pairs`, and its
+//! triangle–triangle `intersection_test` on the pairs found, which gives the same set of touching pairs.
+
+use crate::record::{Records, machine};
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Mat4, Quat, Vec3};
+use kinetrace::MeshBvh;
+use kinetrace::anim::{CharacterAsset, humanoid, skin_positions};
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::collide::{PairFront, PairQuery, PairStats, Placed};
+use kinetrace::ecs::*;
+use kinetrace::scenes::folded_sheet;
+use kinetrace::{Mesh, collide::Contact};
+use parry3d::bounding_volume::BoundingVolume;
+use parry3d::partitioning::{Bvh, BvhBuildStrategy, BvhWorkspace};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+const SUITE: &str = "collide";
+
+pub fn run(rec: &mut Records) {
+    println!("suite collide on {}", machine());
+    two_characters(rec);
+    cloth(rec);
+    crowd(rec);
+}
+
+/// Time and work of one way of running the queries, summed over frames.
+#[derive(Default)]
+struct Tally {
+    time: Duration,
+    stats: PairStats,
+    contacts: usize,
+}
+
+impl Tally {
+    fn add(&mut self, t: Duration, s: PairStats, contacts: usize) {
+        self.time += t;
+        self.stats.add(&s);
+        self.contacts += contacts;
+    }
+}
+
+/// Prints the rows of one scene: per frame times, pair tests per second, the front's saving, and the
+/// ratio to parry.
+fn report(rec: &mut Records, scene: &str, frames: usize, runs: &[(&str, Tally)], parry: &Tally) {
+    let per_frame = |t: Duration| t.as_secs_f64() * 1e3 / frames as f64;
+    for (name, t) in runs {
+        rec.add(
+            SUITE,
+            scene,
+            name,
+            "time per frame",
+            per_frame(t.time),
+            "ms",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            name,
+            "pair tests",
+            t.stats.triangle_tests as f64 / t.time.as_secs_f64() / 1e6,
+            "M/s",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            name,
+            "parry time / ours",
+            parry.time.as_secs_f64() / t.time.as_secs_f64(),
+            "x",
+        );
+    }
+    let (plain, front) = (&runs[0].1, &runs[1].1);
+    rec.add(
+        SUITE,
+        scene,
+        "front vs no front",
+        "box tests saved",
+        100.0 * (1.0 - front.stats.box_tests as f64 / plain.stats.box_tests as f64),
+        "%",
+    );
+    rec.add(
+        SUITE,
+        scene,
+        "parry3d 0.31",
+        "time per frame",
+        per_frame(parry.time),
+        "ms",
+    );
+    rec.add(
+        SUITE,
+        scene,
+        "contacts per frame",
+        "kinetrace / parry",
+        plain.contacts as f64 / frames as f64,
+        "pairs",
+    );
+    rec.add(
+        SUITE,
+        scene,
+        "contacts per frame",
+        "parry",
+        parry.contacts as f64 / frames as f64,
+        "pairs",
+    );
+}
+
+/// A character's skinned positions at time `t` of its first clip.
+fn pose(asset: &CharacterAsset, t: f32, mats: &mut Vec<Mat4>, out: &mut [Vec3]) {
+    let mut pose = asset.skeleton.rest_pose();
+    asset.clips[0].sample(t, &mut pose);
+    mats.resize(pose.len(), Mat4::IDENTITY);
+    asset.skeleton.skin_matrices(&pose, mats);
+    skin_positions(asset.mesh.positions(), &asset.weights, mats, out).expect("valid skin");
+}
+
+/// parry's side of a scene: its BVH over one mesh's triangle boxes, refitted each frame.
+struct ParryMesh {
+    bvh: Bvh,
+    workspace: BvhWorkspace,
+    tris: Vec<parry3d::shape::Triangle>,
+}
+
+fn pv(p: Vec3) -> parry3d::math::Vector {
+    parry3d::math::Vector::new(p.x, p.y, p.z)
+}
+
+impl ParryMesh {
+    fn new(mesh: &Mesh, world: &[Vec3]) -> Self {
+        let mut m = ParryMesh {
+            bvh: Bvh::new(),
+            workspace: BvhWorkspace::default(),
+            tris: Vec::new(),
+        };
+        m.set(mesh, world);
+        m.bvh = Bvh::from_leaves(
+            BvhBuildStrategy::Binned,
+            &m.tris.iter().map(|t| t.local_aabb()).collect::<Vec<_>>(),
+        );
+        m
+    }
+
+    fn set(&mut self, mesh: &Mesh, world: &[Vec3]) {
+        self.tris.clear();
+        self.tris.extend(mesh.indices().chunks_exact(3).map(|t| {
+            parry3d::shape::Triangle::new(
+                pv(world[t[0] as usize]),
+                pv(world[t[1] as usize]),
+                pv(world[t[2] as usize]),
+            )
+        }));
+    }
+
+    /// New positions, then parry's refit.
+    fn refit(&mut self, mesh: &Mesh, world: &[Vec3]) {
+        self.set(mesh, world);
+        for (i, t) in self.tris.iter().enumerate() {
+            self.bvh
+                .insert_or_update_partially(t.local_aabb(), i as u32, 0.0);
+        }
+        self.bvh.refit(&mut self.workspace);
+    }
+
+    /// Touching triangle pairs between `self` and `other` (or within `self`, skipping neighbours).
+    fn touching(&self, other: Option<&ParryMesh>, indices: &[u32]) -> usize {
+        let id = parry3d::math::Pose::IDENTITY;
+        let b = other.unwrap_or(self);
+        let mut n = 0;
+        for (i, j) in self
+            .bvh
+            .leaf_pairs(&b.bvh, |x, y| x.aabb().intersects(&y.aabb()))
+        {
+            if other.is_none() {
+                let (vi, vj) = (
+                    &indices[3 * i as usize..][..3],
+                    &indices[3 * j as usize..][..3],
+                );
+                if i >= j || vi.iter().any(|v| vj.contains(v)) {
+                    continue;
+                }
+            }
+            let (x, y) = (&self.tris[i as usize], &b.tris[j as usize]);
+            if parry3d::query::intersection_test(&id, x, &id, y).is_ok_and(|r| r.intersecting) {
+                n += 1;
+            }
+        }
+        n
+    }
+}
+
+fn world_positions(to_world: &Affine3A, object: &[Vec3], out: &mut Vec<Vec3>) {
+    out.clear();
+    out.extend(object.iter().map(|p| to_world.transform_point3(*p)));
+}
+
+/// Two walking characters facing each other, arms and chests interpenetrating.
+fn two_characters(rec: &mut Records) {
+    let tris = if rec.quick { 20_000 } else { 50_000 };
+    let frames = if rec.quick { 6 } else { 30 };
+    let asset = humanoid(tris);
+    let scene = format!(
+        "2 characters x {}k tris in contact",
+        asset.mesh.triangle_count() / 1000
+    );
+    let place_b = Affine3A::from_rotation_translation(
+        Quat::from_rotation_y(std::f32::consts::PI),
+        Vec3::new(0.05, 0.0, 0.3),
+    );
+    let n = asset.mesh.positions().len();
+    let (mut pa, mut pb, mut mats) = (vec![Vec3::ZERO; n], vec![Vec3::ZERO; n], Vec::new());
+    pose(&asset, 0.0, &mut mats, &mut pa);
+    pose(&asset, 0.5, &mut mats, &mut pb);
+    let opts = BuildOptions::new(Builder::SAH);
+    let mut ta = MeshBvh::build(
+        &asset.mesh.with_positions(pa.clone()).expect("finite"),
+        &opts,
+    )
+    .expect("build");
+    let mut tb = MeshBvh::build(
+        &asset.mesh.with_positions(pb.clone()).expect("finite"),
+        &opts,
+    )
+    .expect("build");
+    let mut wb = Vec::new();
+    world_positions(&place_b, &pb, &mut wb);
+    let mut parry_a = ParryMesh::new(&asset.mesh, &pa);
+    let mut parry_b = ParryMesh::new(&asset.mesh, &wb);
+    let mut runs = [
+        ("kinetrace 1 thread", Tally::default()),
+        ("kinetrace 1 thread + front", Tally::default()),
+        ("kinetrace all threads + front", Tally::default()),
+    ];
+    let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
+    let mut contacts: Vec<Contact> = Vec::new();
+    let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
+    let mut refit = Duration::ZERO;
+    for f in 0..frames + 1 {
+        let t = f as f32 / 30.0;
+        pose(&asset, t, &mut mats, &mut pa);
+        pose(&asset, t + 0.5, &mut mats, &mut pb);
+        let start = Instant::now();
+        ta.refit(&pa).expect("finite");
+        tb.refit(&pb).expect("finite");
+        let refit_time = start.elapsed();
+        let (a, b) = (
+            Placed::new(&ta, Affine3A::IDENTITY),
+            Placed::new(&tb, place_b),
+        );
+        let timed = |q: &mut PairQuery, front: Option<&mut PairFront>, out: &mut Vec<Contact>| {
+            let start = Instant::now();
+            let s = match front {
+                Some(fr) => q.meshes_with_front(a, b, fr, out),
+                None => q.meshes(a, b, out),
+            }
+            .expect("finite transforms");
+            (start.elapsed(), s)
+        };
+        let r0 = timed(&mut serial, None, &mut contacts);
+        let n0 = contacts.len();
+        let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
+        let r2 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
+        world_positions(&place_b, &pb, &mut wb);
+        let start = Instant::now();
+        parry_a.refit(&asset.mesh, &pa);
+        parry_b.refit(&asset.mesh, &wb);
+        let pn = parry_a.touching(Some(&parry_b), asset.mesh.indices());
+        let parry_time = start.elapsed();
+        if f == 0 {
+            continue; // warm-up: fronts and caches
+        }
+        refit += refit_time;
+        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2]) {
+            run.1.add(t + refit_time, s, n0);
+        }
+        parry.add(parry_time, PairStats::default(), pn);
+    }
+    rec.add(
+        SUITE,
+        &scene,
+        "kinetrace refit (both)",
+        "time per frame",
+        refit.as_secs_f64() * 1e3 / frames as f64,
+        "ms",
+    );
+    report(rec, &scene, frames, &runs, &parry);
+}
+
+fn cloth(rec: &mut Records) {
+    let n = if rec.quick { 64 } else { 128 };
+    let frames = if rec.quick { 6 } else { 30 };
+    let mesh = folded_sheet(n, 0.0);
+    let mut pos = mesh.positions().to_vec();
+    let scene = format!(
+        "cloth {}k tris against itself",
+        mesh.triangle_count() / 1000
+    );
+    let mut tree = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("build");
+    let mut parry_mesh = ParryMesh::new(&mesh, &pos);
+    let mut runs = [
+        ("kinetrace 1 thread", Tally::default()),
+        ("kinetrace 1 thread + front", Tally::default()),
+        ("kinetrace all threads + front", Tally::default()),
+    ];
+    let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
+    let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
+    let mut contacts = Vec::new();
+    for f in 0..frames + 1 {
+        pos.copy_from_slice(folded_sheet(n, f as f32 * 0.05).positions());
+        let start = Instant::now();
+        tree.refit(&pos).expect("finite");
+        let refit_time = start.elapsed();
+        let m = Placed::new(&tree, Affine3A::IDENTITY);
+        let timed = |q: &mut PairQuery, front: Option<&mut PairFront>, out: &mut Vec<Contact>| {
+            let start = Instant::now();
+            let s = match front {
+                Some(fr) => q.itself_with_front(m, fr, out),
+                None => q.itself(m, out),
+            }
+            .expect("identity");
+            (start.elapsed(), s)
+        };
+        let r0 = timed(&mut serial, None, &mut contacts);
+        let n0 = contacts.len();
+        let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
+        let r2 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
+        let start = Instant::now();
+        parry_mesh.refit(&mesh, &pos);
+        let pn = parry_mesh.touching(None, mesh.indices());
+        let parry_time = start.elapsed();
+        if f == 0 {
+            continue;
+        }
+        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2]) {
+            run.1.add(t + refit_time, s, n0);
+        }
+        parry.add(parry_time, PairStats::default(), pn);
+    }
+    report(rec, &scene, frames, &runs, &parry);
+}
+
+/// 64 walking 10k-triangle characters close enough to touch, as colliders in the ECS plugin (top-level
+/// culling, fronts per pair, refits by the plugin), 1 thread and all threads.
+fn crowd(rec: &mut Records) {
+    let frames = if rec.quick { 5 } else { 30 };
+    let asset = Arc::new(humanoid(10_000));
+    let scene = "crowd of 64 x 10k tris, ECS".to_string();
+    for threads in [1, 0] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("a pool");
+        let mut world = World::new();
+        let mut schedule = Schedule::default();
+        schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+        KinetracePlugin::default().build(&mut world, &mut schedule);
+        for i in 0..64 {
+            let at = Vec3::new((i % 8) as f32 * 0.7, 0.0, (i / 8) as f32 * 0.7);
+            world.spawn((
+                AnimationPlayer::bundle(&asset, i % asset.clips.len(), i as f32 * 0.1),
+                TraceTransform(Affine3A::from_translation(at)),
+                Collider::default(),
+            ));
+        }
+        let (mut time, mut pairs, mut contacts, mut stats) =
+            (Duration::ZERO, 0, 0, PairStats::default());
+        pool.install(|| {
+            for f in 0..frames + 1 {
+                schedule.run(&mut world);
+                world.clear_trackers();
+                if f == 0 {
+                    continue;
+                }
+                let c = world.resource::<Contacts>();
+                time += c.time;
+                pairs += c.pairs().len();
+                contacts += c.pairs().iter().map(|p| c.contacts(p).len()).sum::<usize>();
+                stats.add(&c.stats);
+            }
+        });
+        let name = if threads == 1 {
+            "ECS collide pass, 1 thread"
+        } else {
+            "ECS collide pass, all threads"
+        };
+        rec.add(
+            SUITE,
+            &scene,
+            name,
+            "time per frame",
+            time.as_secs_f64() * 1e3 / frames as f64,
+            "ms",
+        );
+        rec.add(
+            SUITE,
+            &scene,
+            name,
+            "pair tests",
+            stats.triangle_tests as f64 / time.as_secs_f64() / 1e6,
+            "M/s",
+        );
+        rec.add(
+            SUITE,
+            &scene,
+            name,
+            "touching pairs",
+            pairs as f64 / frames as f64,
+            "entities",
+        );
+        rec.add(
+            SUITE,
+            &scene,
+            name,
+            "contacts",
+            contacts as f64 / frames as f64,
+            "tri pairs",
+        );
+    }
+}
