@@ -219,23 +219,17 @@ impl GpuMeshBvh {
         g.built = true;
         g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
         if g.refittable {
-            g.cpu_levels(ctx, bvh.bvh());
+            let mut depths = Vec::new();
+            node_depths(bvh.bvh().nodes(), &mut depths);
+            g.cpu_levels(ctx, &depths);
         }
         Ok(g)
     }
 
-    /// The depth of every node of a CPU-built tree, uploaded so refit's level schedule can be made on the
+    /// Uploads the depth of every node of a CPU-built tree, so refit's level schedule can be made on the
     /// GPU as for an LBVH build.
-    fn cpu_levels(&self, ctx: &GpuContext, bvh: &Bvh) {
-        let nodes = bvh.nodes();
-        let mut depth = vec![0u32; nodes.len()];
-        for (i, n) in nodes.iter().enumerate() {
-            if !n.is_leaf() {
-                depth[n.left()] = depth[i] + 1;
-                depth[n.left() + 1] = depth[i] + 1;
-            }
-        }
-        self.depths.write(ctx, &depth);
+    fn cpu_levels(&self, ctx: &GpuContext, depths: &[u32]) {
+        self.depths.write(ctx, depths);
         let mut enc = ctx.encoder();
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -269,7 +263,9 @@ impl GpuMeshBvh {
         self.tris
     }
 
-    fn node_count(&self) -> u32 {
+    /// Number of nodes the GPU builder makes (`2 · triangles − 1`; 0 for an empty mesh). An uploaded CPU
+    /// tree with several triangles per leaf fills only the first `nodes().len()` of them.
+    pub fn node_count(&self) -> u32 {
         (2 * self.tris.max(1) - 1) * (self.tris > 0) as u32
     }
 
@@ -278,8 +274,8 @@ impl GpuMeshBvh {
         self.positions.buffer()
     }
 
-    /// The node buffer (the CPU [`Node`] layout), for the ray kernels.
-    pub(crate) fn nodes(&self) -> &wgpu::Buffer {
+    /// The node buffer (the CPU [`Node`] layout, root at index 0), for the ray kernels and callers' own.
+    pub fn nodes(&self) -> &wgpu::Buffer {
         self.nodes.buffer()
     }
 
@@ -522,5 +518,17 @@ impl DegradationReadback {
         } else {
             (total / self.inner as f64) as f32
         })
+    }
+}
+
+/// The depth of every node of a tree in the crate's layout (the root at 0), into `out`.
+pub(crate) fn node_depths(nodes: &[Node], out: &mut Vec<u32>) {
+    out.clear();
+    out.resize(nodes.len(), 0);
+    for (i, n) in nodes.iter().enumerate() {
+        if !n.is_leaf() && n.left() + 1 < nodes.len() {
+            out[n.left()] = out[i] + 1;
+            out[n.left() + 1] = out[i] + 1;
+        }
     }
 }
