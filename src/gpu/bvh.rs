@@ -3,8 +3,9 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group, groups};
+use super::collide::GpuTree;
 use super::sort::RadixSort;
-use crate::bvh::{Bvh, MeshBvh, Node};
+use crate::bvh::{Bvh, MAX_DEPTH, MeshBvh, Node};
 use crate::{Error, Mesh, Result};
 use glam::Vec3;
 
@@ -59,6 +60,8 @@ pub struct GpuMeshBvh {
     coded: bool,
     /// False for an uploaded CPU tree with several triangles per leaf: traceable, not refittable here.
     refittable: bool,
+    /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
+    height: u32,
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -197,6 +200,7 @@ impl GpuMeshBvh {
             built: false,
             coded: false,
             refittable: true,
+            height: MAX_DEPTH as u32,
             _scratch: vec![
                 centroids, partials, keys, children, parents, first, order, terms, levels, stand_in,
             ],
@@ -218,9 +222,10 @@ impl GpuMeshBvh {
         g.vals.write(ctx, bvh.bvh().prim_indices());
         g.built = true;
         g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
+        let mut depths = Vec::new();
+        node_depths(bvh.bvh().nodes(), &mut depths);
+        g.height = depths.iter().copied().max().unwrap_or(0);
         if g.refittable {
-            let mut depths = Vec::new();
-            node_depths(bvh.bvh().nodes(), &mut depths);
             g.cpu_levels(ctx, &depths);
         }
         Ok(g)
@@ -274,9 +279,20 @@ impl GpuMeshBvh {
         self.positions.buffer()
     }
 
-    /// The node buffer (the CPU [`Node`] layout, root at index 0), for the ray kernels and callers' own.
+    /// The node buffer (the CPU [`Node`] layout, root at index 0), for the ray and pair kernels.
     pub fn nodes(&self) -> &wgpu::Buffer {
         self.nodes.buffer()
+    }
+
+    /// The tree as [`GpuPairs`](super::GpuPairs) reads it: the node buffer, the node count (0, an empty
+    /// tree, before a build is recorded) and the height (exact for an uploaded CPU tree, the bound
+    /// [`MAX_DEPTH`] after a GPU build, whose pair queries then record more, mostly empty, rounds).
+    pub fn tree(&self) -> GpuTree<'_> {
+        GpuTree {
+            nodes: self.nodes(),
+            count: if self.built { self.node_count() } else { 0 },
+            height: self.height,
+        }
     }
 
     /// Per slot: the triangle's three vertex indices and its id.
@@ -339,6 +355,7 @@ impl GpuMeshBvh {
                 self.coded = true;
             }
             BuildPhase::Tree => {
+                self.height = MAX_DEPTH as u32;
                 run(&mut pass, "karras", self.tris);
                 run(&mut pass, "walk_up", self.node_count());
                 self.record_schedule(ctx, &mut pass);
