@@ -50,10 +50,15 @@ impl GpuBuffer {
 
     /// Makes room for `bytes`; returns true when the buffer was replaced (bind groups must be rebuilt).
     pub fn ensure(&mut self, ctx: &GpuContext, bytes: u64) -> bool {
+        self.ensure_within(ctx, bytes, u64::MAX)
+    }
+
+    /// [`ensure`](Self::ensure), doubling no further than `limit` bytes (a device limit `bytes` is within).
+    pub fn ensure_within(&mut self, ctx: &GpuContext, bytes: u64, limit: u64) -> bool {
         if bytes <= self.buffer.size() {
             return false;
         }
-        let grown = bytes.max(self.buffer.size() * 2);
+        let grown = bytes.max((self.buffer.size() * 2).min(limit));
         self.buffer = create(ctx, self.label, grown, self.usage);
         true
     }
@@ -227,11 +232,28 @@ impl<T: Pod> Readback<T> {
         src: &wgpu::Buffer,
         len: usize,
     ) -> Self {
-        let copy = ((len * std::mem::size_of::<T>()) as u64).next_multiple_of(4);
+        Self::record_parts(ctx, encoder, &[(src, len)])
+    }
+
+    /// Records copies of the first `len` elements of each `(src, len)` part, one after the other into one
+    /// staging buffer, and its mapping at submission: one read-back of results that live in several
+    /// buffers. Every part but the last must be a whole number of 4-byte words.
+    pub(crate) fn record_parts(
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        parts: &[(&wgpu::Buffer, usize)],
+    ) -> Self {
+        let bytes = |n: usize| ((n * std::mem::size_of::<T>()) as u64).next_multiple_of(4);
+        let len: usize = parts.iter().map(|p| p.1).sum();
+        let copy: u64 = parts.iter().map(|p| bytes(p.1)).sum();
         let state = Arc::new(Mutex::new(None));
         let staging = (copy > 0).then(|| {
             let staging = ctx.staging.take(ctx, copy);
-            encoder.copy_buffer_to_buffer(src, 0, &staging, 0, copy);
+            let mut at = 0;
+            for &(src, n) in parts.iter().filter(|p| p.1 > 0) {
+                encoder.copy_buffer_to_buffer(src, 0, &staging, at, bytes(n));
+                at += bytes(n);
+            }
             let s = state.clone();
             encoder.map_buffer_on_submit(&staging, wgpu::MapMode::Read, ..copy, move |r| {
                 *s.lock().expect("readback state") = Some(r.map_err(|e| e.to_string()));

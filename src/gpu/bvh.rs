@@ -3,8 +3,9 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group, groups};
+use super::collide::GpuTree;
 use super::sort::RadixSort;
-use crate::bvh::{Bvh, MeshBvh, Node};
+use crate::bvh::{Bvh, MAX_DEPTH, MeshBvh, Node};
 use crate::{Error, Mesh, Result};
 use glam::Vec3;
 
@@ -59,6 +60,8 @@ pub struct GpuMeshBvh {
     coded: bool,
     /// False for an uploaded CPU tree with several triangles per leaf: traceable, not refittable here.
     refittable: bool,
+    /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
+    height: u32,
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -197,6 +200,7 @@ impl GpuMeshBvh {
             built: false,
             coded: false,
             refittable: true,
+            height: MAX_DEPTH as u32,
             _scratch: vec![
                 centroids, partials, keys, children, parents, first, order, terms, levels, stand_in,
             ],
@@ -218,24 +222,19 @@ impl GpuMeshBvh {
         g.vals.write(ctx, bvh.bvh().prim_indices());
         g.built = true;
         g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
+        let mut depths = Vec::new();
+        node_depths(bvh.bvh().nodes(), &mut depths);
+        g.height = depths.iter().copied().max().unwrap_or(0);
         if g.refittable {
-            g.cpu_levels(ctx, bvh.bvh());
+            g.cpu_levels(ctx, &depths);
         }
         Ok(g)
     }
 
-    /// The depth of every node of a CPU-built tree, uploaded so refit's level schedule can be made on the
+    /// Uploads the depth of every node of a CPU-built tree, so refit's level schedule can be made on the
     /// GPU as for an LBVH build.
-    fn cpu_levels(&self, ctx: &GpuContext, bvh: &Bvh) {
-        let nodes = bvh.nodes();
-        let mut depth = vec![0u32; nodes.len()];
-        for (i, n) in nodes.iter().enumerate() {
-            if !n.is_leaf() {
-                depth[n.left()] = depth[i] + 1;
-                depth[n.left() + 1] = depth[i] + 1;
-            }
-        }
-        self.depths.write(ctx, &depth);
+    fn cpu_levels(&self, ctx: &GpuContext, depths: &[u32]) {
+        self.depths.write(ctx, depths);
         let mut enc = ctx.encoder();
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -269,7 +268,9 @@ impl GpuMeshBvh {
         self.tris
     }
 
-    fn node_count(&self) -> u32 {
+    /// Number of nodes the GPU builder makes (`2 · triangles − 1`; 0 for an empty mesh). An uploaded CPU
+    /// tree with several triangles per leaf fills only the first `nodes().len()` of them.
+    pub fn node_count(&self) -> u32 {
         (2 * self.tris.max(1) - 1) * (self.tris > 0) as u32
     }
 
@@ -278,9 +279,20 @@ impl GpuMeshBvh {
         self.positions.buffer()
     }
 
-    /// The node buffer (the CPU [`Node`] layout), for the ray kernels.
-    pub(crate) fn nodes(&self) -> &wgpu::Buffer {
+    /// The node buffer (the CPU [`Node`] layout, root at index 0), for the ray and pair kernels.
+    pub fn nodes(&self) -> &wgpu::Buffer {
         self.nodes.buffer()
+    }
+
+    /// The tree as [`GpuPairs`](super::GpuPairs) reads it: the node buffer, the node count (0, an empty
+    /// tree, before a build is recorded) and the height (exact for an uploaded CPU tree, the bound
+    /// [`MAX_DEPTH`] after a GPU build, whose pair queries then record more, mostly empty, rounds).
+    pub fn tree(&self) -> GpuTree<'_> {
+        GpuTree {
+            nodes: self.nodes(),
+            count: if self.built { self.node_count() } else { 0 },
+            height: self.height,
+        }
     }
 
     /// Per slot: the triangle's three vertex indices and its id.
@@ -343,6 +355,7 @@ impl GpuMeshBvh {
                 self.coded = true;
             }
             BuildPhase::Tree => {
+                self.height = MAX_DEPTH as u32;
                 run(&mut pass, "karras", self.tris);
                 run(&mut pass, "walk_up", self.node_count());
                 self.record_schedule(ctx, &mut pass);
@@ -522,5 +535,17 @@ impl DegradationReadback {
         } else {
             (total / self.inner as f64) as f32
         })
+    }
+}
+
+/// The depth of every node of a tree in the crate's layout (the root at 0), into `out`.
+pub(crate) fn node_depths(nodes: &[Node], out: &mut Vec<u32>) {
+    out.clear();
+    out.resize(nodes.len(), 0);
+    for (i, n) in nodes.iter().enumerate() {
+        if !n.is_leaf() && n.left() + 1 < nodes.len() {
+            out[n.left()] = out[i] + 1;
+            out[n.left() + 1] = out[i] + 1;
+        }
     }
 }

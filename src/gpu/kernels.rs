@@ -111,6 +111,7 @@ pub(crate) struct Kernels {
     pub scene: Module,
     pub skin: Module,
     pub histogram: Module,
+    pub collide: Module,
 }
 
 impl Kernels {
@@ -188,6 +189,15 @@ impl Kernels {
                 shader!("histogram.wgsl"),
                 &[Read, Write, Uniform],
                 &["histogram_clear", "histogram"],
+            ),
+            collide: Module::new(
+                device,
+                "collide",
+                shader!("collide.wgsl"),
+                &[
+                    Read, Read, Read, Write, Write, Write, Write, Uniform, Uniform,
+                ],
+                &["pairs_init", "pairs_args", "pairs_round"],
             ),
         }
     }

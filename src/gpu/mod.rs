@@ -1,5 +1,6 @@
 //! The GPU back end on wgpu: LBVH rebuild, refit with the degradation metric, closest-hit and any-hit ray
-//! queries, and linear-blend skinning, as WGSL compute kernels in `shaders/` driven by thin Rust here.
+//! queries, linear-blend skinning, and the broad phase of collision queries (the overlapping leaf pairs
+//! of two trees, [`GpuPairs`]), as WGSL compute kernels in `shaders/` driven by thin Rust here.
 //!
 //! Results equal the CPU path's on the same input: the tree has the CPU [`Bvh`](crate::bvh::Bvh) layout,
 //! and rays carry the CPU's precomputed watertight-test constants. Nothing here relies on WGSL guarantees it
@@ -27,6 +28,7 @@
 
 mod buffers;
 mod bvh;
+mod collide;
 mod context;
 mod kernels;
 pub(crate) mod scene;
@@ -36,6 +38,7 @@ mod trace;
 
 pub use buffers::Readback;
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
+pub use collide::{GpuPairs, GpuTree, PairsReadback, PairsResult};
 pub use context::{GpuContext, shared_for_tests};
 pub use skin::GpuSkin;
 pub use sort::sort_pairs;
