@@ -492,3 +492,55 @@ fn misuse_is_an_error() {
     g.submit(enc);
     assert_eq!(r.wait(&g).unwrap(), PairsResult::Done(Vec::new()));
 }
+
+/// The whole GPU path of a collision query — traversal on the GPU, exact tests on the CPU — gives the
+/// contacts of the CPU query, bit for bit: for two meshes in one frame, moved apart by a skewing
+/// transform, and for a mesh against itself.
+#[test]
+fn gpu_contacts_equal_cpu_contacts() {
+    use kinetrace::collide::{PairQuery, Placed};
+    let Some(g) = gpu() else { return };
+    let mut gp = GpuPairs::new(&g);
+    let mut q = PairQuery::new();
+    let (mut cpu, mut via_gpu) = (Vec::new(), Vec::new());
+    let skew = Affine3A::from_scale_rotation_translation(
+        Vec3::new(1.3, 0.7, 1.1),
+        Quat::from_euler(glam::EulerRot::XYZ, 0.4, -0.7, 1.1),
+        Vec3::new(0.2, -0.1, 0.05),
+    );
+    let placed_a = Affine3A::from_translation(Vec3::new(3.0, -2.0, 1.0));
+    for (what, ma, mb) in scenes() {
+        for (k, &(builder, leaf)) in BUILDS.iter().enumerate() {
+            let opts = |(b, l): (Builder, u32)| BuildOptions::new(b).max_leaf_size(l);
+            let ta = MeshBvh::build(&ma, &opts((builder, leaf))).unwrap();
+            let tb = MeshBvh::build(&mb, &opts(BUILDS[(k + 1) % 4])).unwrap();
+            for (a_to_world, b_to_world) in [
+                (Affine3A::IDENTITY, Affine3A::IDENTITY),
+                (placed_a, placed_a * skew),
+            ] {
+                let (a, b) = (Placed::new(&ta, a_to_world), Placed::new(&tb, b_to_world));
+                q.meshes(a, b, &mut cpu).unwrap();
+                let b_to_a = a_to_world.inverse() * b_to_world;
+                let pairs = gp
+                    .leaf_pairs(&g, ta.bvh().nodes(), Some((tb.bvh().nodes(), &b_to_a)))
+                    .unwrap();
+                q.meshes_from_leaf_pairs(a, b, &pairs, &mut via_gpu)
+                    .unwrap();
+                assert!(!cpu.is_empty(), "{what}: no contacts");
+                assert_eq!(via_gpu, cpu, "{what} {builder:?} leaf {leaf}");
+            }
+            let m = Placed::new(&ta, placed_a);
+            q.itself(m, &mut cpu).unwrap();
+            let pairs = gp.leaf_pairs(&g, ta.bvh().nodes(), None).unwrap();
+            q.itself_from_leaf_pairs(m, &pairs, &mut via_gpu).unwrap();
+            assert_eq!(via_gpu, cpu, "{what} {builder:?} leaf {leaf} self");
+        }
+    }
+    // A pair that names no leaf is an error, not a panic.
+    let t = MeshBvh::build(&icosphere(1), &BuildOptions::default()).unwrap();
+    let p = Placed::new(&t, Affine3A::IDENTITY);
+    assert!(
+        q.meshes_from_leaf_pairs(p, p, &[[0, 9999]], &mut via_gpu)
+            .is_err()
+    );
+}

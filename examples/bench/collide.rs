@@ -12,6 +12,7 @@ use kinetrace::anim::{CharacterAsset, humanoid, skin_positions};
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::collide::{PairFront, PairQuery, PairStats, Placed};
 use kinetrace::ecs::*;
+use kinetrace::gpu::{GpuContext, GpuPairs};
 use kinetrace::scenes::folded_sheet;
 use kinetrace::{Mesh, collide::Contact};
 use parry3d::bounding_volume::BoundingVolume;
@@ -48,7 +49,7 @@ impl Tally {
 /// ratio to parry.
 fn report(rec: &mut Records, scene: &str, frames: usize, runs: &[(&str, Tally)], parry: &Tally) {
     let per_frame = |t: Duration| t.as_secs_f64() * 1e3 / frames as f64;
-    for (name, t) in runs {
+    for (name, t) in runs.iter().filter(|(_, t)| t.time > Duration::ZERO) {
         rec.add(
             SUITE,
             scene,
@@ -107,6 +108,57 @@ fn report(rec: &mut Records, scene: &str, frames: usize, runs: &[(&str, Tally)],
         parry.contacts as f64 / frames as f64,
         "pairs",
     );
+}
+
+/// The GPU path when an adapter exists: the trees' nodes uploaded, traversed by `GpuPairs`, the leaf
+/// pairs tested on the CPU (all threads). Times include upload and read-back.
+struct Gpu(Option<(GpuContext, GpuPairs)>);
+
+impl Gpu {
+    fn new() -> Self {
+        match GpuContext::new() {
+            Ok(ctx) => {
+                let pairs = GpuPairs::new(&ctx);
+                Gpu(Some((ctx, pairs)))
+            }
+            Err(e) => {
+                println!("  (no GPU rows: {e})");
+                Gpu(None)
+            }
+        }
+    }
+
+    fn run(
+        &mut self,
+        q: &mut PairQuery,
+        a: Placed,
+        b: Option<Placed>,
+        out: &mut Vec<Contact>,
+    ) -> (Duration, PairStats) {
+        let Some((ctx, gp)) = &mut self.0 else {
+            return (Duration::ZERO, PairStats::default());
+        };
+        let start = Instant::now();
+        let stats = match b {
+            Some(b) => {
+                let b_to_a = a.to_world.inverse() * b.to_world;
+                let pairs = gp
+                    .leaf_pairs(
+                        ctx,
+                        a.mesh.bvh().nodes(),
+                        Some((b.mesh.bvh().nodes(), &b_to_a)),
+                    )
+                    .expect("gpu");
+                q.meshes_from_leaf_pairs(a, b, &pairs, out)
+            }
+            None => {
+                let pairs = gp.leaf_pairs(ctx, a.mesh.bvh().nodes(), None).expect("gpu");
+                q.itself_from_leaf_pairs(a, &pairs, out)
+            }
+        }
+        .expect("valid pairs");
+        (start.elapsed(), stats)
+    }
 }
 
 /// A character's skinned positions at time `t` of its first clip.
@@ -233,7 +285,9 @@ fn two_characters(rec: &mut Records) {
         ("kinetrace 1 thread", Tally::default()),
         ("kinetrace 1 thread + front", Tally::default()),
         ("kinetrace all threads + front", Tally::default()),
+        ("kinetrace GPU traversal + CPU tests", Tally::default()),
     ];
+    let mut gpu = Gpu::new();
     let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
     let mut contacts: Vec<Contact> = Vec::new();
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
@@ -263,6 +317,7 @@ fn two_characters(rec: &mut Records) {
         let n0 = contacts.len();
         let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
         let r2 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
+        let r3 = gpu.run(&mut parallel, a, Some(b), &mut contacts);
         world_positions(&place_b, &pb, &mut wb);
         let start = Instant::now();
         parry_a.refit(&asset.mesh, &pa);
@@ -273,8 +328,10 @@ fn two_characters(rec: &mut Records) {
             continue; // warm-up: fronts and caches
         }
         refit += refit_time;
-        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2]) {
-            run.1.add(t + refit_time, s, n0);
+        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2, r3]) {
+            if t > Duration::ZERO {
+                run.1.add(t + refit_time, s, n0);
+            }
         }
         parry.add(parry_time, PairStats::default(), pn);
     }
@@ -304,7 +361,9 @@ fn cloth(rec: &mut Records) {
         ("kinetrace 1 thread", Tally::default()),
         ("kinetrace 1 thread + front", Tally::default()),
         ("kinetrace all threads + front", Tally::default()),
+        ("kinetrace GPU traversal + CPU tests", Tally::default()),
     ];
+    let mut gpu = Gpu::new();
     let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
     let mut contacts = Vec::new();
@@ -327,6 +386,7 @@ fn cloth(rec: &mut Records) {
         let n0 = contacts.len();
         let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
         let r2 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
+        let r3 = gpu.run(&mut parallel, m, None, &mut contacts);
         let start = Instant::now();
         parry_mesh.refit(&mesh, &pos);
         let pn = parry_mesh.touching(None, mesh.indices());
@@ -334,8 +394,10 @@ fn cloth(rec: &mut Records) {
         if f == 0 {
             continue;
         }
-        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2]) {
-            run.1.add(t + refit_time, s, n0);
+        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2, r3]) {
+            if t > Duration::ZERO {
+                run.1.add(t + refit_time, s, n0);
+            }
         }
         parry.add(parry_time, PairStats::default(), pn);
     }

@@ -188,6 +188,55 @@ impl PairQuery {
         self.single(m, Some(front), out)
     }
 
+    /// Contacts of `a` and `b` from their overlapping leaf pairs as [`GpuPairs`](crate::gpu::GpuPairs)
+    /// found them (the GPU traversal of the same trees, with `b` placed in `a`'s frame by
+    /// `a.to_world⁻¹ · b.to_world`): the exact tests of the CPU query on the GPU's candidates, so the
+    /// contacts equal [`meshes`](Self::meshes)'s. Box tests are the GPU's and not counted here.
+    ///
+    /// Errors: as [`meshes`](Self::meshes), and [`Error::Gpu`] for a pair that does not name two leaves.
+    #[cfg(feature = "gpu")]
+    pub fn meshes_from_leaf_pairs(
+        &mut self,
+        a: Placed<'_>,
+        b: Placed<'_>,
+        leaf_pairs: &[[u32; 2]],
+        out: &mut Vec<Contact>,
+    ) -> Result<PairStats> {
+        let (to_world, bvtt, narrow) = discrete(&a, &b)?;
+        let stats = run_leaf_pairs(
+            self.parallel,
+            &mut self.contacts,
+            &bvtt,
+            &narrow,
+            leaf_pairs,
+            out,
+        )?;
+        to_world.apply(out);
+        Ok(stats)
+    }
+
+    /// Self-collision contacts from the leaf pairs [`GpuPairs`](crate::gpu::GpuPairs) found in one tree
+    /// (in either order within a pair): equal to [`itself`](Self::itself)'s.
+    #[cfg(feature = "gpu")]
+    pub fn itself_from_leaf_pairs(
+        &mut self,
+        m: Placed<'_>,
+        leaf_pairs: &[[u32; 2]],
+        out: &mut Vec<Contact>,
+    ) -> Result<PairStats> {
+        let (to_world, bvtt, narrow) = discrete_self(&m)?;
+        let stats = run_leaf_pairs(
+            self.parallel,
+            &mut self.contacts,
+            &bvtt,
+            &narrow,
+            leaf_pairs,
+            out,
+        )?;
+        to_world.apply(out);
+        Ok(stats)
+    }
+
     fn pair(
         &mut self,
         a: Placed<'_>,
@@ -195,24 +244,15 @@ impl PairQuery {
         front: Option<&mut PairFront>,
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        let to_world = ToWorld::new(&a.to_world)?;
-        check(&b.to_world)?;
-        let b_to_a = to_world.inverse * b.to_world;
-        let bvtt = Bvtt::pair(a.mesh.bvh().nodes(), b.mesh.bvh().nodes(), &b_to_a);
-        let narrow = Discrete {
-            a: Side::of(a.mesh),
-            b: Side::of(b.mesh),
-            b_to_a: (b_to_a != Affine3A::IDENTITY).then_some(b_to_a),
-            itself: false,
-        };
-        let ids = (a.mesh.topology_id(), b.mesh.topology_id());
+        let (to_world, bvtt, narrow) = discrete(&a, &b)?;
+        let trees = (a.mesh.topology_id(), b.mesh.topology_id());
         let stats = run(
             self.parallel,
             &mut self.starts,
             &mut self.contacts,
             &bvtt,
             &narrow,
-            ids,
+            trees,
             front,
             out,
         );
@@ -226,15 +266,7 @@ impl PairQuery {
         front: Option<&mut PairFront>,
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        let to_world = ToWorld::new(&m.to_world)?;
-        let bvtt = Bvtt::itself(m.mesh.bvh().nodes());
-        let side = Side::of(m.mesh);
-        let narrow = Discrete {
-            a: side,
-            b: side,
-            b_to_a: None,
-            itself: true,
-        };
+        let (to_world, bvtt, narrow) = discrete_self(&m)?;
         let id = m.mesh.topology_id();
         let stats = run(
             self.parallel,
@@ -249,6 +281,79 @@ impl PairQuery {
         to_world.apply(out);
         Ok(stats)
     }
+}
+
+/// The traversal and narrow phase of a discrete query between two placed meshes, in `a`'s frame.
+fn discrete<'a>(a: &Placed<'a>, b: &Placed<'a>) -> Result<(ToWorld, Bvtt<'a>, Discrete<'a>)> {
+    let to_world = ToWorld::new(&a.to_world)?;
+    check(&b.to_world)?;
+    let b_to_a = to_world.inverse * b.to_world;
+    let bvtt = Bvtt::pair(a.mesh.bvh().nodes(), b.mesh.bvh().nodes(), &b_to_a);
+    let narrow = Discrete {
+        a: Side::of(a.mesh),
+        b: Side::of(b.mesh),
+        b_to_a: (b_to_a != Affine3A::IDENTITY).then_some(b_to_a),
+        itself: false,
+    };
+    Ok((to_world, bvtt, narrow))
+}
+
+/// The traversal and narrow phase of a discrete query of a mesh against itself.
+fn discrete_self<'a>(m: &Placed<'a>) -> Result<(ToWorld, Bvtt<'a>, Discrete<'a>)> {
+    let to_world = ToWorld::new(&m.to_world)?;
+    let side = Side::of(m.mesh);
+    let narrow = Discrete {
+        a: side,
+        b: side,
+        b_to_a: None,
+        itself: true,
+    };
+    Ok((to_world, Bvtt::itself(m.mesh.bvh().nodes()), narrow))
+}
+
+/// The narrow phase over leaf pairs found elsewhere (by [`crate::gpu::GpuPairs`]): every pair of overlapping
+/// leaves given, split over workers; results sorted by triangle pair.
+#[cfg(feature = "gpu")]
+fn run_leaf_pairs<N: NarrowPhase>(
+    parallel: bool,
+    chunks: &mut Vec<Chunk<N::Out>>,
+    bvtt: &Bvtt<'_>,
+    narrow: &N,
+    leaf_pairs: &[[u32; 2]],
+    out: &mut Vec<N::Out>,
+) -> Result<PairStats> {
+    out.clear();
+    let leaf =
+        |nodes: &[crate::bvh::Node], i: u32| nodes.get(i as usize).is_some_and(|n| n.is_leaf());
+    if let Some(bad) = leaf_pairs
+        .iter()
+        .find(|[a, b]| !leaf(bvtt.a, *a) || !leaf(bvtt.b, *b))
+    {
+        return Err(Error::Gpu(format!(
+            "leaf pair {bad:?} does not name two leaves of the trees"
+        )));
+    }
+    let parallel = parallel && parallel::threads() > 1;
+    let n = if parallel { parallel::threads() * 4 } else { 1 };
+    if chunks.len() < n {
+        chunks.resize_with(n, Chunk::default);
+    }
+    parallel::for_each_mut(parallel, &mut chunks[..n], |i, c| {
+        c.found.clear();
+        c.stats = PairStats::default();
+        let range = i * leaf_pairs.len() / n..(i + 1) * leaf_pairs.len() / n;
+        for &[a, b] in &leaf_pairs[range] {
+            let (na, nb) = (&bvtt.a[a as usize], &bvtt.b[b as usize]);
+            narrow.leaves(na, nb, bvtt.itself && a == b, &mut c.stats, &mut c.found);
+        }
+    });
+    let mut stats = PairStats::default();
+    for c in &chunks[..n] {
+        out.extend_from_slice(&c.found);
+        stats.add(&c.stats);
+    }
+    out.sort_unstable_by_key(N::key);
+    Ok(stats)
 }
 
 /// A query in `a`'s frame: from the front when it can resume, else from the roots, split over workers;
