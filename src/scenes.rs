@@ -181,7 +181,7 @@ pub fn folded_sheet(n: u32, phase: f32) -> Mesh {
         for i in 0..=n {
             let (u, v) = (i as f32 / n as f32, j as f32 / n as f32);
             pos.push(if u <= 0.5 {
-                Vec3::new(u, v, 0.01 * (8.0 * v + phase).sin())
+                Vec3::new(u, v, 0.01 * (8.0 * v + phase).sin() * (5.0 * u + 0.3).cos())
             } else {
                 let z = 0.08 * (10.0 * (u - 0.5) + phase).sin() * (6.0 * v - phase).cos();
                 Vec3::new(1.0 - u, v, z)
