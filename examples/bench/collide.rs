@@ -27,6 +27,15 @@ pub fn run(rec: &mut Records) {
     two_characters(rec);
     cloth(rec);
     crowd(rec);
+    let dup = DUPLICATES.load(std::sync::atomic::Ordering::Relaxed);
+    rec.add(
+        SUITE,
+        "all",
+        "parry leaf_pairs",
+        "duplicate pairs",
+        dup as f64,
+        "pairs",
+    );
 }
 
 /// Time and work of one way of running the queries, summed over frames.
@@ -96,7 +105,7 @@ fn report(rec: &mut Records, scene: &str, frames: usize, runs: &[(&str, Tally)],
         SUITE,
         scene,
         "contacts per frame",
-        "kinetrace / parry",
+        "kinetrace",
         plain.contacts as f64 / frames as f64,
         "pairs",
     );
@@ -217,11 +226,18 @@ impl ParryMesh {
         self.bvh.refit(&mut self.workspace);
     }
 
-    /// Touching triangle pairs between `self` and `other` (or within `self`, skipping neighbours).
-    fn touching(&self, other: Option<&ParryMesh>, indices: &[u32]) -> usize {
+    /// Touching triangle pairs between `self` and `other` (or within `self`, skipping neighbours), each
+    /// pair once: `leaf_pairs` can yield a pair more than once, so they are collected, sorted and
+    /// deduplicated (the cost is counted as parry's).
+    fn touching(
+        &self,
+        other: Option<&ParryMesh>,
+        indices: &[u32],
+        found: &mut Vec<(u32, u32)>,
+    ) -> usize {
         let id = parry3d::math::Pose::IDENTITY;
         let b = other.unwrap_or(self);
-        let mut n = 0;
+        found.clear();
         for (i, j) in self
             .bvh
             .leaf_pairs(&b.bvh, |x, y| x.aabb().intersects(&y.aabb()))
@@ -237,12 +253,21 @@ impl ParryMesh {
             }
             let (x, y) = (&self.tris[i as usize], &b.tris[j as usize]);
             if parry3d::query::intersection_test(&id, x, &id, y).is_ok_and(|r| r.intersecting) {
-                n += 1;
+                found.push((i, j));
             }
         }
-        n
+        let all = found.len();
+        found.sort_unstable();
+        found.dedup();
+        if all != found.len() {
+            DUPLICATES.fetch_add(all - found.len(), std::sync::atomic::Ordering::Relaxed);
+        }
+        found.len()
     }
 }
+
+/// Pairs parry's `leaf_pairs` yielded more than once (reported with the suite).
+static DUPLICATES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
 
 fn world_positions(to_world: &Affine3A, object: &[Vec3], out: &mut Vec<Vec3>) {
     out.clear();
@@ -292,6 +317,7 @@ fn two_characters(rec: &mut Records) {
     let mut contacts: Vec<Contact> = Vec::new();
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
     let mut refit = Duration::ZERO;
+    let mut found = Vec::new();
     for f in 0..frames + 1 {
         let t = f as f32 / 30.0;
         pose(&asset, t, &mut mats, &mut pa);
@@ -322,7 +348,7 @@ fn two_characters(rec: &mut Records) {
         let start = Instant::now();
         parry_a.refit(&asset.mesh, &pa);
         parry_b.refit(&asset.mesh, &wb);
-        let pn = parry_a.touching(Some(&parry_b), asset.mesh.indices());
+        let pn = parry_a.touching(Some(&parry_b), asset.mesh.indices(), &mut found);
         let parry_time = start.elapsed();
         if f == 0 {
             continue; // warm-up: fronts and caches
@@ -366,7 +392,7 @@ fn cloth(rec: &mut Records) {
     let mut gpu = Gpu::new();
     let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
-    let mut contacts = Vec::new();
+    let (mut contacts, mut found) = (Vec::new(), Vec::new());
     for f in 0..frames + 1 {
         pos.copy_from_slice(folded_sheet(n, f as f32 * 0.05).positions());
         let start = Instant::now();
@@ -389,7 +415,7 @@ fn cloth(rec: &mut Records) {
         let r3 = gpu.run(&mut parallel, m, None, &mut contacts);
         let start = Instant::now();
         parry_mesh.refit(&mesh, &pos);
-        let pn = parry_mesh.touching(None, mesh.indices());
+        let pn = parry_mesh.touching(None, mesh.indices(), &mut found);
         let parry_time = start.elapsed();
         if f == 0 {
             continue;
