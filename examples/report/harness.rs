@@ -285,8 +285,9 @@ fn run_strategy(
 ) -> Vec<FrameRecord> {
     let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
     let mut adaptive = match strategy {
+        // The GPU build second, as the plugin offers it: cheapest first, the best tree left last.
         Strategy::Adaptive { gpu: true } => {
-            AdaptivePolicy::with_builds(&[cpu[0], cpu[1], cpu[2], Build::GPU_LBVH])
+            AdaptivePolicy::with_builds(&[cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]])
         }
         _ => AdaptivePolicy::with_builds(&cpu),
     };

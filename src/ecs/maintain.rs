@@ -281,10 +281,14 @@ impl Rebuilder<'_> {
     }
 }
 
-/// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists.
+/// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists — second,
+/// so that the builds are tried cheapest first and the tree left after trying them all is the last
+/// builder's (usually the best).
 fn adaptive_policy(builders: &[crate::bvh::Builder], gpu: bool) -> AdaptivePolicy {
-    let cpu = builders.iter().map(|&b| Build::cpu(b));
-    let builds: Vec<Build> = cpu.chain(gpu.then_some(Build::GPU_LBVH)).collect();
+    let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
+    if gpu {
+        builds.insert(builds.len().min(1), Build::GPU_LBVH);
+    }
     AdaptivePolicy::with_builds(&builds)
 }
 
