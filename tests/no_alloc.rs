@@ -67,3 +67,66 @@ fn refit_and_single_ray_queries_do_not_allocate() {
         assert!(d.abs() < 1e-4);
     }
 }
+
+/// A frame whose meshes only refit allocates nothing on the frame's thread once warm, under a fixed
+/// policy and under the adaptive one (its SAH cost, decision and query attribution included).
+#[test]
+fn refit_only_ecs_frames_do_not_allocate() {
+    use bevy_ecs::prelude::*;
+    use kinetrace::ecs::*;
+    let never = RebuildPolicy::Lauterbach {
+        threshold: f32::INFINITY,
+    };
+    let adaptive = RebuildPolicy::Adaptive {
+        builders: &[Builder::LBVH],
+    };
+    for policy in [never, adaptive] {
+        let mut world = World::new();
+        let mut schedule = Schedule::default();
+        schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+        KinetracePlugin {
+            config: TraceConfig {
+                policy,
+                ..Default::default()
+            },
+            ..Default::default()
+        }
+        .build(&mut world, &mut schedule);
+        let rest = icosphere(3);
+        let e = world
+            .spawn((
+                TraceMesh(rest.clone()),
+                VertexPositions(rest.positions().to_vec()),
+            ))
+            .id();
+        for f in 0..20 {
+            // Uniform growth: the tree's shape and relative cost stay, so no policy rebuilds.
+            let s = 1.0 + 0.01 * f as f32;
+            {
+                let mut vp = world.get_mut::<VertexPositions>(e).unwrap();
+                for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+                    *p = *q * s;
+                }
+                let mut queue = world.resource_mut::<RayQueue>();
+                for i in 0..8 {
+                    let from = Vec3::new(0.01 * i as f32, 0.0, -5.0);
+                    queue.cast(i, Ray::new(from, Vec3::Z), QueryFilter::default());
+                }
+            }
+            let before = allocations();
+            schedule.run(&mut world);
+            world.clear_trackers();
+            let allocated = allocations() - before;
+            let stats = world.resource::<TraceStats>();
+            if f >= 2 {
+                assert_eq!(allocated, 0, "{policy:?} frame {f}");
+                assert_eq!(stats.meshes[0].action, MeshAction::Refit, "{policy:?}");
+            }
+            // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s.
+            for (_, hit) in &world.resource::<RayResults>().hits {
+                let depth = 5.0 - hit.as_ref().expect("aimed at the sphere").distance;
+                assert!(depth <= 1.0001 * s && depth >= 0.985 * s, "{depth} vs {s}");
+            }
+        }
+    }
+}

@@ -32,10 +32,35 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             "per-frame curves of {s}"
         );
     }
-    assert_eq!(
-        report.rows.len(),
-        scenes.len() * harness::Strategy::ALL.len()
-    );
+    assert_eq!(report.rows.len(), scenes.len() * report.strategies.len());
+    let gpu_rows = report.rows.iter().filter(|r| r.strategy.contains("gpu"));
+    if std::env::var("KINETRACE_REQUIRE_GPU").is_ok_and(|v| v == "1") && cfg!(feature = "gpu") {
+        assert_eq!(
+            gpu_rows.count(),
+            scenes.len() * harness::Strategy::GPU.len(),
+            "KINETRACE_REQUIRE_GPU=1: the GPU strategies must run ({:?})",
+            report.skipped
+        );
+    }
+    // The GPU's LBVH is the CPU's, node for node: the same error, frame for frame.
+    for gpu in report
+        .rows
+        .iter()
+        .filter(|r| r.strategy == "rebuild-lbvh-gpu")
+    {
+        let cpu = report
+            .rows
+            .iter()
+            .find(|r| r.scene == gpu.scene && r.strategy == "rebuild-lbvh")
+            .unwrap();
+        assert!(
+            (gpu.sah_mean - cpu.sah_mean).abs() <= 1e-3 * cpu.sah_mean,
+            "{}: GPU LBVH {} vs CPU LBVH {}",
+            gpu.scene,
+            gpu.sah_mean,
+            cpu.sah_mean
+        );
+    }
     for f in &report.files {
         assert!(
             std::fs::metadata(f).unwrap().len() > 0,

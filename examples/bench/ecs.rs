@@ -1,6 +1,7 @@
 //! Suite `ecs`: frame cost of the plugin for 1, 10 and 100 deforming meshes of 10k triangles with 10k
-//! batched rays, split by phase; the ECS layer's own overhead (frame time minus the work of the phases:
-//! scheduling, change detection, bookkeeping); and the frame time of an idle world of 1,000 static meshes.
+//! batched rays, under Lauterbach's policy and the adaptive one, split by phase; the ECS layer's own
+//! overhead (frame time minus the work of the phases: scheduling, change detection, bookkeeping); and the
+//! frame time of an idle world of 1,000 static meshes.
 
 use crate::record::Records;
 use bevy_ecs::prelude::*;
@@ -17,25 +18,39 @@ pub fn run(rec: &mut Records) {
     let counts: &[usize] = if rec.quick { &[1, 10] } else { &[1, 10, 100] };
     let frames = if rec.quick { 10 } else { 30 };
     for &n in counts {
-        deforming(rec, n, frames);
+        for policy in [RebuildPolicy::LAUTERBACH, RebuildPolicy::ADAPTIVE] {
+            deforming(rec, n, frames, policy);
+        }
     }
     idle(rec, if rec.quick { 200 } else { 1000 });
 }
 
 /// The plugin's systems run in a chain, so a single-threaded executor suits them: the multi-threaded one
 /// costs tens of microseconds per frame in thread wake-ups alone. (Queries still use all threads.)
-fn app() -> (World, Schedule) {
+fn app(policy: RebuildPolicy) -> (World, Schedule) {
     let mut world = World::new();
     let mut schedule = Schedule::default();
     schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
-    KinetracePlugin::default().build(&mut world, &mut schedule);
+    let config = TraceConfig {
+        policy,
+        ..Default::default()
+    };
+    KinetracePlugin {
+        config,
+        ..Default::default()
+    }
+    .build(&mut world, &mut schedule);
     (world, schedule)
 }
 
-fn deforming(rec: &mut Records, n: usize, frames: usize) {
-    let scene = format!("{n} deforming x 10k tris + 10k rays");
+fn deforming(rec: &mut Records, n: usize, frames: usize, policy: RebuildPolicy) {
+    let name = match policy {
+        RebuildPolicy::Adaptive { .. } => "adaptive",
+        _ => "lauterbach 0.4",
+    };
+    let scene = format!("{n} deforming x 10k tris + 10k rays, {name}");
     println!("\n{scene}");
-    let (mut world, mut schedule) = app();
+    let (mut world, mut schedule) = app(policy);
     let rest = bumpy_torus(10_000);
     let ents: Vec<Entity> = (0..n)
         .map(|i| {
@@ -69,7 +84,11 @@ fn deforming(rec: &mut Records, n: usize, frames: usize) {
         Duration::ZERO,
         Duration::ZERO,
     );
-    for f in 0..frames + 1 {
+    let mut rebuilds = 0;
+    // Untimed: the first frame builds everything; under the adaptive policy the next three try each of its
+    // builders once (a one-time cost per mesh).
+    let warm = 4;
+    for f in 0..frames + warm {
         let t = f as f32 * 0.05;
         for &e in &ents {
             let mut vp = world.get_mut::<VertexPositions>(e).expect("spawned");
@@ -87,14 +106,15 @@ fn deforming(rec: &mut Records, n: usize, frames: usize) {
         schedule.run(&mut world);
         world.clear_trackers();
         let elapsed = start.elapsed();
-        if f == 0 {
-            continue; // the first frame builds everything
+        if f < warm {
+            continue;
         }
         let s = world.resource::<TraceStats>();
         total += elapsed;
         maintain += s.maintain_time;
         top += s.top_level_time;
         queries += s.query_time;
+        rebuilds += s.rebuilds;
         phases += s.skin_time + s.maintain_time + s.top_level_time + s.query_time;
     }
     let per = |d: Duration| d.as_secs_f64() * 1e3 / frames as f64;
@@ -106,6 +126,14 @@ fn deforming(rec: &mut Records, n: usize, frames: usize) {
         "phase",
         per(maintain),
         "ms",
+    );
+    rec.add(
+        SUITE,
+        &scene,
+        "rebuilds",
+        "count",
+        rebuilds as f64,
+        "in the timed frames",
     );
     rec.add(SUITE, &scene, "top level", "phase", per(top), "ms");
     rec.add(
@@ -131,7 +159,7 @@ fn deforming(rec: &mut Records, n: usize, frames: usize) {
 fn idle(rec: &mut Records, n: usize) {
     let scene = format!("idle world, {n} static meshes");
     println!("\n{scene}");
-    let (mut world, mut schedule) = app();
+    let (mut world, mut schedule) = app(RebuildPolicy::LAUTERBACH);
     let mesh = bumpy_torus(500);
     for i in 0..n {
         let at = Vec3::new((i % 32) as f32 * 3.0, 0.0, (i / 32) as f32 * 3.0);

@@ -4,47 +4,80 @@
 
 use super::scenes::Scene;
 use glam::Vec3;
-use kinetrace::adaptive::AdaptivePolicy;
+use kinetrace::adaptive::{AdaptivePolicy, Build, Device};
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use std::time::Instant;
 
+/// The GPU that GPU strategies run on (there is never one without the `gpu` feature).
+#[cfg(feature = "gpu")]
+pub use kinetrace::gpu::GpuContext as Gpu;
+/// The GPU that GPU strategies run on (there is never one without the `gpu` feature).
+#[cfg(not(feature = "gpu"))]
+pub enum Gpu {}
+
+/// The device for the GPU strategies, or why there is none.
+pub fn find_gpu() -> Result<Gpu, String> {
+    #[cfg(feature = "gpu")]
+    return Gpu::new().map_err(|e| e.to_string());
+    #[cfg(not(feature = "gpu"))]
+    Err("built without the gpu feature".into())
+}
+
 /// How a strategy maintains the tree.
 #[derive(Clone, Copy, Debug)]
 pub enum Strategy {
-    Rebuild(Builder),
+    Rebuild(Build),
     Refit,
     RefitEvery(u32),
     Lauterbach(f32),
-    Adaptive,
+    /// The adaptive policy over CPU LBVH, hybrid and SAH, and GPU LBVH when `gpu`.
+    Adaptive {
+        gpu: bool,
+    },
 }
 
 impl Strategy {
-    pub const ALL: [Strategy; 9] = [
-        Strategy::Rebuild(Builder::LBVH),
-        Strategy::Rebuild(Builder::HYBRID),
-        Strategy::Rebuild(Builder::SAH),
+    /// The strategies that run everywhere.
+    pub const CPU: [Strategy; 9] = [
+        Strategy::Rebuild(Build::cpu(Builder::LBVH)),
+        Strategy::Rebuild(Build::cpu(Builder::HYBRID)),
+        Strategy::Rebuild(Build::cpu(Builder::SAH)),
         Strategy::Refit,
         Strategy::RefitEvery(20),
         Strategy::Lauterbach(0.2),
         Strategy::Lauterbach(0.4),
         Strategy::Lauterbach(0.8),
-        Strategy::Adaptive,
+        Strategy::Adaptive { gpu: false },
     ];
+
+    /// The strategies that need a GPU: LBVH rebuilt on it every frame (and read back for the CPU's
+    /// queries), and the adaptive policy that may choose it.
+    pub const GPU: [Strategy; 2] = [
+        Strategy::Rebuild(Build::GPU_LBVH),
+        Strategy::Adaptive { gpu: true },
+    ];
+
+    /// The strategies to run: the GPU ones too when there is a GPU.
+    pub fn all(gpu: bool) -> Vec<Strategy> {
+        let extra = if gpu { &Self::GPU[..] } else { &[] };
+        Self::CPU.iter().chain(extra).copied().collect()
+    }
 
     pub fn name(&self) -> String {
         match self {
-            Strategy::Rebuild(b) => format!("rebuild-{}", b.name()),
+            Strategy::Rebuild(b) => format!("rebuild-{b}"),
             Strategy::Refit => "refit".into(),
             Strategy::RefitEvery(k) => format!("refit-rebuild-every-{k}"),
             Strategy::Lauterbach(t) => format!("lauterbach-{t}"),
-            Strategy::Adaptive => "adaptive".into(),
+            Strategy::Adaptive { gpu: false } => "adaptive".into(),
+            Strategy::Adaptive { gpu: true } => "adaptive-gpu".into(),
         }
     }
 
     pub fn is_fixed(&self) -> bool {
-        !matches!(self, Strategy::Adaptive)
+        !matches!(self, Strategy::Adaptive { .. })
     }
 }
 
@@ -177,8 +210,51 @@ fn build(mesh: &Mesh, builder: Builder) -> MeshBvh {
     MeshBvh::build(mesh, &BuildOptions::new(builder)).expect("scene meshes are valid")
 }
 
-/// Runs every strategy on `scene`; returns a record list per strategy, in [`Strategy::ALL`] order.
-pub fn run_scene(scene: &Scene, settings: &Settings) -> Vec<Vec<FrameRecord>> {
+/// Builds a scene's trees: on the CPU, or LBVH on the GPU read back for the CPU's queries (its buffers
+/// made once per strategy and scene, outside the timings).
+struct Rebuilder {
+    #[cfg(feature = "gpu")]
+    gpu: Option<(Gpu, kinetrace::gpu::GpuMeshBvh)>,
+}
+
+impl Rebuilder {
+    fn new(gpu: Option<&Gpu>, mesh: &Mesh) -> Self {
+        #[cfg(feature = "gpu")]
+        return Rebuilder {
+            gpu: gpu.map(|g| {
+                let tree =
+                    kinetrace::gpu::GpuMeshBvh::new(g, mesh).expect("scene meshes fit the GPU");
+                (g.clone(), tree)
+            }),
+        };
+        #[cfg(not(feature = "gpu"))]
+        {
+            let _ = (gpu, mesh);
+            Rebuilder {}
+        }
+    }
+
+    fn build(&mut self, mesh: &Mesh, b: Build) -> MeshBvh {
+        #[cfg(feature = "gpu")]
+        if b.device == Device::Gpu {
+            let (g, tree) = self
+                .gpu
+                .as_mut()
+                .expect("GPU strategies run only with a GPU");
+            return tree.build_for_cpu(g, mesh).expect("a GPU build");
+        }
+        assert_eq!(b.device, Device::Cpu, "GPU strategies run only with a GPU");
+        build(mesh, b.builder)
+    }
+}
+
+/// Runs `strategies` on `scene` (GPU ones on `gpu`); returns a record list per strategy, in their order.
+pub fn run_scene(
+    scene: &Scene,
+    settings: &Settings,
+    strategies: &[Strategy],
+    gpu: Option<&Gpu>,
+) -> Vec<Vec<FrameRecord>> {
     let mut frames = Vec::with_capacity(settings.frames as usize);
     let mut pos = Vec::new();
     for f in 0..settings.frames {
@@ -195,9 +271,9 @@ pub fn run_scene(scene: &Scene, settings: &Settings) -> Vec<Vec<FrameRecord>> {
         };
         frames.push((mesh, rays, light, reference));
     }
-    Strategy::ALL
+    strategies
         .iter()
-        .map(|s| run_strategy(*s, &frames, settings))
+        .map(|s| run_strategy(*s, &frames, settings, gpu))
         .collect()
 }
 
@@ -205,16 +281,25 @@ fn run_strategy(
     strategy: Strategy,
     frames: &[(Mesh, Vec<Ray>, Vec3, Reference)],
     settings: &Settings,
+    gpu: Option<&Gpu>,
 ) -> Vec<FrameRecord> {
-    let mut adaptive = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
+    let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
+    let mut adaptive = match strategy {
+        // The GPU build second, as the plugin offers it: cheapest first, the best tree left last.
+        Strategy::Adaptive { gpu: true } => {
+            AdaptivePolicy::with_builds(&[cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]])
+        }
+        _ => AdaptivePolicy::with_builds(&cpu),
+    };
     let first = match strategy {
         Strategy::Rebuild(b) => b,
-        Strategy::Adaptive => adaptive.builder(),
-        _ => Builder::LBVH,
+        Strategy::Adaptive { .. } => adaptive.next_build(),
+        _ => Build::cpu(Builder::LBVH),
     };
     let (mesh0, ..) = &frames[0];
+    let mut builder = Rebuilder::new(gpu, mesh0);
     let start = Instant::now();
-    let mut bvh = build(mesh0, first);
+    let mut bvh = builder.build(mesh0, first);
     adaptive.built(
         first,
         mesh0.triangle_count(),
@@ -230,7 +315,7 @@ fn run_strategy(
         } else {
             match strategy {
                 Strategy::Rebuild(b) => {
-                    bvh = build(mesh, b);
+                    bvh = builder.build(mesh, b);
                     true
                 }
                 Strategy::Refit => {
@@ -255,12 +340,12 @@ fn run_strategy(
                     }
                     d > t
                 }
-                Strategy::Adaptive => {
+                Strategy::Adaptive { .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
-                    if adaptive.after_refit(bvh.bvh().sah_cost(), settings.rays) {
-                        let b = adaptive.builder();
+                    if adaptive.after_refit(bvh.bvh().sah_cost(), settings.rays as f64) {
+                        let b = adaptive.next_build();
                         let t = Instant::now();
-                        bvh = build(mesh, b);
+                        bvh = builder.build(mesh, b);
                         let cost = bvh.bvh().sah_cost();
                         adaptive.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
                         true
@@ -277,8 +362,8 @@ fn run_strategy(
         };
         let cost = bvh.bvh().sah_cost();
         let (query_s, steps) = query(&bvh, rays, *light);
-        if matches!(strategy, Strategy::Adaptive) {
-            adaptive.queried(rays.len(), cost, query_s);
+        if matches!(strategy, Strategy::Adaptive { .. }) {
+            adaptive.queried(rays.len() as f64, cost, query_s);
         }
         let checked = &rays[..settings.checked_rays.min(rays.len())];
         records.push(FrameRecord {

@@ -2,7 +2,7 @@
 //! table and the goal check) and per scene `SCENE.png` (error against run time, one point per strategy
 //! with the per-frame spread as bars) and `SCENE-frames.png` (per-frame curves of time and error).
 
-use super::harness::{FrameRecord, Settings, Strategy, run_scene};
+use super::harness::{FrameRecord, Settings, Strategy, find_gpu, run_scene};
 use super::scenes::Scene;
 use image::{Rgb, RgbImage};
 use std::fmt::Write as _;
@@ -62,6 +62,8 @@ pub struct Report {
     pub rows: Vec<Row>,
     pub files: Vec<PathBuf>,
     pub skipped: Vec<String>,
+    /// The strategies run, in the order of each scene's rows.
+    pub strategies: Vec<Strategy>,
 }
 
 /// Runs every scene and strategy and writes the files.
@@ -74,15 +76,19 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         ));
     }
     std::fs::create_dir_all(out)?;
-    let (scenes, skipped) = Scene::all(settings.triangles, assets);
+    let (scenes, mut skipped) = Scene::all(settings.triangles, assets);
+    let gpu = find_gpu()
+        .inspect_err(|e| skipped.push(format!("GPU strategies SKIPPED: {e}")))
+        .ok();
+    let strategies = Strategy::all(gpu.is_some());
     let mut csv = String::from(
         "scene,strategy,frame,update_ms,query_ms,rebuilt,sah_ratio,steps_ratio,mismatches\n",
     );
     let (mut rows, mut files) = (Vec::new(), Vec::new());
     for scene in &scenes {
-        let per_strategy = run_scene(scene, settings);
+        let per_strategy = run_scene(scene, settings, &strategies, gpu.as_ref());
         let first = rows.len();
-        for (s, recs) in Strategy::ALL.iter().zip(&per_strategy) {
+        for (s, recs) in strategies.iter().zip(&per_strategy) {
             for r in recs {
                 let _ = writeln!(
                     csv,
@@ -111,7 +117,10 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
     }
     for (name, text) in [
         ("frames.csv", csv),
-        ("summary.md", summary(&rows, settings, &skipped)),
+        (
+            "summary.md",
+            summary(&rows, settings, &skipped, &strategies),
+        ),
     ] {
         let path = out.join(name);
         std::fs::write(&path, text)?;
@@ -121,11 +130,12 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         rows,
         files,
         skipped,
+        strategies,
     })
 }
 
-/// Colours of the strategies in the plots, in [`Strategy::ALL`] order.
-const COLOURS: [[u8; 3]; 9] = [
+/// Colours of the strategies in the plots, in [`Strategy::all`] order.
+const COLOURS: [[u8; 3]; 11] = [
     [230, 25, 75],
     [60, 180, 75],
     [0, 130, 200],
@@ -135,6 +145,8 @@ const COLOURS: [[u8; 3]; 9] = [
     [240, 50, 230],
     [128, 128, 0],
     [0, 0, 0],
+    [170, 110, 40],
+    [128, 128, 128],
 ];
 
 /// Error (SAH ratio, up) against time per frame (right), the per-frame spread as bars.
@@ -218,11 +230,18 @@ fn curves(per_strategy: &[Vec<FrameRecord>]) -> RgbImage {
     img
 }
 
-fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
+fn summary(
+    rows: &[Row],
+    settings: &Settings,
+    skipped: &[String],
+    strategies: &[Strategy],
+) -> String {
     let mut s = format!(
         "# kinetrace error-versus-run-time report\n\n{} frames, about {} triangles per scene, {} primary \
          rays per frame plus a shadow ray per hit; {} rays per frame checked against brute force. Times are \
-         mean milliseconds per frame on this machine (CPU, one thread); error is the tree's SAH cost and \
+         mean milliseconds per frame on this machine (queries on one CPU thread; CPU builds on all threads; \
+         `-gpu` builds on the GPU, read back for the CPU's queries, their update time including the round \
+         trip); error is the tree's SAH cost and \
          traversal steps per ray over a fresh binned-SAH build of the same frame.\n\n",
         settings.frames, settings.triangles, settings.rays, settings.checked_rays
     );
@@ -290,7 +309,7 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
          per-frame curves, top = total ms (log scale), bottom = SAH ratio (capped at 3). Colours in \
          strategy order: {}.",
         if met { "MET" } else { "NOT MET" },
-        Strategy::ALL
+        strategies
             .iter()
             .zip(COLOURS)
             .map(|(st, c)| format!("{} #{:02x}{:02x}{:02x}", st.name(), c[0], c[1], c[2]))

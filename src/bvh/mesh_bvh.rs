@@ -104,28 +104,34 @@ fn query_corners(t: [Vec3; 3]) -> [Vec3; 3] {
 impl MeshBvh {
     /// Builds the tree over `mesh`'s triangles. An empty mesh gives an empty tree that no ray hits.
     pub fn build(mesh: &Mesh, options: &BuildOptions) -> Result<MeshBvh> {
-        let bounds = mesh.triangle_bounds();
-        let bvh = Bvh::build(&bounds, options)?;
+        let bvh = Bvh::build(&mesh.triangle_bounds(), options)?;
+        Ok(Self::from_tree(mesh, bvh))
+    }
+
+    /// Pairs `bvh`, a valid tree over `mesh`'s triangle boxes (as a GPU build reads back), with the mesh.
+    /// O(n), allocates the per-slot arrays; the tree gets a new [`topology_id`](Self::topology_id).
+    pub(crate) fn from_tree(mesh: &Mesh, bvh: Bvh) -> MeshBvh {
         let slot_indices = slot_indices(&bvh, mesh.indices());
         let pos = mesh.positions();
         let tris = slot_indices
             .iter()
             .map(|t| query_corners(t.map(|i| pos[i as usize])))
             .collect();
-        let mut slot_of = vec![0u32; bounds.len()];
+        let n = bvh.primitive_count();
+        let mut slot_of = vec![0u32; n];
         for (slot, &p) in bvh.prim_indices().iter().enumerate() {
             slot_of[p as usize] = slot as u32;
         }
-        Ok(MeshBvh {
+        MeshBvh {
             bvh,
             tris,
             slot_indices,
             vertex_count: pos.len(),
             indices: mesh.indices_arc(),
             slot_of,
-            slot_bounds: vec![Aabb::EMPTY; bounds.len()],
+            slot_bounds: vec![Aabb::EMPTY; n],
             topology: next_topology_id(),
-        })
+        }
     }
 
     /// Refits to new vertex positions (same count and topology as the mesh it was built from) and returns the

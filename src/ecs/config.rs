@@ -1,6 +1,7 @@
-//! Settings of the plugin, and the pluggable rebuild policy.
+//! Settings of the plugin, and the rebuild policy: Lauterbach's threshold, the adaptive cost model, or yours.
 
 use super::MotionHint;
+use crate::adaptive::Build;
 use crate::bvh::Builder;
 use crate::characterize::SceneProfile;
 use bevy_ecs::prelude::*;
@@ -31,7 +32,7 @@ pub enum Latency {
     NextFrame,
 }
 
-/// What the policy sees about one mesh that was just refitted.
+/// What a [`Custom`](RebuildPolicy::Custom) policy sees about one mesh that was just refitted.
 #[derive(Clone, Copy, Debug)]
 pub struct PolicyInput<'a> {
     /// The entity's hint.
@@ -42,14 +43,14 @@ pub struct PolicyInput<'a> {
     pub degradation: f32,
     /// Frames since the tree was last built.
     pub frames_since_rebuild: u32,
-    /// The configured threshold ([`TraceConfig::rebuild_threshold`]).
-    pub threshold: f32,
-    /// Rays queried against the world last frame (immediate and batched).
+    /// Batched requests answered last frame (see [`TraceStats::rays_last_frame`](super::TraceStats)).
     pub rays_last_frame: usize,
     /// The characteriser's profile of the mesh, when it has one.
     pub profile: Option<&'a SceneProfile>,
     /// Mean rise of the degradation per refit over the last refits.
     pub motion_incoherence: f32,
+    /// Whether a GPU context exists to build on ([`Device::Gpu`] is honoured only then).
+    pub gpu: bool,
 }
 
 /// What to do with a refitted mesh.
@@ -57,21 +58,83 @@ pub struct PolicyInput<'a> {
 pub enum Decision {
     /// Keep the refitted tree.
     Keep,
-    /// Rebuild it now with this builder.
-    Rebuild(Builder),
+    /// Rebuild it now, with this builder on this device. A GPU build of anything but
+    /// [`Build::GPU_LBVH`], or with no GPU context, runs on the CPU instead (said once in the log).
+    Rebuild(Build),
 }
 
-/// The policy: called once per refitted mesh per frame. Untouched meshes never reach it (they cost
+/// A custom policy: called once per refitted mesh per frame. Untouched meshes never reach it (they cost
 /// nothing), new meshes and topology changes always rebuild.
 pub type Policy = for<'a> fn(&PolicyInput<'a>) -> Decision;
 
-/// Lauterbach's criterion (thesis §4.1.5): rebuild with LBVH when the degradation metric exceeds the
-/// threshold (0.40 by default).
+/// Lauterbach's criterion at the thesis's threshold (§4.1.5): rebuild with CPU LBVH when the degradation
+/// metric exceeds 0.40. The same as [`RebuildPolicy::LAUTERBACH`], as a [`Policy`] to call from your own.
 pub fn lauterbach_policy(input: &PolicyInput<'_>) -> Decision {
-    if input.degradation > input.threshold {
-        Decision::Rebuild(Builder::LBVH)
+    lauterbach(input.degradation, THESIS_THRESHOLD)
+}
+
+/// Lauterbach's threshold (thesis §4.1.5).
+const THESIS_THRESHOLD: f32 = 0.40;
+
+pub(super) fn lauterbach(degradation: f32, threshold: f32) -> Decision {
+    if degradation > threshold {
+        Decision::Rebuild(Build::cpu(Builder::LBVH))
     } else {
         Decision::Keep
+    }
+}
+
+/// How the plugin decides, per refitted mesh per frame, between keeping the refitted tree and rebuilding.
+///
+/// | policy | costs per refitted mesh | use when |
+/// |---|---|---|
+/// | [`Lauterbach`](Self::Lauterbach) | a comparison | a simple, predictable rule (the default, 0.40) |
+/// | [`Adaptive`](Self::Adaptive) | an SAH-cost pass over the nodes (about a refit's cost), and a pass over all meshes after the batched queries | the ray load or the motion varies, or a GPU may build faster than the CPU |
+/// | [`Custom`](Self::Custom) | your function | anything else |
+#[derive(Clone, Copy, Debug)]
+pub enum RebuildPolicy {
+    /// Rebuild with CPU LBVH when the degradation metric exceeds `threshold` (thesis §4.1.5: 0.40).
+    Lauterbach {
+        /// Degradation above which the mesh is rebuilt.
+        threshold: f32,
+    },
+    /// The learned cost model of [`AdaptivePolicy`](crate::adaptive::AdaptivePolicy), one per mesh: it
+    /// rebuilds once the extra query time a degraded tree has cost exceeds a rebuild's measured time, and
+    /// picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
+    /// ([`TraceMode::GpuWhenAvailable`] or [`TraceMode::GpuRequired`] found an adapter) — whose rebuild
+    /// plus queries it predicts cheapest. Its predictions are in [`MeshStats::prediction`](super::MeshStats).
+    ///
+    /// Query time is measured for the batched requests as a whole and apportioned over meshes by their
+    /// expected traversal work, `A(world box) / A(scene box) × SAH cost` — the surface-area model of the
+    /// rays a mesh receives. That is exact for rays spread evenly over the scene and off by the ratio of
+    /// a mesh's real ray density to the modelled one otherwise (a mesh that every ray aims at is
+    /// under-charged, one that none aims at over-charged); counting real per-mesh traversal work would
+    /// cost every query. Immediate queries ([`SpatialRays`](super::SpatialRays)) are not timed, so a scene
+    /// queried only through them is treated as ray-free: it rebuilds only on the cost guard
+    /// ([`AdaptivePolicy::max_cost_rise`](crate::adaptive::AdaptivePolicy::max_cost_rise), 1.4).
+    Adaptive {
+        /// The CPU builders to choose among (e.g. LBVH, hybrids with several `k`, binned SAH); each is tried
+        /// once per mesh.
+        builders: &'static [Builder],
+    },
+    /// Your function.
+    Custom(Policy),
+}
+
+impl RebuildPolicy {
+    /// Lauterbach at the thesis's threshold, 0.40 (the default).
+    pub const LAUTERBACH: RebuildPolicy = RebuildPolicy::Lauterbach {
+        threshold: THESIS_THRESHOLD,
+    };
+    /// The adaptive policy over CPU LBVH, hybrid (6 LBVH levels) and binned SAH.
+    pub const ADAPTIVE: RebuildPolicy = RebuildPolicy::Adaptive {
+        builders: &[Builder::LBVH, Builder::HYBRID, Builder::SAH],
+    };
+}
+
+impl Default for RebuildPolicy {
+    fn default() -> Self {
+        Self::LAUTERBACH
     }
 }
 
@@ -82,14 +145,13 @@ pub struct TraceConfig {
     pub mode: TraceMode,
     /// When batched results are published.
     pub latency: Latency,
-    /// Degradation above which the default policy rebuilds (0.40).
-    pub rebuild_threshold: f32,
-    /// Builder for new deforming and rigid meshes and topology changes.
+    /// Builder for new deforming and rigid meshes and topology changes (under
+    /// [`RebuildPolicy::Adaptive`], the adaptive policy's choice instead).
     pub builder: Builder,
     /// Builder for [`MotionHint::Static`] meshes (built once, so the best trees).
     pub static_builder: Builder,
-    /// Refit-or-rebuild decision.
-    pub policy: Policy,
+    /// Refit-or-rebuild decision; [`RebuildPolicy::LAUTERBACH`] by default.
+    pub policy: RebuildPolicy,
     /// A mesh is characterised again when its degradation has moved by more than this since its last
     /// profile (hysteresis: profiles, and choices made from them, do not flip every frame). 0.2 by default.
     pub profile_refresh: f32,
@@ -100,10 +162,9 @@ impl Default for TraceConfig {
         Self {
             mode: TraceMode::Cpu,
             latency: Latency::SameFrame,
-            rebuild_threshold: 0.40,
             builder: Builder::LBVH,
             static_builder: Builder::SAH,
-            policy: lauterbach_policy,
+            policy: RebuildPolicy::LAUTERBACH,
             profile_refresh: 0.2,
         }
     }

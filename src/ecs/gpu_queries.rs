@@ -49,6 +49,11 @@ mod imp {
     }
 
     impl GpuQueries {
+        /// The device, for the GPU rebuilds of [`RebuildPolicy::Adaptive`](crate::ecs::RebuildPolicy).
+        pub(crate) fn context(&self) -> &GpuContext {
+            &self.inner.ctx
+        }
+
         pub(crate) fn new(ctx: GpuContext) -> Self {
             let scene = GpuScene::new(&ctx);
             GpuQueries {

@@ -4,7 +4,8 @@
 //!
 //! Change detection decides the work: an untouched mesh costs nothing; a moved entity only updates the top
 //! level; a deformed mesh ([`VertexPositions`] or [`TraceSkin`] changed) is refitted and rebuilt when the
-//! policy says so (Lauterbach's 0.40 by default); a new index buffer means a rebuild.
+//! [`RebuildPolicy`] says so (Lauterbach's 0.40 by default, or the adaptive cost model, which may also build
+//! on the GPU); a new index buffer means a rebuild. [`TraceStats::meshes`] says what was done and why.
 //!
 //! A complete program on bare `bevy_ecs` — what the main loop must do each frame is run the schedule and
 //! clear the world's change trackers (the plugin updates its messages itself):
@@ -56,12 +57,14 @@ mod components;
 mod config;
 mod filter;
 mod gpu_queries;
+mod maintain;
 mod params;
 mod plugin;
 mod stats;
 mod systems;
 mod world;
 
+pub use crate::adaptive::{Build, Device, Prediction, Verdict};
 pub use animation::{AnimationClock, AnimationPlayer};
 pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
 pub use collide::{
@@ -69,7 +72,8 @@ pub use collide::{
 };
 pub use components::*;
 pub use config::{
-    Decision, Latency, Policy, PolicyInput, TraceConfig, TraceMode, lauterbach_policy,
+    Decision, Latency, Policy, PolicyInput, RebuildPolicy, TraceConfig, TraceMode,
+    lauterbach_policy,
 };
 pub use filter::{QueryFilter, RayHit};
 pub use gpu_queries::GpuQueries;

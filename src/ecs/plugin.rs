@@ -1,5 +1,6 @@
 //! Installing the crate into a user's world and schedule.
 
+use super::maintain::maintain_system;
 use super::systems::*;
 use super::*;
 use bevy_ecs::message::{MessageRegistry, message_update_system};

@@ -1,6 +1,6 @@
 //! What the crate did this frame, and why.
 
-use crate::bvh::Builder;
+use crate::adaptive::{Build, Prediction};
 use bevy_ecs::prelude::*;
 use std::time::Duration;
 
@@ -11,8 +11,9 @@ pub enum MeshAction {
     Refit,
     /// Built from scratch.
     Rebuild {
-        /// With which builder.
-        builder: Builder,
+        /// With which builder, on which device (where it really ran: a GPU build asked for without a GPU
+        /// context runs on the CPU).
+        build: Build,
         /// Why.
         reason: RebuildReason,
     },
@@ -44,6 +45,10 @@ pub struct MeshStats {
     pub degradation: f32,
     /// Time spent on it.
     pub time: Duration,
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): why a refitted mesh was kept or rebuilt
+    /// (the predicted rebuild time against the extra query time paid so far, or the cost guard, or a
+    /// build being tried). `None` for other policies and for meshes that were not refitted.
+    pub prediction: Option<Prediction>,
 }
 
 /// Per-frame diagnostics, overwritten each frame.

@@ -1,8 +1,6 @@
 //! The per-frame systems of the plugin.
 
-use super::world::{Instance, topology_id};
 use super::*;
-use crate::bvh::Builder;
 use crate::{Error, parallel};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -24,7 +22,7 @@ pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
 }
 
 /// Marks an entity as failed: error component, message, and out of the world.
-fn fail(
+pub(super) fn fail(
     e: Entity,
     error: Error,
     world: &mut TraceWorld,
@@ -41,6 +39,7 @@ fn fail(
         action: MeshAction::Failed,
         degradation: 0.0,
         time: Default::default(),
+        prediction: None,
     });
 }
 
@@ -80,19 +79,6 @@ pub(crate) fn skin_system(
     stats.skin_time = t.elapsed();
 }
 
-type MeshData<'a> = (
-    Entity,
-    &'a TraceMesh,
-    Option<&'a VertexPositions>,
-    Option<&'a MotionHint>,
-    &'a TraceTransform,
-    &'a QueryLayers,
-);
-/// Meshes whose geometry changed this frame.
-type GeometryChanged = (
-    Without<TraceError>,
-    Or<(Changed<TraceMesh>, Changed<VertexPositions>)>,
-);
 /// Traceable entities that moved or changed layers this frame.
 type PlacementChanged = (
     With<TraceMesh>,
@@ -101,7 +87,7 @@ type PlacementChanged = (
 );
 
 /// The transform as an instance needs it: finite and invertible.
-fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Error> {
+pub(super) fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Error> {
     let det = t.0.matrix3.determinant();
     if t.0.is_finite() && det != 0.0 && det.is_finite() {
         Ok(t.0)
@@ -111,146 +97,6 @@ fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Error> {
             t.0
         )))
     }
-}
-
-/// [`TraceSet::Maintain`]: per changed mesh, refit (then ask the policy) or rebuild; forget removed ones.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn maintain_system(
-    changed: Query<MeshData, GeometryChanged>,
-    all: Query<MeshData, Without<TraceError>>,
-    mut removed: RemovedComponents<TraceMesh>,
-    mut recovered: RemovedComponents<TraceError>,
-    mut world: ResMut<TraceWorld>,
-    config: Res<TraceConfig>,
-    mut stats: ResMut<TraceStats>,
-    mut commands: Commands,
-    mut errors: MessageWriter<TraceErrorMessage>,
-) {
-    let start = Instant::now();
-    for e in removed.read() {
-        world.remove(e);
-    }
-    let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
-    let rays_last_frame = stats.rays_last_frame;
-    for (e, mesh, vp, hint, transform, layers) in changed
-        .iter()
-        .chain(retry.iter().filter_map(|&e| all.get(e).ok()))
-    {
-        let t = Instant::now();
-        let hint = hint.copied().unwrap_or_default();
-        let positions = match vp {
-            Some(v) if !v.0.is_empty() => &v.0[..],
-            _ => mesh.0.positions(),
-        };
-        let same_topology = world
-            .instances
-            .get(&e)
-            .is_some_and(|i| i.topology == topology_id(&mesh.0));
-        let mut action = None;
-        let mut degradation = 0.0;
-        if same_topology {
-            let inst = world.instances.get_mut(&e).expect("checked above");
-            match inst.bvh.refit(positions) {
-                Ok(d) => {
-                    degradation = d;
-                    inst.frames_since_rebuild += 1;
-                    inst.remember(d);
-                    let input = PolicyInput {
-                        hint,
-                        triangles: mesh.0.triangle_count(),
-                        degradation: d,
-                        frames_since_rebuild: inst.frames_since_rebuild,
-                        threshold: config.rebuild_threshold,
-                        rays_last_frame,
-                        profile: inst.profile.as_deref(),
-                        motion_incoherence: inst.motion_incoherence(),
-                    };
-                    action = Some(match (config.policy)(&input) {
-                        Decision::Keep => MeshAction::Refit,
-                        Decision::Rebuild(builder) => MeshAction::Rebuild {
-                            builder,
-                            reason: RebuildReason::Policy,
-                        },
-                    });
-                }
-                Err(err) => {
-                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
-                    continue;
-                }
-            }
-        }
-        let action = match action {
-            Some(a) => a,
-            None => MeshAction::Rebuild {
-                builder: if hint == MotionHint::Static {
-                    config.static_builder
-                } else {
-                    config.builder
-                },
-                reason: if world.contains(e) {
-                    RebuildReason::Topology
-                } else {
-                    RebuildReason::New
-                },
-            },
-        };
-        if let MeshAction::Rebuild { builder, reason } = action {
-            match rebuild(mesh, positions, builder, transform, layers) {
-                Ok(inst) => {
-                    log::debug!(
-                        "kinetrace: rebuilt {e} with {} ({reason:?}), {} triangles",
-                        builder.name(),
-                        mesh.0.triangle_count()
-                    );
-                    if world.instances.insert(e, inst).is_none() {
-                        world.membership_changed = true;
-                    }
-                }
-                Err(err) => {
-                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
-                    continue;
-                }
-            }
-            stats.rebuilds += 1;
-        } else {
-            stats.refits += 1;
-            world
-                .instances
-                .get_mut(&e)
-                .expect("refitted")
-                .update_world_bounds();
-        }
-        world.tlas_dirty = true;
-        stats.meshes.push(MeshStats {
-            entity: e,
-            action,
-            degradation,
-            time: t.elapsed(),
-        });
-    }
-    stats.maintain_time = start.elapsed();
-}
-
-/// A fresh instance of the mesh at its current positions.
-fn rebuild(
-    mesh: &TraceMesh,
-    positions: &[glam::Vec3],
-    builder: Builder,
-    transform: &TraceTransform,
-    layers: &QueryLayers,
-) -> Result<Instance, Error> {
-    let transform = checked_transform(transform)?;
-    let current = if std::ptr::eq(positions, mesh.0.positions()) {
-        mesh.0.clone()
-    } else {
-        mesh.0.with_positions(positions.to_vec())?
-    };
-    let mut inst = Instance::build(&current, builder)?;
-    // Keep the index buffer's identity of the component's mesh (with_positions shares it).
-    inst.topology = topology_id(&mesh.0);
-    inst.layers = layers.0;
-    inst.set_transform(transform);
-    Ok(inst)
 }
 
 /// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows.
@@ -278,6 +124,7 @@ pub(crate) fn top_level_system(
                             action: MeshAction::Moved,
                             degradation: 0.0,
                             time: Default::default(),
+                            prediction: None,
                         });
                     }
                 }
@@ -311,7 +158,7 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
 /// CPU threads — and publishes them now ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`],
 /// when a GPU batch is collected without having stalled the frame that submitted it).
 pub(crate) fn queries_system(
-    world: Res<TraceWorld>,
+    mut world: ResMut<TraceWorld>,
     config: Res<TraceConfig>,
     mut queue: ResMut<RayQueue>,
     mut results: ResMut<RayResults>,
@@ -342,6 +189,7 @@ pub(crate) fn queries_system(
             publish(now, &mut results);
         }
         finish(&mut queue, &mut stats, t);
+        attribute(&mut world, &config, &stats);
         return;
     }
     #[cfg(not(feature = "gpu"))]
@@ -354,6 +202,18 @@ pub(crate) fn queries_system(
         answer_on_cpu(&world, &queue, frame, &mut results);
     }
     finish(&mut queue, &mut stats, t);
+    attribute(&mut world, &config, &stats);
+}
+
+/// Under the adaptive policy, tells every mesh its share of the frame's batched query time (see
+/// [`TraceWorld::attribute_queries`]); other policies pay nothing for it. Not a change of what queries
+/// read, so it bypasses change detection.
+fn attribute(world: &mut ResMut<TraceWorld>, config: &TraceConfig, stats: &TraceStats) {
+    if matches!(config.policy, RebuildPolicy::Adaptive { .. }) {
+        world
+            .bypass_change_detection()
+            .attribute_queries(stats.batched_rays, stats.query_time.as_secs_f64());
+    }
 }
 
 /// Empties the queue (keeping its memory) and records the phase.

@@ -2,10 +2,10 @@
 //! world boxes, and the two-level queries.
 
 use super::{QueryFilter, RayHit};
+use crate::Mesh;
 use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
-use crate::{Mesh, Result};
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::collections::HashMap;
@@ -28,6 +28,23 @@ pub(crate) struct Instance {
     pub profiled_at: f32,
     /// Degradation after each of the last refits (oldest first), for motion incoherence.
     pub history: Vec<f32>,
+    /// What outlives a rebuild: the adaptive policy's state and the GPU builder.
+    pub kept: Kept,
+    /// The tree's SAH cost, kept current only under the adaptive policy (0 otherwise).
+    pub sah: f64,
+    /// Rays expected to reach the mesh per frame: last frame's batched requests × the mesh's share of the
+    /// scene's surface area (adaptive policy only).
+    pub rays: f64,
+}
+
+/// The state of an entity that a rebuild carries over to the new tree.
+#[derive(Default)]
+pub(crate) struct Kept {
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): the mesh's learned cost model.
+    pub adaptive: Option<crate::adaptive::AdaptivePolicy>,
+    /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
+    #[cfg(feature = "gpu")]
+    pub gpu: Option<crate::gpu::GpuMeshBvh>,
 }
 
 /// Refits remembered for motion incoherence.
@@ -51,12 +68,11 @@ impl Instance {
         self.history.push(degradation);
     }
 
-    /// Builds the entity's tree.
-    pub fn build(mesh: &Mesh, builder: Builder) -> Result<Instance> {
-        let bvh = MeshBvh::build(mesh, &BuildOptions::new(builder))?;
+    /// The entity's state around a freshly built tree for the index buffer `topology`.
+    pub fn new(bvh: MeshBvh, topology: usize, kept: Kept) -> Instance {
         let mut inst = Instance {
             bvh,
-            topology: topology_id(mesh),
+            topology,
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
             normal_matrix: Mat3A::IDENTITY,
@@ -66,9 +82,12 @@ impl Instance {
             profile: None,
             profiled_at: 0.0,
             history: Vec::with_capacity(HISTORY),
+            kept,
+            sah: 0.0,
+            rays: 0.0,
         };
         inst.update_world_bounds();
-        Ok(inst)
+        inst
     }
 
     /// Sets the transform (which must be finite and invertible).
@@ -231,6 +250,34 @@ impl TraceWorld {
         self.membership_changed = false;
         self.version += 1;
         true
+    }
+
+    /// Feeds the adaptive policies a frame's batched queries: `rays` requests answered in `seconds`.
+    ///
+    /// The time is apportioned over meshes by their expected traversal work, `p_i · C_i` with `p_i` the
+    /// mesh's world-box area over the scene box's (the chance that a ray through the scene reaches it) and
+    /// `C_i` its SAH cost; each mesh is told it received `rays · p_i` rays. The shares add up to the measured
+    /// time; how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
+    /// no allocation.
+    pub(crate) fn attribute_queries(&mut self, rays: usize, seconds: f64) {
+        let scene = self.tlas.bounds().half_area_f64();
+        let share = |i: &Instance| {
+            if scene > 0.0 {
+                (i.world_bounds.half_area_f64() / scene).min(1.0)
+            } else {
+                1.0
+            }
+        };
+        let work: f64 = self.instances.values().map(|i| share(i) * i.sah).sum();
+        for inst in self.instances.values_mut() {
+            let p = share(inst);
+            inst.rays = rays as f64 * p;
+            if let Some(policy) = inst.kept.adaptive.as_mut()
+                && work > 0.0
+            {
+                policy.queried(inst.rays, inst.sah, seconds * p * inst.sah / work);
+            }
+        }
     }
 
     /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts.

@@ -501,6 +501,30 @@ impl GpuMeshBvh {
         r.wait(ctx)
     }
 
+    /// Rebuilds with LBVH from `mesh`'s positions and reads the tree back as a [`MeshBvh`] over `mesh`: a
+    /// GPU build for CPU queries, equal to a CPU LBVH build (see [`read_tree`](Self::read_tree)). `mesh`
+    /// must have the topology this tree was made for. Blocking: costs the upload of the positions (12 bytes
+    /// per vertex), the build, the read-back of 36 bytes per triangle and the pairing with the mesh, O(n)
+    /// on the CPU. Use it where the GPU builds faster than the CPU even with the round trip (large meshes,
+    /// a fast GPU); [`AdaptivePolicy`](crate::adaptive::AdaptivePolicy) measures that per mesh.
+    ///
+    /// Errors: [`Error::VertexCountMismatch`] or [`Error::InvalidOption`] for a mesh of another size,
+    /// [`Error::NonFiniteVertex`], or a GPU error.
+    pub fn build_for_cpu(&mut self, ctx: &GpuContext, mesh: &Mesh) -> Result<MeshBvh> {
+        if mesh.triangle_count() != self.tris as usize {
+            return Err(Error::InvalidOption(format!(
+                "a GPU tree for {} triangles cannot be built over {}",
+                self.tris,
+                mesh.triangle_count()
+            )));
+        }
+        self.upload_positions(ctx, mesh.positions())?;
+        let mut enc = ctx.encoder();
+        self.record_build(ctx, &mut enc);
+        ctx.submit(enc);
+        Ok(MeshBvh::from_tree(mesh, self.read_tree(ctx)?))
+    }
+
     /// Reads the tree back (blocking): the same [`Bvh`] a CPU build produces.
     pub fn read_tree(&self, ctx: &GpuContext) -> Result<Bvh> {
         if self.tris == 0 {

@@ -1,6 +1,8 @@
 //! Test support: scene generators and brute-force oracles that share no traversal code with the crate.
 #![allow(dead_code, unused_imports)] // each test binary uses a different part
 
+pub mod ecs;
+
 use glam::{DVec3, Vec3};
 use kinetrace::geometry::TriangleRay;
 use kinetrace::{Mesh, Ray};

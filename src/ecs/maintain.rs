@@ -1,0 +1,359 @@
+//! [`TraceSet::Maintain`]: per changed mesh, refit and ask the policy, or rebuild — with the chosen builder
+//! on the chosen device — and feed the adaptive policy what it measured.
+
+use super::config::lauterbach;
+use super::systems::{checked_transform, fail};
+use super::world::{Instance, Kept, topology_id};
+use super::*;
+use crate::adaptive::{AdaptivePolicy, Build, Device, Prediction};
+use crate::bvh::{BuildOptions, MeshBvh};
+use crate::{Error, Mesh};
+use bevy_ecs::prelude::*;
+use std::time::Instant;
+
+type MeshData<'a> = (
+    Entity,
+    &'a TraceMesh,
+    Option<&'a VertexPositions>,
+    Option<&'a MotionHint>,
+    &'a TraceTransform,
+    &'a QueryLayers,
+);
+/// Meshes whose geometry changed this frame.
+type GeometryChanged = (
+    Without<TraceError>,
+    Or<(Changed<TraceMesh>, Changed<VertexPositions>)>,
+);
+
+/// GPU rebuilds asked for that ran on the CPU, each said once in the log.
+#[derive(Default)]
+pub(crate) struct Fallbacks {
+    no_gpu: bool,
+    #[cfg(feature = "gpu")]
+    not_lbvh: bool,
+}
+
+impl Fallbacks {
+    fn no_gpu(&mut self) {
+        if !std::mem::replace(&mut self.no_gpu, true) {
+            log::warn!(
+                "kinetrace: a GPU rebuild was asked for but the world has no GPU context (TraceMode::Cpu, \
+                 no adapter, or no `gpu` feature); rebuilds run on the CPU"
+            );
+        }
+    }
+
+    #[cfg(feature = "gpu")]
+    fn not_lbvh(&mut self, build: Build) {
+        if !std::mem::replace(&mut self.not_lbvh, true) {
+            log::warn!(
+                "kinetrace: the GPU builds only LBVH over 30-bit codes; GPU rebuilds with {} run on the CPU",
+                build.builder.name()
+            );
+        }
+    }
+}
+
+/// Refits or rebuilds every changed mesh; forgets removed ones.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn maintain_system(
+    changed: Query<MeshData, GeometryChanged>,
+    all: Query<MeshData, Without<TraceError>>,
+    mut removed: RemovedComponents<TraceMesh>,
+    mut recovered: RemovedComponents<TraceError>,
+    mut world: ResMut<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut stats: ResMut<TraceStats>,
+    mut commands: Commands,
+    mut errors: MessageWriter<TraceErrorMessage>,
+    gpu: Option<Res<GpuQueries>>,
+    mut fallbacks: Local<Fallbacks>,
+) {
+    let start = Instant::now();
+    for e in removed.read() {
+        world.remove(e);
+    }
+    let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
+    let mut rebuilder = Rebuilder {
+        config: &config,
+        gpu: gpu.as_deref(),
+        fallbacks: &mut fallbacks,
+    };
+    for data in changed
+        .iter()
+        .chain(retry.iter().filter_map(|&e| all.get(e).ok()))
+    {
+        let (e, mesh, vp, hint, ..) = data;
+        let t = Instant::now();
+        let positions = match vp {
+            Some(v) if !v.0.is_empty() => &v.0[..],
+            _ => mesh.0.positions(),
+        };
+        let mut degradation = 0.0;
+        let mut prediction = None;
+        let mut decision = None;
+        if let Some(inst) = world
+            .instances
+            .get_mut(&e)
+            .filter(|i| i.topology == topology_id(&mesh.0))
+        {
+            match inst.bvh.refit(positions) {
+                Ok(d) => {
+                    degradation = d;
+                    inst.frames_since_rebuild += 1;
+                    inst.remember(d);
+                    let asked = Asked {
+                        policy: config.policy,
+                        hint: hint.copied().unwrap_or_default(),
+                        triangles: mesh.0.triangle_count(),
+                        degradation: d,
+                        rays_last_frame: stats.rays_last_frame,
+                        gpu: rebuilder.gpu.is_some(),
+                    };
+                    let (d, p) = asked.decide(inst);
+                    (decision, prediction) = (Some(d), p);
+                }
+                Err(err) => {
+                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                    continue;
+                }
+            }
+        }
+        let rebuild = match decision {
+            Some(Decision::Keep) => None,
+            Some(Decision::Rebuild(build)) => Some((Some(build), RebuildReason::Policy)),
+            None if world.contains(e) => Some((None, RebuildReason::Topology)),
+            None => Some((None, RebuildReason::New)),
+        };
+        let action = match rebuild {
+            None => {
+                stats.refits += 1;
+                let inst = world.instances.get_mut(&e).expect("refitted");
+                inst.update_world_bounds();
+                MeshAction::Refit
+            }
+            Some((asked, reason)) => {
+                match rebuilder.rebuild(&mut world, data, positions, asked, reason) {
+                    Ok(build) => {
+                        stats.rebuilds += 1;
+                        MeshAction::Rebuild { build, reason }
+                    }
+                    Err(err) => {
+                        fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                        continue;
+                    }
+                }
+            }
+        };
+        world.tlas_dirty = true;
+        stats.meshes.push(MeshStats {
+            entity: e,
+            action,
+            degradation,
+            time: t.elapsed(),
+            prediction,
+        });
+    }
+    stats.maintain_time = start.elapsed();
+}
+
+/// What rebuilds need beyond the mesh.
+struct Rebuilder<'a> {
+    config: &'a TraceConfig,
+    /// The world's GPU, when a GPU mode found one.
+    gpu: Option<&'a GpuQueries>,
+    fallbacks: &'a mut Fallbacks,
+}
+
+impl Rebuilder<'_> {
+    /// A fresh tree for the entity of `data` at `positions`, with the `asked` build (else the configured or
+    /// the adaptive policy's first), replacing its instance and carrying over what outlives a rebuild; the
+    /// adaptive policy is told what the build cost. Returns the build that really ran.
+    fn rebuild(
+        &mut self,
+        world: &mut TraceWorld,
+        data: MeshData,
+        positions: &[glam::Vec3],
+        asked: Option<Build>,
+        reason: RebuildReason,
+    ) -> Result<Build, Error> {
+        let (e, mesh, _, hint, transform, layers) = data;
+        let current = current_mesh(mesh, positions, transform)?;
+        // What the old tree leaves to the new one: the learned model always, GPU buffers if still the size.
+        let mut kept = world
+            .instances
+            .get_mut(&e)
+            .map(|i| std::mem::take(&mut i.kept))
+            .unwrap_or_default();
+        #[cfg(feature = "gpu")]
+        if reason == RebuildReason::Topology {
+            kept.gpu = None;
+        }
+        if let RebuildPolicy::Adaptive { builders } = self.config.policy
+            && kept.adaptive.is_none()
+        {
+            kept.adaptive = Some(adaptive_policy(builders, self.gpu.is_some()));
+        }
+        let build =
+            asked.unwrap_or_else(
+                || match (hint.copied().unwrap_or_default(), &kept.adaptive) {
+                    (MotionHint::Static, _) => Build::cpu(self.config.static_builder),
+                    (_, Some(policy)) => policy.next_build(),
+                    (_, None) => Build::cpu(self.config.builder),
+                },
+            );
+        let (bvh, build, seconds) = self.build_tree(&current, build, &mut kept)?;
+        let triangles = current.triangle_count();
+        log::debug!(
+            "kinetrace: rebuilt {e} with {build} ({reason:?}), {triangles} triangles in {:.3} ms",
+            seconds * 1e3
+        );
+        let mut inst = Instance::new(bvh, topology_id(&mesh.0), kept);
+        if let Some(policy) = inst.kept.adaptive.as_mut() {
+            inst.sah = inst.bvh.bvh().sah_cost();
+            policy.built(build, triangles, seconds, inst.sah);
+        }
+        inst.layers = layers.0;
+        inst.set_transform(transform.0);
+        if world.instances.insert(e, inst).is_none() {
+            world.membership_changed = true;
+        }
+        Ok(build)
+    }
+
+    /// Builds the tree of `current` with `build`: on the GPU when asked for and possible, else on the CPU.
+    /// Returns the tree, the build that really ran, and the seconds the build itself took (not the one-time
+    /// allocation of GPU buffers, which would make a first GPU measurement look worse than the device is).
+    fn build_tree(
+        &mut self,
+        current: &Mesh,
+        build: Build,
+        kept: &mut Kept,
+    ) -> Result<(MeshBvh, Build, f64), Error> {
+        if build.device == Device::Gpu
+            && let Some(done) = self.on_gpu(current, build, kept)
+        {
+            return Ok(done);
+        }
+        let t = Instant::now();
+        let bvh = MeshBvh::build(current, &BuildOptions::new(build.builder))?;
+        Ok((bvh, Build::cpu(build.builder), t.elapsed().as_secs_f64()))
+    }
+
+    /// LBVH on the GPU, read back for CPU queries; `None` (said once in the log) where it cannot run. The
+    /// mesh's GPU buffers are made at its first GPU build.
+    #[cfg(feature = "gpu")]
+    fn on_gpu(
+        &mut self,
+        current: &Mesh,
+        build: Build,
+        kept: &mut Kept,
+    ) -> Option<(MeshBvh, Build, f64)> {
+        let Some(gpu) = self.gpu else {
+            self.fallbacks.no_gpu();
+            return None;
+        };
+        if build != Build::GPU_LBVH {
+            self.fallbacks.not_lbvh(build);
+            return None;
+        }
+        let ctx = gpu.context();
+        let mut run = || -> crate::Result<(MeshBvh, Build, f64)> {
+            let tree = match &mut kept.gpu {
+                Some(tree) => tree,
+                empty => empty.insert(crate::gpu::GpuMeshBvh::new(ctx, current)?),
+            };
+            let t = Instant::now();
+            let bvh = tree.build_for_cpu(ctx, current)?;
+            Ok((bvh, build, t.elapsed().as_secs_f64()))
+        };
+        run()
+            .inspect_err(|err| {
+                log::error!("kinetrace: GPU rebuild failed ({err}); rebuilt on the CPU")
+            })
+            .ok()
+    }
+
+    #[cfg(not(feature = "gpu"))]
+    fn on_gpu(&mut self, _: &Mesh, _: Build, _: &mut Kept) -> Option<(MeshBvh, Build, f64)> {
+        self.fallbacks.no_gpu();
+        None
+    }
+}
+
+/// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists — second,
+/// so that the builds are tried cheapest first and the tree left after trying them all is the last
+/// builder's (usually the best).
+fn adaptive_policy(builders: &[crate::bvh::Builder], gpu: bool) -> AdaptivePolicy {
+    let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
+    if gpu {
+        builds.insert(builds.len().min(1), Build::GPU_LBVH);
+    }
+    AdaptivePolicy::with_builds(&builds)
+}
+
+/// What a policy is asked about a refitted mesh.
+struct Asked {
+    policy: RebuildPolicy,
+    hint: MotionHint,
+    triangles: usize,
+    degradation: f32,
+    rays_last_frame: usize,
+    gpu: bool,
+}
+
+impl Asked {
+    /// The policy's decision for the refitted `inst`, with the adaptive policy's grounds.
+    fn decide(&self, inst: &mut Instance) -> (Decision, Option<Prediction>) {
+        let d = self.degradation;
+        match self.policy {
+            RebuildPolicy::Lauterbach { threshold } => (lauterbach(d, threshold), None),
+            RebuildPolicy::Custom(policy) => {
+                let input = PolicyInput {
+                    hint: self.hint,
+                    triangles: self.triangles,
+                    degradation: d,
+                    frames_since_rebuild: inst.frames_since_rebuild,
+                    rays_last_frame: self.rays_last_frame,
+                    profile: inst.profile.as_deref(),
+                    motion_incoherence: inst.motion_incoherence(),
+                    gpu: self.gpu,
+                };
+                (policy(&input), None)
+            }
+            RebuildPolicy::Adaptive { builders } => {
+                let Some(policy) = inst.kept.adaptive.as_mut() else {
+                    // The policy became adaptive at run time: rebuild once to start measuring.
+                    let policy = inst
+                        .kept
+                        .adaptive
+                        .insert(adaptive_policy(builders, self.gpu));
+                    return (Decision::Rebuild(policy.next_build()), None);
+                };
+                inst.sah = inst.bvh.bvh().sah_cost();
+                let rebuild = policy.after_refit(inst.sah, inst.rays);
+                let why = policy.prediction();
+                let decision = if rebuild {
+                    Decision::Rebuild(why.build)
+                } else {
+                    Decision::Keep
+                };
+                (decision, Some(why))
+            }
+        }
+    }
+}
+
+/// The mesh at its current positions, once its transform is known to be usable.
+fn current_mesh(
+    mesh: &TraceMesh,
+    positions: &[glam::Vec3],
+    transform: &TraceTransform,
+) -> Result<Mesh, Error> {
+    checked_transform(transform)?;
+    if std::ptr::eq(positions, mesh.0.positions()) {
+        Ok(mesh.0.clone())
+    } else {
+        mesh.0.with_positions(positions.to_vec())
+    }
+}
