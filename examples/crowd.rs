@@ -7,7 +7,9 @@
 //! ```
 //! Gameplay each frame: every character checks line of sight (shadow rays, batched) to its two nearest
 //! neighbours and probes the ground under it (immediate ray); a turret sweeps the crowd and reports which
-//! character, triangle and joint its ray hits. Once per simulated second a table line shows the frame time by
+//! character, triangle and joint its ray hits. Characters are colliders: when two bump into each other
+//! (their skinned meshes touch), a gameplay system reads the `CollisionStarted` message and the contacts
+//! (triangles, point, depth). Once per simulated second a table line shows the frame time by
 //! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
 //! shadows from the sun, the turret's hits marked red. Batched queries run on the GPU when one is found
 //! (`--cpu` keeps them on the CPU).
@@ -72,6 +74,8 @@ pub struct Summary {
     pub rebuilds: usize,
     /// Refits over the run.
     pub refits: usize,
+    /// Collision episodes between characters (a `CollisionStarted` message each).
+    pub bumps: usize,
 }
 
 const CHARACTERS: u32 = 1 << 0;
@@ -195,6 +199,40 @@ fn turret(
     }
 }
 
+/// Characters that bumped into each other this frame: the first few are reported with their deepest
+/// contact.
+fn bumps(
+    mut started: MessageReader<CollisionStarted>,
+    contacts: Res<Contacts>,
+    stats: Res<TraceStats>,
+    mut crowd: ResMut<Crowd>,
+) {
+    for m in started.read() {
+        crowd.summary.bumps += 1;
+        if crowd.summary.bumps > 5 {
+            continue;
+        }
+        let Some(pair) = contacts.between(m.a, m.b) else {
+            continue;
+        };
+        if let Some(deepest) = contacts
+            .contacts(pair)
+            .iter()
+            .max_by(|x, y| x.depth.total_cmp(&y.depth))
+        {
+            println!(
+                "    frame {}: {} bumped into {}: {} touching triangle pairs, deepest {:.3} m at {:.2}",
+                stats.frame,
+                m.a,
+                m.b,
+                contacts.contacts(pair).len(),
+                deepest.depth,
+                deepest.point
+            );
+        }
+    }
+}
+
 /// Runs the demo.
 pub fn run(opt: &Options) -> Result<Summary, Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&opt.out)?;
@@ -271,6 +309,10 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
                 r * a.sin(),
             ))),
             QueryLayers(CHARACTERS),
+            Collider {
+                layers: CollisionLayers::new(CHARACTERS, CHARACTERS),
+                ..Default::default()
+            },
             Walker {
                 pos: Vec2::new(r * a.cos(), r * a.sin()),
                 heading: a,
@@ -288,6 +330,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         (look_and_probe, turret)
             .after(TraceSet::TopLevel)
             .before(TraceSet::Queries),
+        bumps.after(TraceSet::Queries),
     ));
     Ok((world, schedule))
 }
@@ -362,12 +405,13 @@ fn run_frames(
     let crowd = world.remove_resource::<Crowd>().expect("inserted");
     let s = &crowd.summary;
     println!(
-        "{} frames: {} refits, {} rebuilds, {} line-of-sight checks, turret hit a character {} times, ground found under everyone in {} frames; images: {}",
+        "{} frames: {} refits, {} rebuilds, {} line-of-sight checks, turret hit a character {} times, {} bumps between characters, ground found under everyone in {} frames; images: {}",
         opt.frames,
         s.refits,
         s.rebuilds,
         s.sight_checks,
         s.turret_hits,
+        s.bumps,
         s.grounded_frames,
         s.pngs
             .iter()
