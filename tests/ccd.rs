@@ -2,6 +2,9 @@
 //! contact times, degenerate configurations and a randomized never-miss
 //! property check against an independent `f64` reference.
 
+mod common;
+
+use common::closest_on_triangle;
 use glam::{DVec3, Vec3};
 use kinetrace::collide::ccd::*;
 use rand::rngs::SmallRng;
@@ -536,40 +539,6 @@ fn intersect(a: &Tri64, b: &Tri64) -> bool {
     (0..3).any(|i| {
         segment_crosses(a[i], a[(i + 1) % 3], b) || segment_crosses(b[i], b[(i + 1) % 3], a)
     })
-}
-
-/// Closest point of triangle `t` to `p` (Ericson, Real-Time Collision
-/// Detection, 5.1.5).
-fn closest_on_triangle(p: DVec3, [a, b, c]: Tri64) -> DVec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
 }
 
 /// Distance from `x` to the segment `(a, b)`.

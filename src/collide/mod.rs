@@ -202,17 +202,7 @@ impl PairQuery {
         leaf_pairs: &[[u32; 2]],
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        let (to_world, bvtt, narrow) = discrete(&a, &b)?;
-        let stats = run_leaf_pairs(
-            self.parallel,
-            &mut self.contacts,
-            &bvtt,
-            &narrow,
-            leaf_pairs,
-            out,
-        )?;
-        to_world.apply(out);
-        Ok(stats)
+        self.narrow_leaf_pairs(discrete(&a, &b)?, leaf_pairs, out)
     }
 
     /// Self-collision contacts from the leaf pairs [`GpuPairs`](crate::gpu::GpuPairs) found in one tree
@@ -224,15 +214,18 @@ impl PairQuery {
         leaf_pairs: &[[u32; 2]],
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        let (to_world, bvtt, narrow) = discrete_self(&m)?;
-        let stats = run_leaf_pairs(
-            self.parallel,
-            &mut self.contacts,
-            &bvtt,
-            &narrow,
-            leaf_pairs,
-            out,
-        )?;
+        self.narrow_leaf_pairs(discrete_self(&m)?, leaf_pairs, out)
+    }
+
+    #[cfg(feature = "gpu")]
+    fn narrow_leaf_pairs(
+        &mut self,
+        (to_world, bvtt, narrow): (ToWorld, Bvtt<'_>, Discrete<'_>),
+        leaf_pairs: &[[u32; 2]],
+        out: &mut Vec<Contact>,
+    ) -> Result<PairStats> {
+        let (parallel, chunks) = (self.parallel, &mut self.contacts);
+        let stats = run_leaf_pairs(parallel, chunks, &bvtt, &narrow, leaf_pairs, out)?;
         to_world.apply(out);
         Ok(stats)
     }

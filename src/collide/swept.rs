@@ -183,17 +183,7 @@ impl PairQuery {
             b,
             itself: false,
         };
-        let trees = (a.topology, b.topology);
-        run(
-            self.parallel,
-            &mut self.starts,
-            &mut self.impacts,
-            &bvtt,
-            &narrow,
-            trees,
-            None,
-            out,
-        )
+        self.impacts_of(&bvtt, &narrow, (a.topology, b.topology), out)
     }
 
     /// First contacts between non-adjacent moving triangles of one mesh (triangles sharing a vertex are
@@ -205,16 +195,17 @@ impl PairQuery {
             b: m,
             itself: true,
         };
-        let trees = (m.topology, m.topology);
-        run(
-            self.parallel,
-            &mut self.starts,
-            &mut self.impacts,
-            &bvtt,
-            &narrow,
-            trees,
-            None,
-            out,
-        )
+        self.impacts_of(&bvtt, &narrow, (m.topology, m.topology), out)
+    }
+
+    fn impacts_of(
+        &mut self,
+        bvtt: &Bvtt<'_>,
+        narrow: &Continuous<'_>,
+        trees: (u64, u64),
+        out: &mut Vec<Impact>,
+    ) -> PairStats {
+        let (parallel, starts, chunks) = (self.parallel, &mut self.starts, &mut self.impacts);
+        run(parallel, starts, chunks, bvtt, narrow, trees, None, out)
     }
 }
