@@ -56,7 +56,14 @@ fn brute(a: &Mesh, ta: &Affine3A, b: &Mesh, tb: &Affine3A) -> Vec<(u32, u32)> {
 
 #[test]
 fn contact_episodes_start_and_end_once() {
+    for fronts in [false, true] {
+        contact_episodes(fronts);
+    }
+}
+
+fn contact_episodes(fronts: bool) {
     let (mut world, mut schedule) = app();
+    world.insert_resource(CollisionSettings { fronts });
     let sphere = icosphere(2);
     let a = world
         .spawn((TraceMesh(sphere.clone()), Collider::default()))
@@ -101,7 +108,7 @@ fn contact_episodes_start_and_end_once() {
         };
         let mut want = want;
         want.sort_unstable();
-        assert_eq!(got, want, "frame {f}, x = {x}");
+        assert_eq!(got, want, "frame {f}, x = {x}, fronts {fronts}");
         let now = !got.is_empty();
         assert_eq!(
             s,

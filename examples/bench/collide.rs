@@ -436,7 +436,7 @@ fn crowd(rec: &mut Records) {
     let frames = if rec.quick { 5 } else { 30 };
     let asset = Arc::new(humanoid(10_000));
     let scene = "crowd of 64 x 10k tris, ECS".to_string();
-    for threads in [1, 0] {
+    for (threads, fronts) in [(1, false), (0, false), (0, true)] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
@@ -445,6 +445,7 @@ fn crowd(rec: &mut Records) {
         let mut schedule = Schedule::default();
         schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
         KinetracePlugin::default().build(&mut world, &mut schedule);
+        world.insert_resource(CollisionSettings { fronts });
         for i in 0..64 {
             let at = Vec3::new((i % 8) as f32 * 0.7, 0.0, (i / 8) as f32 * 0.7);
             world.spawn((
@@ -469,10 +470,10 @@ fn crowd(rec: &mut Records) {
                 stats.add(&c.stats);
             }
         });
-        let name = if threads == 1 {
-            "ECS collide pass, 1 thread"
-        } else {
-            "ECS collide pass, all threads"
+        let name = match (threads, fronts) {
+            (1, _) => "ECS collide pass, 1 thread",
+            (_, false) => "ECS collide pass, all threads",
+            (_, true) => "ECS collide pass, all threads + fronts",
         };
         rec.add(
             SUITE,

@@ -76,6 +76,16 @@ pub struct Collider {
     pub continuous: bool,
 }
 
+/// Settings of the collision pass, a resource that may be changed at run time.
+#[derive(Resource, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CollisionSettings {
+    /// Keep each entity pair's BVTT front between frames and restart from it
+    /// ([`PairFront`](crate::collide::PairFront)). Off by default: on our measurements (docs/BENCHMARKS.md,
+    /// `bench collide`) it saved up to a third of the box tests on coherent motion but cost more time than
+    /// it saved on the CPU.
+    pub fronts: bool,
+}
+
 /// Two colliders that touch this frame (`a < b`; `a == b` for self-collision) and where their results are.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ContactPair {
@@ -231,6 +241,7 @@ impl Visit for TopPairs<'_> {
 pub(crate) fn collide_system(
     colliders: Query<(Entity, &Collider, &TraceMesh, Option<&VertexPositions>)>,
     world: Res<TraceWorld>,
+    settings: Res<CollisionSettings>,
     mut state: ResMut<CollisionState>,
     mut contacts: ResMut<Contacts>,
     mut started: MessageWriter<CollisionStarted>,
@@ -360,16 +371,21 @@ pub(crate) fn collide_system(
             c.stats.add(&stats);
             c.impacts.extend_from_slice(&state.found_impacts);
         } else {
-            let (front, used) = &mut state.fronts.entry((a, b)).or_default();
-            *used = frame;
             let pa = Placed::new(&ia.bvh, ia.transform);
-            let result = if a == b {
-                state.query.itself_with_front(pa, front, &mut state.found)
-            } else {
-                let pb = Placed::new(&ib.bvh, ib.transform);
-                state
-                    .query
-                    .meshes_with_front(pa, pb, front, &mut state.found)
+            let pb = Placed::new(&ib.bvh, ib.transform);
+            let (q, found) = (&mut state.query, &mut state.found);
+            let result = match (settings.fronts, a == b) {
+                (false, true) => q.itself(pa, found),
+                (false, false) => q.meshes(pa, pb, found),
+                (true, itself) => {
+                    let (front, used) = state.fronts.entry((a, b)).or_default();
+                    *used = frame;
+                    if itself {
+                        q.itself_with_front(pa, front, found)
+                    } else {
+                        q.meshes_with_front(pa, pb, front, found)
+                    }
+                }
             };
             match result {
                 Ok(stats) => c.stats.add(&stats),

@@ -68,7 +68,8 @@ pub use crate::adaptive::{Build, Device, Prediction, Verdict};
 pub use animation::{AnimationClock, AnimationPlayer};
 pub use batch::{RayQueue, RayRequest, RayResults, ShadowRequest};
 pub use collide::{
-    Collider, CollisionEnded, CollisionLayers, CollisionStarted, ContactPair, Contacts,
+    Collider, CollisionEnded, CollisionLayers, CollisionSettings, CollisionStarted, ContactPair,
+    Contacts,
 };
 pub use components::*;
 pub use config::{

@@ -39,9 +39,9 @@ pub enum TraceSet {
 /// multi-threaded executor spent about 0.1 ms per frame waking threads in our measurements, the
 /// single-threaded one about 1 µs (docs/BENCHMARKS.md). Batched queries use all threads either way.
 ///
-/// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`], [`Contacts`];
-/// messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With [`update_messages`](Self::update_messages) (the default) the plugin also
-/// runs bevy's `message_update_system` once per frame, before [`TraceSet::Animate`]; turn it off when your
+/// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`], [`Contacts`],
+/// [`CollisionSettings`]; messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With
+/// [`update_messages`](Self::update_messages) (the default) the plugin also runs bevy's `message_update_system` once per frame, before [`TraceSet::Animate`]; turn it off when your
 /// loop already does.
 #[derive(Clone, Debug)]
 pub struct KinetracePlugin {
@@ -81,6 +81,7 @@ impl KinetracePlugin {
         world.init_resource::<TraceStats>();
         world.init_resource::<super::AnimationClock>();
         world.init_resource::<Contacts>();
+        world.init_resource::<CollisionSettings>();
         world.init_resource::<super::collide::CollisionState>();
         MessageRegistry::register_message::<TraceErrorMessage>(world);
         MessageRegistry::register_message::<CollisionStarted>(world);
