@@ -127,7 +127,10 @@ impl Default for PairQuery {
 }
 
 /// Pairs handed to each worker when a query runs in parallel (more than one per worker, to balance).
-const PAIRS_PER_WORKER: usize = 16;
+const PAIRS_PER_WORKER: usize = 64;
+
+/// Chunks of work per worker: many, so that rayon's stealing evens out sub-walks of very different sizes.
+const CHUNKS_PER_WORKER: usize = 16;
 
 impl PairQuery {
     /// A query that uses all threads (with the `parallel` feature).
@@ -327,7 +330,11 @@ fn run_leaf_pairs<N: NarrowPhase>(
         )));
     }
     let parallel = parallel && parallel::threads() > 1;
-    let n = if parallel { parallel::threads() * 4 } else { 1 };
+    let n = if parallel {
+        parallel::threads() * CHUNKS_PER_WORKER
+    } else {
+        1
+    };
     if chunks.len() < n {
         chunks.resize_with(n, Chunk::default);
     }
@@ -395,7 +402,7 @@ fn run<N: NarrowPhase>(
         );
     }
     let n = if parallel {
-        (workers * 4).min(starts.pairs.len()).max(1)
+        (workers * CHUNKS_PER_WORKER).min(starts.pairs.len()).max(1)
     } else {
         1
     };
