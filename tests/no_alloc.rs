@@ -130,3 +130,41 @@ fn refit_only_ecs_frames_do_not_allocate() {
         }
     }
 }
+
+#[test]
+fn warm_collision_queries_do_not_allocate() {
+    use glam::Affine3A;
+    use kinetrace::collide::{PairFront, PairQuery, Placed};
+    let a = MeshBvh::build(&icosphere(3), &BuildOptions::default()).unwrap();
+    let b = MeshBvh::build(
+        &map_mesh(&icosphere(3), |p| p * 0.8 + Vec3::X),
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    let (pa, pb) = (
+        Placed::new(&a, Affine3A::IDENTITY),
+        Placed::new(&b, Affine3A::from_rotation_y(0.3)),
+    );
+    // One thread: rayon's own bookkeeping is not ours to count.
+    let mut q = PairQuery::new().parallel(false);
+    let (mut front, mut self_front) = (PairFront::new(), PairFront::new());
+    let mut out = Vec::new();
+    let mut run = |q: &mut PairQuery| {
+        q.meshes(pa, pb, &mut out).unwrap();
+        let n = out.len();
+        q.meshes_with_front(pa, pb, &mut front, &mut out).unwrap();
+        q.itself_with_front(pa, &mut self_front, &mut out).unwrap();
+        n
+    };
+    // Warm: the scratch grows to the scene, the fronts are recorded and restarted from.
+    for _ in 0..3 {
+        run(&mut q);
+    }
+    let before = allocations();
+    let contacts = run(&mut q);
+    assert_eq!(allocations() - before, 0);
+    assert!(
+        contacts > 0,
+        "the spheres must touch for the test to mean anything"
+    );
+}

@@ -381,7 +381,10 @@ fn run<N: NarrowPhase>(
     let workers = if parallel { parallel::threads() } else { 1 };
     let resume = front.as_deref_mut().is_some_and(|f| f.resume(trees));
     if let Some(f) = front.as_deref_mut().filter(|_| resume) {
-        std::mem::swap(&mut starts.pairs, &mut f.pairs);
+        // Copied, not swapped: one query serves many fronts of different sizes, and swapping would pass
+        // buffers between them, growing one of them nearly every frame.
+        starts.pairs.clear();
+        starts.pairs.extend_from_slice(&f.pairs);
     } else {
         let mut visit = Collect {
             narrow,
