@@ -166,7 +166,8 @@ pub struct CollisionEnded {
 /// What the collision pass keeps between frames.
 #[derive(Resource, Default)]
 pub(crate) struct CollisionState {
-    query: PairQuery,
+    /// One job per candidate pair, kept with its scratch from frame to frame.
+    jobs: Vec<Job>,
     /// Fronts per entity pair, with the frame they were last used (unused ones are dropped).
     fronts: HashMap<(Entity, Entity), (PairFront, u64)>,
     /// Swept trees and last world positions of continuous colliders.
@@ -178,9 +179,72 @@ pub(crate) struct CollisionState {
     stack: Vec<Pair>,
     /// Last frame's touching pairs.
     touching: Vec<(Entity, Entity)>,
-    found: Vec<Contact>,
-    found_impacts: Vec<Impact>,
     frame: u64,
+}
+
+/// The query of one candidate pair of entities (`a == b`: a mesh against itself) and what it found.
+struct Job {
+    pair: (Entity, Entity),
+    /// Both colliders are continuous.
+    continuous: bool,
+    /// Single-threaded: jobs run in parallel with each other.
+    query: PairQuery,
+    front: PairFront,
+    contacts: Vec<Contact>,
+    impacts: Vec<Impact>,
+    stats: PairStats,
+}
+
+impl Default for Job {
+    fn default() -> Self {
+        Job {
+            pair: (Entity::PLACEHOLDER, Entity::PLACEHOLDER),
+            continuous: false,
+            query: PairQuery::new().parallel(false),
+            front: PairFront::new(),
+            contacts: Vec::new(),
+            impacts: Vec::new(),
+            stats: PairStats::default(),
+        }
+    }
+}
+
+impl Job {
+    /// Runs the pair's query: continuous when both are and both have swept trees, else discrete (from
+    /// the job's front when `fronts`).
+    fn run(&mut self, world: &TraceWorld, swept: &HashMap<Entity, Swept>, fronts: bool) {
+        self.contacts.clear();
+        self.impacts.clear();
+        let (a, b) = self.pair;
+        let tree = |e| swept.get(&e).and_then(|s| s.mesh.as_ref()).map(|(m, _)| m);
+        if self.continuous
+            && let (Some(sa), Some(sb)) = (tree(a), tree(b))
+        {
+            self.stats = if a == b {
+                self.query.swept_itself(sa, &mut self.impacts)
+            } else {
+                self.query.swept(sa, sb, &mut self.impacts)
+            };
+            return;
+        }
+        let (ia, ib) = (&world.instances[&a], &world.instances[&b]);
+        let (pa, pb) = (
+            Placed::new(&ia.bvh, ia.transform),
+            Placed::new(&ib.bvh, ib.transform),
+        );
+        let (q, out, front) = (&mut self.query, &mut self.contacts, &mut self.front);
+        let result = match (fronts, a == b) {
+            (false, true) => q.itself(pa, out),
+            (false, false) => q.meshes(pa, pb, out),
+            (true, true) => q.itself_with_front(pa, front, out),
+            (true, false) => q.meshes_with_front(pa, pb, front, out),
+        };
+        self.stats = result.unwrap_or_else(|err| {
+            // Transforms in the world are checked finite and invertible when they are set.
+            log::warn!("kinetrace: collision {a} / {b}: {err}");
+            PairStats::default()
+        });
+    }
 }
 
 /// A continuous collider's motion.
@@ -349,51 +413,41 @@ pub(crate) fn collide_system(
     }
     state.candidates.sort_unstable();
 
+    // One job per candidate pair, run in parallel: many pairs of modest size spread over threads better
+    // than one pair's sub-walks do.
     let candidates = std::mem::take(&mut state.candidates);
-    for &(a, b) in &candidates {
-        let (ia, ib) = (&world.instances[&a], &world.instances[&b]);
-        let both_continuous = lookup(&cols, a).is_some_and(|x| x.continuous)
+    let n = candidates.len();
+    if state.jobs.len() < n {
+        state.jobs.resize_with(n, Job::default);
+    }
+    let mut jobs = std::mem::take(&mut state.jobs);
+    for (job, &(a, b)) in jobs.iter_mut().zip(&candidates) {
+        job.pair = (a, b);
+        job.continuous = lookup(&cols, a).is_some_and(|x| x.continuous)
             && lookup(&cols, b).is_some_and(|x| x.continuous);
-        let (first, count) = (c.contacts.len(), c.impacts.len());
-        let swept = |e| {
-            state
-                .swept
-                .get(&e)
-                .and_then(|s| s.mesh.as_ref())
-                .map(|(m, _)| m)
-        };
-        if both_continuous && let (Some(sa), Some(sb)) = (swept(a), swept(b)) {
-            let stats = if a == b {
-                state.query.swept_itself(sa, &mut state.found_impacts)
-            } else {
-                state.query.swept(sa, sb, &mut state.found_impacts)
-            };
-            c.stats.add(&stats);
-            c.impacts.extend_from_slice(&state.found_impacts);
-        } else {
-            let pa = Placed::new(&ia.bvh, ia.transform);
-            let pb = Placed::new(&ib.bvh, ib.transform);
-            let (q, found) = (&mut state.query, &mut state.found);
-            let result = match (settings.fronts, a == b) {
-                (false, true) => q.itself(pa, found),
-                (false, false) => q.meshes(pa, pb, found),
-                (true, itself) => {
-                    let (front, used) = state.fronts.entry((a, b)).or_default();
-                    *used = frame;
-                    if itself {
-                        q.itself_with_front(pa, front, found)
-                    } else {
-                        q.meshes_with_front(pa, pb, front, found)
-                    }
-                }
-            };
-            match result {
-                Ok(stats) => c.stats.add(&stats),
-                // Transforms in the world are checked finite and invertible when they are set.
-                Err(err) => log::warn!("kinetrace: collision {a} / {b}: {err}"),
-            }
-            c.contacts.extend_from_slice(&state.found);
+        if settings.fronts {
+            job.front = state
+                .fronts
+                .remove(&(a, b))
+                .map(|(f, _)| f)
+                .unwrap_or_default();
         }
+    }
+    let (swept, fronts) = (&state.swept, settings.fronts);
+    crate::parallel::for_each_mut(true, &mut jobs[..n], |_, job| {
+        job.run(&world, swept, fronts)
+    });
+    for job in &mut jobs[..n] {
+        let (a, b) = job.pair;
+        if fronts {
+            state
+                .fronts
+                .insert((a, b), (std::mem::take(&mut job.front), frame));
+        }
+        c.stats.add(&job.stats);
+        let (first, count) = (c.contacts.len(), c.impacts.len());
+        c.contacts.extend_from_slice(&job.contacts);
+        c.impacts.extend_from_slice(&job.impacts);
         if c.contacts.len() > first || c.impacts.len() > count {
             c.pairs.push(ContactPair {
                 a,
@@ -403,6 +457,7 @@ pub(crate) fn collide_system(
             });
         }
     }
+    state.jobs = jobs;
     state.candidates = candidates;
     state.colliders = cols;
     state.fronts.retain(|_, (_, used)| *used == frame);
