@@ -10,7 +10,7 @@
 //!   from where the last one stopped (thesis §6.2.3).
 //! - **Continuous** ([`ccd`], [`SweptMesh`]): first time of contact between last frame's and this frame's
 //!   vertex positions, for fast motion that a discrete test would tunnel through.
-//! - On the GPU, [`crate::gpu::GpuPairs`] runs the traversal; the exact tests stay on the CPU, so the
+//! - On the GPU, `gpu::GpuPairs` (feature `gpu`) runs the traversal; the exact tests stay on the CPU, so the
 //!   contacts are the same.
 //!
 //! ```

@@ -49,7 +49,7 @@ pub struct PolicyInput<'a> {
     pub profile: Option<&'a SceneProfile>,
     /// Mean rise of the degradation per refit over the last refits.
     pub motion_incoherence: f32,
-    /// Whether a GPU context exists to build on ([`Device::Gpu`] is honoured only then).
+    /// Whether a GPU context exists to build on ([`Device::Gpu`](crate::adaptive::Device::Gpu) is honoured only then).
     pub gpu: bool,
 }
 
