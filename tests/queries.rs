@@ -107,13 +107,7 @@ fn every_builder_matches_brute_force_on_random_soups() {
             } else {
                 for ray in &rays {
                     let got = bvh.closest_hit(ray).map(|h| (h.primitive, h.t));
-                    assert_same_hit(
-                        &m,
-                        ray,
-                        got,
-                        brute_closest(&m, ray),
-                        &format!("{opt:?} n={n}"),
-                    );
+                    assert_brute_hit(&m, ray, got, &format!("{opt:?} n={n}"));
                 }
             }
         }
@@ -212,13 +206,7 @@ fn traversal_stats_count_work() {
     let mut s = TraversalStats::default();
     let ray = Ray::new(Vec3::new(0.0, 0.0, -5.0), Vec3::Z);
     let h = bvh.closest_hit_counted(&ray, &mut s).unwrap();
-    assert_same_hit(
-        &m,
-        &ray,
-        Some((h.primitive, h.t)),
-        brute_closest(&m, &ray),
-        "counted",
-    );
+    assert_brute_hit(&m, &ray, Some((h.primitive, h.t)), "counted");
     assert!(s.inner_visits >= 1 && s.prim_tests >= 1 && s.leaf_visits >= 1);
     // Every tested primitive sits in a visited leaf; the work is far below brute force.
     assert!(s.prim_tests < m.triangle_count() as u64 / 4, "{s:?}");

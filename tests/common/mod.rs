@@ -97,6 +97,11 @@ pub fn dvec(v: Vec3) -> DVec3 {
 /// Asserts that a BVH's closest hit agrees with brute force: the same triangle and `t`, or — on an exact tie
 /// at a shared edge or vertex — another triangle that the ray really hits at the same `t` (within 1e-6
 /// relative, the rounding of the box test against the triangle test).
+/// [`assert_same_hit`] against [`brute_closest`] over the mesh.
+pub fn assert_brute_hit(m: &Mesh, ray: &Ray, got: Option<(u32, f32)>, what: &str) {
+    assert_same_hit(m, ray, got, brute_closest(m, ray), what);
+}
+
 pub fn assert_same_hit(
     m: &Mesh,
     ray: &Ray,
