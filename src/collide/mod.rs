@@ -158,7 +158,8 @@ impl PairQuery {
         b: Placed<'_>,
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        self.pair(a, b, None, out)
+        let trees = (a.mesh.topology_id(), b.mesh.topology_id());
+        Ok(self.contacts_of(discrete(&a, &b)?, trees, None, out))
     }
 
     /// Like [`meshes`](Self::meshes), restarting from `front` when both trees kept their topology since
@@ -170,7 +171,8 @@ impl PairQuery {
         front: &mut PairFront,
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        self.pair(a, b, Some(front), out)
+        let trees = (a.mesh.topology_id(), b.mesh.topology_id());
+        Ok(self.contacts_of(discrete(&a, &b)?, trees, Some(front), out))
     }
 
     /// Contacts between non-adjacent triangles of one mesh (triangles sharing a vertex are skipped), with
@@ -178,7 +180,8 @@ impl PairQuery {
     ///
     /// Errors: [`Error::InvalidTransform`] when the transform is not finite or cannot be inverted.
     pub fn itself(&mut self, m: Placed<'_>, out: &mut Vec<Contact>) -> Result<PairStats> {
-        self.single(m, None, out)
+        let id = m.mesh.topology_id();
+        Ok(self.contacts_of(discrete_self(&m)?, (id, id), None, out))
     }
 
     /// Like [`itself`](Self::itself), with a front.
@@ -188,7 +191,8 @@ impl PairQuery {
         front: &mut PairFront,
         out: &mut Vec<Contact>,
     ) -> Result<PairStats> {
-        self.single(m, Some(front), out)
+        let id = m.mesh.topology_id();
+        Ok(self.contacts_of(discrete_self(&m)?, (id, id), Some(front), out))
     }
 
     /// Contacts of `a` and `b` from their overlapping leaf pairs as [`GpuPairs`](crate::gpu::GpuPairs)
@@ -233,49 +237,18 @@ impl PairQuery {
         Ok(stats)
     }
 
-    fn pair(
+    /// A discrete query prepared by [`discrete`] or [`discrete_self`], over trees with these topology ids.
+    fn contacts_of(
         &mut self,
-        a: Placed<'_>,
-        b: Placed<'_>,
+        (to_world, bvtt, narrow): (ToWorld, Bvtt<'_>, Discrete<'_>),
+        trees: (u64, u64),
         front: Option<&mut PairFront>,
         out: &mut Vec<Contact>,
-    ) -> Result<PairStats> {
-        let (to_world, bvtt, narrow) = discrete(&a, &b)?;
-        let trees = (a.mesh.topology_id(), b.mesh.topology_id());
-        let stats = run(
-            self.parallel,
-            &mut self.starts,
-            &mut self.contacts,
-            &bvtt,
-            &narrow,
-            trees,
-            front,
-            out,
-        );
+    ) -> PairStats {
+        let (parallel, starts, chunks) = (self.parallel, &mut self.starts, &mut self.contacts);
+        let stats = run(parallel, starts, chunks, &bvtt, &narrow, trees, front, out);
         to_world.apply(out);
-        Ok(stats)
-    }
-
-    fn single(
-        &mut self,
-        m: Placed<'_>,
-        front: Option<&mut PairFront>,
-        out: &mut Vec<Contact>,
-    ) -> Result<PairStats> {
-        let (to_world, bvtt, narrow) = discrete_self(&m)?;
-        let id = m.mesh.topology_id();
-        let stats = run(
-            self.parallel,
-            &mut self.starts,
-            &mut self.contacts,
-            &bvtt,
-            &narrow,
-            (id, id),
-            front,
-            out,
-        );
-        to_world.apply(out);
-        Ok(stats)
+        stats
     }
 }
 

@@ -45,15 +45,16 @@ pub(crate) trait NarrowPhase: Sync {
     fn key(out: &Self::Out) -> (u32, u32);
 }
 
-/// Calls `test(slot_a, slot_b)` for the triangle pairs of two leaves that need a test: slot pairs
-/// `i < j` for a leaf against itself, and — when `shared` says whether two slots share a vertex (one mesh
-/// against itself) — only pairs that share none: neighbours touch by construction.
+/// Calls `test(slot_a, slot_b)` for the triangle pairs of two leaves that need a test: slot pairs `i < j`
+/// for a leaf against itself; and for one mesh against itself (`itself`: its slots' vertex indices and
+/// triangle ids), only pairs that share no vertex — neighbours touch by construction — each with the
+/// lower triangle id first, so that a pair is reported the same way whichever leaf order found it.
 #[inline]
 pub(crate) fn slot_pairs(
     a: &Node,
     b: &Node,
     same: bool,
-    shared: Option<&[[u32; 3]]>,
+    itself: Option<(&[[u32; 3]], &[u32])>,
     stats: &mut PairStats,
     mut test: impl FnMut(usize, usize),
 ) {
@@ -63,10 +64,14 @@ pub(crate) fn slot_pairs(
             if same && sb <= sa {
                 continue;
             }
-            if let Some(idx) = shared
-                && idx[sa].iter().any(|v| idx[sb].contains(v))
-            {
-                continue;
+            let (mut sa, mut sb) = (sa, sb);
+            if let Some((idx, prims)) = itself {
+                if idx[sa].iter().any(|v| idx[sb].contains(v)) {
+                    continue;
+                }
+                if prims[sb] < prims[sa] {
+                    (sa, sb) = (sb, sa);
+                }
             }
             stats.triangle_tests += 1;
             test(sa, sb);
@@ -97,24 +102,17 @@ impl NarrowPhase for Discrete<'_> {
         stats: &mut PairStats,
         out: &mut Vec<Contact>,
     ) {
-        let shared = self.itself.then_some(self.a.indices);
-        slot_pairs(la, lb, same, shared, stats, |sa, sb| {
-            let ta = &self.a.tris[sa];
+        let itself = self.itself.then_some((self.a.indices, self.a.prims));
+        slot_pairs(la, lb, same, itself, stats, |sa, sb| {
             let tb = match &self.b_to_a {
                 Some(x) => self.b.tris[sb].map(|p| x.transform_point3(p)),
                 None => self.b.tris[sb],
             };
-            let (mut pa, mut pb) = (self.a.prims[sa], self.b.prims[sb]);
-            let contact = if self.itself && pb < pa {
-                std::mem::swap(&mut pa, &mut pb);
-                triangle_contact(&tb, ta)
-            } else {
-                triangle_contact(ta, &tb)
-            };
+            let contact = triangle_contact(&self.a.tris[sa], &tb);
             if let Some(c) = contact {
                 out.push(Contact {
-                    triangle_a: pa,
-                    triangle_b: pb,
+                    triangle_a: self.a.prims[sa],
+                    triangle_b: self.b.prims[sb],
                     point: c.point,
                     normal: c.normal,
                     depth: c.depth,

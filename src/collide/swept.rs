@@ -143,19 +143,13 @@ impl NarrowPhase for Continuous<'_> {
         stats: &mut PairStats,
         out: &mut Vec<Impact>,
     ) {
-        let shared = self.itself.then_some(&self.a.slot_indices[..]);
         let (pa, pb) = (self.a.bvh.prim_indices(), self.b.bvh.prim_indices());
-        slot_pairs(la, lb, same, shared, stats, |sa, sb| {
-            let (mut ta, mut tb) = (pa[sa], pb[sb]);
-            let (mut ca, mut cb) = (&self.a.tris[sa], &self.b.tris[sb]);
-            if self.itself && tb < ta {
-                std::mem::swap(&mut ta, &mut tb);
-                std::mem::swap(&mut ca, &mut cb);
-            }
-            if let Some(hit) = ccd::triangle_pair_toi(ca, cb) {
+        let itself = self.itself.then_some((&self.a.slot_indices[..], pa));
+        slot_pairs(la, lb, same, itself, stats, |sa, sb| {
+            if let Some(hit) = ccd::triangle_pair_toi(&self.a.tris[sa], &self.b.tris[sb]) {
                 out.push(Impact {
-                    triangle_a: ta,
-                    triangle_b: tb,
+                    triangle_a: pa[sa],
+                    triangle_b: pb[sb],
                     t: hit.t,
                     feature: hit.feature,
                     point: hit.point,
