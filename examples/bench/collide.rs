@@ -307,116 +307,36 @@ fn world_positions(to_world: &Affine3A, object: &[Vec3], out: &mut Vec<Vec3>) {
     out.extend(object.iter().map(|p| to_world.transform_point3(*p)));
 }
 
-/// Two walking characters facing each other, arms and chests interpenetrating.
-fn two_characters(rec: &mut Records) {
-    let tris = if rec.quick { 20_000 } else { 50_000 };
-    let frames = if rec.quick { 6 } else { 30 };
-    let asset = humanoid(tris);
-    let scene = format!(
-        "2 characters x {}k tris in contact",
-        asset.mesh.triangle_count() / 1000
-    );
-    let place_b = Affine3A::from_rotation_translation(
-        Quat::from_rotation_y(std::f32::consts::PI),
-        Vec3::new(0.05, 0.0, 0.3),
-    );
-    let n = asset.mesh.positions().len();
-    let (mut pa, mut pb, mut mats) = (vec![Vec3::ZERO; n], vec![Vec3::ZERO; n], Vec::new());
-    pose(&asset, 0.0, &mut mats, &mut pa);
-    pose(&asset, 0.5, &mut mats, &mut pb);
-    let opts = BuildOptions::new(Builder::SAH);
-    let mut ta = MeshBvh::build(
-        &asset.mesh.with_positions(pa.clone()).expect("finite"),
-        &opts,
-    )
-    .expect("build");
-    let mut tb = MeshBvh::build(
-        &asset.mesh.with_positions(pb.clone()).expect("finite"),
-        &opts,
-    )
-    .expect("build");
-    let mut wb = Vec::new();
-    world_positions(&place_b, &pb, &mut wb);
-    let mut parry_a = ParryMesh::new(&asset.mesh, &pa);
-    let mut parry_b = ParryMesh::new(&asset.mesh, &wb);
-    let mut runs = [
-        ("kinetrace 1 thread", Tally::default()),
-        ("kinetrace 1 thread + front", Tally::default()),
-        ("kinetrace all threads", Tally::default()),
-        ("kinetrace all threads + front", Tally::default()),
-        ("kinetrace GPU traversal + CPU tests", Tally::default()),
-    ];
-    let mut gpu = Gpu::new();
-    let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
-    let mut contacts: Vec<Contact> = Vec::new();
-    let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
-    let (mut refits, mut found) = ([Duration::ZERO; 2], Vec::new());
-    // Pass 0: the CPU rows and parry; pass 1: the GPU row alone (lavapipe's threads would otherwise compete
-    // with the CPU rows' for the same cores).
-    for (pass, f) in (0..2).flat_map(|p| (0..frames + 1).map(move |f| (p, f))) {
-        let t = f as f32 / 30.0;
-        pose(&asset, t, &mut mats, &mut pa);
-        pose(&asset, t + 0.5, &mut mats, &mut pb);
-        let start = Instant::now();
-        ta.refit(&pa).expect("finite");
-        tb.refit(&pb).expect("finite");
-        let refit_time = start.elapsed();
-        let (a, b) = (
-            Placed::new(&ta, Affine3A::IDENTITY),
-            Placed::new(&tb, place_b),
-        );
-        let timed = |q: &mut PairQuery, front: Option<&mut PairFront>, out: &mut Vec<Contact>| {
-            let start = Instant::now();
-            let s = match front {
-                Some(fr) => q.meshes_with_front(a, b, fr, out),
-                None => q.meshes(a, b, out),
-            }
-            .expect("finite transforms");
-            (start.elapsed(), s)
-        };
-        if pass == 1 {
-            let (t, s) = gpu.run(&mut parallel, a, Some(b), &mut contacts);
-            if f > 0 && t > Duration::ZERO {
-                runs[4].1.add(t, s, contacts.len());
-            }
-            continue;
-        }
-        let r0 = timed(&mut serial, None, &mut contacts);
-        let n0 = contacts.len();
-        let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
-        let r2 = timed(&mut parallel, None, &mut contacts);
-        let r3 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
-        world_positions(&place_b, &pb, &mut wb);
-        let start = Instant::now();
-        parry_a.refit(&asset.mesh, &pa);
-        parry_b.refit(&asset.mesh, &wb);
-        let parry_refit = start.elapsed();
-        let pn = parry_a.touching(Some(&parry_b), asset.mesh.indices(), &mut found);
-        let parry_time = start.elapsed() - parry_refit;
-        if f == 0 {
-            continue; // warm-up: fronts and caches
-        }
-        refits[0] += refit_time;
-        refits[1] += parry_refit;
-        for (run, (t, s)) in runs.iter_mut().zip([r0, r1, r2, r3]) {
-            run.1.add(t, s, n0);
-        }
-        parry.add(parry_time, PairStats::default(), pn);
-    }
-    report(rec, &scene, frames, &runs, &parry, refits);
+/// A scene the suite animates, with our trees and parry's over it.
+trait Scene {
+    /// Moves to frame `f` (untimed) and refits our trees; returns the time of the refit.
+    fn refit(&mut self, f: usize) -> Duration;
+    /// The meshes to query: `b` is `None` for one mesh against itself.
+    fn placed(&self) -> (Placed<'_>, Option<Placed<'_>>);
+    /// parry on the current frame: refit time, query time, and the touching pairs it found.
+    fn parry(&mut self, found: &mut Vec<(u32, u32)>) -> (Duration, Duration, usize);
 }
 
-fn cloth(rec: &mut Records) {
-    let n = if rec.quick { 64 } else { 128 };
-    let frames = if rec.quick { 6 } else { 30 };
-    let mesh = folded_sheet(n, 0.0);
-    let mut pos = mesh.positions().to_vec();
-    let scene = format!(
-        "cloth {}k tris against itself",
-        mesh.triangle_count() / 1000
-    );
-    let mut tree = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("build");
-    let mut parry_mesh = ParryMesh::new(&mesh, &pos);
+/// One query of a scene's meshes, timed.
+fn timed(
+    (a, b): (Placed, Option<Placed>),
+    q: &mut PairQuery,
+    front: Option<&mut PairFront>,
+    out: &mut Vec<Contact>,
+) -> (Duration, PairStats) {
+    let start = Instant::now();
+    let stats = match (b, front) {
+        (Some(b), Some(f)) => q.meshes_with_front(a, b, f, out),
+        (Some(b), None) => q.meshes(a, b, out),
+        (None, Some(f)) => q.itself_with_front(a, f, out),
+        (None, None) => q.itself(a, out),
+    }
+    .expect("finite, invertible transforms");
+    (start.elapsed(), stats)
+}
+
+/// Runs `frames` frames of a scene (after one warm-up frame) in every way, and reports them.
+fn measure(rec: &mut Records, name: &str, frames: usize, scene: &mut impl Scene) {
     let mut runs = [
         ("kinetrace 1 thread", Tally::default()),
         ("kinetrace 1 thread + front", Tally::default()),
@@ -429,40 +349,26 @@ fn cloth(rec: &mut Records) {
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
     let (mut contacts, mut found) = (Vec::new(), Vec::new());
     let mut refits = [Duration::ZERO; 2];
+    // Pass 0: the CPU rows and parry; pass 1: the GPU row alone (lavapipe's threads would otherwise compete
+    // with the CPU rows' for the same cores).
     for (pass, f) in (0..2).flat_map(|p| (0..frames + 1).map(move |f| (p, f))) {
-        pos.copy_from_slice(folded_sheet(n, f as f32 * 0.05).positions());
-        let start = Instant::now();
-        tree.refit(&pos).expect("finite");
-        let refit_time = start.elapsed();
-        let m = Placed::new(&tree, Affine3A::IDENTITY);
-        let timed = |q: &mut PairQuery, front: Option<&mut PairFront>, out: &mut Vec<Contact>| {
-            let start = Instant::now();
-            let s = match front {
-                Some(fr) => q.itself_with_front(m, fr, out),
-                None => q.itself(m, out),
-            }
-            .expect("identity");
-            (start.elapsed(), s)
-        };
+        let refit_time = scene.refit(f);
+        let placed = scene.placed();
         if pass == 1 {
-            let (t, s) = gpu.run(&mut parallel, m, None, &mut contacts);
+            let (t, s) = gpu.run(&mut parallel, placed.0, placed.1, &mut contacts);
             if f > 0 && t > Duration::ZERO {
                 runs[4].1.add(t, s, contacts.len());
             }
             continue;
         }
-        let r0 = timed(&mut serial, None, &mut contacts);
+        let r0 = timed(placed, &mut serial, None, &mut contacts);
         let n0 = contacts.len();
-        let r1 = timed(&mut serial, Some(&mut fronts[0]), &mut contacts);
-        let r2 = timed(&mut parallel, None, &mut contacts);
-        let r3 = timed(&mut parallel, Some(&mut fronts[1]), &mut contacts);
-        let start = Instant::now();
-        parry_mesh.refit(&mesh, &pos);
-        let parry_refit = start.elapsed();
-        let pn = parry_mesh.touching(None, mesh.indices(), &mut found);
-        let parry_time = start.elapsed() - parry_refit;
+        let r1 = timed(placed, &mut serial, Some(&mut fronts[0]), &mut contacts);
+        let r2 = timed(placed, &mut parallel, None, &mut contacts);
+        let r3 = timed(placed, &mut parallel, Some(&mut fronts[1]), &mut contacts);
+        let (parry_refit, parry_time, pn) = scene.parry(&mut found);
         if f == 0 {
-            continue;
+            continue; // warm-up: fronts and caches
         }
         refits[0] += refit_time;
         refits[1] += parry_refit;
@@ -471,11 +377,154 @@ fn cloth(rec: &mut Records) {
         }
         parry.add(parry_time, PairStats::default(), pn);
     }
-    report(rec, &scene, frames, &runs, &parry, refits);
+    report(rec, name, frames, &runs, &parry, refits);
+}
+
+/// Two walking characters facing each other, arms and chests interpenetrating.
+struct TwoCharacters {
+    asset: CharacterAsset,
+    place_b: Affine3A,
+    mats: Vec<Mat4>,
+    /// Skinned object-space positions of each, and `b`'s in world space (parry's input).
+    pa: Vec<Vec3>,
+    pb: Vec<Vec3>,
+    wb: Vec<Vec3>,
+    ta: MeshBvh,
+    tb: MeshBvh,
+    parry_a: ParryMesh,
+    parry_b: ParryMesh,
+}
+
+impl TwoCharacters {
+    fn new(triangles: usize) -> Self {
+        let asset = humanoid(triangles);
+        let place_b = Affine3A::from_rotation_translation(
+            Quat::from_rotation_y(std::f32::consts::PI),
+            Vec3::new(0.05, 0.0, 0.3),
+        );
+        let n = asset.mesh.positions().len();
+        let (mut pa, mut pb, mut mats) = (vec![Vec3::ZERO; n], vec![Vec3::ZERO; n], Vec::new());
+        pose(&asset, 0.0, &mut mats, &mut pa);
+        pose(&asset, 0.5, &mut mats, &mut pb);
+        let build = |p: &[Vec3]| {
+            let mesh = asset.mesh.with_positions(p.to_vec()).expect("finite");
+            MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("build")
+        };
+        let (ta, tb) = (build(&pa), build(&pb));
+        let mut wb = Vec::new();
+        world_positions(&place_b, &pb, &mut wb);
+        let (parry_a, parry_b) = (
+            ParryMesh::new(&asset.mesh, &pa),
+            ParryMesh::new(&asset.mesh, &wb),
+        );
+        TwoCharacters {
+            asset,
+            place_b,
+            mats,
+            pa,
+            pb,
+            wb,
+            ta,
+            tb,
+            parry_a,
+            parry_b,
+        }
+    }
+}
+
+impl Scene for TwoCharacters {
+    fn refit(&mut self, f: usize) -> Duration {
+        let t = f as f32 / 30.0;
+        pose(&self.asset, t, &mut self.mats, &mut self.pa);
+        pose(&self.asset, t + 0.5, &mut self.mats, &mut self.pb);
+        let start = Instant::now();
+        self.ta.refit(&self.pa).expect("finite");
+        self.tb.refit(&self.pb).expect("finite");
+        start.elapsed()
+    }
+
+    fn placed(&self) -> (Placed<'_>, Option<Placed<'_>>) {
+        (
+            Placed::new(&self.ta, Affine3A::IDENTITY),
+            Some(Placed::new(&self.tb, self.place_b)),
+        )
+    }
+
+    fn parry(&mut self, found: &mut Vec<(u32, u32)>) -> (Duration, Duration, usize) {
+        world_positions(&self.place_b, &self.pb, &mut self.wb);
+        let start = Instant::now();
+        self.parry_a.refit(&self.asset.mesh, &self.pa);
+        self.parry_b.refit(&self.asset.mesh, &self.wb);
+        let refit = start.elapsed();
+        let n = self
+            .parry_a
+            .touching(Some(&self.parry_b), self.asset.mesh.indices(), found);
+        (refit, start.elapsed() - refit, n)
+    }
+}
+
+fn two_characters(rec: &mut Records) {
+    let mut scene = TwoCharacters::new(if rec.quick { 20_000 } else { 50_000 });
+    let name = format!(
+        "2 characters x {}k tris in contact",
+        scene.asset.mesh.triangle_count() / 1000
+    );
+    measure(rec, &name, if rec.quick { 6 } else { 30 }, &mut scene);
+}
+
+/// A folded cloth sheet of `n × n` quads waving through itself.
+struct Cloth {
+    n: u32,
+    mesh: Mesh,
+    pos: Vec<Vec3>,
+    tree: MeshBvh,
+    parry: ParryMesh,
+}
+
+impl Scene for Cloth {
+    fn refit(&mut self, f: usize) -> Duration {
+        self.pos
+            .copy_from_slice(folded_sheet(self.n, f as f32 * 0.05).positions());
+        let start = Instant::now();
+        self.tree.refit(&self.pos).expect("finite");
+        start.elapsed()
+    }
+
+    fn placed(&self) -> (Placed<'_>, Option<Placed<'_>>) {
+        (Placed::new(&self.tree, Affine3A::IDENTITY), None)
+    }
+
+    fn parry(&mut self, found: &mut Vec<(u32, u32)>) -> (Duration, Duration, usize) {
+        let start = Instant::now();
+        self.parry.refit(&self.mesh, &self.pos);
+        let refit = start.elapsed();
+        let n = self.parry.touching(None, self.mesh.indices(), found);
+        (refit, start.elapsed() - refit, n)
+    }
+}
+
+fn cloth(rec: &mut Records) {
+    let n = if rec.quick { 64 } else { 128 };
+    let mesh = folded_sheet(n, 0.0);
+    let pos = mesh.positions().to_vec();
+    let tree = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("build");
+    let parry = ParryMesh::new(&mesh, &pos);
+    let name = format!(
+        "cloth {}k tris against itself",
+        mesh.triangle_count() / 1000
+    );
+    let mut scene = Cloth {
+        n,
+        mesh,
+        pos,
+        tree,
+        parry,
+    };
+    measure(rec, &name, if rec.quick { 6 } else { 30 }, &mut scene);
 }
 
 /// 64 walking 10k-triangle characters close enough to touch, as colliders in the ECS plugin (top-level
-/// culling, fronts per pair, refits by the plugin), 1 thread and all threads.
+/// culling, refits by the plugin): 1 thread, all threads, and all threads with per-pair fronts.
 fn crowd(rec: &mut Records) {
     let frames = if rec.quick { 5 } else { 30 };
     let asset = Arc::new(humanoid(10_000));
