@@ -401,4 +401,15 @@ fn swept_meshes_match_brute_force() {
         ts.update(&s0, &s1[1..]),
         Err(Error::VertexCountMismatch { .. })
     ));
+    // So are non-finite ones, in an update and in a build.
+    let mut bad = s1.clone();
+    bad[7].y = f32::NAN;
+    assert!(matches!(
+        ts.update(&s0, &bad),
+        Err(Error::NonFiniteVertex { .. })
+    ));
+    assert!(matches!(
+        SweptMesh::build(&sheet, &bad, &s1, &opts),
+        Err(Error::NonFiniteVertex { .. })
+    ));
 }
