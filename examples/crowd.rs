@@ -484,7 +484,7 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
         let c = match hit {
             None => Vec3::new(0.55, 0.7, 0.9) * (0.8 + 0.2 * v),
             Some(hit) => {
-                let n = if hit.normal.dot(ray.dir) > 0.0 {
+                let n = if hit.normal.dot(ray.dir()) > 0.0 {
                     -hit.normal
                 } else {
                     hit.normal

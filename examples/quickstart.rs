@@ -99,7 +99,7 @@ fn render(bvh: &MeshBvh, w: usize, h: usize) -> String {
             None => b' ',
             Some(hit) => {
                 let p = ray.at(hit.t);
-                let n = if hit.normal.dot(ray.dir) > 0.0 {
+                let n = if hit.normal.dot(ray.dir()) > 0.0 {
                     -hit.normal
                 } else {
                     hit.normal

@@ -135,14 +135,14 @@ fn hit_records_match_an_independent_f64_intersection() {
             continue;
         };
         let tri = m.triangle(h.primitive as usize);
-        let Some((t, u, v)) = moller_trumbore(ray.origin, ray.dir, tri) else {
+        let Some((t, u, v)) = moller_trumbore(ray.origin, ray.dir(), tri) else {
             // Only a hit on the triangle's very boundary may be seen by one test and not the other.
             assert!(h.u.min(h.v).min(1.0 - h.u - h.v) < 1e-4, "{ray:?} {h:?}");
             continue;
         };
         let [a, b, c] = tri.map(dvec);
         let n = (b - a).cross(c - a).normalize();
-        if n.dot(ray.dir.as_dvec3().normalize()).abs() < 0.05 {
+        if n.dot(ray.dir().as_dvec3().normalize()).abs() < 0.05 {
             continue; // grazing: t is ill-conditioned for any f32 method
         }
         checked += 1;

@@ -49,7 +49,7 @@ fn ray_sets(mesh: &Mesh, n: usize) -> [(&'static str, Vec<BenchRay>); 2] {
             .iter()
             .map(|r| BenchRay {
                 origin: r.origin,
-                dir: r.dir,
+                dir: r.dir(),
                 tmax: r.tmax,
             })
             .collect();

@@ -167,7 +167,7 @@ fn query(bvh: &MeshBvh, rays: &[Ray], light: Vec3) -> (f64, u64) {
 /// that hits grazing an edge (where f32 and f64 may rightly disagree) are not counted as mismatches.
 fn brute(mesh: &Mesh, ray: &Ray) -> Option<(f64, f64)> {
     let o = ray.origin.as_dvec3();
-    let d = ray.dir.as_dvec3();
+    let d = ray.dir().as_dvec3();
     let mut best: Option<(f64, f64)> = None;
     for i in 0..mesh.triangle_count() {
         let [a, b, c] = mesh.triangle(i).map(|v| v.as_dvec3());

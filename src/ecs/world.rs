@@ -122,7 +122,7 @@ impl Instance {
     fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
         Ray::with_range(
             self.inverse.transform_point3(ray.origin),
-            self.inverse.transform_vector3(ray.dir),
+            self.inverse.transform_vector3(ray.dir()),
             ray.tmin,
             tmax,
         )
@@ -303,7 +303,7 @@ impl TraceWorld {
         filter: &QueryFilter,
         stats: Option<&mut TraversalStats>,
     ) -> Option<RayHit> {
-        let ray = Ray::with_range(ray.origin, ray.dir, ray.tmin, ray.tmax.min(max_t));
+        let ray = Ray::with_range(ray.origin, ray.dir(), ray.tmin, ray.tmax.min(max_t));
         if !ray.is_valid() {
             return None;
         }

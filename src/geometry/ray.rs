@@ -12,16 +12,19 @@ use glam::{BVec3, Vec3};
 ///
 /// A ray whose origin or direction is not finite, or whose direction is zero, is *invalid*: queries return
 /// no hit for it rather than panicking (see [`Ray::is_valid`]).
+///
+/// The direction and the state derived from it are private so that they cannot go stale: build a new ray
+/// ([`Ray::new`], [`Ray::with_range`], [`Ray::segment`], [`Ray::with_dir`]) to change the direction.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
     /// Start point.
     pub origin: Vec3,
-    /// Direction (any non-zero length).
-    pub dir: Vec3,
+    /// Direction (any non-zero length), zero and subnormal components flushed to signed zero.
+    dir: Vec3,
     /// Reciprocal of `dir` per component, `±∞` where the component is (flushed to) zero.
-    pub inv_dir: Vec3,
+    inv_dir: Vec3,
     /// Which components of `dir` have their sign bit set (`-0.0` included): selects the near slab plane.
-    pub dir_neg: BVec3,
+    dir_neg: BVec3,
     /// Smallest accepted hit distance.
     pub tmin: f32,
     /// Largest accepted hit distance.
@@ -62,6 +65,29 @@ impl Ray {
     /// (occlusion) queries take.
     pub fn segment(from: Vec3, to: Vec3) -> Self {
         Self::with_range(from, to - from, 0.0, 1.0)
+    }
+
+    /// The same ray (origin and range) with another direction; the derived state is recomputed.
+    pub fn with_dir(&self, dir: Vec3) -> Self {
+        Self::with_range(self.origin, dir, self.tmin, self.tmax)
+    }
+
+    /// The direction, with zero and subnormal components flushed to signed zero.
+    #[inline]
+    pub fn dir(&self) -> Vec3 {
+        self.dir
+    }
+
+    /// The reciprocal of [`Ray::dir`] per component, `±∞` where the component is zero.
+    #[inline]
+    pub fn inv_dir(&self) -> Vec3 {
+        self.inv_dir
+    }
+
+    /// Which components of [`Ray::dir`] have their sign bit set (`-0.0` included).
+    #[inline]
+    pub fn dir_neg(&self) -> BVec3 {
+        self.dir_neg
     }
 
     /// The point at distance `t`.

@@ -44,7 +44,7 @@ impl TriangleRay {
     /// Precomputes the transform for `ray` (which must be valid, see [`Ray::is_valid`]).
     #[inline]
     pub fn new(ray: &Ray) -> Self {
-        let a = ray.dir.abs();
+        let a = ray.dir().abs();
         let kz = if a.x >= a.y && a.x >= a.z {
             0
         } else if a.y >= a.z {
@@ -55,11 +55,11 @@ impl TriangleRay {
         let mut kx = (kz + 1) % 3;
         let mut ky = (kx + 1) % 3;
         // Keep the winding of the projected triangle independent of the ray's direction sign.
-        if ray.dir[kz] < 0.0 {
+        if ray.dir()[kz] < 0.0 {
             std::mem::swap(&mut kx, &mut ky);
         }
-        let dz = ray.dir[kz];
-        let (sx, sy, sz) = (ray.dir[kx] / dz, ray.dir[ky] / dz, 1.0 / dz);
+        let dz = ray.dir()[kz];
+        let (sx, sy, sz) = (ray.dir()[kx] / dz, ray.dir()[ky] / dz, 1.0 / dz);
         let mut row_x = Vec3::ZERO;
         row_x[kx] = 1.0;
         row_x[kz] = -sx;

@@ -41,11 +41,11 @@ impl GpuRay {
         let [row_x, row_y, row_z] = TriangleRay::new(ray).rows();
         let mut bits = 0;
         for k in 0..3 {
-            bits |= (ray.dir[k].is_sign_negative() as u32) << k;
-            bits |= ((ray.dir[k] == 0.0) as u32) << (3 + k);
+            bits |= (ray.dir()[k].is_sign_negative() as u32) << k;
+            bits |= ((ray.dir()[k] == 0.0) as u32) << (3 + k);
         }
         let inv = ray
-            .inv_dir
+            .inv_dir()
             .to_array()
             .map(|i| if i.is_finite() { i } else { 0.0 });
         GpuRay {
@@ -68,7 +68,7 @@ impl GpuRay {
     /// world-space shear rows it needs the world direction, sent in `row_x`.
     pub(crate) fn for_scene(ray: &Ray) -> Self {
         let mut r = Self::new(ray);
-        r.row_x = ray.dir.to_array();
+        r.row_x = ray.dir().to_array();
         r
     }
 }
