@@ -1,11 +1,15 @@
-//! Geometric primitives: boxes, rays, the watertight triangle test and Morton codes.
+//! Geometric primitives: boxes, rays, the watertight triangle test, exact orientation predicates and Morton
+//! codes.
 
 mod aabb;
 mod morton;
+mod predicates;
 mod ray;
 mod triangle;
 
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
 pub use morton::{morton30, morton63};
+pub use predicates::orient3d;
+pub(crate) use predicates::{Plane, normal_est, orient2d_est};
 pub use ray::{ROBUST_TMAX_SCALE, Ray};
 pub use triangle::{TriangleHit, TriangleRay};
