@@ -51,6 +51,7 @@ pub mod geometry;
 pub mod gpu;
 mod mesh;
 mod parallel;
+pub mod queries;
 pub mod scenes;
 
 pub use bvh::{Hit, MeshBvh};

@@ -1,0 +1,212 @@
+//! The query shapes (sphere, capsule, oriented box) and their exact-in-`f64` distance and overlap tests
+//! against one triangle.
+
+use super::closest::closest_on_triangle;
+use crate::geometry::Aabb;
+use glam::{DMat3, DVec3, Quat, Vec3};
+
+/// A shape for overlap queries and casts, in the mesh's (or the world's) frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    /// A ball: all points within `radius` of `center`.
+    Sphere {
+        /// Centre.
+        center: Vec3,
+        /// Radius (0 is a point).
+        radius: f32,
+    },
+    /// All points within `radius` of the segment from `a` to `b`.
+    Capsule {
+        /// One end of the core segment.
+        a: Vec3,
+        /// The other end.
+        b: Vec3,
+        /// Radius.
+        radius: f32,
+    },
+    /// A box of half-extents `half` around `center`, turned by `rotation`.
+    Box {
+        /// Centre.
+        center: Vec3,
+        /// Half-extents along the box's own axes (each ≥ 0).
+        half: Vec3,
+        /// Orientation of the box's axes.
+        rotation: Quat,
+    },
+}
+
+impl Shape {
+    /// A sphere.
+    pub fn sphere(center: Vec3, radius: f32) -> Shape {
+        Shape::Sphere { center, radius }
+    }
+
+    /// A capsule around the segment `a`–`b`.
+    pub fn capsule(a: Vec3, b: Vec3, radius: f32) -> Shape {
+        Shape::Capsule { a, b, radius }
+    }
+
+    /// An oriented box.
+    pub fn cuboid(center: Vec3, half: Vec3, rotation: Quat) -> Shape {
+        Shape::Box {
+            center,
+            half,
+            rotation,
+        }
+    }
+
+    /// False for shapes no query can answer: non-finite values, negative radii or extents, a rotation that
+    /// is not (close to) a unit quaternion.
+    pub fn is_valid(&self) -> bool {
+        match *self {
+            Shape::Sphere { center, radius } => {
+                center.is_finite() && radius >= 0.0 && radius.is_finite()
+            }
+            Shape::Capsule { a, b, radius } => {
+                a.is_finite() && b.is_finite() && radius >= 0.0 && radius.is_finite()
+            }
+            Shape::Box {
+                center,
+                half,
+                rotation,
+            } => {
+                center.is_finite()
+                    && half.is_finite()
+                    && half.min_element() >= 0.0
+                    && rotation.is_finite()
+                    && rotation.is_normalized()
+            }
+        }
+    }
+
+    /// An axis-aligned box holding the shape, widened by a few ulp so that it is conservative.
+    pub fn bounds(&self) -> Aabb {
+        let b = match *self {
+            Shape::Sphere { center, radius } => Aabb::new(center - radius, center + radius),
+            Shape::Capsule { a, b, radius } => Aabb::new(a.min(b) - radius, a.max(b) + radius),
+            Shape::Box {
+                center,
+                half,
+                rotation,
+            } => {
+                let m = glam::Mat3::from_quat(rotation);
+                let ext =
+                    m.x_axis.abs() * half.x + m.y_axis.abs() * half.y + m.z_axis.abs() * half.z;
+                Aabb::new(center - ext, center + ext)
+            }
+        };
+        widen(b)
+    }
+
+    /// Whether the closed shape and the closed triangle share a point, decided in `f64`.
+    pub(crate) fn overlaps_triangle(&self, t: [DVec3; 3]) -> bool {
+        match *self {
+            Shape::Sphere { center, radius } => {
+                let r = f64::from(radius);
+                closest_on_triangle(center.as_dvec3(), t).dist2 <= r * r
+            }
+            Shape::Capsule { a, b, radius } => {
+                let r = f64::from(radius);
+                segment_triangle_dist2(a.as_dvec3(), b.as_dvec3(), t) <= r * r
+            }
+            Shape::Box {
+                center,
+                half,
+                rotation,
+            } => box_overlaps_triangle(center.as_dvec3(), half.as_dvec3(), rotation, t),
+        }
+    }
+}
+
+/// Widens a box by 4 ulp of its largest magnitude on each side, covering the `f32` rounding of its corners.
+fn widen(b: Aabb) -> Aabb {
+    let m = b.min.abs().max(b.max.abs()).max_element();
+    let pad = m * 4.0 * f32::EPSILON;
+    Aabb::new(b.min - pad, b.max + pad)
+}
+
+/// The closest points of segments `p0 p1` and `q0 q1` (Ericson §5.1.9), as parameters `(s, t)` in `[0, 1]`.
+pub(crate) fn segment_segment(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> (f64, f64) {
+    let (d1, d2, r) = (p1 - p0, q1 - q0, p0 - q0);
+    let (a, e, f) = (d1.length_squared(), d2.length_squared(), d2.dot(r));
+    if a == 0.0 && e == 0.0 {
+        return (0.0, 0.0);
+    }
+    if a == 0.0 {
+        return (0.0, (f / e).clamp(0.0, 1.0));
+    }
+    let c = d1.dot(r);
+    if e == 0.0 {
+        return ((-c / a).clamp(0.0, 1.0), 0.0);
+    }
+    let b = d1.dot(d2);
+    let denom = a * e - b * b;
+    let mut s = if denom > 0.0 {
+        ((b * f - c * e) / denom).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let mut t = (b * s + f) / e;
+    if t < 0.0 {
+        t = 0.0;
+        s = (-c / a).clamp(0.0, 1.0);
+    } else if t > 1.0 {
+        t = 1.0;
+        s = ((b - c) / a).clamp(0.0, 1.0);
+    }
+    (s, t)
+}
+
+/// Squared distance between segment `p0 p1` and triangle `t`. The minimum is attained at an end of the
+/// segment, between the segment and an edge, or where the segment pierces the plane; each candidate is a
+/// true distance between points of the two, so the least is the answer.
+pub(crate) fn segment_triangle_dist2(p0: DVec3, p1: DVec3, t: [DVec3; 3]) -> f64 {
+    let mut best = closest_on_triangle(p0, t)
+        .dist2
+        .min(closest_on_triangle(p1, t).dist2);
+    for e in 0..3 {
+        let (q0, q1) = (t[e], t[(e + 1) % 3]);
+        let (s, u) = segment_segment(p0, p1, q0, q1);
+        best = best.min((p0.lerp(p1, s) - q0.lerp(q1, u)).length_squared());
+    }
+    let n = (t[1] - t[0]).cross(t[2] - t[0]);
+    let (s0, s1) = (n.dot(p0 - t[0]), n.dot(p1 - t[0]));
+    if (s0 <= 0.0 && s1 >= 0.0) || (s0 >= 0.0 && s1 <= 0.0) {
+        let k = if s0 == s1 { 0.0 } else { s0 / (s0 - s1) };
+        best = best.min(closest_on_triangle(p0.lerp(p1, k), t).dist2);
+    }
+    best
+}
+
+/// Separating-axis test of a closed oriented box and a closed triangle (Akenine-Möller 2001): the box's three
+/// axes, the triangle's normal and the nine cross products of the two sets of directions. Axes that vanish
+/// (parallel edges, zero-area triangle) separate nothing and are skipped.
+fn box_overlaps_triangle(center: DVec3, half: DVec3, rotation: Quat, t: [DVec3; 3]) -> bool {
+    let m = DMat3::from_quat(rotation.as_dquat());
+    let to_local = |p: DVec3| m.transpose() * (p - center);
+    let v = t.map(to_local);
+    let edges = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    let separated = |axis: DVec3| {
+        if axis == DVec3::ZERO {
+            return false;
+        }
+        let p = v.map(|x| x.dot(axis));
+        let r = half.dot(axis.abs());
+        let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+        lo > r || hi < -r
+    };
+    if [DVec3::X, DVec3::Y, DVec3::Z].into_iter().any(separated) {
+        return false;
+    }
+    if separated(edges[0].cross(edges[1])) {
+        return false;
+    }
+    for axis in [DVec3::X, DVec3::Y, DVec3::Z] {
+        for e in edges {
+            if separated(axis.cross(e)) {
+                return false;
+            }
+        }
+    }
+    true
+}

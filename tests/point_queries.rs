@@ -1,0 +1,853 @@
+//! Closest points, containment and shape overlaps against oracles that share no code with the crate:
+//!
+//! - closest points: a brute force over all triangles that projects onto the plane, solves for barycentrics
+//!   and otherwise takes the nearest of the three edges (not the crate's Voronoi-region walk), and parry3d's
+//!   `TriMesh::project_point`;
+//! - containment: the analytic answer for an axis-aligned box mesh on a grid of points lying exactly on its
+//!   faces, edges and corners, and a majority of three random-direction ray-parity counts (f64
+//!   Möller–Trumbore) for a closed, deformed mesh;
+//! - overlaps: the brute-force distance for spheres, parry3d's `intersection_test` for capsules and boxes,
+//!   away from the touching boundary where a tolerance-based test may decide either way.
+
+mod common;
+
+use common::{icosphere, map_mesh, rand_vec, rng, soup};
+use glam::{DVec3, Quat, Vec3};
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::queries::{Feature, Shape};
+use kinetrace::{Mesh, MeshBvh};
+use rand::Rng;
+
+// ---------------------------------------------------------------------------------------------------
+// Oracles
+// ---------------------------------------------------------------------------------------------------
+
+fn d(v: Vec3) -> DVec3 {
+    v.as_dvec3()
+}
+
+/// Whether the crate's rule makes this triangle absent (exactly zero `f32` cross product).
+fn absent(t: [Vec3; 3]) -> bool {
+    (t[1] - t[0]).cross(t[2] - t[0]) == Vec3::ZERO
+}
+
+/// Distance from `p` to segment `a b`, f64.
+fn point_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let l = ab.length_squared();
+    let k = if l > 0.0 {
+        ((p - a).dot(ab) / l).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    (p - (a + ab * k)).length()
+}
+
+/// Distance from `p` to the closed triangle: the plane distance when the projection falls inside (solved by
+/// Cramer's rule on the Gram matrix), else the nearest edge.
+fn point_triangle(p: DVec3, t: [DVec3; 3]) -> f64 {
+    point_triangle_bounded(p, t).0
+}
+
+/// [`point_triangle`] with a bound on its rounding error: the Gram solve loses `κ = g11·g22 / det` ulp of
+/// the coordinates' magnitude (large for needles), the edge distances a few.
+fn point_triangle_bounded(p: DVec3, [a, b, c]: [DVec3; 3]) -> (f64, f64) {
+    let mag = [a, b, c, p]
+        .iter()
+        .map(|v| v.abs().max_element())
+        .fold(0.0, f64::max);
+    let (e1, e2, w) = (b - a, c - a, p - a);
+    let (g11, g12, g22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let det = g11 * g22 - g12 * g12;
+    if det > 0.0 {
+        let (r1, r2) = (w.dot(e1), w.dot(e2));
+        let u = (r1 * g22 - r2 * g12) / det;
+        let v = (g11 * r2 - g12 * r1) / det;
+        let kappa = g11 * g22 / det;
+        if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
+            return (
+                (w - e1 * u - e2 * v).length(),
+                mag * f64::EPSILON * 8.0 * kappa,
+            );
+        }
+    }
+    let edges = point_segment(p, a, b)
+        .min(point_segment(p, b, c))
+        .min(point_segment(p, c, a));
+    (edges, mag * f64::EPSILON * 8.0)
+}
+
+/// The distance from `p` to the mesh's present triangles.
+fn brute_distance(m: &Mesh, p: Vec3) -> Option<f64> {
+    brute_distance_bounded(m, p).map(|(dist, _)| dist)
+}
+
+/// The distance from `p` to the mesh's present triangles, with a bound on its error: the largest bound of
+/// the triangles that could be the nearest given their own bounds.
+fn brute_distance_bounded(m: &Mesh, p: Vec3) -> Option<(f64, f64)> {
+    let all: Vec<(f64, f64)> = (0..m.triangle_count())
+        .map(|i| m.triangle(i))
+        .filter(|t| !absent(*t))
+        .map(|t| point_triangle_bounded(d(p), t.map(d)))
+        .collect();
+    let best = all.iter().map(|&(x, e)| x + e).min_by(f64::total_cmp)?;
+    let dist = all.iter().map(|&(x, _)| x).min_by(f64::total_cmp)?;
+    let err = all
+        .iter()
+        .filter(|&&(x, e)| x - e <= best)
+        .map(|&(_, e)| e)
+        .fold(0.0, f64::max);
+    Some((dist, err))
+}
+
+/// f64 Möller–Trumbore, both faces; `Some(t)` for a crossing at `t > 0`.
+fn mt(o: DVec3, dir: DVec3, [a, b, c]: [DVec3; 3]) -> Option<f64> {
+    let (e1, e2) = (b - a, c - a);
+    let pv = dir.cross(e2);
+    let det = e1.dot(pv);
+    if det == 0.0 {
+        return None;
+    }
+    let tv = o - a;
+    let u = tv.dot(pv) / det;
+    let qv = tv.cross(e1);
+    let v = dir.dot(qv) / det;
+    let t = e2.dot(qv) / det;
+    (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0).then_some(t)
+}
+
+/// Inside by the parity of crossings along three random directions, majority vote.
+fn parity_inside(m: &Mesh, p: Vec3, dirs: &[DVec3; 3]) -> bool {
+    let votes = dirs
+        .iter()
+        .filter(|&&dir| {
+            (0..m.triangle_count())
+                .filter(|&i| mt(d(p), dir, m.triangle(i).map(d)).is_some())
+                .count()
+                % 2
+                == 1
+        })
+        .count();
+    votes >= 2
+}
+
+fn parry_mesh(m: &Mesh) -> parry3d::shape::TriMesh {
+    use parry3d::math::Vector;
+    let v = m
+        .positions()
+        .iter()
+        .map(|p| Vector::new(p.x, p.y, p.z))
+        .collect();
+    let idx = (0..m.triangle_count())
+        .filter(|&i| !absent(m.triangle(i)))
+        .map(|i| {
+            [
+                m.indices()[3 * i],
+                m.indices()[3 * i + 1],
+                m.indices()[3 * i + 2],
+            ]
+        })
+        .collect();
+    parry3d::shape::TriMesh::new(v, idx).expect("a valid parry mesh")
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Scenes
+// ---------------------------------------------------------------------------------------------------
+
+/// Random triangles with needles (one corner pulled within 1e-4 of another edge) and exactly degenerate
+/// ones (repeated and collinear corners) mixed in.
+fn needles_and_degenerates(seed: u64, n: usize) -> Mesh {
+    let mut r = rng(seed);
+    let mut pos = Vec::new();
+    for i in 0..n {
+        let a = rand_vec(&mut r, -1.0, 1.0);
+        let b = a + rand_vec(&mut r, -0.3, 0.3);
+        let c = match i % 4 {
+            0 => a.lerp(b, r.random_range(0.0..1.0)) + rand_vec(&mut r, -1e-4, 1e-4),
+            1 => a,
+            2 => a + (b - a) * 2.0,
+            _ => a + rand_vec(&mut r, -0.3, 0.3),
+        };
+        pos.extend([a, b, c]);
+    }
+    Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
+}
+
+fn scenes() -> Vec<(&'static str, Mesh)> {
+    vec![
+        ("soup", soup(3, 400)),
+        ("icosphere", icosphere(3)),
+        ("torus", kinetrace::scenes::bumpy_torus(3000)),
+        ("needles", needles_and_degenerates(5, 300)),
+        (
+            "offset 1e5",
+            map_mesh(&icosphere(2), |p| p + Vec3::splat(1e5)),
+        ),
+        ("tiny 1e-4", map_mesh(&soup(7, 200), |p| p * 1e-4)),
+        ("huge 1e4", map_mesh(&icosphere(2), |p| p * 1e4)),
+    ]
+}
+
+/// Query points around a mesh: uniform in its box grown by half its size, plus points on its vertices and
+/// edge midpoints.
+fn points(m: &Mesh, seed: u64, n: usize) -> Vec<Vec3> {
+    let b = m
+        .positions()
+        .iter()
+        .fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &p| {
+            (lo.min(p), hi.max(p))
+        });
+    let (c, h) = ((b.0 + b.1) * 0.5, (b.1 - b.0) * 0.75 + Vec3::splat(1e-6));
+    let mut r = rng(seed);
+    let mut out: Vec<Vec3> = (0..n)
+        .map(|_| {
+            c + h * Vec3::new(
+                r.random_range(-1.0..1.0),
+                r.random_range(-1.0..1.0),
+                r.random_range(-1.0..1.0),
+            )
+        })
+        .collect();
+    out.extend(m.positions().iter().take(50));
+    out.extend((0..m.triangle_count().min(50)).map(|i| {
+        let t = m.triangle(i);
+        (t[0] + t[1]) * 0.5
+    }));
+    out
+}
+
+fn scale(m: &Mesh) -> f64 {
+    m.positions()
+        .iter()
+        .map(|p| p.abs().max_element())
+        .fold(0.0f32, f32::max) as f64
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Closest points
+// ---------------------------------------------------------------------------------------------------
+
+/// Checks one answer against the brute force: same distance up to the f32 rounding of the reported value
+/// (half an ulp of the distance), the crate's f64 rounding (a few hundred ulp of the coordinates' magnitude
+/// at most) and the oracle's own bound (see [`point_triangle_bounded`]); the point lies on the named triangle at the reported barycentrics, at the
+/// reported distance; the feature agrees with the barycentrics.
+fn check_closest(m: &Mesh, bvh: &MeshBvh, p: Vec3, what: &str) {
+    let got = bvh.closest_point(p, f32::INFINITY);
+    let want = brute_distance_bounded(m, p);
+    let (Some(h), Some((w, oracle_err))) = (got, want) else {
+        assert_eq!(got.is_some(), want.is_some(), "{what}: {p:?}");
+        return;
+    };
+    let coord = scale(m).max(d(p).abs().max_element());
+    let tol = w * f32::EPSILON as f64 + coord * 1e-13 + oracle_err;
+    assert!(
+        (h.distance as f64 - w).abs() <= tol,
+        "{what}: {p:?} got {} want {w}",
+        h.distance
+    );
+    let t = m.triangle(h.primitive as usize).map(d);
+    assert!(
+        !absent(m.triangle(h.primitive as usize)),
+        "{what}: absent triangle reported"
+    );
+    let on = t[0] + (t[1] - t[0]) * h.u as f64 + (t[2] - t[0]) * h.v as f64;
+    // The point is rounded to f32 (half an ulp per coordinate) and the barycentrics too.
+    let pt_tol = coord * 4.0 * f32::EPSILON as f64;
+    assert!(
+        (on - d(h.point)).length() <= pt_tol * 4.0,
+        "{what}: barycentrics {on:?} vs {:?}",
+        h.point
+    );
+    assert!(
+        point_triangle(d(h.point), t) <= pt_tol,
+        "{what}: point not on its triangle"
+    );
+    assert!(
+        ((d(h.point) - d(p)).length() - h.distance as f64).abs() <= pt_tol + tol,
+        "{what}"
+    );
+    let (u, v) = (h.u, h.v);
+    match h.feature {
+        // Barycentrics are rounded to f32: a face point next to an edge may round onto it.
+        Feature::Face => assert!(
+            u >= 0.0 && v >= 0.0 && u + v <= 1.0 + 1e-6,
+            "{what}: face at ({u}, {v})"
+        ),
+        Feature::Edge(0) => assert!(
+            v == 0.0 && u > 0.0 && u < 1.0,
+            "{what}: edge 0 at ({u}, {v})"
+        ),
+        Feature::Edge(1) => assert!(
+            (u + v - 1.0).abs() < 1e-6 && u > 0.0 && v > 0.0,
+            "{what}: edge 1"
+        ),
+        Feature::Edge(2) => assert!(
+            u == 0.0 && v > 0.0 && v < 1.0,
+            "{what}: edge 2 at ({u}, {v})"
+        ),
+        Feature::Vertex(k) => assert_eq!(
+            [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k as usize],
+            (u, v),
+            "{what}"
+        ),
+        Feature::Edge(_) => panic!("{what}: no such edge"),
+    }
+}
+
+#[test]
+fn closest_points_equal_brute_force() {
+    for (name, m) in scenes() {
+        for builder in [Builder::SAH, Builder::LBVH] {
+            let bvh = MeshBvh::build(&m, &BuildOptions::new(builder)).unwrap();
+            for p in points(&m, 11, 300) {
+                check_closest(&m, &bvh, p, &format!("{name} {}", builder.name()));
+            }
+        }
+    }
+}
+
+#[test]
+fn closest_points_follow_refits() {
+    let rest = kinetrace::scenes::bumpy_torus(4000);
+    let mut bvh = MeshBvh::build(&rest, &BuildOptions::new(Builder::LBVH)).unwrap();
+    for frame in 1..=4 {
+        let s = frame as f32 * 0.4;
+        let bent = map_mesh(&rest, |p| {
+            p + Vec3::new(0.0, (p.x * 3.0 + s).sin() * 0.3 * s, p.y * p.x * s)
+        });
+        bvh.refit(bent.positions()).unwrap();
+        for p in points(&bent, frame, 300) {
+            check_closest(&bent, &bvh, p, &format!("frame {frame}"));
+        }
+    }
+}
+
+#[test]
+fn max_distance_limits_the_answer() {
+    let m = soup(21, 300);
+    let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+    let mut r = rng(4);
+    for p in points(&m, 9, 400) {
+        let want = brute_distance(&m, p).unwrap();
+        let limit = (want * r.random_range(0.5..1.5)) as f32;
+        if (limit as f64 - want).abs() <= want * 1e-6 {
+            continue; // at the limit itself the f32 rounding of `limit` decides
+        }
+        assert_eq!(
+            bvh.closest_point(p, limit).is_some(),
+            want <= limit as f64,
+            "{p:?} {limit} {want}"
+        );
+    }
+    assert!(bvh.closest_point(Vec3::NAN, 1.0).is_none());
+    assert!(bvh.closest_point(Vec3::ZERO, -1.0).is_none());
+    assert!(bvh.closest_point(Vec3::ZERO, f32::NAN).is_none());
+    let empty = MeshBvh::build(
+        &Mesh::new(Vec::<Vec3>::new(), Vec::<u32>::new()).unwrap(),
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    assert!(empty.closest_point(Vec3::ZERO, f32::INFINITY).is_none());
+}
+
+#[test]
+fn closest_points_agree_with_parry() {
+    use parry3d::math::{Pose, Vector};
+    use parry3d::query::PointQuery;
+    // parry projects in f32, which loses the needles (errors up to 2e-5) and the 1e5 offset; the brute force
+    // above checks those.
+    for (name, m) in scenes()
+        .into_iter()
+        .filter(|(n, _)| !n.starts_with("offset") && *n != "needles")
+    {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let pm = parry_mesh(&m);
+        for p in points(&m, 3, 200) {
+            let ours = bvh.closest_point(p, f32::INFINITY).unwrap();
+            let proj = pm.project_point(&Pose::IDENTITY, Vector::new(p.x, p.y, p.z), false);
+            let theirs = (Vec3::from_array(proj.point.to_array()) - p).length();
+            // parry works in f32 throughout: allow its rounding (a few ulp of the coordinates).
+            let tol = scale(&m).max(p.abs().max_element() as f64) * 1e-5;
+            assert!(
+                (ours.distance as f64 - theirs as f64).abs() <= tol,
+                "{name}: {p:?} ours {} parry {theirs}",
+                ours.distance
+            );
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Containment
+// ---------------------------------------------------------------------------------------------------
+
+/// The surface of the box `[0, n]³` split into unit squares (two triangles each), outward-facing, integer
+/// corners.
+fn grid_box(n: i32) -> Mesh {
+    let mut pos = Vec::new();
+    let mut idx = Vec::new();
+    for axis in 0..3 {
+        for (side, flip) in [(0, true), (n, false)] {
+            for i in 0..n {
+                for j in 0..n {
+                    let corner = |a: i32, b: i32| {
+                        let mut q = [0.0f32; 3];
+                        q[axis] = side as f32;
+                        q[(axis + 1) % 3] = a as f32;
+                        q[(axis + 2) % 3] = b as f32;
+                        Vec3::from_array(q)
+                    };
+                    let base = pos.len() as u32;
+                    pos.extend([
+                        corner(i, j),
+                        corner(i + 1, j),
+                        corner(i + 1, j + 1),
+                        corner(i, j + 1),
+                    ]);
+                    let quad = if flip {
+                        [0, 2, 1, 0, 3, 2]
+                    } else {
+                        [0, 1, 2, 0, 2, 3]
+                    };
+                    idx.extend(quad.map(|k| base + k));
+                }
+            }
+        }
+    }
+    Mesh::new(pos, idx).unwrap()
+}
+
+#[test]
+fn containment_is_exact_on_faces_edges_and_corners() {
+    let n = 3;
+    for (what, m) in [
+        ("outward", grid_box(n)),
+        ("inward", {
+            let b = grid_box(n);
+            let idx: Vec<u32> = b
+                .indices()
+                .chunks(3)
+                .flat_map(|t| [t[0], t[2], t[1]])
+                .collect();
+            Mesh::new(b.positions().to_vec(), idx).unwrap()
+        }),
+    ] {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        // Every coordinate on a half-integer grid: rays along +x run exactly through shared edges and
+        // corners of the surface's triangles, and many points lie on the surface itself.
+        let steps: Vec<f32> = (-2..=2 * n + 2).map(|k| k as f32 * 0.5).collect();
+        let mut checked = 0;
+        for &x in &steps {
+            for &y in &steps {
+                for &z in &steps {
+                    let p = Vec3::new(x, y, z);
+                    let want = p.min_element() >= 0.0 && p.max_element() <= n as f32;
+                    assert_eq!(bvh.contains_point(p), want, "{what}: {p:?}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 1000);
+    }
+}
+
+#[test]
+fn containment_equals_ray_parity_on_a_closed_deformed_mesh() {
+    // A closed sphere, twisted and squashed like a bending limb, then refitted.
+    let rest = icosphere(3);
+    let mut bvh = MeshBvh::build(&rest, &BuildOptions::new(Builder::LBVH)).unwrap();
+    let bent = map_mesh(&rest, |p| {
+        let a = p.y * 1.5;
+        Vec3::new(
+            p.x * a.cos() - p.z * a.sin(),
+            p.y * 1.8,
+            (p.x * a.sin() + p.z * a.cos()) * 0.6,
+        ) + Vec3::X * p.y * p.y
+    });
+    bvh.refit(bent.positions()).unwrap();
+    let mut r = rng(77);
+    let dirs = [0, 1, 2].map(|_| common::rand_dir(&mut r).as_dvec3());
+    let mut inside = 0;
+    let count = 20_000;
+    // Random points only: a point on the surface is inside by the documented rule, where parity is moot.
+    for p in points(&bent, 5, count).into_iter().take(count) {
+        let want = parity_inside(&bent, p, &dirs);
+        assert_eq!(bvh.contains_point(p), want, "{p:?}");
+        inside += want as usize;
+    }
+    assert!(
+        inside > count / 10,
+        "the sample should have points on both sides ({inside})"
+    );
+    assert!(!bvh.contains_point(Vec3::NAN));
+    // Every vertex lies on the surface, exactly.
+    for &v in bent.positions() {
+        assert!(bvh.contains_point(v), "vertex {v:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Overlaps
+// ---------------------------------------------------------------------------------------------------
+
+#[test]
+fn sphere_overlaps_equal_brute_force() {
+    for (name, m) in scenes() {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let s = scale(&m);
+        let mut r = rng(8);
+        let mut out = Vec::new();
+        for p in points(&m, 2, 150) {
+            let radius = (s * r.random_range(0.01..0.5)) as f32;
+            bvh.overlapping(&Shape::sphere(p, radius), &mut out);
+            let want: Vec<u32> = (0..m.triangle_count() as u32)
+                .filter(|&i| {
+                    let t = m.triangle(i as usize);
+                    !absent(t) && point_triangle(d(p), t.map(d)) <= radius as f64
+                })
+                .collect();
+            // Triangles within rounding of the sphere's surface may go either way.
+            let near = |i: &u32| {
+                let dist = point_triangle(d(p), m.triangle(*i as usize).map(d));
+                (dist - radius as f64).abs() <= s * 1e-12
+            };
+            let strip = |v: &[u32]| v.iter().copied().filter(|i| !near(i)).collect::<Vec<_>>();
+            assert_eq!(strip(&out), strip(&want), "{name}: sphere {p:?} r {radius}");
+        }
+    }
+}
+
+/// parry's answer for a shape against one triangle, from its `distance` (accurate to f32 rounding, unlike its
+/// tolerance-based `intersection_test`), or `None` within a relative 1e-4 of the shape's surface, where f32
+/// rounding may decide either way.
+fn parry_overlap(shape: &Shape, t: [Vec3; 3]) -> Option<bool> {
+    use parry3d::math::{Pose, Vector};
+    use parry3d::query::distance;
+    use parry3d::shape::{Cuboid, Segment, Triangle};
+    let v = |p: Vec3| Vector::new(p.x, p.y, p.z);
+    let tri = Triangle::new(v(t[0]), v(t[1]), v(t[2]));
+    match *shape {
+        Shape::Capsule { a, b, radius } => {
+            let dist = distance(
+                &Pose::IDENTITY,
+                &Segment::new(v(a), v(b)),
+                &Pose::IDENTITY,
+                &tri,
+            )
+            .unwrap()
+            .distance;
+            ((dist - radius).abs() > radius * 1e-4).then_some(dist < radius)
+        }
+        Shape::Box {
+            center,
+            half,
+            rotation,
+        } => {
+            let pose = Pose::from_parts(
+                v(center),
+                parry3d::glamx::Quat::from_array(rotation.to_array()),
+            );
+            let dist = |grow: f32| {
+                distance(&pose, &Cuboid::new(v(half * grow)), &Pose::IDENTITY, &tri)
+                    .unwrap()
+                    .distance
+            };
+            let (shrunk, grown) = (dist(1.0 - 1e-4), dist(1.0 + 1e-4));
+            (shrunk == 0.0 || grown > 0.0).then_some(shrunk == 0.0)
+        }
+        Shape::Sphere { .. } => unreachable!("spheres are checked by brute force"),
+    }
+}
+
+#[test]
+fn capsule_and_box_overlaps_agree_with_parry() {
+    for (name, m) in scenes()
+        .into_iter()
+        .filter(|(n, _)| !n.starts_with("offset") && !n.starts_with("tiny"))
+    {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let s = scale(&m) as f32;
+        let mut r = rng(31);
+        let mut out = Vec::new();
+        let mut decided = 0;
+        for (k, p) in points(&m, 4, 120).into_iter().enumerate() {
+            let size = s * r.random_range(0.02..0.4);
+            let shape = if k % 2 == 0 {
+                Shape::capsule(p, p + common::rand_dir(&mut r) * size * 2.0, size * 0.3)
+            } else {
+                let q = Quat::from_axis_angle(common::rand_dir(&mut r), r.random_range(0.0..6.0));
+                Shape::cuboid(p, Vec3::new(size, size * 0.5, size * 0.2), q)
+            };
+            bvh.overlapping(&shape, &mut out);
+            for i in 0..m.triangle_count() as u32 {
+                let t = m.triangle(i as usize);
+                if absent(t) {
+                    assert!(!out.contains(&i), "{name}: absent triangle {i} reported");
+                    continue;
+                }
+                if let Some(want) = parry_overlap(&shape, t) {
+                    assert_eq!(
+                        out.binary_search(&i).is_ok(),
+                        want,
+                        "{name}: {shape:?} triangle {i}"
+                    );
+                    decided += 1;
+                }
+            }
+        }
+        assert!(decided > 1000, "{name}: {decided}");
+    }
+}
+
+#[test]
+fn invalid_shapes_overlap_nothing() {
+    let bvh = MeshBvh::build(&icosphere(1), &BuildOptions::default()).unwrap();
+    let mut out = vec![7];
+    for shape in [
+        Shape::sphere(Vec3::NAN, 1.0),
+        Shape::sphere(Vec3::ZERO, -1.0),
+        Shape::capsule(Vec3::ZERO, Vec3::INFINITY, 1.0),
+        Shape::cuboid(Vec3::ZERO, Vec3::new(1.0, -1.0, 1.0), Quat::IDENTITY),
+        Shape::cuboid(Vec3::ZERO, Vec3::ONE, Quat::from_xyzw(0.0, 0.0, 0.0, 2.0)),
+    ] {
+        bvh.overlapping(&shape, &mut out);
+        assert!(out.is_empty(), "{shape:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Sphere casts
+// ---------------------------------------------------------------------------------------------------
+
+/// The brute-force gap `distance(centre at t) - r` over the mesh's present triangles.
+fn gap(m: &Mesh, c: Vec3, dir: Vec3, r: f32, t: f64) -> f64 {
+    let p = d(c) + d(dir) * t;
+    (0..m.triangle_count())
+        .map(|i| m.triangle(i))
+        .filter(|t| !absent(*t))
+        .map(|t| point_triangle(p, t.map(d)))
+        .fold(f64::INFINITY, f64::min)
+        - r as f64
+}
+
+/// Checks a sphere cast against the brute-force gap: at the reported time the sphere touches (the gap is
+/// zero up to the f32 rounding of `t` and of the coordinates, or negative at `t = 0` for a start in
+/// contact), and on the way there — or all the way to `max_t` for a miss — it never sinks deeper than `δ`
+/// into the mesh. The way is walked by conservative advancement: the gap shrinks by at most `|dir|` per unit
+/// of `t`, so steps of `max(gap, δ) / |dir|` cannot step over a penetration deeper than `δ`.
+fn check_cast(m: &Mesh, bvh: &MeshBvh, c: Vec3, dir: Vec3, r: f32, max_t: f32, what: &str) {
+    let ours = bvh.cast_sphere(c, dir, r, max_t);
+    let s = scale(m).max(d(c).abs().max_element()) + r as f64;
+    let delta = s * 1e-6;
+    let speed = d(dir).length();
+    let end = ours.map_or(max_t as f64, |h| h.t as f64);
+    if let Some(h) = ours {
+        let g = gap(m, c, dir, r, h.t as f64);
+        let tol = 8.0 * f32::EPSILON as f64 * (s + h.t as f64 * speed);
+        if h.t == 0.0 {
+            assert!(g <= tol, "{what}: start contact claimed with gap {g}");
+        } else {
+            assert!(
+                g.abs() <= tol,
+                "{what}: gap {g} at reported t {} (tol {tol})",
+                h.t
+            );
+        }
+        // The contact point is on the named triangle, at distance r from the centre.
+        let tri = m.triangle(h.primitive as usize).map(d);
+        assert!(
+            point_triangle(d(h.point), tri) <= tol,
+            "{what}: contact off its triangle"
+        );
+        let centre = d(c) + d(dir) * h.t as f64;
+        if h.t > 0.0 {
+            assert!(
+                ((centre - d(h.point)).length() - r as f64).abs() <= tol,
+                "{what}: contact not at radius"
+            );
+        }
+        assert!(
+            (h.normal.length() - 1.0).abs() < 1e-5,
+            "{what}: normal {:?}",
+            h.normal
+        );
+    }
+    let mut t = 0.0;
+    let mut steps = 0;
+    while t < end - delta / speed {
+        let g = gap(m, c, dir, r, t);
+        assert!(
+            g > -delta,
+            "{what}: penetrates by {} at t = {t} before the reported {end}",
+            -g
+        );
+        t += g.max(delta) / speed;
+        steps += 1;
+        assert!(steps < 100_000, "{what}: the walk did not end");
+    }
+}
+
+#[test]
+fn sphere_casts_equal_brute_force() {
+    for (name, m) in scenes() {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let s = scale(&m) as f32;
+        let mut r = rng(12);
+        for (k, p) in points(&m, 6, 60).into_iter().enumerate() {
+            let radius = match k % 4 {
+                0 => s * 1e-4,
+                1 => s * 0.05,
+                2 => s * 0.3,
+                _ => 0.0,
+            };
+            let target = m.positions()[r.random_range(0..m.positions().len())];
+            let dir = if k % 5 == 0 {
+                common::rand_dir(&mut r) * s
+            } else {
+                target - p
+            };
+            if dir == Vec3::ZERO {
+                continue;
+            }
+            check_cast(&m, &bvh, p, dir, radius, 2.0, &format!("{name} #{k}"));
+        }
+    }
+}
+
+#[test]
+fn sphere_casts_on_analytic_cases() {
+    // A floor of two triangles sharing the diagonal through the origin.
+    let floor = Mesh::new(
+        vec![
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+        ],
+        vec![0, 2, 1, 0, 3, 2],
+    )
+    .unwrap();
+    let bvh = MeshBvh::build(&floor, &BuildOptions::default()).unwrap();
+    // Dropped onto the shared edge: lands at the analytic time, on the face, normal up.
+    let h = bvh
+        .cast_sphere(Vec3::new(0.25, 2.0, 0.25), -Vec3::Y, 0.5, 10.0)
+        .unwrap();
+    assert_eq!(
+        (h.t, h.point, h.normal),
+        (1.5, Vec3::new(0.25, 0.0, 0.25), Vec3::Y)
+    );
+    // Starting in contact: t = 0, pushed out along +y.
+    let h = bvh
+        .cast_sphere(Vec3::new(0.5, 0.25, -0.5), Vec3::X, 0.5, 10.0)
+        .unwrap();
+    assert_eq!((h.t, h.normal), (0.0, Vec3::Y));
+    // Grazing: sliding along the floor at exactly the radius touches from the start.
+    let h = bvh.cast_sphere(Vec3::new(-3.0, 0.5, 0.0), Vec3::X, 0.5, 10.0);
+    assert_eq!(
+        h.map(|h| h.t),
+        Some(2.0),
+        "reaches the floor's edge, at x = -1, after 2 units"
+    );
+    // Parallel just above: a miss.
+    assert!(
+        bvh.cast_sphere(Vec3::new(-3.0, 0.5001, 0.0), Vec3::X, 0.5, 10.0)
+            .is_none()
+    );
+    // Hitting the rim edge from the side: the edge x = 1 at height 0, sphere centre at height 0.3.
+    let h = bvh
+        .cast_sphere(Vec3::new(3.0, 0.3, 0.0), -Vec3::X, 0.5, 10.0)
+        .unwrap();
+    let expect = 2.0 - (0.5f64 * 0.5 - 0.3 * 0.3).sqrt();
+    assert!(
+        (h.t as f64 - expect).abs() <= 4.0 * f32::EPSILON as f64 * 3.0,
+        "{} vs {expect}",
+        h.t
+    );
+    assert!(matches!(h.feature, Feature::Edge(_)), "{:?}", h.feature);
+    // Corner: straight down onto the corner (1, 0, 1) from the outside diagonal.
+    let h = bvh
+        .cast_sphere(Vec3::new(1.3, 1.0, 1.3), -Vec3::Y, 0.5, 10.0)
+        .unwrap();
+    let horiz = (0.3f64 * 0.3 * 2.0).sqrt();
+    let expect = 1.0 - (0.25 - horiz * horiz).sqrt();
+    assert!(
+        (h.t as f64 - expect).abs() <= 4.0 * f32::EPSILON as f64 * 2.0,
+        "{} vs {expect}",
+        h.t
+    );
+    assert!(matches!(h.feature, Feature::Vertex(_)));
+    // Bad input is no hit, not a panic.
+    assert!(bvh.cast_sphere(Vec3::NAN, Vec3::X, 1.0, 1.0).is_none());
+    assert!(bvh.cast_sphere(Vec3::ZERO, Vec3::X, -1.0, 1.0).is_none());
+    assert!(
+        bvh.cast_sphere(Vec3::new(0.0, 5.0, 0.0), Vec3::ZERO, 1.0, 1.0)
+            .is_none()
+    );
+}
+
+#[test]
+fn sphere_casts_agree_with_parry() {
+    use parry3d::math::{Pose, Vector};
+    use parry3d::query::{ShapeCastOptions, cast_shapes};
+    use parry3d::shape::Ball;
+    for (name, m) in scenes()
+        .into_iter()
+        .filter(|(n, _)| ["icosphere", "torus", "soup"].contains(n))
+    {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let pm = parry_mesh(&m);
+        let mut r = rng(5);
+        let (mut compared, mut disputed) = (0, 0);
+        for p in points(&m, 8, 100).into_iter().take(100) {
+            let dir = common::rand_dir(&mut r) * 2.0;
+            let radius = r.random_range(0.01..0.2);
+            let v = |x: Vec3| Vector::new(x.x, x.y, x.z);
+            let theirs = cast_shapes(
+                &Pose::from_translation(v(p)),
+                v(dir),
+                &Ball::new(radius),
+                &Pose::IDENTITY,
+                Vector::ZERO,
+                &pm,
+                ShapeCastOptions::with_max_time_of_impact(1.0),
+            )
+            .unwrap();
+            let ours = bvh.cast_sphere(p, dir, radius, 1.0);
+            if let Some(h) = ours.filter(|h| h.t == 0.0) {
+                // A start in contact is t = 0 here; parry ignores a penetration the ball moves out of.
+                assert!(gap(&m, p, dir, radius, 0.0) <= 1e-6, "{name}: {h:?}");
+                continue;
+            }
+            // parry stops its conservative advancement within about 1e-4 of the contact distance; where it
+            // differs by more, or only one side hits, the brute force adjudicates ours.
+            let agree = match (ours, theirs) {
+                (Some(a), Some(b)) => ((a.t - b.time_of_impact) * dir.length()).abs() <= 2e-4,
+                (None, None) => true,
+                _ => false,
+            };
+            if agree {
+                compared += 1;
+            } else {
+                check_cast(
+                    &m,
+                    &bvh,
+                    p,
+                    dir,
+                    radius,
+                    1.0,
+                    &format!("{name} vs parry {theirs:?}"),
+                );
+                disputed += 1;
+            }
+        }
+        eprintln!(
+            "{name}: {compared} casts agree with parry, {disputed} adjudicated by brute force"
+        );
+        assert!(
+            compared > 50 && disputed * 10 < compared,
+            "{name}: {compared} agree, {disputed} disputed"
+        );
+        assert!(compared > 20, "{name}: {compared}");
+    }
+}
