@@ -36,7 +36,7 @@ pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub(crate) use refit::refit_nodes;
 pub use traverse::TraversalStats;
-pub(crate) use traverse::traverse;
+pub(crate) use traverse::{traverse, traverse_by};
 
 use crate::geometry::Aabb;
 use crate::{Error, Result};

@@ -63,36 +63,58 @@ pub(crate) fn traverse<C: Counter>(
     nodes: &[Node],
     ray: &Ray,
     counter: &mut C,
-    mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
+    leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
 ) {
-    let mut tmax = ray.tmax;
+    traverse_by(
+        nodes,
+        ray.tmax,
+        counter,
+        |n, tmax| ray.intersect_aabb(&n.aabb(), tmax),
+        leaf,
+    );
+}
+
+/// Nearest-first traversal under any box test: the one loop behind ray, closest-point and sweep queries.
+///
+/// `enter(node, bound)` returns the node's key (an entry distance) when its box can still hold something
+/// within `bound`, else `None`. Children are visited in key order; a pushed sibling is skipped when it is
+/// popped if its key exceeds the bound by then. `leaf(slots, bound)` tests a leaf, may tighten `*bound`, and
+/// returns true to stop. The stack is [`MAX_DEPTH`] entries: builders never make deeper trees.
+#[inline]
+pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy + Default>(
+    nodes: &[Node],
+    mut bound: K,
+    counter: &mut C,
+    enter: impl Fn(&Node, K) -> Option<K>,
+    mut leaf: impl FnMut(Range<usize>, &mut K) -> bool,
+) {
     let Some(root) = nodes.first() else { return };
-    if ray.intersect_aabb(&root.aabb(), tmax).is_none() {
+    if enter(root, bound).is_none() {
         return;
     }
-    let mut stack = [(0u32, 0f32); MAX_DEPTH];
+    let mut stack = [(0u32, K::default()); MAX_DEPTH];
     let mut sp = 0usize;
     let mut cur = 0usize;
     loop {
         let n = &nodes[cur];
         if n.is_leaf() {
             counter.leaf(n.count());
-            if leaf(n.slots(), &mut tmax) {
+            if leaf(n.slots(), &mut bound) {
                 return;
             }
         } else {
             counter.inner();
             let c = n.left();
-            let a = ray.intersect_aabb(&nodes[c].aabb(), tmax);
-            let b = ray.intersect_aabb(&nodes[c + 1].aabb(), tmax);
+            let a = enter(&nodes[c], bound);
+            let b = enter(&nodes[c + 1], bound);
             match (a, b) {
-                (Some(ta), Some(tb)) => {
-                    let (near, far, tfar) = if ta <= tb {
-                        (c, c + 1, tb)
+                (Some(ka), Some(kb)) => {
+                    let (near, far, kfar) = if ka <= kb {
+                        (c, c + 1, kb)
                     } else {
-                        (c + 1, c, ta)
+                        (c + 1, c, ka)
                     };
-                    stack[sp] = (far as u32, tfar);
+                    stack[sp] = (far as u32, kfar);
                     sp += 1;
                     cur = near;
                     continue;
@@ -108,14 +130,14 @@ pub(crate) fn traverse<C: Counter>(
                 (None, None) => {}
             }
         }
-        // Pop the next subtree that can still hold something nearer than the best hit.
+        // Pop the next subtree that can still hold something within the bound.
         loop {
             if sp == 0 {
                 return;
             }
             sp -= 1;
             let (node, entry) = stack[sp];
-            if entry <= tmax {
+            if entry <= bound {
                 cur = node as usize;
                 break;
             }

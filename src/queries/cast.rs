@@ -1,8 +1,8 @@
 //! Sphere casts: the first time a sphere moving along a straight line touches a mesh.
 
-use super::closest::{Feature, closest_on_triangle, is_absent};
+use super::closest::{Feature, closest_on_triangle, present};
 use crate::MeshBvh;
-use crate::bvh::MAX_DEPTH;
+use crate::bvh::{Node, traverse_by};
 use crate::geometry::{Aabb, Ray};
 use glam::{DVec3, Vec3};
 
@@ -126,19 +126,15 @@ impl MeshBvh {
         {
             return None;
         }
-        let nodes = self.bvh().nodes();
-        let root = nodes.first()?;
         let (c, d, r) = (origin.as_dvec3(), dir.as_dvec3(), f64::from(radius));
         let ray = Ray::with_range(origin, dir, 0.0, max_t.max(0.0));
         let moving = ray.is_valid();
-        let grow = |n: &crate::bvh::Node| {
+        // Entry distance into a node's box grown by the radius (and 4 ulp of its magnitude, so that it holds
+        // the box's Minkowski sum with the sphere despite rounding); a box holding the start is entered at 0.
+        let enter = |n: &Node, tmax: f32| -> Option<f32> {
             let b = n.aabb();
             let pad = radius + b.min.abs().max(b.max.abs()).max_element() * 4.0 * f32::EPSILON;
-            Aabb::new(b.min - pad, b.max + pad)
-        };
-        // Entry distance into a grown box; a box holding the start is entered at 0.
-        let enter = |n: &crate::bvh::Node, tmax: f32| -> Option<f32> {
-            let b = grow(n);
+            let b = Aabb::new(b.min - pad, b.max + pad);
             if b.contains_point(origin) {
                 Some(0.0)
             } else if moving {
@@ -150,20 +146,13 @@ impl MeshBvh {
         let tris = self.slot_triangles();
         let prims = self.bvh().prim_indices();
         let mut best: Option<(f64, u32, usize)> = None;
-        let mut tmax = ray.tmax;
-        enter(root, tmax)?;
-        let mut stack = [(0u32, 0f32); MAX_DEPTH];
-        let mut sp = 0;
-        let mut cur = 0usize;
-        loop {
-            let n = &nodes[cur];
-            if n.is_leaf() {
-                for slot in n.slots() {
-                    let t = &tris[slot];
-                    if is_absent(t) {
-                        continue;
-                    }
-                    let tri = t.map(Vec3::as_dvec3);
+        traverse_by(
+            self.bvh().nodes(),
+            ray.tmax,
+            &mut (),
+            enter,
+            |slots, tmax| {
+                for (slot, tri) in present(tris, slots) {
                     let toi = if closest_on_triangle(c, tri).dist2 <= r * r {
                         Some(0.0)
                     } else if moving {
@@ -176,46 +165,13 @@ impl MeshBvh {
                     if best.is_none_or(|(bt, bp, _)| toi < bt || (toi == bt && prim < bp)) {
                         best = Some((toi, prim, slot));
                         // Boxes entered after the hit (by more than the box test's rounding) hold nothing earlier.
-                        tmax = (toi as f32) * (1.0 + 4.0 * f32::EPSILON) + f32::MIN_POSITIVE;
+                        *tmax = (toi as f32) * (1.0 + 4.0 * f32::EPSILON) + f32::MIN_POSITIVE;
                     }
                 }
-            } else {
-                let l = n.left();
-                match (enter(&nodes[l], tmax), enter(&nodes[l + 1], tmax)) {
-                    (Some(ta), Some(tb)) => {
-                        let (near, far, tf) = if ta <= tb {
-                            (l, l + 1, tb)
-                        } else {
-                            (l + 1, l, ta)
-                        };
-                        stack[sp] = (far as u32, tf);
-                        sp += 1;
-                        cur = near;
-                        continue;
-                    }
-                    (Some(_), None) => {
-                        cur = l;
-                        continue;
-                    }
-                    (None, Some(_)) => {
-                        cur = l + 1;
-                        continue;
-                    }
-                    (None, None) => {}
-                }
-            }
-            loop {
-                if sp == 0 {
-                    return best.map(|(t, prim, slot)| self.cast_hit(c, d, t, prim, slot));
-                }
-                sp -= 1;
-                let (node, entry) = stack[sp];
-                if entry <= tmax {
-                    cur = node as usize;
-                    break;
-                }
-            }
-        }
+                false
+            },
+        );
+        best.map(|(t, prim, slot)| self.cast_hit(c, d, t, prim, slot))
     }
 
     /// The contact of a sphere cast that touches triangle `prim` (in `slot`) at time `t`.

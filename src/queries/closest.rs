@@ -1,8 +1,9 @@
 //! The closest point of a mesh to a point: Ericson's region test per triangle, best-first over the tree.
 
 use crate::MeshBvh;
-use crate::bvh::{MAX_DEPTH, Node};
+use crate::bvh::{Node, traverse_by};
 use glam::{DVec3, Vec3};
+use std::ops::Range;
 
 /// The part of a triangle a closest point lies on. Corners are numbered as in the index buffer; edge `i`
 /// runs from corner `i` to corner `(i + 1) % 3`.
@@ -129,6 +130,16 @@ pub(crate) fn is_absent(t: &[Vec3; 3]) -> bool {
     t[0] == t[1] && t[1] == t[2]
 }
 
+/// The present (not zero-area) triangles of a leaf's `slots`, with their slot, corners in `f64`.
+pub(crate) fn present(
+    tris: &[[Vec3; 3]],
+    slots: Range<usize>,
+) -> impl Iterator<Item = (usize, [DVec3; 3])> + '_ {
+    slots
+        .filter(|&s| !is_absent(&tris[s]))
+        .map(|s| (s, tris[s].map(Vec3::as_dvec3)))
+}
+
 /// A box farther than the best distance by more than this relative margin is skipped. The margin covers the
 /// `f64` rounding of the box and triangle distances (a few ulp), so a triangle at exactly the best distance is
 /// still visited and the lowest primitive index wins ties whatever the tree.
@@ -161,75 +172,39 @@ impl MeshBvh {
         if !p.is_finite() || max_distance.is_nan() || max_distance < 0.0 {
             return None;
         }
-        let nodes = self.bvh().nodes();
-        let root = nodes.first()?;
         let q = p.as_dvec3();
         let limit = f64::from(max_distance).powi(2);
-        let mut best: Option<(TrianglePoint, u32)> = None;
-        let mut best_d2 = limit;
-        if box_dist2(root, q) > limit {
-            return None;
-        }
         let tris = self.slot_triangles();
         let prims = self.bvh().prim_indices();
-        let mut stack = [(0u32, 0f64); MAX_DEPTH];
-        let mut sp = 0;
-        let mut cur = 0usize;
-        loop {
-            let n = &nodes[cur];
-            if n.is_leaf() {
-                for slot in n.slots() {
-                    let t = &tris[slot];
-                    if is_absent(t) {
-                        continue;
-                    }
-                    let tp = closest_on_triangle(q, t.map(Vec3::as_dvec3));
+        let mut best: Option<(TrianglePoint, u32)> = None;
+        traverse_by(
+            self.bvh().nodes(),
+            limit,
+            &mut (),
+            |n, bound| Some(box_dist2(n, q)).filter(|&d| d <= bound),
+            |slots, bound| {
+                for (slot, t) in present(tris, slots) {
+                    let tp = closest_on_triangle(q, t);
                     let prim = prims[slot];
                     let better = match best {
                         None => tp.dist2 <= limit,
                         Some((b, bp)) => tp.dist2 < b.dist2 || (tp.dist2 == b.dist2 && prim < bp),
                     };
                     if better {
-                        best_d2 = tp.dist2;
                         best = Some((tp, prim));
+                        *bound = tp.dist2 * PRUNE_SLACK;
                     }
                 }
-            } else {
-                let c = n.left();
-                let (da, db) = (box_dist2(&nodes[c], q), box_dist2(&nodes[c + 1], q));
-                let bound = best_d2 * PRUNE_SLACK;
-                let (near, dn, far, df) = if da <= db {
-                    (c, da, c + 1, db)
-                } else {
-                    (c + 1, db, c, da)
-                };
-                if dn <= bound {
-                    if df <= bound {
-                        stack[sp] = (far as u32, df);
-                        sp += 1;
-                    }
-                    cur = near;
-                    continue;
-                }
-            }
-            loop {
-                if sp == 0 {
-                    return best.map(|(tp, prim)| PointHit {
-                        point: tp.point.as_vec3(),
-                        distance: tp.dist2.sqrt() as f32,
-                        primitive: prim,
-                        u: tp.u as f32,
-                        v: tp.v as f32,
-                        feature: tp.feature,
-                    });
-                }
-                sp -= 1;
-                let (node, d2) = stack[sp];
-                if d2 <= best_d2 * PRUNE_SLACK {
-                    cur = node as usize;
-                    break;
-                }
-            }
-        }
+                false
+            },
+        );
+        best.map(|(tp, prim)| PointHit {
+            point: tp.point.as_vec3(),
+            distance: tp.dist2.sqrt() as f32,
+            primitive: prim,
+            u: tp.u as f32,
+            v: tp.v as f32,
+            feature: tp.feature,
+        })
     }
 }

@@ -1,10 +1,9 @@
 //! Which triangles of a mesh a shape overlaps.
 
-use super::closest::is_absent;
+use super::closest::present;
 use super::shapes::Shape;
 use crate::MeshBvh;
-use crate::bvh::MAX_DEPTH;
-use glam::Vec3;
+use crate::bvh::traverse_by;
 
 impl MeshBvh {
     /// Writes into `out` (cleared first) the primitive indices of the triangles that the closed `shape`
@@ -35,47 +34,23 @@ impl MeshBvh {
         if !shape.is_valid() {
             return;
         }
-        let nodes = self.bvh().nodes();
-        let Some(root) = nodes.first() else { return };
         let bounds = shape.bounds();
-        if !root.aabb().overlaps(&bounds) {
-            return;
-        }
         let tris = self.slot_triangles();
         let prims = self.bvh().prim_indices();
-        let mut stack = [0u32; MAX_DEPTH];
-        let mut sp = 0;
-        let mut cur = 0usize;
-        loop {
-            let n = &nodes[cur];
-            if n.is_leaf() {
-                for slot in n.slots() {
-                    let t = &tris[slot];
-                    if !is_absent(t) && shape.overlaps_triangle(t.map(Vec3::as_dvec3)) {
-                        out.push(prims[slot]);
-                    }
-                }
-            } else {
-                let c = n.left();
-                let (a, b) = (
-                    nodes[c].aabb().overlaps(&bounds),
-                    nodes[c + 1].aabb().overlaps(&bounds),
+        traverse_by(
+            self.bvh().nodes(),
+            (),
+            &mut (),
+            |n, _| n.aabb().overlaps(&bounds).then_some(()),
+            |slots, _| {
+                out.extend(
+                    present(tris, slots)
+                        .filter(|(_, t)| shape.overlaps_triangle(*t))
+                        .map(|(slot, _)| prims[slot]),
                 );
-                if a || b {
-                    if a && b {
-                        stack[sp] = (c + 1) as u32;
-                        sp += 1;
-                    }
-                    cur = if a { c } else { c + 1 };
-                    continue;
-                }
-            }
-            if sp == 0 {
-                break;
-            }
-            sp -= 1;
-            cur = stack[sp] as usize;
-        }
+                false
+            },
+        );
         out.sort_unstable();
     }
 }
