@@ -107,7 +107,7 @@ impl Shape {
             }
             Shape::Capsule { a, b, radius } => {
                 let r = f64::from(radius);
-                segment_triangle_dist2(a.as_dvec3(), b.as_dvec3(), t) <= r * r
+                segment_triangle_closest(a.as_dvec3(), b.as_dvec3(), t).1 <= r * r
             }
             Shape::Box {
                 center,
@@ -157,23 +157,30 @@ pub(crate) fn segment_segment(p0: DVec3, p1: DVec3, q0: DVec3, q1: DVec3) -> (f6
     (s, t)
 }
 
-/// Squared distance between segment `p0 p1` and triangle `t`. The minimum is attained at an end of the
-/// segment, between the segment and an edge, or where the segment pierces the plane; each candidate is a
-/// true distance between points of the two, so the least is the answer.
-pub(crate) fn segment_triangle_dist2(p0: DVec3, p1: DVec3, t: [DVec3; 3]) -> f64 {
-    let mut best = closest_on_triangle(p0, t)
-        .dist2
-        .min(closest_on_triangle(p1, t).dist2);
+/// The point of segment `p0 p1` nearest to triangle `t`, and its squared distance. The minimum is attained at
+/// an end of the segment, at the segment's point nearest an edge, or where the segment pierces the plane;
+/// each candidate's distance to the triangle is a true distance, so the least candidate is the answer.
+pub(crate) fn segment_triangle_closest(p0: DVec3, p1: DVec3, t: [DVec3; 3]) -> (DVec3, f64) {
+    let mut candidates = [p0; 5];
+    candidates[1] = p1;
     for e in 0..3 {
-        let (q0, q1) = (t[e], t[(e + 1) % 3]);
-        let (s, u) = segment_segment(p0, p1, q0, q1);
-        best = best.min((p0.lerp(p1, s) - q0.lerp(q1, u)).length_squared());
+        let (s, _) = segment_segment(p0, p1, t[e], t[(e + 1) % 3]);
+        candidates[2 + e] = p0.lerp(p1, s);
     }
+    let mut best = candidates
+        .map(|x| (x, closest_on_triangle(x, t).dist2))
+        .into_iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .expect("five candidates");
     let n = (t[1] - t[0]).cross(t[2] - t[0]);
     let (s0, s1) = (n.dot(p0 - t[0]), n.dot(p1 - t[0]));
     if (s0 <= 0.0 && s1 >= 0.0) || (s0 >= 0.0 && s1 <= 0.0) {
         let k = if s0 == s1 { 0.0 } else { s0 / (s0 - s1) };
-        best = best.min(closest_on_triangle(p0.lerp(p1, k), t).dist2);
+        let x = p0.lerp(p1, k);
+        let d2 = closest_on_triangle(x, t).dist2;
+        if d2 < best.1 {
+            best = (x, d2);
+        }
     }
     best
 }
