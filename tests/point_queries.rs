@@ -1025,3 +1025,206 @@ fn capsule_casts_on_analytic_cases() {
             .is_none()
     );
 }
+
+// ---------------------------------------------------------------------------------------------------
+// Box casts
+// ---------------------------------------------------------------------------------------------------
+
+/// parry's signed gap between the box moved to time `t` and the mesh's present triangles: the distance, or
+/// minus the penetration depth (its EPA stops within about 1e-5 of the extent).
+fn box_gap(m: &Mesh, center: Vec3, half: Vec3, rot: Quat, dir: Vec3, t: f64) -> f64 {
+    use parry3d::math::{Pose, Vector};
+    use parry3d::query::{contact, distance};
+    use parry3d::shape::{Cuboid, Triangle};
+    let v = |p: Vec3| Vector::new(p.x, p.y, p.z);
+    let c = (d(center) + d(dir) * t).as_vec3();
+    let pose = Pose::from_parts(v(c), parry3d::glamx::Quat::from_array(rot.to_array()));
+    let cube = Cuboid::new(v(half));
+    (0..m.triangle_count())
+        .map(|i| m.triangle(i))
+        .filter(|t| !absent(*t))
+        .map(|t| {
+            let tri = Triangle::new(v(t[0]), v(t[1]), v(t[2]));
+            match contact(&pose, &cube, &Pose::IDENTITY, &tri, 0.0).unwrap() {
+                Some(c) => c.dist as f64,
+                None => {
+                    distance(&pose, &cube, &Pose::IDENTITY, &tri)
+                        .unwrap()
+                        .distance as f64
+                }
+            }
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[test]
+fn box_casts_equal_brute_force() {
+    for (name, m) in scenes()
+        .into_iter()
+        .filter(|(n, _)| ["soup", "icosphere", "needles"].contains(n))
+    {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let s = scale(&m) as f32;
+        let mut r = rng(17);
+        let mut hits = 0;
+        for (k, p) in points(&m, 9, 30).into_iter().take(30).enumerate() {
+            let half = Vec3::new(
+                r.random_range(0.01..0.2),
+                r.random_range(0.01..0.2),
+                r.random_range(0.001..0.1),
+            ) * s;
+            let rot = Quat::from_axis_angle(common::rand_dir(&mut r), r.random_range(0.0..6.0));
+            let target = m.positions()[r.random_range(0..m.positions().len())];
+            let dir = target - p;
+            let what = format!("{name} box #{k}");
+            let ours = bvh.cast_box(p, half, rot, dir, 2.0);
+            let gap = |t: f64| box_gap(&m, p, half, rot, dir, t);
+            // parry's f32 GJK/EPA decide the gap to about 1e-5 of the extent: the walk and the contact are held
+            // to that, not to our f64 arithmetic.
+            let delta = 1e-5 * s as f64;
+            let speed = d(dir).length();
+            let end = ours.map_or(2.0, |h| h.t as f64);
+            if let Some(h) = ours {
+                hits += 1;
+                let g = gap(h.t as f64);
+                if h.t == 0.0 {
+                    assert!(g <= delta, "{what}: start contact claimed with gap {g}");
+                } else {
+                    assert!(g.abs() <= delta, "{what}: gap {g} at reported t {}", h.t);
+                }
+                let tri = m.triangle(h.primitive as usize).map(d);
+                assert!(
+                    point_triangle(d(h.point), tri) <= delta,
+                    "{what}: contact off its triangle"
+                );
+                // The contact point is on the box's surface (within the gap's tolerance).
+                let c = d(p) + d(dir) * h.t as f64;
+                let local = (rot.as_dquat().inverse() * (d(h.point) - c)).abs();
+                let outside = (local - d(half)).max_element();
+                assert!(
+                    outside.abs() <= delta || h.t == 0.0,
+                    "{what}: contact {outside} off the box surface"
+                );
+                assert!((h.normal.length() - 1.0).abs() < 1e-5, "{what}");
+            }
+            let mut t = 0.0;
+            let mut steps = 0;
+            while t < end - delta / speed {
+                let g = gap(t);
+                assert!(
+                    g > -delta,
+                    "{what}: penetrates by {} at t = {t} before the reported {end}",
+                    -g
+                );
+                t += g.max(delta) / speed;
+                steps += 1;
+                assert!(steps < 100_000, "{what}: the walk did not end");
+            }
+        }
+        assert!(hits > 10, "{name}: {hits}");
+    }
+}
+
+#[test]
+fn box_casts_on_analytic_cases() {
+    let floor = Mesh::new(
+        vec![
+            Vec3::new(-1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, -1.0),
+            Vec3::new(1.0, 0.0, 1.0),
+            Vec3::new(-1.0, 0.0, 1.0),
+        ],
+        vec![0, 2, 1, 0, 3, 2],
+    )
+    .unwrap();
+    let bvh = MeshBvh::build(&floor, &BuildOptions::default()).unwrap();
+    // Flat: the bottom face lands at t = 3 - 0.5.
+    let h = bvh
+        .cast_box(
+            Vec3::new(0.2, 3.0, 0.1),
+            Vec3::splat(0.5),
+            Quat::IDENTITY,
+            -Vec3::Y,
+            10.0,
+        )
+        .unwrap();
+    assert_eq!((h.t, h.normal), (2.5, Vec3::Y));
+    // Face on face: the point lies in the contact region, under the box's bottom face.
+    let p = h.point;
+    assert!(
+        p.y.abs() < 1e-6 && (-0.3..=0.7).contains(&p.x) && (-0.4..=0.6).contains(&p.z),
+        "{p:?}"
+    );
+    // Turned 45° about z: an edge lands first, 0.5·√2 below the centre.
+    let q = Quat::from_rotation_z(std::f32::consts::FRAC_PI_4);
+    let h = bvh
+        .cast_box(
+            Vec3::new(0.0, 3.0, 0.0),
+            Vec3::splat(0.5),
+            q,
+            -Vec3::Y,
+            10.0,
+        )
+        .unwrap();
+    let expect = 3.0 - 0.5 * 2f64.sqrt();
+    assert!((h.t as f64 - expect).abs() <= 1e-6, "{} vs {expect}", h.t);
+    assert!((h.normal - Vec3::Y).length() < 1e-6, "{:?}", h.normal);
+    // Sliding flat along the floor at exactly half its height: touching from the start.
+    let h = bvh
+        .cast_box(
+            Vec3::new(0.0, 0.5, 0.0),
+            Vec3::splat(0.5),
+            Quat::IDENTITY,
+            Vec3::X,
+            10.0,
+        )
+        .unwrap();
+    assert_eq!(h.t, 0.0);
+    // Just above: it slides off the floor's far edge without touching.
+    assert!(
+        bvh.cast_box(
+            Vec3::new(-3.0, 0.5001, 0.0),
+            Vec3::splat(0.5),
+            Quat::IDENTITY,
+            Vec3::X,
+            10.0
+        )
+        .is_none()
+    );
+    // From the side into the floor's rim: the box's face x = -0.5 reaches x = 1 at t = 1.5.
+    let h = bvh
+        .cast_box(
+            Vec3::new(3.0, 0.0, 0.0),
+            Vec3::splat(0.5),
+            Quat::IDENTITY,
+            -Vec3::X,
+            10.0,
+        )
+        .unwrap();
+    assert_eq!((h.t, h.normal), (1.5, Vec3::X));
+    // Bad input.
+    assert!(
+        bvh.cast_box(
+            Vec3::ZERO,
+            Vec3::new(-1.0, 1.0, 1.0),
+            Quat::IDENTITY,
+            Vec3::X,
+            1.0
+        )
+        .is_none()
+    );
+    assert!(
+        bvh.cast_box(
+            Vec3::ZERO,
+            Vec3::ONE,
+            Quat::from_xyzw(0.0, 0.0, 0.0, 3.0),
+            Vec3::X,
+            1.0
+        )
+        .is_none()
+    );
+    assert!(
+        bvh.cast_box(Vec3::NAN, Vec3::ONE, Quat::IDENTITY, Vec3::X, 1.0)
+            .is_none()
+    );
+}

@@ -9,11 +9,11 @@
 //! the same time.
 
 use super::closest::{Feature, closest_on_triangle, present};
-use super::shapes::{segment_segment, segment_triangle_closest};
+use super::shapes::{DBox, segment_segment, segment_triangle_closest};
 use crate::MeshBvh;
 use crate::bvh::{Node, traverse_by};
 use crate::geometry::{Aabb, Ray};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Quat, Vec3};
 
 /// Where a cast shape first touches a mesh.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -154,36 +154,112 @@ fn capsule_triangle_toi(p0: DVec3, p1: DVec3, d: DVec3, r: f64, tri: [DVec3; 3])
     best
 }
 
-/// The swept core of a rounded shape: a point (sphere) or a segment (capsule).
+/// What a cast sweeps: the core of a rounded shape (a point for a sphere, a segment for a capsule; the
+/// radius is applied on top) or an oriented box (radius 0).
 #[derive(Clone, Copy)]
 enum Core {
     Point(DVec3),
     Segment(DVec3, DVec3),
+    Box(DBox),
 }
 
 impl Core {
-    /// The core moved by `d · t`.
-    fn at(self, d: DVec3, t: f64) -> Core {
+    /// Whether the shape (core grown by `r`) touches the triangle.
+    fn touches(self, r: f64, tri: [DVec3; 3]) -> bool {
         match self {
-            Core::Point(p) => Core::Point(p + d * t),
-            Core::Segment(a, b) => Core::Segment(a + d * t, b + d * t),
+            Core::Point(p) => closest_on_triangle(p, tri).dist2 <= r * r,
+            Core::Segment(a, b) => segment_triangle_closest(a, b, tri).1 <= r * r,
+            Core::Box(b) => b.sweep(DVec3::ZERO, tri).is_some(),
         }
     }
 
-    /// The core's point nearest to the triangle and its squared distance.
-    fn nearest(self, tri: [DVec3; 3]) -> (DVec3, f64) {
-        match self {
-            Core::Point(p) => (p, closest_on_triangle(p, tri).dist2),
-            Core::Segment(a, b) => segment_triangle_closest(a, b, tri),
-        }
-    }
-
+    /// The first time the shape moving by `d` touches the triangle, given that it does not at `t = 0`.
     fn toi(self, d: DVec3, r: f64, tri: [DVec3; 3]) -> Option<f64> {
         match self {
             Core::Point(p) => sphere_triangle_toi(p, d, r, tri),
             Core::Segment(a, b) => capsule_triangle_toi(a, b, d, r, tri),
+            Core::Box(b) => b.sweep(d, tri).map(|(t, _)| t),
         }
     }
+
+    /// The contact with the triangle at time `t`: the point on the triangle and the unit normal from the
+    /// triangle towards the shape.
+    fn contact(self, d: DVec3, t: f64, tri: [DVec3; 3]) -> (DVec3, DVec3) {
+        let face = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize();
+        let facing = if face.dot(d) > 0.0 { -face } else { face };
+        let off = d * t;
+        match self {
+            Core::Point(_) | Core::Segment(..) => {
+                let core = match self {
+                    Core::Point(p) => p + off,
+                    Core::Segment(a, b) => segment_triangle_closest(a + off, b + off, tri).0,
+                    Core::Box(_) => unreachable!(),
+                };
+                let q = closest_on_triangle(core, tri).point;
+                let away = core - q;
+                let n = if away.length_squared() > 0.0 {
+                    away.normalize()
+                } else {
+                    facing
+                };
+                (q, n)
+            }
+            Core::Box(b) => {
+                let moved = DBox {
+                    center: b.center + off,
+                    ..b
+                };
+                let n = match b.sweep(d, tri) {
+                    Some((_, Some(axis))) => (b.axes * axis).normalize(),
+                    _ => facing,
+                };
+                (box_contact_point(&moved, tri), n)
+            }
+        }
+    }
+}
+
+/// A point of the triangle where it touches the box: the centroid of the triangle clipped to the box grown by
+/// a few ulp of the magnitudes (Sutherland–Hodgman against the six faces in the box's frame), or the
+/// triangle's point nearest the box's centre if rounding left nothing.
+fn box_contact_point(b: &DBox, tri: [DVec3; 3]) -> DVec3 {
+    let mag = tri
+        .iter()
+        .map(|p| p.abs().max_element())
+        .fold(b.center.abs().max_element(), f64::max);
+    let grow = b.half + DVec3::splat((mag + b.half.max_element()) * 1e-9);
+    let mut poly = [DVec3::ZERO; 9];
+    let mut next = [DVec3::ZERO; 9];
+    let mut n = 3;
+    for (k, p) in tri.iter().enumerate() {
+        poly[k] = b.local(*p);
+    }
+    for axis in 0..3 {
+        for sign in [1.0, -1.0] {
+            // Keep the part where sign · x[axis] <= grow[axis].
+            let inside = |p: DVec3| sign * p[axis] <= grow[axis];
+            let mut m = 0;
+            for i in 0..n {
+                let (p, q) = (poly[i], poly[(i + 1) % n]);
+                if inside(p) {
+                    next[m] = p;
+                    m += 1;
+                }
+                if inside(p) != inside(q) && m < next.len() {
+                    let k = (sign * grow[axis] - p[axis]) / (q[axis] - p[axis]);
+                    next[m] = p.lerp(q, k);
+                    m += 1;
+                }
+            }
+            std::mem::swap(&mut poly, &mut next);
+            n = m;
+            if n == 0 {
+                return closest_on_triangle(b.center, tri).point;
+            }
+        }
+    }
+    let centroid = poly[..n].iter().copied().sum::<DVec3>() / n as f64;
+    b.axes * centroid + b.center
 }
 
 impl MeshBvh {
@@ -258,6 +334,45 @@ impl MeshBvh {
         )
     }
 
+    /// Sweeps an oriented box (half-extents `half` around `center`, turned by `rotation`) along `dir` up to
+    /// `max_t` and returns where it first touches the mesh, with the conventions of
+    /// [`MeshBvh::cast_sphere`]: `t = 0` for a start in contact, the normal pointing from the mesh towards the
+    /// box. The time of impact is exact in `f64` (the separating-axis intervals of the 13 candidate axes);
+    /// the normal is the axis that separated last (for a start in contact, the face normal against the
+    /// motion); the point is the centre of the region where the triangle meets the box at that time.
+    /// Returns `None` for non-finite input, negative extents or a rotation that is not a unit quaternion.
+    ///
+    /// Cost: as a sphere cast, with 13 axis projections per triangle in the boxes reached. No allocation.
+    ///
+    /// ```
+    /// use kinetrace::{Mesh, MeshBvh, bvh::BuildOptions};
+    /// use glam::{Quat, Vec3};
+    /// let floor = Mesh::new(vec![Vec3::new(-5.0, 0.0, -5.0), Vec3::new(5.0, 0.0, -5.0), Vec3::new(0.0, 0.0, 5.0)], vec![0, 1, 2])?;
+    /// let bvh = MeshBvh::build(&floor, &BuildOptions::default())?;
+    /// // A crate 1 unit tall dropped from a height of 3 lands after 2.5 units.
+    /// let hit = bvh.cast_box(Vec3::new(0.0, 3.0, 0.0), Vec3::splat(0.5), Quat::IDENTITY, -Vec3::Y, 10.0).unwrap();
+    /// assert_eq!((hit.t, hit.normal), (2.5, Vec3::Y));
+    /// # Ok::<(), kinetrace::Error>(())
+    /// ```
+    pub fn cast_box(
+        &self,
+        center: Vec3,
+        half: Vec3,
+        rotation: Quat,
+        dir: Vec3,
+        max_t: f32,
+    ) -> Option<CastHit> {
+        if !(half.is_finite()
+            && half.min_element() >= 0.0
+            && rotation.is_finite()
+            && rotation.is_normalized())
+        {
+            return None;
+        }
+        let core = Core::Box(DBox::new(center, half, rotation));
+        self.cast_core(core, center, dir, 0.0, max_t)
+    }
+
     /// The shared sweep: `core` grown by `radius`, moved along `dir`; `anchor` is the core's first point,
     /// from which the traversal's ray starts.
     fn cast_core(
@@ -282,6 +397,14 @@ impl MeshBvh {
             Core::Segment(a, b) => {
                 let rel = (b - a).as_vec3();
                 (rel.min(Vec3::ZERO) - radius, rel.max(Vec3::ZERO) + radius)
+            }
+            Core::Box(b) => {
+                let m = b.axes;
+                let ext = (m.x_axis.abs() * b.half.x
+                    + m.y_axis.abs() * b.half.y
+                    + m.z_axis.abs() * b.half.z)
+                    .as_vec3();
+                (-ext, ext)
             }
         };
         // Entry distance of the anchor into a node's box grown by the shape's extent (and 4 ulp of the
@@ -311,7 +434,7 @@ impl MeshBvh {
             enter,
             |slots, tmax| {
                 for (slot, tri) in present(tris, slots) {
-                    let toi = if core.nearest(tri).1 <= r * r {
+                    let toi = if core.touches(r, tri) {
                         Some(0.0)
                     } else if moving {
                         core.toi(d, r, tri).filter(|&t| t <= f64::from(ray.tmax))
@@ -329,21 +452,14 @@ impl MeshBvh {
                 false
             },
         );
-        best.map(|(t, prim, slot)| self.cast_hit(core.at(d, t), d, t, prim, slot))
+        best.map(|(t, prim, slot)| self.cast_hit(core, d, t, prim, slot))
     }
 
-    /// The contact of a cast whose core, at time `t`, touches triangle `prim` (in `slot`).
+    /// The contact of a cast that touches triangle `prim` (in `slot`) at time `t`.
     fn cast_hit(&self, core: Core, d: DVec3, t: f64, prim: u32, slot: usize) -> CastHit {
         let tri = self.slot_triangles()[slot].map(Vec3::as_dvec3);
-        let (center, _) = core.nearest(tri);
-        let q = closest_on_triangle(center, tri);
-        let away = center - q.point;
-        let normal = if away.length_squared() > 0.0 {
-            away.normalize()
-        } else {
-            let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize();
-            if n.dot(d) > 0.0 { -n } else { n }
-        };
+        let (point, normal) = core.contact(d, t, tri);
+        let q = closest_on_triangle(point, tri);
         CastHit {
             t: t as f32,
             point: q.point.as_vec3(),

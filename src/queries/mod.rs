@@ -1,5 +1,5 @@
 //! Gameplay queries beyond rays, against the same refitted trees: closest points, containment, shape
-//! overlaps and sphere casts.
+//! overlaps and shape casts.
 //!
 //! - [`MeshBvh::closest_point`]: the nearest point of a mesh (with the triangle, barycentrics and whether
 //!   it lies on a face, an edge or a corner), optionally within a maximum distance.
@@ -7,8 +7,9 @@
 //!   axis-parallel ray with exact predicates and simulation of simplicity; points on the surface are
 //!   inside).
 //! - [`MeshBvh::overlapping`]: the triangles a [`Shape`] (sphere, capsule, oriented box) touches.
-//! - [`MeshBvh::cast_sphere`]: the first contact of a sphere swept along a line (time of impact, point,
-//!   normal, triangle), including a start in contact.
+//! - [`MeshBvh::cast_sphere`], [`MeshBvh::cast_capsule`], [`MeshBvh::cast_box`]: the first contact of a
+//!   shape swept along a line (time of impact, point, normal, triangle, barycentrics), including a start in
+//!   contact (`t = 0` with the way out).
 //!
 //! All of them read the tree's current corners, so after [`MeshBvh::refit`] they answer for the deformed
 //! mesh; zero-area triangles are absent, as they are for rays and collisions. Distances and overlap tests
