@@ -8,8 +8,10 @@
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
-//! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
-//! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
+//! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
+//! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
+//! array. Speed is only ever compared within one run: the tables print kinetrace/peer ratios, which
+//! survive a noisy shared machine far better than times.
 
 mod cli;
 mod collide;

@@ -9,6 +9,7 @@ use std::sync::Arc;
 /// Creating one is expensive (adapter discovery, device creation, shader compilation: tens to hundreds of
 /// milliseconds): make one per application and share it (`Clone` is cheap). Honours `WGPU_BACKEND`,
 /// `WGPU_ADAPTER_NAME` and `WGPU_POWER_PREF` like wgpu's own tools.
+/// It connects to no display server: on a headless machine, creating one prints nothing.
 ///
 /// ```no_run
 /// match kinetrace::gpu::GpuContext::new() {
