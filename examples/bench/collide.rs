@@ -157,8 +157,8 @@ fn report(
 struct Gpu(Option<(GpuContext, GpuPairs)>);
 
 impl Gpu {
-    fn new() -> Self {
-        match GpuContext::new() {
+    fn new(rec: &mut Records) -> Self {
+        match rec.gpu() {
             Ok(ctx) => {
                 let pairs = GpuPairs::new(&ctx);
                 Gpu(Some((ctx, pairs)))
@@ -344,7 +344,7 @@ fn measure(rec: &mut Records, name: &str, frames: usize, scene: &mut impl Scene)
         ("kinetrace all threads + front", Tally::default()),
         ("kinetrace GPU traversal + CPU tests", Tally::default()),
     ];
-    let mut gpu = Gpu::new();
+    let mut gpu = Gpu::new(rec);
     let (mut parry, mut fronts) = (Tally::default(), [PairFront::new(), PairFront::new()]);
     let (mut serial, mut parallel) = (PairQuery::new().parallel(false), PairQuery::new());
     let (mut contacts, mut found) = (Vec::new(), Vec::new());

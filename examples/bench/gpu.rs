@@ -10,7 +10,7 @@ use kinetrace::scenes::bumpy_torus;
 const SUITE: &str = "gpu";
 
 pub fn run(rec: &mut Records) {
-    let ctx = match GpuContext::new() {
+    let ctx = match rec.gpu() {
         Ok(c) => c,
         Err(e) => {
             println!("suite gpu skipped: {e}");
@@ -22,7 +22,6 @@ pub fn run(rec: &mut Records) {
         ctx.adapter_name(),
         ctx.adapter_details()
     );
-    rec.note("gpu adapter", ctx.adapter_name());
     let sizes: &[usize] = if rec.quick {
         &[100_000]
     } else {

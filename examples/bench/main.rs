@@ -8,9 +8,12 @@
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
-//! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
-//! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
+//! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
+//! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
+//! array. Speed is only ever compared within one run: the tables print kinetrace/peer ratios, which
+//! survive a noisy shared machine far better than times.
 
+mod cli;
 mod collide;
 mod cpu;
 mod ecs;
@@ -20,63 +23,6 @@ mod rays;
 mod record;
 mod skinning;
 
-use record::Records;
-use std::process::ExitCode;
-
-const SUITES: [&str; 5] = ["cpu", "gpu", "ecs", "skinning", "collide"];
-
-fn main() -> ExitCode {
-    let mut quick = false;
-    let mut json = None;
-    let mut suites = Vec::new();
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--quick" => quick = true,
-            "--json" => match args.next() {
-                Some(f) => json = Some(f),
-                None => return usage("--json needs a file name"),
-            },
-            "-h" | "--help" => return usage(""),
-            s if SUITES.contains(&s) => suites.push(s.to_string()),
-            s => return usage(&format!("unknown argument {s:?}")),
-        }
-    }
-    if suites.is_empty() {
-        suites = SUITES.iter().map(|s| s.to_string()).collect();
-    }
-    let mut rec = Records::new(quick);
-    for s in &suites {
-        match s.as_str() {
-            "cpu" => cpu::run(&mut rec),
-            "gpu" => gpu::run(&mut rec),
-            "ecs" => ecs::run(&mut rec),
-            "skinning" => skinning::run(&mut rec),
-            "collide" => collide::run(&mut rec),
-            _ => unreachable!("checked above"),
-        }
-    }
-    if let Some(path) = json {
-        if let Err(e) = std::fs::write(&path, rec.to_json()) {
-            eprintln!("could not write {path}: {e}");
-            return ExitCode::FAILURE;
-        }
-        println!("wrote {path}");
-    }
-    ExitCode::SUCCESS
-}
-
-fn usage(problem: &str) -> ExitCode {
-    if !problem.is_empty() {
-        eprintln!("error: {problem}");
-    }
-    eprintln!(
-        "usage: bench [{}]... [--quick] [--json FILE]",
-        SUITES.join("|")
-    );
-    if problem.is_empty() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(2)
-    }
+fn main() -> std::process::ExitCode {
+    cli::run(std::env::args().skip(1))
 }

@@ -1,6 +1,7 @@
 //! Measurements: printed as they come, collected for the JSON file.
 
-use std::fmt::Write;
+use kinetrace::gpu::GpuContext;
+use serde_json::{Value, json};
 use std::time::Instant;
 
 /// One measured value.
@@ -13,12 +14,13 @@ pub struct Record {
     pub unit: &'static str,
 }
 
-/// All measurements of a run, plus the run's settings.
+/// All measurements of a run, plus the run's settings and the GPU its suites share.
 pub struct Records {
     pub quick: bool,
     pub threads: usize,
     rows: Vec<Record>,
-    notes: Vec<(String, String)>,
+    /// Created by the first suite that asks; the reason as text where there is no adapter.
+    gpu: Option<Result<GpuContext, String>>,
 }
 
 impl Records {
@@ -27,7 +29,7 @@ impl Records {
             quick,
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
             rows: Vec::new(),
-            notes: Vec::new(),
+            gpu: None,
         }
     }
 
@@ -52,9 +54,13 @@ impl Records {
         });
     }
 
-    /// A fact about the run (e.g. the GPU adapter), written to the JSON.
-    pub fn note(&mut self, key: &str, value: &str) {
-        self.notes.push((key.to_string(), value.to_string()));
+    /// The GPU every suite of the run measures on, created on the first call (device creation and shader
+    /// compilation cost tens to hundreds of milliseconds, paid once); `Err` with the reason where there is
+    /// none. Its adapter goes to the JSON.
+    pub fn gpu(&mut self) -> Result<GpuContext, String> {
+        self.gpu
+            .get_or_insert_with(|| GpuContext::new().map_err(|e| e.to_string()))
+            .clone()
     }
 
     /// Repetitions of each timed step.
@@ -62,38 +68,43 @@ impl Records {
         if self.quick { 2 } else { 5 }
     }
 
+    /// The run as a JSON document: the machine, the GPU adapter (`null` when no suite used one, with
+    /// `gpu_error` saying why when there was none), the settings, and every record. Non-finite values
+    /// are written as `null`.
     pub fn to_json(&self) -> String {
-        let mut s = String::new();
-        let esc = |t: &str| t.replace('\\', "\\\\").replace('"', "\\\"");
-        let _ = write!(
-            s,
-            "{{\n  \"quick\": {},\n  \"threads\": {},\n  \"machine\": \"{}\",\n  \"records\": [",
-            self.quick,
-            self.threads,
-            esc(&machine())
-        );
-        for (k, v) in &self.notes {
-            let _ = write!(s, "\n  \"{}\": \"{}\",", esc(k), esc(v));
-        }
-        for (i, r) in self.rows.iter().enumerate() {
-            let v = if r.value.is_finite() {
-                format!("{}", r.value)
-            } else {
-                "null".into()
-            };
-            let _ = write!(
-                s,
-                "{}\n    {{\"suite\": \"{}\", \"scene\": \"{}\", \"subject\": \"{}\", \"metric\": \"{}\", \"value\": {v}, \"unit\": \"{}\"}}",
-                if i == 0 { "" } else { "," },
-                r.suite,
-                esc(&r.scene),
-                esc(&r.subject),
-                r.metric,
-                r.unit
-            );
-        }
-        s.push_str("\n  ]\n}\n");
-        s
+        let (adapter, details, error) = match &self.gpu {
+            Some(Ok(c)) => (
+                json!(c.adapter_name()),
+                json!(c.adapter_details()),
+                Value::Null,
+            ),
+            Some(Err(e)) => (Value::Null, Value::Null, json!(e)),
+            None => (Value::Null, Value::Null, Value::Null),
+        };
+        let records: Vec<Value> = self
+            .rows
+            .iter()
+            .map(|r| {
+                json!({
+                    "suite": r.suite,
+                    "scene": r.scene,
+                    "subject": r.subject,
+                    "metric": r.metric,
+                    "value": r.value,
+                    "unit": r.unit,
+                })
+            })
+            .collect();
+        let doc = json!({
+            "machine": machine(),
+            "gpu_adapter": adapter,
+            "gpu_details": details,
+            "gpu_error": error,
+            "quick": self.quick,
+            "threads": self.threads,
+            "records": records,
+        });
+        format!("{doc:#}\n")
     }
 }
 

@@ -6,7 +6,7 @@ use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat4, Vec3};
 use kinetrace::anim::{humanoid, skin_positions};
 use kinetrace::ecs::*;
-use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuSkin};
+use kinetrace::gpu::{GpuMeshBvh, GpuSkin};
 use kinetrace::{Ray, scenes::SceneRng};
 use std::sync::Arc;
 use std::time::Duration;
@@ -52,7 +52,7 @@ pub fn run(rec: &mut Records) {
         verts as f64 / tn / 1e6,
         "Mverts/s",
     );
-    if let Ok(ctx) = GpuContext::new() {
+    if let Ok(ctx) = rec.gpu() {
         let bvh = GpuMeshBvh::new(&ctx, &asset.mesh).expect("upload");
         let skin = GpuSkin::new(
             &ctx,

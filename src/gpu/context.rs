@@ -9,6 +9,7 @@ use std::sync::Arc;
 /// Creating one is expensive (adapter discovery, device creation, shader compilation: tens to hundreds of
 /// milliseconds): make one per application and share it (`Clone` is cheap). Honours `WGPU_BACKEND`,
 /// `WGPU_ADAPTER_NAME` and `WGPU_POWER_PREF` like wgpu's own tools.
+/// It connects to no display server: on a headless machine, creating one prints nothing.
 ///
 /// ```no_run
 /// match kinetrace::gpu::GpuContext::new() {
@@ -43,7 +44,7 @@ impl GpuContext {
 
     async fn new_async() -> Result<Self> {
         let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+            compute_instance(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
             .await
             .map_err(|e| Error::NoGpu(e.to_string()))?;
@@ -115,6 +116,55 @@ impl GpuContext {
     pub fn poll(&self) {
         let _ = self.device.poll(wgpu::PollType::Poll);
     }
+}
+
+/// A wgpu instance for compute only.
+///
+/// Where Vulkan is the window-system API (Linux and the BSDs), wgpu enables the Xlib, XCB and Wayland
+/// surface extensions on every instance. Mesa's implicit device-select layer sees them and, while listing
+/// adapters, connects to the Wayland compositor and the X server to find the GPU driving the display; on a
+/// headless machine libwayland prints `error: XDG_RUNTIME_DIR is invalid or not set in the environment.`
+/// once per listing. A compute device presents nothing, so this instance enables none of those three
+/// extensions: no display connection is attempted and nothing is printed. Elsewhere, or when
+/// `WGPU_BACKEND` leaves Vulkan out, it is wgpu's ordinary instance.
+fn compute_instance(desc: wgpu::InstanceDescriptor) -> wgpu::Instance {
+    #[cfg(all(
+        unix,
+        not(target_os = "macos"),
+        not(target_os = "ios"),
+        not(target_os = "android")
+    ))]
+    if desc.backends.contains(wgpu::Backends::VULKAN) {
+        let hal_desc = wgpu::hal::InstanceDescriptor {
+            name: "kinetrace",
+            flags: desc.flags,
+            memory_budget_thresholds: desc.memory_budget_thresholds,
+            backend_options: desc.backend_options.clone(),
+            telemetry: None,
+            display: None,
+        };
+        let headless: Box<wgpu::hal::vulkan::CreateInstanceCallback> = Box::new(|args| {
+            args.extensions.retain(|e| {
+                ![
+                    c"VK_KHR_xlib_surface",
+                    c"VK_KHR_xcb_surface",
+                    c"VK_KHR_wayland_surface",
+                ]
+                .contains(e)
+            })
+        });
+        // SAFETY: the descriptor is wgpu's own, from the environment. The callback only drops window-system
+        // surface extensions, which wgpu-hal reads in one place: creating a surface of that kind, where it
+        // checks for the extension and returns an error without it. This instance never creates a surface.
+        // `from_hal` takes ownership of a valid Vulkan instance.
+        match unsafe { wgpu::hal::vulkan::Instance::init_with_callback(&hal_desc, Some(headless)) }
+        {
+            Ok(hal) => return unsafe { wgpu::Instance::from_hal::<wgpu::hal::api::Vulkan>(hal) },
+            // No Vulkan loader: wgpu's ordinary instance reports that, and tries other back ends.
+            Err(e) => log::debug!("kinetrace: headless Vulkan instance: {e}"),
+        }
+    }
+    wgpu::Instance::new(desc)
 }
 
 /// The shared context for tests and examples: created once per process, `None` (with the reason printed
