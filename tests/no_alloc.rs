@@ -68,8 +68,9 @@ fn refit_and_single_ray_queries_do_not_allocate() {
     }
 }
 
-/// A frame whose meshes only refit allocates nothing on the frame's thread once warm, under a fixed
-/// policy and under the adaptive one (its SAH cost, decision and query attribution included).
+/// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
+/// thread once warm, under a fixed policy and under the adaptive one (its SAH cost, decision and query
+/// attribution included, for the meshes and for the top level).
 #[test]
 fn refit_only_ecs_frames_do_not_allocate() {
     use bevy_ecs::prelude::*;
@@ -99,7 +100,21 @@ fn refit_only_ecs_frames_do_not_allocate() {
                 VertexPositions(rest.positions().to_vec()),
             ))
             .id();
+        // Rigid entities above the sphere, out of the rays' way, moving together: the top level refits.
+        let walkers: Vec<Entity> = (0..8)
+            .map(|i| {
+                let at = Vec3::new(3.0 * i as f32, 10.0, 0.0);
+                let place = TraceTransform(glam::Affine3A::from_translation(at));
+                world
+                    .spawn((TraceMesh(icosphere(1)), MotionHint::Rigid, place))
+                    .id()
+            })
+            .collect();
         for f in 0..20 {
+            for &w in &walkers {
+                let mut t = world.get_mut::<TraceTransform>(w).unwrap();
+                t.0.translation.z = 0.1 * f as f32;
+            }
             // Uniform growth: the tree's shape and relative cost stay, so no policy rebuilds.
             let s = 1.0 + 0.01 * f as f32;
             {
@@ -121,6 +136,8 @@ fn refit_only_ecs_frames_do_not_allocate() {
             if f >= 2 {
                 assert_eq!(allocated, 0, "{policy:?} frame {f}");
                 assert_eq!(stats.meshes[0].action, MeshAction::Refit, "{policy:?}");
+                assert_eq!(stats.moved, walkers.len(), "{policy:?}");
+                assert_eq!(stats.top_level.action, TopLevelAction::Refit, "{policy:?}");
             }
             // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s.
             for (_, hit) in &world.resource::<RayResults>().hits {

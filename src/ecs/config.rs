@@ -85,6 +85,10 @@ pub(super) fn lauterbach(degradation: f32, threshold: f32) -> Decision {
 }
 
 /// How the plugin decides, per refitted mesh per frame, between keeping the refitted tree and rebuilding.
+/// The top level follows the same rule after each of its refits: the same threshold under
+/// [`Lauterbach`](Self::Lauterbach), its own cost model (binned SAH only) under
+/// [`Adaptive`](Self::Adaptive), the thesis's 0.40 under [`Custom`](Self::Custom) (see
+/// [`TopLevelStats`](super::TopLevelStats)).
 ///
 /// | policy | costs per refitted mesh | use when |
 /// |---|---|---|

@@ -5,7 +5,10 @@
 //! Change detection decides the work: an untouched mesh costs nothing; a moved entity only updates the top
 //! level; a deformed mesh ([`VertexPositions`] or [`TraceSkin`] changed) is refitted and rebuilt when the
 //! [`RebuildPolicy`] says so (Lauterbach's 0.40 by default, or the adaptive cost model, which may also build
-//! on the GPU); a new index buffer means a rebuild. [`TraceStats::meshes`] says what was done and why.
+//! on the GPU); a new index buffer means a rebuild. The top level over the entities' world boxes is refitted
+//! while the set of entities stays the same and rebuilt when entities come or go or the same policy says so
+//! after a refit (see [`TopLevelStats`]). [`TraceStats::meshes`] and [`TraceStats::top_level`] say what was
+//! done and why.
 //!
 //! A complete program on bare `bevy_ecs` — what the main loop must do each frame is run the schedule and
 //! clear the world's change trackers (the plugin updates its messages itself):
@@ -62,6 +65,7 @@ mod params;
 mod plugin;
 mod stats;
 mod systems;
+mod top_level;
 mod world;
 
 pub use crate::adaptive::{Build, Device, Prediction, Verdict};
@@ -80,5 +84,7 @@ pub use filter::{QueryFilter, RayHit};
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
 pub use plugin::{KinetracePlugin, Plugin, TraceSet};
-pub use stats::{MeshAction, MeshStats, RebuildReason, TraceStats};
+pub use stats::{
+    MeshAction, MeshStats, RebuildReason, TopLevelAction, TopLevelReason, TopLevelStats, TraceStats,
+};
 pub use world::TraceWorld;

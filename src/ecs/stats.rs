@@ -51,6 +51,50 @@ pub struct MeshStats {
     pub prediction: Option<Prediction>,
 }
 
+/// What happened to the top-level tree this frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum TopLevelAction {
+    /// Nothing moved, came or went: the tree was untouched.
+    #[default]
+    Unchanged,
+    /// Refitted to the entities' new boxes, keeping the tree (its degradation is in
+    /// [`TopLevelStats::degradation`]).
+    Refit,
+    /// Built from scratch (binned SAH over the entity boxes).
+    Rebuild {
+        /// Why.
+        reason: TopLevelReason,
+    },
+}
+
+/// Why the top-level tree was rebuilt.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TopLevelReason {
+    /// Entities came or went (the first build included).
+    Membership,
+    /// The rebuild policy asked for it after a refit (see [`RebuildPolicy`](super::RebuildPolicy)).
+    Policy,
+}
+
+/// The top level's report: this frame's action, the tree's state, and totals since the plugin started.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TopLevelStats {
+    /// What was done this frame.
+    pub action: TopLevelAction,
+    /// The degradation metric of this frame's refit, as for meshes (on a policy rebuild, the value that
+    /// triggered it); 0 in frames without a refit.
+    pub degradation: f32,
+    /// Refits since the tree was last built.
+    pub frames_since_rebuild: u32,
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): why the refitted tree was kept or rebuilt.
+    /// `None` for other policies and in frames without a refit.
+    pub prediction: Option<Prediction>,
+    /// Refits since the plugin started.
+    pub refits: u64,
+    /// Rebuilds since the plugin started.
+    pub rebuilds: u64,
+}
+
 /// Per-frame diagnostics, overwritten each frame.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct TraceStats {
@@ -69,8 +113,9 @@ pub struct TraceStats {
     pub rebuilds: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
-    /// Whether the top level was refitted or rebuilt.
-    pub top_level_updated: bool,
+    /// What was done to the top level (the tree over the entities' world boxes), its degradation and its
+    /// running totals.
+    pub top_level: TopLevelStats,
     /// Batched closest-hit and occlusion requests answered.
     pub batched_rays: usize,
     /// The same count of the previous frame (what the policy sees).

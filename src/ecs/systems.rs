@@ -99,16 +99,29 @@ pub(super) fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Er
     }
 }
 
-/// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows.
+/// What the top level reads of a placed entity; the mesh and positions only for whether
+/// [`TraceSet::Maintain`] already listed it this frame.
+type Placement<'a> = (
+    Entity,
+    &'a TraceTransform,
+    &'a QueryLayers,
+    Ref<'a, TraceMesh>,
+    Option<Ref<'a, VertexPositions>>,
+);
+
+/// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows
+/// (refitted, or rebuilt by the rule of [`top_level`](super::top_level)). O(moved entities) plus the TLAS
+/// update.
 pub(crate) fn top_level_system(
-    moved: Query<(Entity, &TraceTransform, &QueryLayers), PlacementChanged>,
+    moved: Query<Placement, PlacementChanged>,
     mut world: ResMut<TraceWorld>,
+    config: Res<TraceConfig>,
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,
     mut errors: MessageWriter<TraceErrorMessage>,
 ) {
     let t = Instant::now();
-    for (e, transform, layers) in &moved {
+    for (e, transform, layers, mesh, positions) in &moved {
         let checked = checked_transform(transform);
         let Some(inst) = world.instances.get_mut(&e) else {
             continue;
@@ -117,7 +130,10 @@ pub(crate) fn top_level_system(
             Ok(tr) => {
                 if inst.transform != tr {
                     inst.set_transform(tr);
-                    if !stats.meshes.iter().any(|m| m.entity == e) {
+                    // Maintain listed every mesh whose geometry changed (refitted, rebuilt or failed);
+                    // the meshes it rebuilt already have this transform.
+                    let maintained = mesh.is_changed() || positions.is_some_and(|p| p.is_changed());
+                    if !maintained {
                         stats.moved += 1;
                         stats.meshes.push(MeshStats {
                             entity: e,
@@ -134,7 +150,7 @@ pub(crate) fn top_level_system(
             Err(err) => fail(e, err, &mut world, &mut commands, &mut errors, &mut stats),
         }
     }
-    stats.top_level_updated = world.update_tlas();
+    stats.top_level = world.update_tlas(&config.policy, stats.rays_last_frame);
     stats.top_level_time = t.elapsed();
 }
 

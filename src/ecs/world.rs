@@ -1,9 +1,10 @@
 //! The acceleration structures of a world: one BLAS per entity in object space, a TLAS over the entities'
 //! world boxes, and the two-level queries.
 
+use super::top_level::TopLevelState;
 use super::{QueryFilter, RayHit};
 use crate::Mesh;
-use crate::bvh::{BuildOptions, Builder, Bvh, Hit, MeshBvh, TraversalStats, traverse};
+use crate::bvh::{Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
 use bevy_ecs::prelude::*;
@@ -152,10 +153,12 @@ pub(crate) fn topology_id(mesh: &Mesh) -> usize {
 #[derive(Resource, Default)]
 pub struct TraceWorld {
     pub(crate) instances: HashMap<Entity, Instance>,
-    tlas: Bvh,
+    pub(super) tlas: Bvh,
     /// TLAS primitive id → entity.
-    tlas_entities: Vec<Entity>,
-    tlas_bounds: Vec<Aabb>,
+    pub(super) tlas_entities: Vec<Entity>,
+    pub(super) tlas_bounds: Vec<Aabb>,
+    /// The top level's rebuild rule state and report (see `top_level`).
+    pub(super) top: TopLevelState,
     /// Set when an entity was added, removed, moved or refitted since the TLAS was made.
     pub(crate) tlas_dirty: bool,
     /// Set when the set of entities changed (the TLAS is rebuilt rather than refitted).
@@ -215,49 +218,13 @@ impl TraceWorld {
         gone
     }
 
-    /// Brings the TLAS up to date: a refit when only boxes moved, a rebuild (binned SAH over the entity
-    /// boxes) when entities came or went. Returns whether anything was done.
-    pub(crate) fn update_tlas(&mut self) -> bool {
-        if !self.tlas_dirty {
-            return false;
-        }
-        if self.membership_changed || self.tlas_entities.len() != self.instances.len() {
-            self.tlas_entities.clear();
-            self.tlas_entities.extend(self.instances.keys().copied());
-            // HashMap order is arbitrary: sort so the tree does not depend on it.
-            self.tlas_entities.sort_unstable();
-        }
-        self.tlas_bounds.clear();
-        let inst = &self.instances;
-        // An entity whose mesh is empty still takes a slot, with a point box that no ray reaches twice.
-        self.tlas_bounds.extend(self.tlas_entities.iter().map(|e| {
-            let b = inst[e].world_bounds;
-            if b.is_empty() {
-                Aabb::from_point(Vec3::ZERO)
-            } else {
-                b
-            }
-        }));
-        let refitted = !self.membership_changed && self.tlas.refit(&self.tlas_bounds).is_ok();
-        if !refitted {
-            self.tlas = Bvh::build(
-                &self.tlas_bounds,
-                &BuildOptions::new(Builder::SAH).parallel(false),
-            )
-            .expect("entity boxes are finite and few");
-        }
-        self.tlas_dirty = false;
-        self.membership_changed = false;
-        self.version += 1;
-        true
-    }
-
     /// Feeds the adaptive policies a frame's batched queries: `rays` requests answered in `seconds`.
     ///
-    /// The time is apportioned over meshes by their expected traversal work, `p_i · C_i` with `p_i` the
-    /// mesh's world-box area over the scene box's (the chance that a ray through the scene reaches it) and
-    /// `C_i` its SAH cost; each mesh is told it received `rays · p_i` rays. The shares add up to the measured
-    /// time; how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
+    /// The time is apportioned by expected traversal work: the top level's, its SAH cost `C_tlas` (every
+    /// ray enters it), and each mesh's, `p_i · C_i` with `p_i` the mesh's world-box area over the scene
+    /// box's (the chance that a ray through the scene reaches it) and `C_i` its SAH cost; each mesh is told
+    /// it received `rays · p_i` rays, the top level all of them. The shares add up to the measured time;
+    /// how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
     /// no allocation.
     pub(crate) fn attribute_queries(&mut self, rays: usize, seconds: f64) {
         let scene = self.tlas.bounds().half_area_f64();
@@ -268,7 +235,13 @@ impl TraceWorld {
                 1.0
             }
         };
-        let work: f64 = self.instances.values().map(|i| share(i) * i.sah).sum();
+        let work = self.top.sah
+            + self
+                .instances
+                .values()
+                .map(|i| share(i) * i.sah)
+                .sum::<f64>();
+        self.attribute_top_level(rays, seconds, work);
         for inst in self.instances.values_mut() {
             let p = share(inst);
             inst.rays = rays as f64 * p;
