@@ -92,7 +92,10 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             "summary.md embeds {png}.png"
         );
     }
-    let figures = report.files.iter().filter(|f| f.extension().is_some_and(|e| e == "png"));
+    let figures = report
+        .files
+        .iter()
+        .filter(|f| f.extension().is_some_and(|e| e == "png"));
     for f in figures {
         check_figure(f, &report.strategies);
     }
@@ -141,20 +144,33 @@ fn check_figure(path: &PathBuf, strategies: &[harness::Strategy]) {
         .flat_map(|x| (0..40).map(move |y| (x, y)))
         .filter(|&(x, y)| dark(img.get_pixel(x, y)))
         .count();
-    assert!(title_ink > 200, "{name}.png: no title text ({title_ink} dark pixels)");
+    assert!(
+        title_ink > 200,
+        "{name}.png: no title text ({title_ink} dark pixels)"
+    );
     let legend_x = w - 260;
     let mut in_plots = 0;
     for look in plots::looks(strategies) {
         let colour = image::Rgb([look.colour.0, look.colour.1, look.colour.2]);
         let (mut legend, mut plot) = (0, 0);
         for (x, _, _) in img.enumerate_pixels().filter(|(_, _, p)| **p == colour) {
-            if x >= legend_x { legend += 1 } else { plot += 1 }
+            if x >= legend_x {
+                legend += 1
+            } else {
+                plot += 1
+            }
         }
         // A legend marker of radius 6 covers about 110 pixels.
-        assert!(legend >= 60, "{name}.png: legend marker {colour:?}: {legend} pixels");
+        assert!(
+            legend >= 60,
+            "{name}.png: legend marker {colour:?}: {legend} pixels"
+        );
         in_plots += plot;
     }
-    assert!(in_plots >= 100 * strategies.len(), "{name}.png: {in_plots} data pixels");
+    assert!(
+        in_plots >= 100 * strategies.len(),
+        "{name}.png: {in_plots} data pixels"
+    );
 }
 
 #[test]
@@ -178,10 +194,18 @@ fn axes_turn_logarithmic_only_where_values_span_a_decade() {
         let s = scale::Scale::fit(narrow.iter().copied(), true);
         let r = s.range();
         assert!(!s.is_log(), "{narrow:?}");
-        assert!(narrow.iter().all(|v| r.start < *v && *v < r.end), "{narrow:?} in {r:?}");
+        assert!(
+            narrow.iter().all(|v| r.start < *v && *v < r.end),
+            "{narrow:?} in {r:?}"
+        );
     }
     assert!(!scale::Scale::fit([0.01, 100.0], false).is_log());
-    for (v, label) in [(0.05, "0.05"), (1.25, "1.25"), (200.0, "200"), (0.0001, "0.0001")] {
+    for (v, label) in [
+        (0.05, "0.05"),
+        (1.25, "1.25"),
+        (200.0, "200"),
+        (0.0001, "0.0001"),
+    ] {
         assert_eq!(scale::tick(v), label);
     }
 }

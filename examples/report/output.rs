@@ -121,10 +121,7 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
     files.push(png);
     for (name, text) in [
         ("frames.csv", csv),
-        (
-            "summary.md",
-            summary(&rows, settings, &skipped),
-        ),
+        ("summary.md", summary(&rows, settings, &skipped)),
     ] {
         let path = out.join(name);
         std::fs::write(&path, text)?;

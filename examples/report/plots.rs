@@ -6,7 +6,7 @@
 
 use super::harness::{FrameRecord, Strategy};
 use super::output::Row;
-use super::scale::{Scale, tick};
+use super::scale::Scale;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -131,7 +131,8 @@ fn save(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> Drawn) -> std
         Ok(())
     });
     drawn.map_err(|e| std::io::Error::other(format!("drawing {}: {e}", path.display())))?;
-    let img = image::RgbImage::from_raw(size.0, size.1, pixels).expect("buffer of the figure's size");
+    let img =
+        image::RgbImage::from_raw(size.0, size.1, pixels).expect("buffer of the figure's size");
     img.save(path).map_err(std::io::Error::other)
 }
 
@@ -145,7 +146,7 @@ fn with_legend<'a>(
     lines: bool,
     notes: &[&str],
 ) -> Result<Area<'a>, Box<dyn Error>> {
-    let root = root.titled(title, text(26))?;
+    let root = root.margin(10, 0, 0, 0).titled(title, text(26))?;
     let width = root.dim_in_pixel().0;
     let (plots, legend) = root.split_horizontally(width - LEGEND_WIDTH);
     legend.draw(&Text::new("strategy", (14, 20), text(19)))?;
@@ -196,8 +197,14 @@ pub fn error_vs_time(
         ];
         let title = format!("{scene}: tree error against time per frame");
         let plots = with_legend(root, &title, &names, looks, false, &notes)?;
-        let x = Scale::fit(rows.iter().flat_map(|r| [r.spread[0].0, r.spread[1].0]), true);
-        let y = Scale::fit(rows.iter().flat_map(|r| [r.spread[0].1, r.spread[1].1]), true);
+        let x = Scale::fit(
+            rows.iter().flat_map(|r| [r.spread[0].0, r.spread[1].0]),
+            true,
+        );
+        let y = Scale::fit(
+            rows.iter().flat_map(|r| [r.spread[0].1, r.spread[1].1]),
+            true,
+        );
         let x_desc = caption("update + query time per frame (ms)", &x);
         let y_desc = caption("SAH cost / fresh SAH build's (1 = best)", &y);
         let mut chart = ChartBuilder::on(&plots)
@@ -215,8 +222,12 @@ pub fn error_vs_time(
         for (r, &look) in rows.iter().zip(looks) {
             let [(t0, e0), (t1, e1)] = r.spread;
             let style = look.colour.stroke_width(2);
-            chart.draw_series([ErrorBar::new_horizontal(r.sah_mean, t0, r.total_ms, t1, style, 10)])?;
-            chart.draw_series([ErrorBar::new_vertical(r.total_ms, e0, r.sah_mean, e1, style, 10)])?;
+            chart.draw_series([ErrorBar::new_horizontal(
+                r.sah_mean, t0, r.total_ms, t1, style, 10,
+            )])?;
+            chart.draw_series([ErrorBar::new_vertical(
+                r.total_ms, e0, r.sah_mean, e1, style, 10,
+            )])?;
             chart.draw_series([marker((r.total_ms, r.sah_mean), look, 8.0)])?;
         }
         Ok(())
@@ -238,9 +249,18 @@ pub fn per_frame(
         let (top, bottom) = plots.split_vertically(PER_FRAME.1 / 2 - 20);
         let ms = |r: &FrameRecord| 1e3 * (r.update_s + r.query_s);
         let sah = |r: &FrameRecord| r.sah_ratio;
-        let last = per_strategy.iter().flatten().map(|r| r.frame).max().unwrap_or(0);
+        let last = per_strategy
+            .iter()
+            .flatten()
+            .map(|r| r.frame)
+            .max()
+            .unwrap_or(0);
         for (area, value, what) in [
-            (&top, &ms as &dyn Fn(&FrameRecord) -> f64, "update + query time (ms)"),
+            (
+                &top,
+                &ms as &dyn Fn(&FrameRecord) -> f64,
+                "update + query time (ms)",
+            ),
             (&bottom, &sah, "SAH cost / fresh SAH build's"),
         ] {
             let y = Scale::fit(per_strategy.iter().flatten().map(value), true);
@@ -256,7 +276,6 @@ pub fn per_frame(
                 .y_desc(y_desc)
                 .axis_desc_style(text(19))
                 .label_style(text(16))
-                .x_label_formatter(&|f| tick(f.round()))
                 .draw()?;
             for (recs, &look) in per_strategy.iter().zip(looks) {
                 let points = recs.iter().map(|r| (f64::from(r.frame), value(r)));
@@ -269,7 +288,12 @@ pub fn per_frame(
 
 /// `overview.png`: every scene side by side, per strategy the mean time per frame over the scene's
 /// fastest fixed strategy's (top) and the mean SAH ratio (bottom).
-pub fn overview(path: &Path, rows: &[Row], names: &[String], looks: &[Look]) -> std::io::Result<()> {
+pub fn overview(
+    path: &Path,
+    rows: &[Row],
+    names: &[String],
+    looks: &[Look],
+) -> std::io::Result<()> {
     save(path, OVERVIEW, |root| {
         let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene).collect();
         scenes.dedup();
@@ -285,7 +309,12 @@ pub fn overview(path: &Path, rows: &[Row], names: &[String], looks: &[Look]) -> 
             names,
             looks,
             false,
-            &["marker: mean over all frames"],
+            &[
+                "marker: mean over all frames",
+                "black line at 1: the fastest fixed",
+                "    strategy (top), a fresh SAH",
+                "    build (bottom)",
+            ],
         )?;
         let (top, bottom) = plots.split_vertically(OVERVIEW.1 / 2 - 20);
         let n = scenes.len().max(1) as f64;
@@ -295,7 +324,11 @@ pub fn overview(path: &Path, rows: &[Row], names: &[String], looks: &[Look]) -> 
             name.map_or(String::new(), |s| s.to_string())
         };
         for (area, value, what) in [
-            (&top, &relative as &dyn Fn(&Row) -> f64, "time per frame / fastest fixed strategy's"),
+            (
+                &top,
+                &relative as &dyn Fn(&Row) -> f64,
+                "time per frame / fastest fixed strategy's",
+            ),
             (&bottom, &sah, "SAH cost / fresh SAH build's"),
         ] {
             let y = Scale::fit(rows.iter().map(value).chain([1.0]), true);
