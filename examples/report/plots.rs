@@ -2,7 +2,8 @@
 //! labels, a legend naming every strategy (colour by strategy, marker shape by family), and log axes
 //! where the values span a decade or more. Text comes from a font embedded in the binary
 //! (`fonts/Go-Regular.ttf`, BSD licence beside it), so the figures need no system font.
-//! Each figure costs a few milliseconds; the report draws two per scene and one overview.
+//! The report draws two figures per scene and one overview, each rasterised in memory on the CPU and
+//! written as PNG: a small cost beside the scene runs they show.
 
 use super::harness::{FrameRecord, Strategy};
 use super::output::Row;
