@@ -1,14 +1,20 @@
 //! Smoke test of the evaluation harness (examples/report) in its `--quick` size: every file is written,
-//! every scene and strategy is reported, and no sampled ray differs from brute force.
+//! every scene and strategy is reported, no sampled ray differs from brute force, and every figure is a
+//! PNG of its size with text, a legend entry per strategy and data drawn.
 
 #[path = "../examples/report/harness.rs"]
 mod harness;
 #[path = "../examples/report/output.rs"]
 mod output;
+#[path = "../examples/report/plots.rs"]
+mod plots;
+#[path = "../examples/report/scale.rs"]
+mod scale;
 #[path = "../examples/report/scenes.rs"]
 mod scenes;
 
-use std::path::Path;
+use plotters::coord::ranged1d::Ranged;
+use std::path::{Path, PathBuf};
 
 #[test]
 fn quick_report_writes_every_file_with_zero_mismatches() {
@@ -24,7 +30,11 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
         .filter(|f| f.extension().is_some_and(|e| e == "png"))
         .map(|f| f.file_stem().unwrap().to_string_lossy().into_owned())
         .collect();
-    let scenes: Vec<&String> = pngs.iter().filter(|s| !s.ends_with("-frames")).collect();
+    assert!(pngs.contains(&"overview".to_string()), "{pngs:?}");
+    let scenes: Vec<&String> = pngs
+        .iter()
+        .filter(|s| !s.ends_with("-frames") && *s != "overview")
+        .collect();
     assert!(scenes.len() >= 6, "a plot per scene: {pngs:?}");
     for s in &scenes {
         assert!(
@@ -76,6 +86,19 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
     );
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(summary.contains("| adaptive |") && summary.contains("Goal "));
+    for png in &pngs {
+        assert!(
+            summary.contains(&format!("]({png}.png)")),
+            "summary.md embeds {png}.png"
+        );
+    }
+    let figures = report
+        .files
+        .iter()
+        .filter(|f| f.extension().is_some_and(|e| e == "png"));
+    for f in figures {
+        check_figure(f, &report.strategies);
+    }
     for r in &report.rows {
         assert_eq!(
             r.mismatches, 0,
@@ -99,6 +122,92 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
         );
     }
     std::fs::remove_dir_all(&out).ok();
+}
+
+/// `path` decodes as a PNG of its figure's size; its title band holds text (dark pixels, so the embedded
+/// font drew); the legend column holds a marker in every strategy's colour; the plots hold data (pixels
+/// in strategy colours, beyond the legend).
+fn check_figure(path: &PathBuf, strategies: &[harness::Strategy]) {
+    let name = path.file_stem().unwrap().to_string_lossy();
+    let img = image::open(path)
+        .unwrap_or_else(|e| panic!("{name}.png does not decode: {e}"))
+        .to_rgb8();
+    let size = match name.as_ref() {
+        "overview" => plots::OVERVIEW,
+        n if n.ends_with("-frames") => plots::PER_FRAME,
+        _ => plots::ERROR_VS_TIME,
+    };
+    assert_eq!(img.dimensions(), size, "{name}.png");
+    let (w, _) = size;
+    let dark = |p: &image::Rgb<u8>| p.0.iter().all(|&c| c < 96);
+    let title_ink = (0..w)
+        .flat_map(|x| (0..40).map(move |y| (x, y)))
+        .filter(|&(x, y)| dark(img.get_pixel(x, y)))
+        .count();
+    assert!(
+        title_ink > 200,
+        "{name}.png: no title text ({title_ink} dark pixels)"
+    );
+    let legend_x = w - 260;
+    let mut in_plots = 0;
+    for look in plots::looks(strategies) {
+        let colour = image::Rgb([look.colour.0, look.colour.1, look.colour.2]);
+        let (mut legend, mut plot) = (0, 0);
+        for (x, _, _) in img.enumerate_pixels().filter(|(_, _, p)| **p == colour) {
+            if x >= legend_x {
+                legend += 1
+            } else {
+                plot += 1
+            }
+        }
+        // A legend marker of radius 6 covers about 110 pixels.
+        assert!(
+            legend >= 60,
+            "{name}.png: legend marker {colour:?}: {legend} pixels"
+        );
+        in_plots += plot;
+    }
+    assert!(
+        in_plots >= 100 * strategies.len(),
+        "{name}.png: {in_plots} data pixels"
+    );
+}
+
+#[test]
+fn axes_turn_logarithmic_only_where_values_span_a_decade() {
+    let wide = scale::Scale::fit([0.04, 0.3, 7.5], true);
+    assert!(wide.is_log());
+    let r = wide.range();
+    assert!(r.start <= 0.04 && r.end >= 7.5, "{r:?}");
+    let ticks = wide.key_points(10usize);
+    assert!(!ticks.is_empty() && ticks.len() <= 10, "{ticks:?}");
+    for t in &ticks {
+        // Every tick is 1, 2 or 5 times a power of ten, inside the axis.
+        let mantissa = t / 10f64.powf(t.log10().floor());
+        assert!(
+            [1.0, 2.0, 5.0].iter().any(|m| (mantissa - m).abs() < 1e-9),
+            "tick {t}"
+        );
+        assert!(r.contains(t), "tick {t} outside {r:?}");
+    }
+    for narrow in [&[1.0, 1.3, 9.9][..], &[2.0, 2.0], &[-1.0, 0.5, 50.0]] {
+        let s = scale::Scale::fit(narrow.iter().copied(), true);
+        let r = s.range();
+        assert!(!s.is_log(), "{narrow:?}");
+        assert!(
+            narrow.iter().all(|v| r.start < *v && *v < r.end),
+            "{narrow:?} in {r:?}"
+        );
+    }
+    assert!(!scale::Scale::fit([0.01, 100.0], false).is_log());
+    for (v, label) in [
+        (0.05, "0.05"),
+        (1.25, "1.25"),
+        (200.0, "200"),
+        (0.0001, "0.0001"),
+    ] {
+        assert_eq!(scale::tick(v), label);
+    }
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! Error-versus-run-time report: every animated scene under every refit/rebuild strategy, into
-//! `target/report/` (frames.csv, summary.md, two PNGs per scene). The GPU strategies (LBVH rebuilt on the
-//! GPU every frame, and the adaptive policy that may choose it) run when an adapter exists; otherwise the
-//! summary and the console say they were skipped, and why.
+//! `target/report/` (frames.csv, summary.md with the figures embedded, overview.png across all scenes
+//! and two PNGs per scene). The GPU strategies (LBVH rebuilt on the GPU every frame, and the adaptive
+//! policy that may choose it) run when an adapter exists; otherwise the summary and the console say they
+//! were skipped, and why.
 //!
 //! ```text
 //! cargo run --release --example report            # 300 frames, ~20k triangles per scene
@@ -11,6 +12,8 @@
 
 mod harness;
 mod output;
+mod plots;
+mod scale;
 mod scenes;
 
 use harness::Settings;

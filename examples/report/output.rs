@@ -1,10 +1,11 @@
 //! The report's files: `frames.csv` (every frame of every strategy on every scene), `summary.md` (the
-//! table and the goal check) and per scene `SCENE.png` (error against run time, one point per strategy
-//! with the per-frame spread as bars) and `SCENE-frames.png` (per-frame curves of time and error).
+//! table, the goal check and the figures), `overview.png` (every scene side by side) and per scene
+//! `SCENE.png` (error against run time, one point per strategy with the per-frame spread as bars) and
+//! `SCENE-frames.png` (per-frame curves of time and error); the figures are drawn in [`super::plots`].
 
 use super::harness::{FrameRecord, Settings, Strategy, find_gpu, run_scene};
+use super::plots;
 use super::scenes::Scene;
-use image::{Rgb, RgbImage};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -22,8 +23,8 @@ pub struct Row {
     pub sah_max: f64,
     pub steps_mean: f64,
     pub mismatches: u32,
-    /// Per-frame (total ms, SAH ratio) extremes for the plot's bars.
-    spread: [(f64, f64); 2],
+    /// Per-frame (total ms, SAH ratio) minimum and maximum, for the plot's bars.
+    pub spread: [(f64, f64); 2],
 }
 
 fn row(scene: &'static str, strategy: &Strategy, recs: &[FrameRecord]) -> Row {
@@ -81,6 +82,8 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         .inspect_err(|e| skipped.push(format!("GPU strategies SKIPPED: {e}")))
         .ok();
     let strategies = Strategy::all(gpu.is_some());
+    let names: Vec<String> = strategies.iter().map(Strategy::name).collect();
+    let looks = plots::looks(&strategies);
     let mut csv = String::from(
         "scene,strategy,frame,update_ms,query_ms,rebuilt,sah_ratio,steps_ratio,mismatches\n",
     );
@@ -106,21 +109,19 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
             }
             rows.push(row(scene.name, s, recs));
         }
-        for (suffix, img) in [
-            ("", plot(&rows[first..])),
-            ("-frames", curves(&per_strategy)),
-        ] {
-            let png = out.join(format!("{}{suffix}.png", scene.name));
-            img.save(&png).map_err(std::io::Error::other)?;
-            files.push(png);
-        }
+        let png = out.join(format!("{}.png", scene.name));
+        plots::error_vs_time(&png, scene.name, &rows[first..], &looks, settings.frames)?;
+        files.push(png);
+        let png = out.join(format!("{}-frames.png", scene.name));
+        plots::per_frame(&png, scene.name, &names, &looks, &per_strategy)?;
+        files.push(png);
     }
+    let png = out.join("overview.png");
+    plots::overview(&png, &rows, &names, &looks)?;
+    files.push(png);
     for (name, text) in [
         ("frames.csv", csv),
-        (
-            "summary.md",
-            summary(&rows, settings, &skipped, &strategies),
-        ),
+        ("summary.md", summary(&rows, settings, &skipped)),
     ] {
         let path = out.join(name);
         std::fs::write(&path, text)?;
@@ -134,108 +135,7 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
     })
 }
 
-/// Colours of the strategies in the plots, in [`Strategy::all`] order.
-const COLOURS: [[u8; 3]; 11] = [
-    [230, 25, 75],
-    [60, 180, 75],
-    [0, 130, 200],
-    [245, 130, 48],
-    [145, 30, 180],
-    [70, 240, 240],
-    [240, 50, 230],
-    [128, 128, 0],
-    [0, 0, 0],
-    [170, 110, 40],
-    [128, 128, 128],
-];
-
-/// Error (SAH ratio, up) against time per frame (right), the per-frame spread as bars.
-fn plot(rows: &[Row]) -> RgbImage {
-    let (w, h, m) = (640u32, 480u32, 40u32);
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    let t_max = rows.iter().map(|r| r.spread[1].0).fold(1e-9, f64::max);
-    let e_max = rows.iter().map(|r| r.spread[1].1).fold(1.0, f64::max);
-    let e_min = rows.iter().map(|r| r.spread[0].1).fold(1.0, f64::min);
-    let x = |t: f64| m + ((t / t_max) * (w - 2 * m) as f64) as u32;
-    let y =
-        |e: f64| h - m - (((e - e_min) / (e_max - e_min).max(1e-9)) * (h - 2 * m) as f64) as u32;
-    for i in m..=w - m {
-        img.put_pixel(i, h - m, Rgb([0, 0, 0]));
-    }
-    for j in m..=h - m {
-        img.put_pixel(m, j, Rgb([0, 0, 0]));
-    }
-    for (r, c) in rows.iter().zip(COLOURS) {
-        let (cx, cy) = (x(r.total_ms), y(r.sah_mean));
-        for i in x(r.spread[0].0)..=x(r.spread[1].0) {
-            img.put_pixel(i, cy, Rgb(c));
-        }
-        for j in y(r.spread[1].1)..=y(r.spread[0].1) {
-            img.put_pixel(cx, j, Rgb(c));
-        }
-        for dx in 0..7 {
-            for dy in 0..7 {
-                img.put_pixel(
-                    (cx + dx).saturating_sub(3),
-                    (cy + dy).saturating_sub(3),
-                    Rgb(c),
-                );
-            }
-        }
-    }
-    img
-}
-
-/// Per-frame curves, one colour per strategy: update + query ms on a log scale (top half), SAH ratio
-/// (bottom half; ratios above 3 are drawn at 3).
-fn curves(per_strategy: &[Vec<FrameRecord>]) -> RgbImage {
-    let (w, h, m) = (640u32, 480u32, 20u32);
-    let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
-    let frames = per_strategy.iter().map(Vec::len).max().unwrap_or(0).max(2);
-    let ms = |r: &FrameRecord| (1e3 * (r.update_s + r.query_s)).max(1e-4).log10();
-    let error = |r: &FrameRecord| r.sah_ratio.min(3.0);
-    let half = h / 2;
-    for (top, value) in [(0u32, &ms as &dyn Fn(&FrameRecord) -> f64), (half, &error)] {
-        let all = per_strategy.iter().flatten().map(value);
-        let (lo, hi) = all.fold((f64::MAX, f64::MIN), |(l, u), v| (l.min(v), u.max(v)));
-        let span = (hi - lo).max(1e-9);
-        let (y0, y1) = (top + m, top + half - m);
-        for i in m..w - m {
-            img.put_pixel(i, y1, Rgb([0, 0, 0]));
-        }
-        for (recs, c) in per_strategy.iter().zip(COLOURS) {
-            let mut last: Option<(u32, f64)> = None;
-            for (f, r) in recs.iter().enumerate() {
-                let x = m + (f as u64 * (w - 2 * m - 1) as u64 / (frames - 1) as u64) as u32;
-                let y = y1 as f64 - (value(r) - lo) / span * (y1 - y0) as f64;
-                // A segment from the previous point: one pixel per column, joined vertically.
-                let (x0, ya) = last.unwrap_or((x, y));
-                let mut prev = ya;
-                for i in x0..=x {
-                    let t = if x > x0 {
-                        (i - x0) as f64 / (x - x0) as f64
-                    } else {
-                        1.0
-                    };
-                    let yi = ya + (y - ya) * t;
-                    for j in prev.min(yi).round() as u32..=prev.max(yi).round() as u32 {
-                        img.put_pixel(i, j, Rgb(c));
-                    }
-                    prev = yi;
-                }
-                last = Some((x, y));
-            }
-        }
-    }
-    img
-}
-
-fn summary(
-    rows: &[Row],
-    settings: &Settings,
-    skipped: &[String],
-    strategies: &[Strategy],
-) -> String {
+fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
     let mut s = format!(
         "# kinetrace error-versus-run-time report\n\n{} frames, about {} triangles per scene, {} primary \
          rays per frame plus a shadow ray per hit; {} rays per frame checked against brute force. Times are \
@@ -304,17 +204,29 @@ fn summary(
     let _ = writeln!(
         s,
         "\nGoal {}: within 5% on every scene: {all_within}; scenes where adaptive beats lauterbach-0.4 by \
-         10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.\n\nPlots: one PNG per \
-         scene, x = total ms per frame, y = SAH ratio; dot = mean, bars = per-frame range; SCENE-frames.png: \
-         per-frame curves, top = total ms (log scale), bottom = SAH ratio (capped at 3). Colours in \
-         strategy order: {}.",
+         10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.",
         if met { "MET" } else { "NOT MET" },
-        strategies
-            .iter()
-            .zip(COLOURS)
-            .map(|(st, c)| format!("{} #{:02x}{:02x}{:02x}", st.name(), c[0], c[1], c[2]))
-            .collect::<Vec<_>>()
-            .join(", ")
     );
+    s.push_str(&figures(rows));
+    s
+}
+
+/// The summary's figures section: the overview, then per scene its two figures, as Markdown images
+/// with paths relative to the summary.
+fn figures(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "\n## Figures\n\nEvery scene side by side: per strategy, mean time per frame over the scene's \
+         fastest fixed strategy's (top) and mean SAH ratio (bottom).\n\n![All scenes: time and tree error \
+         per strategy](overview.png)\n",
+    );
+    let mut scenes: Vec<&str> = rows.iter().map(|r| r.scene).collect();
+    scenes.dedup();
+    for scene in scenes {
+        let _ = writeln!(
+            s,
+            "\n### {scene}\n\n![{scene}: tree error against time per frame]({scene}.png)\n\n\
+             ![{scene}: time and tree error, frame by frame]({scene}-frames.png)"
+        );
+    }
     s
 }
