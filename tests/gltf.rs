@@ -295,13 +295,27 @@ impl Doc {
     fn load(&self) -> kinetrace::Result<Vec<kinetrace::anim::GltfMesh>> {
         load_gltf_slice(self.json().as_bytes(), None)
     }
+
+    /// The document with its buffer moved to a side file named by `uri` (written as a JSON string): the
+    /// JSON, and the bytes that file must hold.
+    fn with_buffer_file(&self, uri: &str) -> (String, Vec<u8>) {
+        let json = self.json();
+        let start = json.find("\"data:").unwrap();
+        let end = start + 1 + json[start + 1..].find('"').unwrap() + 1;
+        let (_, b64) = json[start + 1..end - 1].split_once(";base64,").unwrap();
+        let bin = base64::engine::general_purpose::STANDARD
+            .decode(b64)
+            .unwrap();
+        let uri = serde_json::to_string(uri).unwrap();
+        (format!("{}{uri}{}", &json[..start], &json[end..]), bin)
+    }
 }
 
-fn expect_gltf_error(r: kinetrace::Result<Vec<kinetrace::anim::GltfMesh>>, needle: &str) {
+fn expect_gltf_error<T>(r: kinetrace::Result<T>, needle: &str) {
     match r {
         Err(Error::Gltf(m)) => assert!(m.contains(needle), "{m:?} lacks {needle:?}"),
         Err(e) => panic!("{e:?} is not a glTF error mentioning {needle:?}"),
-        Ok(_) => panic!("loaded; expected an error mentioning {needle:?}"),
+        Ok(_) => panic!("succeeded; expected an error mentioning {needle:?}"),
     }
 }
 
@@ -389,7 +403,7 @@ fn malformed_files_are_errors_naming_the_problem() {
 #[test]
 fn the_procedural_character_round_trips_through_glb() {
     let h = kinetrace::anim::humanoid(3_000);
-    let bytes = kinetrace::anim::character_to_glb(&h);
+    let bytes = kinetrace::anim::character_to_glb(&h).unwrap();
     let loaded = load_gltf_slice(&bytes, None).expect("our own GLB loads");
     assert_eq!(loaded.len(), 1);
     let back = loaded[0].character.as_ref().expect("skinned");
@@ -452,4 +466,139 @@ fn morph_target_weights_animate_the_rest_pose() {
             );
         }
     }
+}
+
+/// A fresh, empty directory for one test's files.
+fn scratch(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+#[test]
+fn side_file_uris_are_percent_decoded() {
+    let dir = scratch("gltf_uri_legal");
+    let d = Doc::new();
+    // (URI as written in the file, the file it names, relative to the .gltf)
+    for (uri, file) in [
+        ("my%20mesh.bin", "my mesh.bin"),
+        ("./sub/%C3%A9t%C3%A9.bin", "sub/\u{e9}t\u{e9}.bin"),
+        ("100%25.bin", "100%.bin"),
+        ("plain.bin", "plain.bin"),
+    ] {
+        let (json, bin) = d.with_buffer_file(uri);
+        let path = dir.join(file);
+        std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+        std::fs::write(&path, &bin).unwrap();
+        let gltf = dir.join("doc.gltf");
+        std::fs::write(&gltf, json).unwrap();
+        let m = load_gltf(&gltf).unwrap_or_else(|e| panic!("{uri}: {e}"));
+        let expect: Vec<Vec3> = d.positions.iter().map(|p| Vec3::from_array(*p)).collect();
+        assert_eq!(m[0].mesh.positions(), &expect[..], "{uri}");
+        let expect: Vec<u32> = d.indices.iter().map(|&i| u32::from(i)).collect();
+        assert_eq!(m[0].mesh.indices(), &expect[..], "{uri}");
+        std::fs::remove_file(&path).unwrap();
+    }
+}
+
+#[test]
+fn uris_reaching_outside_the_asset_directory_are_refused() {
+    // root/secret.bin holds a valid buffer: a loader that followed any of these URIs there would load.
+    let root = scratch("gltf_uri_hostile");
+    let assets = root.join("a/b");
+    std::fs::create_dir_all(&assets).unwrap();
+    let d = Doc::new();
+    let (_, bin) = d.with_buffer_file("x");
+    let secret = root.join("secret.bin");
+    std::fs::write(&secret, &bin).unwrap();
+    std::fs::write(assets.join("ok.bin"), &bin).unwrap();
+    let (json, _) = d.with_buffer_file("ok.bin");
+    load_gltf_slice(json.as_bytes(), Some(&assets)).expect("the same buffer, inside, loads");
+    let abs = secret.to_str().unwrap().to_string();
+    let hostile = [
+        // Parent components, plain and encoded, with either separator.
+        "../../secret.bin".to_string(),
+        "x/../../../secret.bin".into(),
+        "./../../secret.bin".into(),
+        "%2e%2e/%2e%2e/secret.bin".into(),
+        "%2E%2E%2F%2E%2E%2Fsecret.bin".into(),
+        ".%2e/%2E./secret.bin".into(),
+        "..\\..\\secret.bin".into(),
+        "..%5C..%5Csecret.bin".into(),
+        "..%5c..%2fsecret.bin".into(),
+        // Windows drops trailing dots and spaces: `.. ` is the parent there.
+        "..%20/..%20/secret.bin".into(),
+        // Absolute paths, plain and encoded.
+        abs.clone(),
+        format!("%2F{}", &abs[1..]),
+        format!("//{abs}"),
+        "C:\\secret.bin".into(),
+        "C:/secret.bin".into(),
+        "c:secret.bin".into(),
+        "C%3A%5Csecret.bin".into(),
+        "\\secret.bin".into(),
+        "\\\\server\\share\\secret.bin".into(),
+        "%5C%5Cserver%5Cshare%5Csecret.bin".into(),
+        "//server/share/secret.bin".into(),
+        // Schemes other than data:.
+        format!("file://{abs}"),
+        format!("file:{abs}"),
+        format!("FILE:///{}", &abs[1..]),
+        "http://example.com/secret.bin".into(),
+        "https://example.com/secret.bin".into(),
+        "ftp:secret.bin".into(),
+        // Windows devices, malformed escapes, control characters, non-UTF-8, nothing.
+        "CON".into(),
+        "sub/lpt1.bin".into(),
+        "%zz.bin".into(),
+        "secret.bin%2".into(),
+        "secret%00.bin".into(),
+        "%FF.bin".into(),
+        "./".into(),
+    ];
+    for uri in &hostile {
+        let (json, _) = d.with_buffer_file(uri);
+        expect_gltf_error(
+            load_gltf_slice(json.as_bytes(), Some(&assets)),
+            &format!("{uri:?}"),
+        );
+    }
+    // Through a file on disk too.
+    let (json, _) = d.with_buffer_file("../../secret.bin");
+    let evil = assets.join("evil.gltf");
+    std::fs::write(&evil, json).unwrap();
+    expect_gltf_error(load_gltf(&evil), "\"../../secret.bin\"");
+}
+
+#[test]
+fn names_with_quotes_backslashes_and_control_characters_round_trip_through_glb() {
+    let nasty =
+        "say \"hi\" \\ C:\\x\n\t\r\u{0}\u{1}\u{1f}\u{7f}\u{80}\u{2028} \u{e9}\u{1f600} </script>";
+    let mut h = kinetrace::anim::humanoid(500);
+    for (i, j) in h.skeleton.joints.iter_mut().enumerate() {
+        j.name = format!("{nasty}{i}");
+    }
+    for (i, c) in h.clips.iter_mut().enumerate() {
+        c.name = format!("{i}{nasty}");
+    }
+    let bytes = kinetrace::anim::character_to_glb(&h).unwrap();
+    let loaded = load_gltf_slice(&bytes, None).expect("our own GLB loads");
+    let back = loaded[0].character.as_ref().unwrap();
+    let names = |c: &kinetrace::anim::CharacterAsset| {
+        let joints: Vec<String> = c.skeleton.joints.iter().map(|j| j.name.clone()).collect();
+        let clips: Vec<String> = c.clips.iter().map(|c| c.name.clone()).collect();
+        (joints, clips)
+    };
+    assert_eq!(names(back), names(&h));
+}
+
+#[test]
+fn exporting_a_non_finite_value_is_an_error() {
+    let mut h = kinetrace::anim::humanoid(500);
+    h.skeleton.joints[3].rest.translation.y = f32::NAN;
+    expect_gltf_error(kinetrace::anim::character_to_glb(&h), "joint 3");
+    let mut h = kinetrace::anim::humanoid(500);
+    h.clips[0].channels[0].times[0] = f32::INFINITY;
+    expect_gltf_error(kinetrace::anim::character_to_glb(&h), "channel 0");
 }

@@ -7,10 +7,11 @@ use super::{
     SkinWeights, Transform,
 };
 use crate::{Error, Mesh, Result};
-use base64::Engine;
 use glam::{Mat4, Quat, Vec3, Vec4};
 use std::path::Path;
 use std::sync::Arc;
+
+mod uri;
 
 /// One mesh instance of a glTF scene.
 #[derive(Clone, Debug)]
@@ -26,7 +27,11 @@ pub struct GltfMesh {
     pub character: Option<CharacterAsset>,
 }
 
-/// Loads a `.gltf` (side files relative to it) or `.glb` file.
+/// Loads a `.gltf` or `.glb` file. Buffers may be embedded (GLB chunk, base64 data URI) or side files named by
+/// a relative, percent-decoded URI under the file's directory; a URI that would reach anywhere else (a scheme
+/// other than `data:`, an absolute path, a `..` component) is an [`Error::Gltf`] naming it, so files from
+/// untrusted sources (user mods) cannot read the rest of the machine. Images are never read. Cost: one read
+/// of the file and each side file, and one pass over every accessor.
 pub fn load_gltf(path: &Path) -> Result<Vec<GltfMesh>> {
     let bytes = std::fs::read(path).map_err(|e| Error::Io {
         path: path.display().to_string(),
@@ -39,7 +44,8 @@ fn err(m: impl Into<String>) -> Error {
     Error::Gltf(m.into())
 }
 
-/// Loads glTF or GLB bytes; `base` resolves relative buffer URIs (none allowed without it).
+/// Loads glTF or GLB bytes already in memory; `base` is the directory relative buffer URIs are read under
+/// (none allowed without it), with the same restrictions as [`load_gltf`].
 pub fn load_gltf_slice(bytes: &[u8], base: Option<&Path>) -> Result<Vec<GltfMesh>> {
     let doc = gltf::Gltf::from_slice(bytes).map_err(|e| err(e.to_string()))?;
     let buffers = load_buffers(&doc, base)?;
@@ -131,7 +137,8 @@ pub fn load_gltf_slice(bytes: &[u8], base: Option<&Path>) -> Result<Vec<GltfMesh
     Ok(out)
 }
 
-/// The bytes of every buffer: the GLB binary chunk, a base64 data URI, or a file beside the glTF.
+/// The bytes of every buffer: the GLB binary chunk, a base64 data URI, or a file under the glTF's directory
+/// (see [`uri`] for what is refused).
 fn load_buffers(doc: &gltf::Gltf, base: Option<&Path>) -> Result<Vec<Vec<u8>>> {
     doc.buffers()
         .map(|b| {
@@ -142,26 +149,8 @@ fn load_buffers(doc: &gltf::Gltf, base: Option<&Path>) -> Result<Vec<Vec<u8>>> {
                         b.index()
                     ))
                 })?,
-                gltf::buffer::Source::Uri(uri) if uri.starts_with("data:") => {
-                    let payload = uri.split_once(";base64,").map(|(_, p)| p).ok_or_else(|| {
-                        err(format!("buffer {}: data URI is not base64", b.index()))
-                    })?;
-                    base64::engine::general_purpose::STANDARD
-                        .decode(payload)
-                        .map_err(|e| err(format!("buffer {}: bad base64: {e}", b.index())))?
-                }
                 gltf::buffer::Source::Uri(uri) => {
-                    let dir = base.ok_or_else(|| {
-                        err(format!(
-                            "buffer {} refers to file {uri:?} but no directory was given",
-                            b.index()
-                        ))
-                    })?;
-                    let path = dir.join(uri);
-                    std::fs::read(&path).map_err(|e| Error::Io {
-                        path: path.display().to_string(),
-                        message: e.to_string(),
-                    })?
+                    uri::read_uri(uri, base, &format!("buffer {}", b.index()))?
                 }
             };
             if data.len() < b.length() {
@@ -444,12 +433,15 @@ fn read_skeleton(
         .iter()
         .find_map(|&n| parent[n].filter(|p| index_of(*p).is_none()))
         .map_or(Mat4::IDENTITY, world);
-    let joints = nodes
-        .iter()
-        .map(|&n| {
+    let joints = skin
+        .joints()
+        .map(|node| {
+            let n = node.index();
             let (s, r, t) = local[n].to_scale_rotation_translation();
             Joint {
-                name: format!("joint {n}"),
+                name: node
+                    .name()
+                    .map_or_else(|| format!("joint {n}"), str::to_string),
                 parent: parent[n].and_then(index_of),
                 rest: Transform {
                     translation: t,
