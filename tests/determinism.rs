@@ -6,7 +6,7 @@
 mod common;
 use common::*;
 use glam::Vec3;
-use kinetrace::bvh::{BuildOptions, Builder, MortonBits};
+use kinetrace::bvh::BuildOptions;
 use kinetrace::{Hit, Mesh, MeshBvh, Ray};
 
 /// Everything a run produces, as bytes: tree, slots, answers before and after a refit.
@@ -91,54 +91,40 @@ fn trees_and_answers_are_byte_equal_on_every_thread_count() {
             (n, pool)
         })
         .into();
-    let builders = Builder::ALL.into_iter().chain([
-        Builder::Lbvh {
-            morton: MortonBits::Bits63,
-        },
-        Builder::Sah { bins: 4 },
-        Builder::Hybrid {
-            lbvh_levels: 2,
-            bins: 8,
-            morton: MortonBits::Bits63,
-        },
-    ]);
-    for b in builders {
-        for leaf in [1, 4] {
-            let opt = BuildOptions::new(b).max_leaf_size(leaf);
-            let reference = run(&m, &moved, &rays, &opt.parallel(false));
-            assert!(
-                reference.any.iter().any(|&h| h) && reference.any.iter().any(|&h| !h),
-                "the rays must both hit and miss"
+    for opt in all_build_options() {
+        let reference = run(&m, &moved, &rays, &opt.parallel(false));
+        assert!(
+            reference.any.iter().any(|&h| h) && reference.any.iter().any(|&h| !h),
+            "the rays must both hit and miss"
+        );
+        for (n, pool) in &pools {
+            let got = pool.install(|| {
+                assert_eq!(rayon::current_num_threads(), *n);
+                run(&m, &moved, &rays, &opt.parallel(true))
+            });
+            // Field by field, so that a failure names what differs without printing megabytes.
+            let what = format!("{opt:?} on {n} threads");
+            assert!(got.nodes == reference.nodes, "{what}: nodes");
+            assert!(got.prims == reference.prims, "{what}: primitive order");
+            assert!(got.slots == reference.slots, "{what}: slot triangles");
+            assert!(got.closest == reference.closest, "{what}: closest hits");
+            assert!(got.any == reference.any, "{what}: any hits");
+            assert_eq!(
+                got.refit_degradation, reference.refit_degradation,
+                "{what}: refit degradation"
             );
-            for (n, pool) in &pools {
-                let got = pool.install(|| {
-                    assert_eq!(rayon::current_num_threads(), *n);
-                    run(&m, &moved, &rays, &opt.parallel(true))
-                });
-                // Field by field, so that a failure names what differs without printing megabytes.
-                let what = format!("{b:?} leaf {leaf} on {n} threads");
-                assert!(got.nodes == reference.nodes, "{what}: nodes");
-                assert!(got.prims == reference.prims, "{what}: primitive order");
-                assert!(got.slots == reference.slots, "{what}: slot triangles");
-                assert!(got.closest == reference.closest, "{what}: closest hits");
-                assert!(got.any == reference.any, "{what}: any hits");
-                assert_eq!(
-                    got.refit_degradation, reference.refit_degradation,
-                    "{what}: refit degradation"
-                );
-                assert!(
-                    got.refit_nodes == reference.refit_nodes,
-                    "{what}: refit nodes"
-                );
-                assert!(
-                    got.refit_closest == reference.refit_closest,
-                    "{what}: closest hits after refit"
-                );
-                assert!(
-                    got.refit_any == reference.refit_any,
-                    "{what}: any hits after refit"
-                );
-            }
+            assert!(
+                got.refit_nodes == reference.refit_nodes,
+                "{what}: refit nodes"
+            );
+            assert!(
+                got.refit_closest == reference.refit_closest,
+                "{what}: closest hits after refit"
+            );
+            assert!(
+                got.refit_any == reference.refit_any,
+                "{what}: any hits after refit"
+            );
         }
     }
 }

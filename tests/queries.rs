@@ -3,29 +3,9 @@
 mod common;
 use common::*;
 use glam::Vec3;
-use kinetrace::bvh::{BuildOptions, Builder, MortonBits, TraversalStats};
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::{Mesh, MeshBvh, Ray};
 use rand::Rng;
-
-fn all_options() -> Vec<BuildOptions> {
-    let mut v = Vec::new();
-    for b in Builder::ALL.into_iter().chain([
-        Builder::Lbvh {
-            morton: MortonBits::Bits63,
-        },
-        Builder::Sah { bins: 4 },
-        Builder::Hybrid {
-            lbvh_levels: 2,
-            bins: 8,
-            morton: MortonBits::Bits63,
-        },
-    ]) {
-        for leaf in [1, 4] {
-            v.push(BuildOptions::new(b).max_leaf_size(leaf));
-        }
-    }
-    v
-}
 
 /// Rays of three kinds: aimed at points on random triangles (mostly hits), random origin and direction
 /// (mostly misses), and from inside the cloud (many overlapping candidates).
@@ -104,7 +84,7 @@ fn every_builder_matches_brute_force_on_random_soups() {
         let m = soup(seed, n);
         let rays = rays(&m, seed + 100, if n < 100 { 300 } else { 900 });
         let oracles = oracles(&m, &rays);
-        for opt in all_options() {
+        for opt in all_build_options() {
             let bvh = MeshBvh::build(&m, &opt).unwrap();
             bvh.bvh().validate(Some(&m.triangle_bounds())).unwrap();
             if n >= 57 {
@@ -124,7 +104,7 @@ fn every_builder_matches_brute_force_on_a_closed_surface() {
     let m = icosphere(3);
     let rays = rays(&m, 7, 900);
     let oracles = oracles(&m, &rays);
-    for opt in all_options() {
+    for opt in all_build_options() {
         let bvh = MeshBvh::build(&m, &opt).unwrap();
         bvh.bvh().validate(Some(&m.triangle_bounds())).unwrap();
         check_against_brute(&bvh, &rays, &oracles, &format!("{opt:?} icosphere"));

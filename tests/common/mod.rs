@@ -11,6 +11,7 @@ pub use oracle::{RayOracle, TriangleVerdict, ray_triangle};
 pub use skip::*;
 
 use glam::{DVec3, Vec3};
+use kinetrace::bvh::{BuildOptions, Builder, MortonBits};
 use kinetrace::{Mesh, Ray};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
@@ -39,6 +40,28 @@ pub fn rand_dir(r: &mut SmallRng) -> Vec3 {
 }
 
 pub use kinetrace::scenes::{cube_sphere, icosphere, soup};
+
+/// Every builder (the presets and a non-default setting of each family), with one and four triangles per
+/// leaf: the build configurations a whole-crate property is checked under.
+pub fn all_build_options() -> Vec<BuildOptions> {
+    let mut v = Vec::new();
+    for b in Builder::ALL.into_iter().chain([
+        Builder::Lbvh {
+            morton: MortonBits::Bits63,
+        },
+        Builder::Sah { bins: 4 },
+        Builder::Hybrid {
+            lbvh_levels: 2,
+            bins: 8,
+            morton: MortonBits::Bits63,
+        },
+    ]) {
+        for leaf in [1, 4] {
+            v.push(BuildOptions::new(b).max_leaf_size(leaf));
+        }
+    }
+    v
+}
 
 /// The mesh with every vertex mapped by `f`.
 pub fn map_mesh(m: &Mesh, f: impl Fn(Vec3) -> Vec3) -> Mesh {
