@@ -138,13 +138,10 @@ fn hit_records_match_the_exact_oracle_within_f32_bounds() {
             v.bary_err[1],
             v.bary_err[2],
         ];
-        for k in 0..3 {
+        for (k, ((g, e), b)) in got.iter().zip(err).zip(v.bary).enumerate() {
             assert!(
-                (got[k] as f64 - v.bary[k]).abs() <= err[k],
-                "ray {i}: barycentric {k}: {} vs {} (bound {:e})",
-                got[k],
-                v.bary[k],
-                err[k]
+                (*g as f64 - b).abs() <= e,
+                "ray {i}: barycentric {k}: {g} vs {b} (bound {e:e})"
             );
         }
         // The normal, normalize(e1 × e2) in f32: edges (one rounding), products (one), difference (one) put

@@ -61,9 +61,8 @@ fn watertight_test_agrees_with_exact_arithmetic_wherever_it_decides() {
                 (h.t as f64 - v.t).abs() <= v.t_err,
                 "ray {i}: t {h:?} vs {v:?}"
             );
-            let got = [h.u, h.v];
-            for k in 0..2 {
-                let e = (got[k] as f64 - v.bary[k + 1]).abs();
+            for (k, got) in [h.u, h.v].into_iter().enumerate() {
+                let e = (got as f64 - v.bary[k + 1]).abs();
                 assert!(e <= v.bary_err[k + 1], "ray {i}: bary {h:?} vs {v:?}");
             }
         }
