@@ -77,8 +77,8 @@ fn rest_pose_skinning_reproduces_the_mesh() {
 #[cfg(feature = "gpu")]
 #[test]
 fn gpu_skinning_of_an_animated_character_equals_cpu_skinning() {
-    use kinetrace::gpu::{GpuMeshBvh, GpuSkin, shared_for_tests};
-    let Some(g) = shared_for_tests() else { return };
+    use kinetrace::gpu::{GpuMeshBvh, GpuSkin};
+    let Some(g) = gpu_or_skip() else { return };
     let asset = humanoid(20_000);
     let bvh = GpuMeshBvh::new(&g, &asset.mesh).unwrap();
     let skin = GpuSkin::new(

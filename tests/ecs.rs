@@ -416,7 +416,7 @@ fn next_frame_latency_publishes_one_frame_later() {
 #[cfg(feature = "gpu")]
 #[test]
 fn cpu_and_gpu_modes_give_identical_batched_results() {
-    if kinetrace::gpu::shared_for_tests().is_none() {
+    if gpu_or_skip().is_none() {
         return;
     }
     for latency in [Latency::SameFrame, Latency::NextFrame] {

@@ -8,23 +8,7 @@ use glam::{Mat4, Vec3};
 use kinetrace::anim::{load_gltf, load_gltf_slice, skin_positions};
 use kinetrace::ecs::*;
 use kinetrace::{Error, Ray};
-use std::path::PathBuf;
 use std::sync::Arc;
-
-fn shared_asset(name: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/assets")
-        .join(name);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!(
-            "*** skipping: {} not found (the shared assets live beside the repository) ***",
-            p.display()
-        );
-        None
-    }
-}
 
 #[test]
 fn shared_assets_rest_pose_animation_and_queries() {
@@ -32,7 +16,7 @@ fn shared_assets_rest_pose_animation_and_queries() {
         ("RiggedSimple.gltf", 2, 188),
         ("RiggedFigure.gltf", 19, 256),
     ] {
-        let Some(path) = shared_asset(name) else {
+        let Some(path) = shared_asset_or_skip(name) else {
             continue;
         };
         let meshes = load_gltf(&path).unwrap();
@@ -124,7 +108,7 @@ fn shared_assets_rest_pose_animation_and_queries() {
         );
         // CPU and GPU skinning agree on an animated pose.
         #[cfg(feature = "gpu")]
-        if let Some(g) = kinetrace::gpu::shared_for_tests() {
+        if let Some(g) = gpu_or_skip() {
             let mut pose = ch.skeleton.rest_pose();
             ch.clips[0].sample(ch.clips[0].duration * 0.6, &mut pose);
             ch.skeleton.skin_matrices(&pose, &mut mats);

@@ -7,14 +7,12 @@ use common::*;
 use glam::{Mat4, Quat, Vec3};
 use kinetrace::anim::{SkinWeights, skin_positions};
 use kinetrace::bvh::{BuildOptions, Builder, Bvh, radix_sort};
-use kinetrace::gpu::{
-    GpuContext, GpuMeshBvh, GpuRays, GpuSkin, Query, shared_for_tests, sort_pairs,
-};
+use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuRays, GpuSkin, Query, sort_pairs};
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use rand::Rng;
 
 fn gpu() -> Option<GpuContext> {
-    shared_for_tests()
+    gpu_or_skip()
 }
 
 const SIZES: [usize; 6] = [0, 1, 2, 3, 1023, 1025];

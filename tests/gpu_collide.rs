@@ -7,7 +7,7 @@ mod common;
 use common::*;
 use glam::{Affine3A, DMat3, DVec3, Quat, Vec3};
 use kinetrace::bvh::{BuildOptions, Builder, Node};
-use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuPairs, GpuTree, PairsResult, shared_for_tests};
+use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuPairs, GpuTree, PairsResult};
 use kinetrace::{Mesh, MeshBvh};
 use std::collections::BTreeSet;
 
@@ -15,7 +15,7 @@ use std::collections::BTreeSet;
 const PLACE_SLACK: f64 = 8.0 * f32::EPSILON as f64;
 
 fn gpu() -> Option<GpuContext> {
-    shared_for_tests()
+    gpu_or_skip()
 }
 
 /// The builds every scene is tried with: both builders, one and four triangles per leaf.

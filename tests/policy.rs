@@ -266,7 +266,7 @@ fn without_a_gpu_every_build_runs_on_the_cpu() {
 #[cfg(feature = "gpu")]
 #[test]
 fn with_a_gpu_the_adaptive_policy_tries_it_and_answers_stay_exact() {
-    if kinetrace::gpu::shared_for_tests().is_none() {
+    if gpu_or_skip().is_none() {
         return;
     }
     let lbvh = RebuildPolicy::Adaptive {

@@ -2,6 +2,7 @@
 //! every scene and strategy is reported, no sampled ray differs from brute force, and every figure is a
 //! PNG of its size with text, a legend entry per strategy and data drawn.
 
+mod common;
 #[path = "../examples/report/harness.rs"]
 mod harness;
 #[path = "../examples/report/output.rs"]
@@ -19,10 +20,14 @@ use std::path::{Path, PathBuf};
 #[test]
 fn quick_report_writes_every_file_with_zero_mismatches() {
     let out = std::env::temp_dir().join(format!("kinetrace-report-{}", std::process::id()));
-    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets");
-    let report = output::write_report(&harness::Settings::QUICK, &assets, &out).unwrap();
+    let report = output::write_report(
+        &harness::Settings::QUICK,
+        &common::shared_assets_dir(),
+        &out,
+    )
+    .unwrap();
     for s in &report.skipped {
-        eprintln!("note: {s}");
+        common::skip(s);
     }
     let pngs: Vec<String> = report
         .files

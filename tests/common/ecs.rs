@@ -1,11 +1,10 @@
 //! ECS worlds for tests, and their oracle: brute force over every triangle of every traceable entity, in
 //! world space.
 
+use super::RayOracle;
 use bevy_ecs::prelude::*;
-use glam::Vec3;
 use kinetrace::Ray;
 use kinetrace::ecs::*;
-use kinetrace::geometry::TriangleRay;
 
 /// A world and schedule with the plugin installed with `config` (whose GPU, in a GPU mode, must exist).
 pub fn app_with(config: TraceConfig) -> (World, Schedule) {
@@ -20,7 +19,8 @@ pub fn app_with(config: TraceConfig) -> (World, Schedule) {
     (world, schedule)
 }
 
-/// Brute force over every triangle of every accepted entity, in world space: (entity, triangle, t).
+/// Brute force over every triangle of every accepted entity, in world space, by the independent oracle
+/// ([`RayOracle`]'s exact closest hit): (entity, triangle, t).
 pub fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Entity, u32, f32)> {
     let mut q = world.query_filtered::<(
         Entity,
@@ -29,8 +29,8 @@ pub fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Enti
         &TraceTransform,
         &QueryLayers,
     ), Without<TraceError>>();
-    let tr = TriangleRay::new(ray);
-    let mut best: Option<(Entity, u32, f32)> = None;
+    let mut keys = Vec::new();
+    let mut tris = Vec::new();
     for (e, m, vp, t, l) in q.iter(world) {
         if !filter.accepts(e, l.0) {
             continue;
@@ -40,18 +40,14 @@ pub fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Enti
             _ => m.0.positions(),
         };
         for (i, tri) in m.0.indices().chunks(3).enumerate() {
-            let [a, b, c] = [0, 1, 2].map(|k| t.0.transform_point3(pos[tri[k] as usize]));
-            if (b - a).cross(c - a) == Vec3::ZERO {
-                continue;
-            }
-            if let Some(h) = tr.intersect(a, b, c, ray.tmin, ray.tmax)
-                && best.is_none_or(|(_, _, bt)| h.t < bt)
-            {
-                best = Some((e, i as u32, h.t));
-            }
+            keys.push((e, i as u32));
+            tris.push([0, 1, 2].map(|k| t.0.transform_point3(pos[tri[k] as usize])));
         }
     }
-    best
+    RayOracle::new(ray, tris).closest().map(|(k, t)| {
+        let (e, i) = keys[k as usize];
+        (e, i, t as f32)
+    })
 }
 
 /// The world and brute force agree: same entity and triangle at the same distance (1e-4 relative: the
