@@ -326,11 +326,11 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         turret_marks: Vec::new(),
     });
     schedule.add_systems((
-        walk.before(TraceSet::TopLevel),
+        walk.before(TraceSystems::TopLevel),
         (look_and_probe, turret)
-            .after(TraceSet::TopLevel)
-            .before(TraceSet::Queries),
-        bumps.after(TraceSet::Queries),
+            .after(TraceSystems::TopLevel)
+            .before(TraceSystems::Queries),
+        bumps.after(TraceSystems::Queries),
     ));
     Ok((world, schedule))
 }

@@ -50,7 +50,7 @@ type SkinData<'a> = (
     &'a mut VertexPositions,
 );
 
-/// [`TraceSet::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
+/// [`TraceSystems::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
 pub(crate) fn skin_system(
     mut skinned: Query<SkinData, (Changed<TraceSkin>, Without<TraceError>)>,
     mut world: ResMut<TraceWorld>,
@@ -99,7 +99,7 @@ pub(super) fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Er
     }
 }
 
-/// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows.
+/// [`TraceSystems::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows.
 pub(crate) fn top_level_system(
     moved: Query<(Entity, &TraceTransform, &QueryLayers), PlacementChanged>,
     mut world: ResMut<TraceWorld>,
@@ -154,7 +154,7 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
     });
 }
 
-/// [`TraceSet::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
+/// [`TraceSystems::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
 /// CPU threads — and publishes them now ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`],
 /// when a GPU batch is collected without having stalled the frame that submitted it).
 pub(crate) fn queries_system(
@@ -224,7 +224,7 @@ fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     stats.query_time = start.elapsed();
 }
 
-/// [`TraceSet::Characterize`]: profiles meshes that are new, were rebuilt, or whose degradation moved by
+/// [`TraceSystems::Characterize`]: profiles meshes that are new, were rebuilt, or whose degradation moved by
 /// more than [`TraceConfig::profile_refresh`] since their last profile. Cost: a pass over the instances,
 /// plus one characterisation (O(n) in triangles) per mesh that needs it.
 pub(crate) fn characterize_system(
