@@ -15,8 +15,9 @@ use std::sync::Arc;
 #[require(TraceTransform, QueryLayers)]
 pub struct TraceMesh(pub Mesh);
 
-/// Object-to-world transform of a traceable entity. Users with their own transform type copy it in here
-/// (before [`TraceSystems::TopLevel`](super::TraceSystems::TopLevel)); moving an entity only touches the top level.
+/// Object-to-world transform of a traceable entity; moving an entity only touches the top level. Write it
+/// before [`TraceSystems::TopLevel`](super::TraceSystems::TopLevel), or let the plugin follow your own
+/// transform component into it ([`KinetracePlugin::sync_transforms`](super::KinetracePlugin::sync_transforms)).
 #[derive(Component, Clone, Copy, Debug, PartialEq, Default)]
 pub struct TraceTransform(pub Affine3A);
 

@@ -62,6 +62,7 @@ mod params;
 mod plugin;
 mod stats;
 mod systems;
+mod transform_sync;
 mod world;
 
 pub use crate::adaptive::{Build, Device, Prediction, Verdict};
@@ -83,4 +84,5 @@ pub use params::SpatialRays;
 pub use plugin::TraceSet;
 pub use plugin::{KinetracePlugin, Plugin, TraceSystems};
 pub use stats::{MeshAction, MeshStats, RebuildReason, TraceStats};
+pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

@@ -58,6 +58,9 @@ pub struct KinetracePlugin {
     pub config: TraceConfig,
     /// Run `message_update_system` (see above).
     pub update_messages: bool,
+    /// The app's transform components followed into [`TraceTransform`] (add them with
+    /// [`sync_transforms`](Self::sync_transforms)).
+    pub transform_sources: Vec<TransformSource>,
 }
 
 impl Default for KinetracePlugin {
@@ -65,6 +68,7 @@ impl Default for KinetracePlugin {
         Self {
             config: TraceConfig::default(),
             update_messages: true,
+            transform_sources: Vec::new(),
         }
     }
 }
@@ -122,6 +126,9 @@ impl KinetracePlugin {
                 .run_if(super::collide::collisions_needed)
                 .in_set(TraceSystems::Queries),
         ));
+        for source in &self.transform_sources {
+            source.install(schedule);
+        }
         self.start_gpu(world)
     }
 
