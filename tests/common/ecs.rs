@@ -2,7 +2,7 @@
 //! world space.
 
 use bevy_ecs::prelude::*;
-use glam::Vec3;
+use glam::{Affine3A, Vec3};
 use kinetrace::Ray;
 use kinetrace::ecs::*;
 use kinetrace::geometry::TriangleRay;
@@ -22,25 +22,38 @@ pub fn app_with(config: TraceConfig) -> (World, Schedule) {
 
 /// Brute force over every triangle of every accepted entity, in world space: (entity, triangle, t).
 pub fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Entity, u32, f32)> {
+    brute_placed(world, ray, filter, |e| {
+        e.get::<TraceTransform>().expect("required by TraceMesh").0
+    })
+}
+
+/// [`brute`] with every entity placed where `place` says rather than by its `TraceTransform`: the oracle
+/// for code that is meant to write that transform.
+pub fn brute_placed(
+    world: &mut World,
+    ray: &Ray,
+    filter: &QueryFilter,
+    place: impl Fn(EntityRef) -> Affine3A,
+) -> Option<(Entity, u32, f32)> {
     let mut q = world.query_filtered::<(
         Entity,
         &TraceMesh,
         Option<&VertexPositions>,
-        &TraceTransform,
         &QueryLayers,
     ), Without<TraceError>>();
     let tr = TriangleRay::new(ray);
     let mut best: Option<(Entity, u32, f32)> = None;
-    for (e, m, vp, t, l) in q.iter(world) {
+    for (e, m, vp, l) in q.iter(world) {
         if !filter.accepts(e, l.0) {
             continue;
         }
+        let t = place(world.entity(e));
         let pos = match vp {
             Some(v) if !v.0.is_empty() => &v.0[..],
             _ => m.0.positions(),
         };
         for (i, tri) in m.0.indices().chunks(3).enumerate() {
-            let [a, b, c] = [0, 1, 2].map(|k| t.0.transform_point3(pos[tri[k] as usize]));
+            let [a, b, c] = [0, 1, 2].map(|k| t.transform_point3(pos[tri[k] as usize]));
             if (b - a).cross(c - a) == Vec3::ZERO {
                 continue;
             }
