@@ -105,6 +105,11 @@ impl fmt::Debug for TransformSource {
 
 /// Traceable entities whose `T` is new or changed, or that just became traceable.
 type SourceChanged<T> = (With<TraceMesh>, Or<(Changed<T>, Added<TraceMesh>)>);
+/// Their `T` and the transform it sets.
+type Followed<'w, 's, T> =
+    Query<'w, 's, (&'static T, &'static mut TraceTransform), SourceChanged<T>>;
+/// Transforms of entities without a `T` (those that just lost theirs among them).
+type Orphans<'w, 's, T> = Query<'w, 's, &'static mut TraceTransform, Without<T>>;
 
 /// The system that copies `T` into [`TraceTransform`]: for traceable entities whose `T` was inserted or
 /// changed, or that became traceable while having a `T`; and back to the identity (where an entity without
@@ -112,11 +117,7 @@ type SourceChanged<T> = (With<TraceMesh>, Or<(Changed<T>, Added<TraceMesh>)>);
 /// matrix costs the top level nothing.
 fn sync_transforms<T: Component>(
     to_affine: fn(&T) -> Affine3A,
-) -> impl FnMut(
-    Query<(&T, &mut TraceTransform), SourceChanged<T>>,
-    RemovedComponents<T>,
-    Query<&mut TraceTransform, Without<T>>,
-) {
+) -> impl FnMut(Followed<T>, RemovedComponents<T>, Orphans<T>) {
     move |mut changed, mut removed, mut orphans| {
         for (source, mut target) in &mut changed {
             target.set_if_neq(TraceTransform(to_affine(source)));
