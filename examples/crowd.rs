@@ -82,12 +82,24 @@ const CHARACTERS: u32 = 1 << 0;
 const GROUND: u32 = 1 << 1;
 const DT: f32 = 1.0 / 60.0;
 
+/// A character's own state, its placement included: the plugin follows it into the trace transform
+/// (`sync_transforms`), so gameplay never writes `TraceTransform`.
 #[derive(Component)]
 struct Walker {
     pos: Vec2,
     heading: f32,
     speed: f32,
     turn: f32,
+}
+
+impl Walker {
+    /// Standing at `pos` on the ground, facing `heading`.
+    fn affine(&self) -> Affine3A {
+        Affine3A::from_rotation_translation(
+            Quat::from_rotation_y(self.heading),
+            Vec3::new(self.pos.x, 0.0, self.pos.y),
+        )
+    }
 }
 
 #[derive(Resource)]
@@ -98,9 +110,9 @@ struct Crowd {
 
 /// Moves every walker: forward along its heading, turning gently, pushed apart from near neighbours and
 /// kept inside the arena.
-fn walk(mut q: Query<(Entity, &mut Walker, &mut TraceTransform)>) {
-    let snapshot: Vec<(Entity, Vec2)> = q.iter().map(|(e, w, _)| (e, w.pos)).collect();
-    for (e, mut w, mut t) in &mut q {
+fn walk(mut q: Query<(Entity, &mut Walker)>) {
+    let snapshot: Vec<(Entity, Vec2)> = q.iter().map(|(e, w)| (e, w.pos)).collect();
+    for (e, mut w) in &mut q {
         let mut push = Vec2::ZERO;
         for &(o, p) in &snapshot {
             let d = w.pos - p;
@@ -113,10 +125,6 @@ fn walk(mut q: Query<(Entity, &mut Walker, &mut TraceTransform)>) {
         let dir = Vec2::new(w.heading.sin(), w.heading.cos());
         let step = dir * w.speed * DT + push * 0.5 + home * DT;
         w.pos += step;
-        t.0 = Affine3A::from_rotation_translation(
-            Quat::from_rotation_y(w.heading),
-            Vec3::new(w.pos.x, 0.0, w.pos.y),
-        );
     }
 }
 
@@ -260,6 +268,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         },
         ..Default::default()
     }
+    .sync_transforms(Walker::affine)
     .try_build(&mut world, &mut schedule)?;
     let device = world
         .get_resource::<GpuQueries>()
@@ -303,11 +312,6 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         };
         world.spawn((
             AnimationPlayer::bundle(&asset, clip, i as f32 * 0.13),
-            TraceTransform(Affine3A::from_translation(Vec3::new(
-                r * a.cos(),
-                0.0,
-                r * a.sin(),
-            ))),
             QueryLayers(CHARACTERS),
             Collider {
                 layers: CollisionLayers::new(CHARACTERS, CHARACTERS),
@@ -326,11 +330,11 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         turret_marks: Vec::new(),
     });
     schedule.add_systems((
-        walk.before(TraceSet::TopLevel),
+        walk.before(TraceSystems::TopLevel),
         (look_and_probe, turret)
-            .after(TraceSet::TopLevel)
-            .before(TraceSet::Queries),
-        bumps.after(TraceSet::Queries),
+            .after(TraceSystems::TopLevel)
+            .before(TraceSystems::Queries),
+        bumps.after(TraceSystems::Queries),
     ));
     Ok((world, schedule))
 }

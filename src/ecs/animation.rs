@@ -1,4 +1,4 @@
-//! Playing character clips: joint matrices for [`TraceSkin`] each frame, in [`TraceSet::Animate`].
+//! Playing character clips: joint matrices for [`TraceSkin`] each frame, in [`TraceSystems::Animate`].
 
 use super::TraceSkin;
 use crate::anim::{CharacterAsset, Transform};

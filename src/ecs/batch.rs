@@ -1,4 +1,4 @@
-//! Batched queries: gameplay systems push requests, [`TraceSet::Queries`](super::TraceSet::Queries) runs
+//! Batched queries: gameplay systems push requests, [`TraceSystems::Queries`](super::TraceSystems::Queries) runs
 //! them all at once, on all threads, and publishes the answers.
 
 use super::{QueryFilter, RayHit};
@@ -31,7 +31,7 @@ pub struct ShadowRequest {
 }
 
 /// Requests queued this frame. Push from any system that runs before
-/// [`TraceSet::Queries`](super::TraceSet::Queries); the queue is drained there (its memory is kept for the
+/// [`TraceSystems::Queries`](super::TraceSystems::Queries); the queue is drained there (its memory is kept for the
 /// next frame).
 #[derive(Resource, Default, Debug)]
 pub struct RayQueue {

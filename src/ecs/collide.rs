@@ -1,5 +1,5 @@
 //! Collision queries in the ECS: entities opt in with a [`Collider`]; each frame, in
-//! [`TraceSet::Queries`](super::TraceSet::Queries), the pairs of colliders whose world boxes overlap in the
+//! [`TraceSystems::Queries`](super::TraceSystems::Queries), the pairs of colliders whose world boxes overlap in the
 //! top-level tree are tested on this frame's refitted trees, the results published in [`Contacts`], and
 //! [`CollisionStarted`] / [`CollisionEnded`] sent when a pair starts or stops touching.
 //!
@@ -97,7 +97,7 @@ pub struct ContactPair {
     impacts: Range<usize>,
 }
 
-/// This frame's collisions, published in [`TraceSet::Queries`](super::TraceSet::Queries).
+/// This frame's collisions, published in [`TraceSystems::Queries`](super::TraceSystems::Queries).
 ///
 /// Discrete pairs have [`Contact`]s (points and normals in world space); continuous pairs have
 /// [`Impact`]s (first times of contact within the frame, points in world space).
@@ -301,7 +301,7 @@ impl Visit for TopPairs<'_> {
     }
 }
 
-/// [`TraceSet::Queries`](super::TraceSet::Queries): the collision pass (see the module docs).
+/// [`TraceSystems::Queries`](super::TraceSystems::Queries): the collision pass (see the module docs).
 pub(crate) fn collide_system(
     colliders: Query<(Entity, &Collider, &TraceMesh, Option<&VertexPositions>)>,
     world: Res<TraceWorld>,

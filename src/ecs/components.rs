@@ -15,8 +15,9 @@ use std::sync::Arc;
 #[require(TraceTransform, QueryLayers)]
 pub struct TraceMesh(pub Mesh);
 
-/// Object-to-world transform of a traceable entity. Users with their own transform type copy it in here
-/// (before [`TraceSet::TopLevel`](super::TraceSet::TopLevel)); moving an entity only touches the top level.
+/// Object-to-world transform of a traceable entity; moving an entity only touches the top level. Write it
+/// before [`TraceSystems::TopLevel`](super::TraceSystems::TopLevel), or let the plugin follow your own
+/// transform component into it ([`KinetracePlugin::sync_transforms`](super::KinetracePlugin::sync_transforms)).
 #[derive(Component, Clone, Copy, Debug, PartialEq, Default)]
 pub struct TraceTransform(pub Affine3A);
 
@@ -28,7 +29,7 @@ pub struct VertexPositions(pub Vec<Vec3>);
 /// Linear-blend skinning of a [`TraceMesh`]: its weights and this frame's joint matrices (joint world
 /// transform × inverse bind matrix, in the mesh's object space), and optionally morph targets with this
 /// frame's weights, applied to the rest positions first. Changing it re-skins the mesh into
-/// [`VertexPositions`] during [`TraceSet::Skin`](super::TraceSet::Skin).
+/// [`VertexPositions`] during [`TraceSystems::Skin`](super::TraceSystems::Skin).
 #[derive(Component, Clone, Debug)]
 #[require(VertexPositions)]
 pub struct TraceSkin {

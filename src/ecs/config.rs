@@ -24,7 +24,7 @@ pub enum TraceMode {
 /// When batched query results become readable.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Latency {
-    /// In the frame the requests were pushed, after [`TraceSet::Queries`](super::TraceSet::Queries).
+    /// In the frame the requests were pushed, after [`TraceSystems::Queries`](super::TraceSystems::Queries).
     #[default]
     SameFrame,
     /// One frame later: frame N's answers are published in frame N+1 (the mode that lets a GPU back end

@@ -1,4 +1,4 @@
-//! [`TraceSet::Maintain`]: per changed mesh, refit and ask the policy, or rebuild — with the chosen builder
+//! [`TraceSystems::Maintain`]: per changed mesh, refit and ask the policy, or rebuild — with the chosen builder
 //! on the chosen device — and feed the adaptive policy what it measured.
 
 use super::config::lauterbach;

@@ -34,14 +34,14 @@
 //!         seen.0.push(hit.distance);
 //!     }
 //!     queue.shadow(7, Vec3::new(0.0, 5.0, 0.0), Vec3::new(0.0, -5.0, 0.0), QueryFilter::default());
-//!     let _ = &results.shadows; // last batch's answers, readable after TraceSet::Queries
+//!     let _ = &results.shadows; // last batch's answers, readable after TraceSystems::Queries
 //! }
 //!
 //! let mut world = World::new();
 //! let mut schedule = Schedule::default();
 //! KinetracePlugin::default().build(&mut world, &mut schedule);
 //! world.init_resource::<Seen>();
-//! schedule.add_systems((spin.before(TraceSet::TopLevel), look.after(TraceSet::TopLevel).before(TraceSet::Queries)));
+//! schedule.add_systems((spin.before(TraceSystems::TopLevel), look.after(TraceSystems::TopLevel).before(TraceSystems::Queries)));
 //! world.spawn((TraceMesh(scenes::icosphere(2)), MotionHint::Rigid));
 //!
 //! for _frame in 0..3 {
@@ -66,6 +66,7 @@ mod plugin;
 mod stats;
 mod systems;
 mod top_level;
+mod transform_sync;
 mod world;
 
 pub use crate::adaptive::{Build, Device, Prediction, Verdict};
@@ -83,8 +84,11 @@ pub use config::{
 pub use filter::{QueryFilter, RayHit};
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
-pub use plugin::{KinetracePlugin, Plugin, TraceSet};
+#[allow(deprecated)] // the old name, re-exported until it is removed
+pub use plugin::TraceSet;
+pub use plugin::{KinetracePlugin, Plugin, TraceSystems};
 pub use stats::{
     MeshAction, MeshStats, RebuildReason, TopLevelAction, TopLevelReason, TopLevelStats, TraceStats,
 };
+pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

@@ -7,7 +7,7 @@ use bevy_ecs::system::SystemParam;
 use glam::Vec3;
 
 /// Immediate ray queries for gameplay systems, against the structures of this frame (use it in systems
-/// ordered after [`TraceSet::TopLevel`](super::TraceSet::TopLevel)). CPU traversal; cost: one top-level
+/// ordered after [`TraceSystems::TopLevel`](super::TraceSystems::TopLevel)). CPU traversal; cost: one top-level
 /// traversal plus one per entity whose box the ray reaches.
 ///
 /// ```

@@ -17,7 +17,7 @@ pub trait Plugin {
 /// [`Animate`](Self::Animate), transform writes before [`TopLevel`](Self::TopLevel), gameplay that reads
 /// queries after [`Queries`](Self::Queries).
 #[derive(SystemSet, Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum TraceSet {
+pub enum TraceSystems {
     /// Sample animations into joint matrices (your systems, or the glTF animation player).
     Animate,
     /// Linear-blend skinning into [`VertexPositions`].
@@ -32,6 +32,15 @@ pub enum TraceSet {
     Queries,
 }
 
+/// The old name of [`TraceSystems`], from before bevy 0.17 named system sets `…Systems`; removed in the
+/// next release. Being an alias of the enum, it still names the variants (`TraceSet::TopLevel`) and works
+/// in `in_set`, `before` and `after` and in patterns; only the new name appears in the docs.
+#[deprecated(
+    since = "0.1.0",
+    note = "renamed to `TraceSystems`, after bevy's `…Systems` convention"
+)]
+pub type TraceSet = TraceSystems;
+
 /// Adds ray queries over every entity with a [`TraceMesh`].
 ///
 /// The plugin's systems run one after another, so a schedule made mostly of them is best served by
@@ -41,7 +50,7 @@ pub enum TraceSet {
 ///
 /// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`], [`Contacts`],
 /// [`CollisionSettings`]; messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With
-/// [`update_messages`](Self::update_messages) (the default) the plugin also runs bevy's `message_update_system` once per frame, before [`TraceSet::Animate`]; turn it off when your
+/// [`update_messages`](Self::update_messages) (the default) the plugin also runs bevy's `message_update_system` once per frame, before [`TraceSystems::Animate`]; turn it off when your
 /// loop already does.
 #[derive(Clone, Debug)]
 pub struct KinetracePlugin {
@@ -49,6 +58,9 @@ pub struct KinetracePlugin {
     pub config: TraceConfig,
     /// Run `message_update_system` (see above).
     pub update_messages: bool,
+    /// The app's transform components followed into [`TraceTransform`] (add them with
+    /// [`sync_transforms`](Self::sync_transforms)).
+    pub transform_sources: Vec<TransformSource>,
 }
 
 impl Default for KinetracePlugin {
@@ -56,6 +68,7 @@ impl Default for KinetracePlugin {
         Self {
             config: TraceConfig::default(),
             update_messages: true,
+            transform_sources: Vec::new(),
         }
     }
 }
@@ -89,12 +102,12 @@ impl KinetracePlugin {
         world.remove_resource::<GpuQueries>();
         schedule.configure_sets(
             (
-                TraceSet::Animate,
-                TraceSet::Skin,
-                TraceSet::Characterize,
-                TraceSet::Maintain,
-                TraceSet::TopLevel,
-                TraceSet::Queries,
+                TraceSystems::Animate,
+                TraceSystems::Skin,
+                TraceSystems::Characterize,
+                TraceSystems::Maintain,
+                TraceSystems::TopLevel,
+                TraceSystems::Queries,
             )
                 .chain(),
         );
@@ -102,17 +115,20 @@ impl KinetracePlugin {
             schedule.add_systems(message_update_system.before(begin_frame));
         }
         schedule.add_systems((
-            begin_frame.before(TraceSet::Animate),
-            super::animation::animate_system.in_set(TraceSet::Animate),
-            skin_system.in_set(TraceSet::Skin),
-            characterize_system.in_set(TraceSet::Characterize),
-            maintain_system.in_set(TraceSet::Maintain),
-            top_level_system.in_set(TraceSet::TopLevel),
-            queries_system.in_set(TraceSet::Queries),
+            begin_frame.before(TraceSystems::Animate),
+            super::animation::animate_system.in_set(TraceSystems::Animate),
+            skin_system.in_set(TraceSystems::Skin),
+            characterize_system.in_set(TraceSystems::Characterize),
+            maintain_system.in_set(TraceSystems::Maintain),
+            top_level_system.in_set(TraceSystems::TopLevel),
+            queries_system.in_set(TraceSystems::Queries),
             super::collide::collide_system
                 .run_if(super::collide::collisions_needed)
-                .in_set(TraceSet::Queries),
+                .in_set(TraceSystems::Queries),
         ));
+        for source in &self.transform_sources {
+            source.install(schedule);
+        }
         self.start_gpu(world)
     }
 

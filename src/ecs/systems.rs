@@ -50,7 +50,7 @@ type SkinData<'a> = (
     &'a mut VertexPositions,
 );
 
-/// [`TraceSet::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
+/// [`TraceSystems::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
 pub(crate) fn skin_system(
     mut skinned: Query<SkinData, (Changed<TraceSkin>, Without<TraceError>)>,
     mut world: ResMut<TraceWorld>,
@@ -100,7 +100,7 @@ pub(super) fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Er
 }
 
 /// What the top level reads of a placed entity; the mesh and positions only for whether
-/// [`TraceSet::Maintain`] already listed it this frame.
+/// [`TraceSystems::Maintain`] already listed it this frame.
 type Placement<'a> = (
     Entity,
     &'a TraceTransform,
@@ -109,7 +109,7 @@ type Placement<'a> = (
     Option<Ref<'a, VertexPositions>>,
 );
 
-/// [`TraceSet::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows
+/// [`TraceSystems::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows
 /// (refitted, or rebuilt by the rule of [`top_level`](super::top_level)). O(moved entities) plus the TLAS
 /// update.
 pub(crate) fn top_level_system(
@@ -170,7 +170,7 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
     });
 }
 
-/// [`TraceSet::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
+/// [`TraceSystems::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
 /// CPU threads — and publishes them now ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`],
 /// when a GPU batch is collected without having stalled the frame that submitted it).
 pub(crate) fn queries_system(
@@ -240,7 +240,7 @@ fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     stats.query_time = start.elapsed();
 }
 
-/// [`TraceSet::Characterize`]: profiles meshes that are new, were rebuilt, or whose degradation moved by
+/// [`TraceSystems::Characterize`]: profiles meshes that are new, were rebuilt, or whose degradation moved by
 /// more than [`TraceConfig::profile_refresh`] since their last profile. Cost: a pass over the instances,
 /// plus one characterisation (O(n) in triangles) per mesh that needs it.
 pub(crate) fn characterize_system(

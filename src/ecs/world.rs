@@ -188,7 +188,7 @@ impl TraceWorld {
         self.instances.get(&e).map(|i| &i.bvh)
     }
 
-    /// The characteriser's current profile of the entity's mesh (see [`TraceSet::Characterize`](super::TraceSet)).
+    /// The characteriser's current profile of the entity's mesh (see [`TraceSystems::Characterize`](super::TraceSystems)).
     pub fn profile(&self, e: Entity) -> Option<&Arc<SceneProfile>> {
         self.instances.get(&e).and_then(|i| i.profile.as_ref())
     }

@@ -3,6 +3,7 @@
 
 use super::RayOracle;
 use bevy_ecs::prelude::*;
+use glam::Affine3A;
 use kinetrace::Ray;
 use kinetrace::ecs::*;
 
@@ -22,26 +23,39 @@ pub fn app_with(config: TraceConfig) -> (World, Schedule) {
 /// Brute force over every triangle of every accepted entity, in world space, by the independent oracle
 /// ([`RayOracle`]'s exact closest hit): (entity, triangle, t).
 pub fn brute(world: &mut World, ray: &Ray, filter: &QueryFilter) -> Option<(Entity, u32, f32)> {
+    brute_placed(world, ray, filter, |e| {
+        e.get::<TraceTransform>().expect("required by TraceMesh").0
+    })
+}
+
+/// [`brute`] with every entity placed where `place` says rather than by its `TraceTransform`: the oracle
+/// for code that is meant to write that transform.
+pub fn brute_placed(
+    world: &mut World,
+    ray: &Ray,
+    filter: &QueryFilter,
+    place: impl Fn(EntityRef) -> Affine3A,
+) -> Option<(Entity, u32, f32)> {
     let mut q = world.query_filtered::<(
         Entity,
         &TraceMesh,
         Option<&VertexPositions>,
-        &TraceTransform,
         &QueryLayers,
     ), Without<TraceError>>();
     let mut keys = Vec::new();
     let mut tris = Vec::new();
-    for (e, m, vp, t, l) in q.iter(world) {
+    for (e, m, vp, l) in q.iter(world) {
         if !filter.accepts(e, l.0) {
             continue;
         }
+        let t = place(world.entity(e));
         let pos = match vp {
             Some(v) if !v.0.is_empty() => &v.0[..],
             _ => m.0.positions(),
         };
         for (i, tri) in m.0.indices().chunks(3).enumerate() {
             keys.push((e, i as u32));
-            tris.push([0, 1, 2].map(|k| t.0.transform_point3(pos[tri[k] as usize])));
+            tris.push([0, 1, 2].map(|k| t.transform_point3(pos[tri[k] as usize])));
         }
     }
     RayOracle::new(ray, tris).closest().map(|(k, t)| {
