@@ -8,6 +8,7 @@ use glam::{Mat4, Vec3};
 use kinetrace::anim::{load_gltf, load_gltf_slice, skin_positions};
 use kinetrace::ecs::*;
 use kinetrace::{Error, Ray};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 #[test]
