@@ -201,9 +201,10 @@ impl GpuPairs {
         self.depths.iter().copied().max().unwrap_or(0)
     }
 
-    /// Test hook: dispatches at most `groups` workgroups per round (at least 1, at most the device's
-    /// limit), so that tests reach the stride over queues wider than a dispatch without millions of pairs.
-    #[doc(hidden)]
+    /// Test hook (feature `testing`): dispatches at most `groups` workgroups per round (at least 1, at most
+    /// the device's limit), so that tests reach the stride over queues wider than a dispatch without
+    /// millions of pairs.
+    #[cfg(feature = "testing")]
     pub fn limit_workgroups(&mut self, ctx: &GpuContext, groups: u32) {
         let device = ctx.device.limits().max_compute_workgroups_per_dimension;
         self.max_groups = groups.clamp(1, device);

@@ -117,9 +117,10 @@ impl GpuContext {
     }
 }
 
-/// The shared context for tests and examples: created once per process, `None` (with the reason printed
-/// once) where no adapter exists. With `KINETRACE_REQUIRE_GPU=1` set, a missing adapter panics instead, so
-/// that CI cannot pass by skipping.
+/// Test hook (feature `testing`): the shared context of the integration tests, created once per process,
+/// `None` (with the reason printed once) where no adapter exists. With `KINETRACE_REQUIRE_GPU=1` set, a
+/// missing adapter panics instead, so that CI cannot pass by skipping.
+#[cfg(feature = "testing")]
 pub fn shared_for_tests() -> Option<GpuContext> {
     use std::sync::OnceLock;
     static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();
