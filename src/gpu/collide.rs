@@ -10,7 +10,7 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
-use super::bvh::node_depths;
+use super::tree::{GpuTree, node_depths};
 use crate::bvh::{MAX_DEPTH, Node};
 use crate::{Error, Result};
 use bytemuck::{Pod, Zeroable};
@@ -58,31 +58,6 @@ const _: () = assert!(std::mem::size_of::<CollideParams>() == 80);
 const MODE_SAME: u32 = 0;
 const MODE_MOVED: u32 = 1;
 const MODE_SELF: u32 = 2;
-
-/// A tree whose nodes are on the GPU, in the crate's [`Node`] layout, as [`GpuPairs::record`] reads it:
-/// a valid tree (see [`Bvh::validate`](crate::bvh::Bvh::validate)), such as
-/// [`GpuMeshBvh::tree`](super::GpuMeshBvh::tree).
-#[derive(Clone, Copy, Debug)]
-pub struct GpuTree<'a> {
-    /// The node buffer (root at index 0).
-    pub nodes: &'a wgpu::Buffer,
-    /// Number of nodes; 0 for an empty tree.
-    pub count: u32,
-    /// Depth of the deepest leaf (the root is at depth 0), or any larger bound: the traversal records
-    /// `height_a + height_b + 2` rounds, so a tight height saves empty dispatches.
-    pub height: u32,
-}
-
-impl<'a> GpuTree<'a> {
-    /// A tree of `count` nodes of unknown height (bounded by [`MAX_DEPTH`]).
-    pub fn new(nodes: &'a wgpu::Buffer, count: u32) -> Self {
-        Self {
-            nodes,
-            count,
-            height: MAX_DEPTH as u32,
-        }
-    }
-}
 
 /// How much room the last query that overflowed wanted, shared by a [`GpuPairs`] and its read-backs.
 #[derive(Default)]
