@@ -3,9 +3,11 @@
 mod aabb;
 mod morton;
 mod ray;
+mod transform;
 mod triangle;
 
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
 pub use morton::{morton30, morton63};
 pub use ray::{ROBUST_TMAX_SCALE, Ray};
+pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};

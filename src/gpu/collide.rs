@@ -12,6 +12,7 @@ use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
 use super::tree::{GpuTree, node_depths};
 use crate::bvh::{MAX_DEPTH, Node};
+use crate::geometry::check_finite;
 use crate::{Error, Result};
 use bytemuck::{Pod, Zeroable};
 use glam::Affine3A;
@@ -236,8 +237,9 @@ impl GpuPairs {
     /// for `a` against itself — into `encoder`, followed by a read-back of the leaf pairs found. Record
     /// at most one query per [`GpuPairs`] per submission (its parameters are written at submit).
     ///
-    /// Errors for a node buffer smaller than its count, or when an earlier overflow asks for buffers past
-    /// the device's limits.
+    /// Errors: [`Error::InvalidTransform`] for a transform that is not finite; [`Error::Gpu`] for a node
+    /// buffer smaller than its count, or when an earlier overflow asks for buffers past the device's
+    /// limits.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
@@ -245,6 +247,9 @@ impl GpuPairs {
         a: GpuTree<'_>,
         b: Option<(GpuTree<'_>, Affine3A)>,
     ) -> Result<PairsReadback> {
+        if let Some((_, b_to_a)) = &b {
+            check_finite(b_to_a)?;
+        }
         let (tree_b, b_to_a, mode) = match b {
             None => (a, Affine3A::IDENTITY, MODE_SELF),
             Some((t, m)) if m == Affine3A::IDENTITY => (t, m, MODE_SAME),
