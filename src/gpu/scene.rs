@@ -10,7 +10,7 @@ use crate::geometry::Ray;
 use bytemuck::{Pod, Zeroable};
 use glam::{Affine3A, Mat3A, Vec3};
 
-/// One entity as the kernel reads it (80 bytes).
+/// One instance as the kernel reads it (144 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct GpuInstance {
@@ -18,10 +18,15 @@ struct GpuInstance {
     columns: [[f32; 4]; 4],
     /// Object-to-world normal matrix, columns.
     normal: [[f32; 4]; 3],
+    /// The instance's root in the BLAS node buffer.
     node_offset: u32,
+    /// Its first entry in the slot-triangle buffer.
     slot_offset: u32,
+    /// Its first corner in the corner buffer (slot-triangle corners are relative to it).
     vertex_offset: u32,
+    /// Query layers it is on.
     layers: u32,
+    /// The instance id, low word first (compared with a request's exclusion).
     entity: [u32; 2],
     _pad: [u32; 2],
 }
@@ -278,7 +283,7 @@ impl GpuScene {
         }
     }
 
-    /// Number of TLAS nodes uploaded (0 for an empty world).
+    /// Number of TLAS nodes uploaded (0 for an empty scene).
     fn tlas_nodes(&self) -> u32 {
         if self.ids.is_empty() {
             0
