@@ -81,9 +81,7 @@ mod imp {
                     layers: inst.layers,
                 }
             });
-            inner
-                .scene
-                .sync(&inner.ctx, world.version, tlas, instances);
+            inner.scene.sync(&inner.ctx, world.version, tlas, instances);
             let mut fresh = RayResults {
                 frame,
                 hits: Vec::with_capacity(queue.rays.len()),
