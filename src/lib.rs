@@ -3,9 +3,23 @@
 //! Fast, correct ray, shadow and collision queries against meshes that move and deform every frame —
 //! skinned characters included — for `bevy_ecs` games and simulations.
 //!
-//! This release is the CPU core: geometry ([`geometry`]), one BVH layout built four ways, refitted in O(n)
-//! with Lauterbach's degradation metric, and queried with watertight closest-hit and any-hit traversal
-//! ([`bvh`]).
+//! Each frame it keeps one BVH per mesh current — refitted in O(n) while the motion is coherent, rebuilt
+//! when Lauterbach's degradation metric says the tree has decayed — and answers closest-hit, any-hit
+//! (shadow) and collision queries against it:
+//!
+//! - [`geometry`]: boxes, rays, the watertight triangle test, Morton codes.
+//! - [`bvh`]: one node layout built four ways (LBVH, hybrid, binned SAH, median), refit, closest-hit and
+//!   any-hit traversal, quality metrics.
+//! - [`collide`]: mesh–mesh and self-collision contacts with exact triangle–triangle tests, and first
+//!   times of contact of meshes swept over a frame.
+//! - `gpu` (feature `gpu`, on by default): the same on wgpu compute — LBVH build, refit, ray queries,
+//!   skinning, the collision broad phase — with results equal to the CPU's.
+//! - [`anim`]: glTF loading, skeletons, animation sampling, CPU skinning, the procedural humanoid.
+//! - [`characterize`] and [`adaptive`]: the scene profile and the learned refit-or-rebuild policy.
+//! - [`ecs`]: the `bevy_ecs` plugin that runs all of it per frame, and the query parameter for gameplay code.
+//! - [`scenes`]: procedural meshes for examples, tests and benchmarks.
+//!
+//! The core API alone, without an ECS:
 //!
 //! ```
 //! use kinetrace::prelude::*;

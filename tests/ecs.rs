@@ -353,6 +353,11 @@ fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
         assert!(world.get::<TraceError>(e).is_some(), "{e} has no error");
         assert!(!world.resource::<TraceWorld>().contains(e));
     }
+    let transform_error = &world.get::<TraceError>(bad_transform).unwrap().0;
+    assert!(
+        matches!(transform_error, kinetrace::Error::InvalidTransform(_)),
+        "{transform_error:?}"
+    );
     let messages = world.resource::<Messages<TraceErrorMessage>>();
     assert_eq!(messages.len(), 3);
     let tw = world.resource::<TraceWorld>();

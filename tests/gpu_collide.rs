@@ -8,7 +8,7 @@ use common::*;
 use glam::{Affine3A, DMat3, DVec3, Quat, Vec3};
 use kinetrace::bvh::{BuildOptions, Builder, Node};
 use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuPairs, GpuTree, PairsResult};
-use kinetrace::{Mesh, MeshBvh};
+use kinetrace::{Error, Mesh, MeshBvh};
 use std::collections::BTreeSet;
 
 /// The crate's relative slack of a moved box, 8 · f32::EPSILON (`collide::bvtt::PLACE_SLACK`).
@@ -371,6 +371,24 @@ fn tiny_and_empty_trees() {
             }
         }
     }
+}
+
+/// A transform that is not finite is the caller's error, reported as such; a flattening one is legal (the
+/// moved tree is only ever mapped forwards).
+#[test]
+fn non_finite_transforms_are_invalid() {
+    let Some(g) = gpu() else { return };
+    let mut gp = GpuPairs::new(&g);
+    let a = tree(&crumpled_sheet(3, 8), BUILDS[0]);
+    for bad in [
+        Affine3A::from_translation(Vec3::new(f32::NAN, 0.0, 0.0)),
+        Affine3A::from_scale(Vec3::new(1.0, f32::INFINITY, 1.0)),
+    ] {
+        let r = gp.leaf_pairs(&g, &a, Some((&a, &bad)));
+        assert!(matches!(r, Err(Error::InvalidTransform(_))), "{r:?}");
+    }
+    let flat = Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0));
+    check_pairs(&mut gp, &g, &a, &a, &flat, "flattened b");
 }
 
 #[test]

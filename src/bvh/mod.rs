@@ -24,7 +24,7 @@ mod layout;
 mod mesh_bvh;
 mod node;
 pub mod quality;
-pub mod radix_sort;
+mod radix_sort;
 mod refit;
 mod topdown;
 mod traverse;
@@ -96,11 +96,24 @@ impl Builder {
         morton: MortonBits::Bits30,
     };
     /// Six LBVH levels over 30-bit codes, then 16-bin SAH.
-    pub const HYBRID: Builder = Builder::Hybrid {
-        lbvh_levels: 6,
-        bins: 16,
-        morton: MortonBits::Bits30,
-    };
+    pub const HYBRID: Builder = Builder::hybrid(6);
+
+    /// [`HYBRID`](Self::HYBRID) with `lbvh_levels` LBVH levels instead of six: more levels build faster
+    /// and give a worse tree. Other bins or code lengths need the variant with all three fields, as in
+    /// `Builder::Hybrid { lbvh_levels: 4, bins: 8, morton: MortonBits::Bits63 }`.
+    ///
+    /// ```
+    /// use kinetrace::bvh::{Builder, MortonBits};
+    /// let b = Builder::hybrid(4);
+    /// assert_eq!(b, Builder::Hybrid { lbvh_levels: 4, bins: 16, morton: MortonBits::Bits30 });
+    /// ```
+    pub const fn hybrid(lbvh_levels: u32) -> Builder {
+        Builder::Hybrid {
+            lbvh_levels,
+            bins: 16,
+            morton: MortonBits::Bits30,
+        }
+    }
 
     /// All four builders with their defaults.
     pub const ALL: [Builder; 4] = [

@@ -1,5 +1,4 @@
-//! Stable LSD radix sort of key–value pairs: the CPU reference of the GPU sort, and the sort of the LBVH
-//! builder.
+//! Stable LSD radix sort of key–value pairs: the sort of the LBVH builder.
 //!
 //! 11-bit digits (2048 buckets, an 8 KiB histogram that stays in L1), one counting pass for all digits, then
 //! one scatter pass per digit; digits that are equal across all keys are skipped. Cost: `⌈bits / 11⌉` passes
@@ -10,7 +9,7 @@ const BUCKETS: usize = 1 << DIGIT_BITS;
 
 /// Sorts `keys` (and `vals` along with them) by the low `bits` bits of the keys, stably: pairs with equal
 /// keys keep their order. `keys` and `vals` must have the same length.
-pub fn sort_pairs(keys: &mut Vec<u64>, vals: &mut Vec<u32>, bits: u32) {
+pub(crate) fn sort_pairs(keys: &mut Vec<u64>, vals: &mut Vec<u32>, bits: u32) {
     assert_eq!(keys.len(), vals.len(), "one value per key");
     let n = keys.len();
     if n < 2 || bits == 0 {

@@ -41,6 +41,7 @@ pub mod tri_tri;
 pub use bvtt::PairStats;
 pub use front::PairFront;
 
+use crate::geometry::{check_finite, checked_inverse};
 use crate::{Error, MeshBvh, Result, parallel};
 use bvtt::{Bvtt, Pair};
 use glam::{Affine3A, Mat3A, Vec3};
@@ -255,8 +256,7 @@ impl PairQuery {
 /// The traversal and narrow phase of a discrete query between two placed meshes, in `a`'s frame.
 fn discrete<'a>(a: &Placed<'a>, b: &Placed<'a>) -> Result<(ToWorld, Bvtt<'a>, Discrete<'a>)> {
     let to_world = ToWorld::new(&a.to_world)?;
-    check(&b.to_world)?;
-    let b_to_a = to_world.inverse * b.to_world;
+    let b_to_a = to_world.inverse * check_finite(&b.to_world)?;
     let bvtt = Bvtt::pair(a.mesh.bvh().nodes(), b.mesh.bvh().nodes(), &b_to_a);
     let narrow = Discrete {
         a: Side::of(a.mesh),
@@ -414,15 +414,6 @@ fn run<N: NarrowPhase>(
     stats
 }
 
-/// Fails on a transform that is not finite.
-fn check(x: &Affine3A) -> Result<()> {
-    if x.is_finite() {
-        Ok(())
-    } else {
-        Err(Error::InvalidTransform(format!("{x:?}")))
-    }
-}
-
 /// Maps contacts from a mesh's frame to the world.
 struct ToWorld {
     to_world: Affine3A,
@@ -433,11 +424,7 @@ struct ToWorld {
 
 impl ToWorld {
     fn new(to_world: &Affine3A) -> Result<Self> {
-        check(to_world)?;
-        let inverse = to_world.inverse();
-        if !inverse.is_finite() || to_world.matrix3.determinant() == 0.0 {
-            return Err(Error::InvalidTransform(format!("{to_world:?}")));
-        }
+        let inverse = checked_inverse(to_world)?;
         Ok(ToWorld {
             to_world: *to_world,
             inverse,

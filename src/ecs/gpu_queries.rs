@@ -26,10 +26,10 @@ impl GpuQueries {
 #[cfg(feature = "gpu")]
 mod imp {
     use super::*;
-    use crate::ecs::{RayQueue, RayResults, TraceWorld};
+    use crate::ecs::{RayHit, RayQueue, RayResults, TraceWorld};
     use crate::geometry::Ray;
     use crate::gpu::GpuContext;
-    use crate::gpu::scene::{GpuScene, SceneReadback, SceneRequest};
+    use crate::gpu::scene::{GpuScene, SceneInstance, SceneReadback, SceneRequest};
 
     /// A batch submitted but not yet collected: the CPU-answered part is in `fresh`, the GPU answers
     /// arrive through the read-backs and go to the recorded indices.
@@ -69,7 +69,19 @@ mod imp {
         /// submits; the answers come back through [`collect`](Self::collect).
         pub(crate) fn submit(&mut self, world: &TraceWorld, queue: &RayQueue, frame: u64) {
             let inner = &mut self.inner;
-            inner.scene.sync(&inner.ctx, world);
+            let tlas = world.tlas();
+            let instances = tlas.prim_indices().iter().map(|&p| {
+                let entity = world.tlas_entity(p);
+                let inst = &world.instances[&entity];
+                SceneInstance {
+                    id: entity.to_bits(),
+                    bvh: &inst.bvh,
+                    inverse: inst.inverse,
+                    normal_matrix: inst.normal_matrix,
+                    layers: inst.layers,
+                }
+            });
+            inner.scene.sync(&inner.ctx, world.version, tlas, instances);
             let mut fresh = RayResults {
                 frame,
                 hits: Vec::with_capacity(queue.rays.len()),
@@ -85,7 +97,7 @@ mod imp {
                     ray_requests.push(SceneRequest {
                         ray: r.ray,
                         layers: r.filter.layers,
-                        exclude: r.filter.excluded.first().copied(),
+                        exclude: r.filter.excluded.first().map(|e| e.to_bits()),
                     });
                     fresh.hits.push((r.tag, None));
                 } else {
@@ -100,7 +112,7 @@ mod imp {
                     shadow_requests.push(SceneRequest {
                         ray: Ray::segment(s.from, s.to),
                         layers: s.filter.layers,
-                        exclude: s.filter.excluded.first().copied(),
+                        exclude: s.filter.excluded.first().map(|e| e.to_bits()),
                     });
                     fresh.shadows.push((s.tag, false));
                 } else {
@@ -134,11 +146,16 @@ mod imp {
             let p = inner.pending.take()?;
             let mut fresh = p.fresh;
             let run = || -> crate::Result<RayResults> {
-                let hits = inner
-                    .scene
-                    .closest_hits(&inner.ctx, p.closest, &p.ray_requests)?;
-                for (at, h) in p.ray_at.iter().zip(hits) {
-                    fresh.hits[*at].1 = h;
+                let hits = inner.scene.closest_hits(&inner.ctx, p.closest)?;
+                for ((at, r), h) in p.ray_at.iter().zip(&p.ray_requests).zip(hits) {
+                    fresh.hits[*at].1 = h.map(|(id, h)| RayHit {
+                        entity: Entity::from_bits(id),
+                        distance: h.t,
+                        point: r.ray.at(h.t),
+                        normal: h.normal,
+                        triangle: h.primitive,
+                        barycentrics: glam::Vec2::new(h.u, h.v),
+                    });
                 }
                 let blocked = inner.scene.occluded(&inner.ctx, p.shadows)?;
                 for (at, b) in p.shadow_at.iter().zip(blocked) {

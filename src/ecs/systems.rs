@@ -86,17 +86,9 @@ type PlacementChanged = (
     Or<(Changed<TraceTransform>, Changed<QueryLayers>)>,
 );
 
-/// The transform as an instance needs it: finite and invertible.
+/// The transform as an instance needs it: finite and invertible ([`Error::InvalidTransform`] otherwise).
 pub(super) fn checked_transform(t: &TraceTransform) -> Result<glam::Affine3A, Error> {
-    let det = t.0.matrix3.determinant();
-    if t.0.is_finite() && det != 0.0 && det.is_finite() {
-        Ok(t.0)
-    } else {
-        Err(Error::InvalidOption(format!(
-            "transform is not finite and invertible: {:?}",
-            t.0
-        )))
-    }
+    crate::geometry::checked_inverse(&t.0).map(|_| t.0)
 }
 
 /// What the top level reads of a placed entity; the mesh and positions only for whether

@@ -5,6 +5,7 @@ mod aabb;
 mod morton;
 mod predicates;
 mod ray;
+mod transform;
 mod triangle;
 
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
@@ -12,4 +13,5 @@ pub use morton::{morton30, morton63};
 pub use predicates::orient3d;
 pub(crate) use predicates::{Plane, normal_est, orient2d_est};
 pub use ray::{ROBUST_TMAX_SCALE, Ray};
+pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};

@@ -3,8 +3,8 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group, groups};
-use super::collide::GpuTree;
 use super::sort::RadixSort;
+use super::tree::{GpuTree, node_depths};
 use crate::bvh::{Bvh, MAX_DEPTH, MeshBvh, Node};
 use crate::{Error, Mesh, Result};
 use glam::Vec3;
@@ -559,17 +559,5 @@ impl DegradationReadback {
         } else {
             (total / self.inner as f64) as f32
         })
-    }
-}
-
-/// The depth of every node of a tree in the crate's layout (the root at 0), into `out`.
-pub(crate) fn node_depths(nodes: &[Node], out: &mut Vec<u32>) {
-    out.clear();
-    out.resize(nodes.len(), 0);
-    for (i, n) in nodes.iter().enumerate() {
-        if !n.is_leaf() && n.left() + 1 < nodes.len() {
-            out[n.left()] = out[i] + 1;
-            out[n.left() + 1] = out[i] + 1;
-        }
     }
 }

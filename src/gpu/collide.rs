@@ -10,8 +10,9 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
-use super::bvh::node_depths;
+use super::tree::{GpuTree, node_depths};
 use crate::bvh::{MAX_DEPTH, Node};
+use crate::geometry::check_finite;
 use crate::{Error, Result};
 use bytemuck::{Pod, Zeroable};
 use glam::Affine3A;
@@ -58,31 +59,6 @@ const _: () = assert!(std::mem::size_of::<CollideParams>() == 80);
 const MODE_SAME: u32 = 0;
 const MODE_MOVED: u32 = 1;
 const MODE_SELF: u32 = 2;
-
-/// A tree whose nodes are on the GPU, in the crate's [`Node`] layout, as [`GpuPairs::record`] reads it:
-/// a valid tree (see [`Bvh::validate`](crate::bvh::Bvh::validate)), such as
-/// [`GpuMeshBvh::tree`](super::GpuMeshBvh::tree).
-#[derive(Clone, Copy, Debug)]
-pub struct GpuTree<'a> {
-    /// The node buffer (root at index 0).
-    pub nodes: &'a wgpu::Buffer,
-    /// Number of nodes; 0 for an empty tree.
-    pub count: u32,
-    /// Depth of the deepest leaf (the root is at depth 0), or any larger bound: the traversal records
-    /// `height_a + height_b + 2` rounds, so a tight height saves empty dispatches.
-    pub height: u32,
-}
-
-impl<'a> GpuTree<'a> {
-    /// A tree of `count` nodes of unknown height (bounded by [`MAX_DEPTH`]).
-    pub fn new(nodes: &'a wgpu::Buffer, count: u32) -> Self {
-        Self {
-            nodes,
-            count,
-            height: MAX_DEPTH as u32,
-        }
-    }
-}
 
 /// How much room the last query that overflowed wanted, shared by a [`GpuPairs`] and its read-backs.
 #[derive(Default)]
@@ -201,9 +177,10 @@ impl GpuPairs {
         self.depths.iter().copied().max().unwrap_or(0)
     }
 
-    /// Test hook: dispatches at most `groups` workgroups per round (at least 1, at most the device's
-    /// limit), so that tests reach the stride over queues wider than a dispatch without millions of pairs.
-    #[doc(hidden)]
+    /// Test hook (feature `testing`): dispatches at most `groups` workgroups per round (at least 1, at most
+    /// the device's limit), so that tests reach the stride over queues wider than a dispatch without
+    /// millions of pairs.
+    #[cfg(feature = "testing")]
     pub fn limit_workgroups(&mut self, ctx: &GpuContext, groups: u32) {
         let device = ctx.device.limits().max_compute_workgroups_per_dimension;
         self.max_groups = groups.clamp(1, device);
@@ -260,8 +237,9 @@ impl GpuPairs {
     /// for `a` against itself — into `encoder`, followed by a read-back of the leaf pairs found. Record
     /// at most one query per [`GpuPairs`] per submission (its parameters are written at submit).
     ///
-    /// Errors for a node buffer smaller than its count, or when an earlier overflow asks for buffers past
-    /// the device's limits.
+    /// Errors: [`Error::InvalidTransform`] for a transform that is not finite; [`Error::Gpu`] for a node
+    /// buffer smaller than its count, or when an earlier overflow asks for buffers past the device's
+    /// limits.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
@@ -269,6 +247,9 @@ impl GpuPairs {
         a: GpuTree<'_>,
         b: Option<(GpuTree<'_>, Affine3A)>,
     ) -> Result<PairsReadback> {
+        if let Some((_, b_to_a)) = &b {
+            check_finite(b_to_a)?;
+        }
         let (tree_b, b_to_a, mode) = match b {
             None => (a, Affine3A::IDENTITY, MODE_SELF),
             Some((t, m)) if m == Affine3A::IDENTITY => (t, m, MODE_SAME),

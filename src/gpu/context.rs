@@ -167,9 +167,10 @@ fn compute_instance(desc: wgpu::InstanceDescriptor) -> wgpu::Instance {
     wgpu::Instance::new(desc)
 }
 
-/// The shared context for tests and examples: created once per process, `None` (with the reason printed
-/// once) where no adapter exists. With `KINETRACE_REQUIRE_GPU=1` set, a missing adapter panics instead, so
-/// that CI cannot pass by skipping.
+/// Test hook (feature `testing`): the shared context of the integration tests, created once per process,
+/// `None` (with the reason printed once) where no adapter exists. With `KINETRACE_REQUIRE_GPU=1` set, a
+/// missing adapter panics instead, so that CI cannot pass by skipping.
+#[cfg(feature = "testing")]
 pub fn shared_for_tests() -> Option<GpuContext> {
     use std::sync::OnceLock;
     static CTX: OnceLock<Option<GpuContext>> = OnceLock::new();

@@ -35,11 +35,16 @@ pub(crate) mod scene;
 mod skin;
 mod sort;
 mod trace;
+mod tree;
 
 pub use buffers::Readback;
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
-pub use collide::{GpuPairs, GpuTree, PairsReadback, PairsResult};
-pub use context::{GpuContext, shared_for_tests};
+pub use collide::{GpuPairs, PairsReadback, PairsResult};
+pub use context::GpuContext;
+#[cfg(feature = "testing")]
+pub use context::shared_for_tests;
 pub use skin::GpuSkin;
+#[cfg(feature = "testing")]
 pub use sort::sort_pairs;
 pub use trace::{GpuHit, GpuRays, Query};
+pub use tree::GpuTree;

@@ -1,17 +1,16 @@
-//! Batched two-level queries over an ECS world on the GPU (shaders/scene.wgsl): the top-level tree over
-//! entities, then each reached entity's tree in its object space.
+//! Batched two-level queries on the GPU (shaders/scene.wgsl): the top-level tree over instances, then each
+//! reached instance's tree in its object space. Instances are named by the caller's 64-bit ids (the ECS
+//! passes entity bits); nothing here knows where they come from.
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, Readback, bind_group, groups};
 use super::trace::GpuRay;
-use crate::bvh::Node;
-use crate::ecs::{RayHit, TraceWorld};
+use crate::bvh::{Bvh, Hit, MeshBvh, Node};
 use crate::geometry::Ray;
-use bevy_ecs::entity::Entity;
 use bytemuck::{Pod, Zeroable};
-use glam::Vec3;
+use glam::{Affine3A, Mat3A, Vec3};
 
-/// One entity as the kernel reads it (80 bytes).
+/// One instance as the kernel reads it (144 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct GpuInstance {
@@ -19,10 +18,15 @@ struct GpuInstance {
     columns: [[f32; 4]; 4],
     /// Object-to-world normal matrix, columns.
     normal: [[f32; 4]; 3],
+    /// The instance's root in the BLAS node buffer.
     node_offset: u32,
+    /// Its first entry in the slot-triangle buffer.
     slot_offset: u32,
+    /// Its first corner in the corner buffer (slot-triangle corners are relative to it).
     vertex_offset: u32,
+    /// Query layers it is on.
     layers: u32,
+    /// The instance id, low word first (compared with a request's exclusion).
     entity: [u32; 2],
     _pad: [u32; 2],
 }
@@ -43,12 +47,26 @@ pub(crate) struct SceneHit {
     _pad2: f32,
 }
 
-/// A request the GPU can answer: layer mask and at most one excluded entity (requests with predicates or
-/// longer exclusion lists stay on the CPU).
+/// A request the GPU can answer: layer mask and at most one excluded instance id (requests with predicates
+/// or longer exclusion lists stay on the CPU).
 pub(crate) struct SceneRequest {
     pub ray: Ray,
     pub layers: u32,
-    pub exclude: Option<Entity>,
+    pub exclude: Option<u64>,
+}
+
+/// One instance as [`GpuScene::sync`] uploads it.
+pub(crate) struct SceneInstance<'a> {
+    /// The caller's id, reported with hits and compared with [`SceneRequest::exclude`].
+    pub id: u64,
+    /// The instance's tree, in object space.
+    pub bvh: &'a MeshBvh,
+    /// World-to-object transform.
+    pub inverse: Affine3A,
+    /// Object-to-world normal matrix (inverse transpose of the linear part).
+    pub normal_matrix: Mat3A,
+    /// Query layers the instance is on.
+    pub layers: u32,
 }
 
 /// Ray, filter and hit buffers of one kind of query.
@@ -82,8 +100,8 @@ pub(crate) struct GpuScene {
     blas: GpuBuffer,
     slot_tris: GpuBuffer,
     corners: GpuBuffer,
-    /// TLAS slot → entity, for turning answers back into entities.
-    entities: Vec<Entity>,
+    /// TLAS slot → instance id, for turning answers back into ids.
+    ids: Vec<u64>,
     version: Option<u64>,
     batches: [Batch; 2],
     upload: Upload,
@@ -111,40 +129,43 @@ impl GpuScene {
             blas: GpuBuffer::storage(ctx, "scene blas", 1024),
             slot_tris: GpuBuffer::storage(ctx, "scene slot triangles", 1024),
             corners: GpuBuffer::storage(ctx, "scene corners", 1024),
-            entities: Vec::new(),
+            ids: Vec::new(),
             version: None,
             batches: [Batch::new(ctx), Batch::new(ctx)],
             upload: Upload::default(),
         }
     }
 
-    /// Uploads the world's trees when they changed since the last upload. Every entity's tree is sent whole
-    /// (its nodes, and its triangles' corners in slot order): simple and exact, and the place to make
-    /// incremental when uploads show up in profiles.
-    pub fn sync(&mut self, ctx: &GpuContext, world: &TraceWorld) {
-        if self.version == Some(world.version) {
+    /// Uploads a scene — its top-level tree over instance boxes, and per TLAS slot in order the instance
+    /// there — unless `version` is the one of the last upload (then `instances` is not iterated). Every
+    /// instance's tree is sent whole (its nodes, and its triangles' corners in slot order): simple and
+    /// exact, and the place to make incremental when uploads show up in profiles.
+    pub fn sync<'a>(
+        &mut self,
+        ctx: &GpuContext,
+        version: u64,
+        tlas: &Bvh,
+        instances: impl IntoIterator<Item = SceneInstance<'a>>,
+    ) {
+        if self.version == Some(version) {
             return;
         }
-        self.version = Some(world.version);
-        let tlas = world.tlas();
-        let n = tlas.primitive_count();
-        self.entities.clear();
+        self.version = Some(version);
+        self.ids.clear();
         // The upload arrays keep their memory from one sync to the next.
         let Upload {
             nodes,
             slot_tris,
             corners,
-            instances,
+            instances: uploads,
         } = &mut self.upload;
         nodes.clear();
         slot_tris.clear();
         corners.clear();
-        instances.clear();
-        for slot in 0..n {
-            let e = world.tlas_entity(tlas.prim_indices()[slot]);
-            self.entities.push(e);
-            let inst = &world.instances[&e];
-            let bvh = &inst.bvh;
+        uploads.clear();
+        for inst in instances {
+            self.ids.push(inst.id);
+            let bvh = inst.bvh;
             let (node_offset, slot_offset, vertex_offset) = (
                 nodes.len() as u32,
                 slot_tris.len() as u32,
@@ -162,7 +183,7 @@ impl GpuScene {
                 corners.extend_from_slice(tri);
             }
             let m = inst.inverse;
-            instances.push(GpuInstance {
+            uploads.push(GpuInstance {
                 columns: [
                     m.matrix3.x_axis.extend(0.0).to_array(),
                     m.matrix3.y_axis.extend(0.0).to_array(),
@@ -174,13 +195,13 @@ impl GpuScene {
                 slot_offset,
                 vertex_offset,
                 layers: inst.layers,
-                entity: split(e),
+                entity: split(inst.id),
                 _pad: [0; 2],
             });
         }
         for (buf, bytes) in [
             (&mut self.tlas, std::mem::size_of_val(tlas.nodes())),
-            (&mut self.instances, std::mem::size_of_val(&instances[..])),
+            (&mut self.instances, std::mem::size_of_val(&uploads[..])),
             (&mut self.blas, std::mem::size_of_val(&nodes[..])),
             (&mut self.slot_tris, std::mem::size_of_val(&slot_tris[..])),
             (&mut self.corners, std::mem::size_of_val(&corners[..])),
@@ -188,7 +209,7 @@ impl GpuScene {
             buf.ensure(ctx, bytes as u64);
         }
         self.tlas.write(ctx, tlas.nodes());
-        self.instances.write(ctx, instances);
+        self.instances.write(ctx, uploads);
         self.blas.write(ctx, nodes);
         self.slot_tris.write(ctx, slot_tris);
         self.corners.write(ctx, corners);
@@ -262,35 +283,36 @@ impl GpuScene {
         }
     }
 
-    /// Number of TLAS nodes uploaded (0 for an empty world).
+    /// Number of TLAS nodes uploaded (0 for an empty scene).
     fn tlas_nodes(&self) -> u32 {
-        if self.entities.is_empty() {
+        if self.ids.is_empty() {
             0
         } else {
-            (2 * self.entities.len() - 1) as u32
+            (2 * self.ids.len() - 1) as u32
         }
     }
 
-    /// Turns a batch's answers into world-space hits (blocking until they are there). Needs nothing of the
-    /// world but the entity list of the upload the batch ran on, so it can be called a frame later.
+    /// A batch's answers (blocking until they are there): per request, the id of the instance hit and the
+    /// hit, its normal in world space. Needs nothing of the scene but the id list of the upload the batch
+    /// ran on, so it can be called a frame later.
     pub fn closest_hits(
         &self,
         ctx: &GpuContext,
         readback: SceneReadback,
-        requests: &[SceneRequest],
-    ) -> crate::Result<Vec<Option<RayHit>>> {
+    ) -> crate::Result<Vec<Option<(u64, Hit)>>> {
         let hits = readback.hits.wait(ctx)?;
         Ok(hits
             .iter()
-            .zip(requests)
-            .map(|(h, r)| {
-                (h.prim != u32::MAX).then(|| RayHit {
-                    entity: self.entities[h.instance as usize],
-                    distance: h.t,
-                    point: r.ray.at(h.t),
-                    normal: Vec3::from_array(h.normal),
-                    triangle: h.prim,
-                    barycentrics: glam::Vec2::new(h.u, h.v),
+            .map(|h| {
+                (h.prim != u32::MAX).then(|| {
+                    let hit = Hit {
+                        t: h.t,
+                        primitive: h.prim,
+                        u: h.u,
+                        v: h.v,
+                        normal: Vec3::from_array(h.normal),
+                    };
+                    (self.ids[h.instance as usize], hit)
                 })
             })
             .collect())
@@ -307,8 +329,7 @@ impl GpuScene {
     }
 }
 
-/// An entity as two u32 (its bits).
-fn split(e: Entity) -> [u32; 2] {
-    let b = e.to_bits();
-    [b as u32, (b >> 32) as u32]
+/// An id as two u32, low word first.
+fn split(id: u64) -> [u32; 2] {
+    [id as u32, (id >> 32) as u32]
 }

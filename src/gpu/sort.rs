@@ -3,7 +3,6 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
-use crate::Result;
 
 /// Sorts pairs held in two buffers in place, using a second pair of buffers and a histogram as scratch.
 /// Cost per 4-bit pass: three dispatch groups over the keys (count, a scan of 16 counts per 256 keys,
@@ -143,14 +142,15 @@ impl RadixSort {
     }
 }
 
-/// Sorts pairs on the GPU and reads them back: the blocking convenience, and the kernel's test entry.
-/// Stable; sorts by the low `bits` bits of the keys.
+/// Test hook (feature `testing`): sorts pairs on the GPU and reads them back, blocking. Stable; sorts by the
+/// low `bits` bits of the keys.
+#[cfg(feature = "testing")]
 pub fn sort_pairs(
     ctx: &GpuContext,
     keys: &[u32],
     vals: &[u32],
     bits: u32,
-) -> Result<(Vec<u32>, Vec<u32>)> {
+) -> crate::Result<(Vec<u32>, Vec<u32>)> {
     assert_eq!(keys.len(), vals.len(), "one value per key");
     let n = keys.len() as u32;
     let kb = GpuBuffer::storage(ctx, "sort keys", n as u64 * 4);
