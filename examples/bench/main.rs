@@ -6,7 +6,8 @@
 //! Suites: `cpu` (builders, refit, queries; obvhs and the bvh crate on the same triangles and rays),
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
-//! animated characters and cloth, against parry3d).
+//! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
+//! single-ray and packet queries).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON. Speed is only ever compared within one run:
 //! the tables print kinetrace/peer ratios, which survive a noisy shared machine far better than times.
@@ -15,15 +16,19 @@ mod collide;
 mod cpu;
 mod ecs;
 mod gpu;
+mod grid;
 mod peers;
 mod rays;
 mod record;
+#[path = "../report/scenes.rs"]
+#[allow(dead_code)]
+mod report_scenes;
 mod skinning;
 
 use record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 5] = ["cpu", "gpu", "ecs", "skinning", "collide"];
+const SUITES: [&str; 6] = ["cpu", "gpu", "ecs", "skinning", "collide", "grid"];
 
 fn main() -> ExitCode {
     let mut quick = false;
@@ -53,6 +58,7 @@ fn main() -> ExitCode {
             "ecs" => ecs::run(&mut rec),
             "skinning" => skinning::run(&mut rec),
             "collide" => collide::run(&mut rec),
+            "grid" => grid::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }
