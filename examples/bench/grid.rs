@@ -164,14 +164,7 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
                 m(rays, t),
                 "Mrays/s",
             );
-            rec.add(
-                SUITE,
-                name,
-                &subject,
-                "speed-up vs single",
-                t_grid / t,
-                "x",
-            );
+            rec.add(SUITE, name, &subject, "speed-up vs single", t_grid / t, "x");
         }
     }
 }

@@ -122,7 +122,7 @@ impl UniformGrid {
             &self.ranges,
             CHUNK,
             0u64,
-            |rs| rs.iter().map(|r| range_cells(r)).sum(),
+            |rs| rs.iter().map(range_cells).sum(),
             |a, b| a + b,
         )
     }

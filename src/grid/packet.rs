@@ -132,7 +132,7 @@ impl UniformGrid {
         }
         let k = mean.abs().max_position();
         let sgn = mean[k].signum();
-        if live().any(|(_, r)| !(r.dir()[k] * sgn > 0.0)) {
+        if live().any(|(_, r)| r.dir()[k] * sgn <= 0.0) {
             return false;
         }
         let (u, v) = ((k + 1) % 3, (k + 2) % 3);
