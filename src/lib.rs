@@ -63,6 +63,7 @@ mod error;
 pub mod geometry;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+pub mod grid;
 mod mesh;
 mod parallel;
 pub mod queries;

@@ -92,3 +92,26 @@ pub(crate) fn threads() -> usize {
     #[cfg(not(feature = "parallel"))]
     1
 }
+
+/// Calls `f(c, chunk)` for every chunk `c` of `chunk` items of `out` (the last may be shorter), in parallel
+/// when the feature is on and `parallel` is true.
+pub(crate) fn fill_chunks<T: Send>(
+    parallel: bool,
+    out: &mut [T],
+    chunk: usize,
+    f: impl Fn(usize, &mut [T]) + Sync + Send,
+) {
+    let chunk = chunk.max(1);
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        out.par_chunks_mut(chunk)
+            .enumerate()
+            .for_each(|(c, o)| f(c, o));
+        return;
+    }
+    let _ = parallel;
+    for (c, o) in out.chunks_mut(chunk).enumerate() {
+        f(c, o);
+    }
+}

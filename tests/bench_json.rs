@@ -14,12 +14,17 @@ mod cpu;
 mod ecs;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
+#[path = "../examples/bench/grid.rs"]
+mod grid;
 #[path = "../examples/bench/peers.rs"]
 mod peers;
 #[path = "../examples/bench/rays.rs"]
 mod rays;
 #[path = "../examples/bench/record.rs"]
 mod record;
+#[path = "../examples/report/scenes.rs"]
+#[allow(dead_code)]
+mod report_scenes;
 #[path = "../examples/bench/skinning.rs"]
 mod skinning;
 
@@ -110,4 +115,9 @@ fn skinning_suite_json_parses() {
 #[test]
 fn collide_suite_json_parses() {
     check("collide", true);
+}
+
+#[test]
+fn grid_suite_json_parses() {
+    check("grid", false);
 }

@@ -3,7 +3,7 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 5] = ["cpu", "gpu", "ecs", "skinning", "collide"];
+const SUITES: [&str; 6] = ["cpu", "gpu", "ecs", "skinning", "collide", "grid"];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
 pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
@@ -33,6 +33,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "ecs" => crate::ecs::run(&mut rec),
             "skinning" => crate::skinning::run(&mut rec),
             "collide" => crate::collide::run(&mut rec),
+            "grid" => crate::grid::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

@@ -34,7 +34,7 @@ pub fn run(rec: &mut Records) {
 }
 
 /// Runs `f` on a one-thread rayon pool: the single-thread figures.
-fn one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+pub fn one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
     rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()

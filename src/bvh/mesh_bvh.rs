@@ -93,7 +93,7 @@ pub const GATHER_BELOW_BYTES: usize = 16 << 20;
 /// The corners a query tests: the triangle itself, or a single point for a zero-area triangle (exactly zero
 /// cross product in `f32`), so that rounding in the ray's frame can never turn a degenerate triangle into a hit.
 #[inline]
-fn query_corners(t: [Vec3; 3]) -> [Vec3; 3] {
+pub(crate) fn query_corners(t: [Vec3; 3]) -> [Vec3; 3] {
     if (t[1] - t[0]).cross(t[2] - t[0]) == Vec3::ZERO {
         [t[0]; 3]
     } else {

@@ -31,6 +31,7 @@ mod traverse;
 mod validate;
 
 pub use build_sah::MAX_BINS;
+pub(crate) use mesh_bvh::query_corners;
 pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
 pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};

@@ -1,0 +1,170 @@
+//! Suite `grid`: the per-frame uniform grid (seed 001) against our LBVH on the same triangles — build rate on
+//! one and all threads, and single-ray vs packet queries (camera rays in 8×8 tiles, shadow rays toward a
+//! point light) on one thread.
+
+use crate::cpu::one_thread;
+use crate::record::{Records, best_of};
+use crate::report_scenes::Scene;
+use glam::Vec3;
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::grid::{GridOptions, UniformGrid};
+use kinetrace::scenes::bumpy_torus;
+use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
+use std::path::Path;
+
+const SUITE: &str = "grid";
+
+pub fn run(rec: &mut Records) {
+    println!("suite grid on {}", crate::record::machine());
+    let (n, surface, side) = if rec.quick {
+        (20_000, 200_000, 256)
+    } else {
+        (100_000, 1_000_000, 512)
+    };
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets");
+    let (scenes, _) = Scene::all(n, &assets);
+    let mut pos = Vec::new();
+    for s in scenes
+        .iter()
+        .filter(|s| s.name == "crowd" || s.name == "explosion")
+    {
+        s.positions(30, &mut pos);
+        scene(rec, s.name, &s.mesh(&pos), side);
+    }
+    scene(rec, "surface", &bumpy_torus(surface), side);
+}
+
+/// Camera rays over the mesh in `tile`×`tile` tiles, tile after tile.
+fn tiled_camera(b: &Aabb, side: usize, tile: usize) -> Vec<Ray> {
+    let (c, size) = (b.center(), b.extent().length());
+    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let mut rays = Vec::with_capacity(side * side);
+    for ty in (0..side).step_by(tile) {
+        for tx in (0..side).step_by(tile) {
+            for y in ty..ty + tile {
+                for x in tx..tx + tile {
+                    let (fx, fy) = (x as f32 / side as f32 - 0.5, y as f32 / side as f32 - 0.5);
+                    rays.push(Ray::new(eye, fwd + right * fx * 0.9 + up * fy * 0.9));
+                }
+            }
+        }
+    }
+    rays
+}
+
+fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
+    let n = mesh.triangle_count() as f64;
+    let reps = rec.reps();
+    println!("\n{name}: {} triangles", mesh.triangle_count());
+    let lbvh = BuildOptions::new(Builder::LBVH);
+    let seq = GridOptions {
+        parallel: false,
+        ..Default::default()
+    };
+    let (g1, _) = one_thread(|| best_of(reps, || UniformGrid::build(mesh, &seq).unwrap()));
+    let (gn, grid) = best_of(reps, || {
+        UniformGrid::build(mesh, &GridOptions::default()).unwrap()
+    });
+    let (b1, _) = one_thread(|| {
+        best_of(reps, || {
+            MeshBvh::build(mesh, &lbvh.parallel(false)).unwrap()
+        })
+    });
+    let (bn, bvh) = best_of(reps, || MeshBvh::build(mesh, &lbvh).unwrap());
+    for (who, t1, tn) in [("grid", g1, gn), ("LBVH", b1, bn)] {
+        rec.add(SUITE, name, who, "build 1 thread", n / t1 / 1e6, "Mtris/s");
+        rec.add(
+            SUITE,
+            name,
+            who,
+            "build all threads",
+            n / tn / 1e6,
+            "Mtris/s",
+        );
+    }
+    rec.add(
+        SUITE,
+        name,
+        "grid/LBVH",
+        "build ratio 1 thread",
+        b1 / g1,
+        "x",
+    );
+
+    let camera = tiled_camera(&grid.bounds(), side, 8);
+    let mut hits = vec![None; camera.len()];
+    bvh.closest_hits(&camera, &mut hits);
+    let light = grid.bounds().center() + Vec3::new(0.2, 1.0, 0.3) * grid.bounds().extent().length();
+    // Shadow rays from the camera hits toward the light, in the camera's tile order.
+    let shadow: Vec<Ray> = camera
+        .iter()
+        .zip(&hits)
+        .filter_map(|(r, h)| h.map(|h| Ray::with_range(r.at(h.t), light - r.at(h.t), 1e-4, 1.0)))
+        .collect();
+    let m = |rays: &[Ray], t: f64| rays.len() as f64 / t / 1e6;
+    for (kind, rays) in [("camera", &camera), ("shadow", &shadow)] {
+        let any = kind == "shadow";
+        let mut out = vec![None; rays.len()];
+        let mut occ = vec![false; rays.len()];
+        let (t_grid, _) = best_of(reps, || {
+            if any {
+                rays.iter().filter(|r| grid.any_hit(r)).count()
+            } else {
+                rays.iter()
+                    .filter(|r| grid.closest_hit(r).is_some())
+                    .count()
+            }
+        });
+        let (t_bvh, _) = best_of(reps, || {
+            if any {
+                rays.iter().filter(|r| bvh.any_hit(r)).count()
+            } else {
+                rays.iter().filter(|r| bvh.closest_hit(r).is_some()).count()
+            }
+        });
+        rec.add(
+            SUITE,
+            name,
+            &format!("grid single ray, {kind}"),
+            "Mrays/s 1 thread",
+            m(rays, t_grid),
+            "Mrays/s",
+        );
+        rec.add(
+            SUITE,
+            name,
+            &format!("BVH single ray, {kind}"),
+            "Mrays/s 1 thread",
+            m(rays, t_bvh),
+            "Mrays/s",
+        );
+        for size in [16, 64] {
+            let (t, _) = best_of(reps, || {
+                let mut st = TraversalStats::default();
+                for (r, (o, a)) in rays
+                    .chunks(size)
+                    .zip(out.chunks_mut(size).zip(occ.chunks_mut(size)))
+                {
+                    if any {
+                        grid.any_hits_packet(r, a, &mut st);
+                    } else {
+                        grid.closest_hits_packet(r, o, &mut st);
+                    }
+                }
+            });
+            let subject = format!("grid packet {size}, {kind}");
+            rec.add(
+                SUITE,
+                name,
+                &subject,
+                "Mrays/s 1 thread",
+                m(rays, t),
+                "Mrays/s",
+            );
+            rec.add(SUITE, name, &subject, "speed-up vs single", t_grid / t, "x");
+        }
+    }
+}

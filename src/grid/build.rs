@@ -1,0 +1,273 @@
+//! Per-frame grid build: resolution from λ, triangles binned by their grown boxes, a counting sort into one
+//! compact cell → triangle array, macrocell occupancy.
+//!
+//! The counting sort runs over slabs of z-layers of cells, one slab per task: every task reads all
+//! triangles' cell ranges and counts (then writes) only its own cells, so no two tasks touch the same cell,
+//! no atomics are needed, and the result does not depend on the thread count. Buffers are kept between
+//! frames: once they have grown to the largest mesh seen, a rebuild allocates nothing.
+
+use super::UniformGrid;
+use crate::bvh::query_corners;
+use crate::geometry::Aabb;
+use crate::{Mesh, Result, parallel};
+use glam::{DVec3, UVec3, Vec3};
+
+/// Largest number of cells on one axis.
+pub const MAX_RESOLUTION: u32 = 1024;
+
+/// The build lowers λ (by 4× per try) until the references are at most this many per triangle, which bounds
+/// the grid's memory for inputs where many large triangles overlap most cells.
+pub const MAX_REFS_PER_TRIANGLE: u64 = 32;
+
+/// Triangles per parallel task for the per-triangle passes.
+const CHUNK: usize = 4096;
+
+/// True for a triangle collapsed by [`query_corners`] (zero area: it never hits and is not binned).
+#[inline]
+fn collapsed(t: &[Vec3; 3]) -> bool {
+    t[0] == t[1] && t[1] == t[2]
+}
+
+impl UniformGrid {
+    /// Rebuilds the grid over `mesh` (any triangle count, any positions), reusing the buffers: no allocation
+    /// once they have grown. O(N + cells + references).
+    pub fn rebuild(&mut self, mesh: &Mesh) -> Result<()> {
+        self.options.check()?;
+        let par = self.options.parallel;
+        let n = mesh.triangle_count();
+        self.tris.resize(n, [Vec3::ZERO; 3]);
+        parallel::fill(par, &mut self.tris, CHUNK, |i| {
+            query_corners(mesh.triangle(i))
+        });
+        let live = parallel::map_reduce(
+            par,
+            &self.tris,
+            CHUNK,
+            (Aabb::EMPTY, 0u64),
+            |ts| {
+                ts.iter()
+                    .filter(|t| !collapsed(t))
+                    .fold((Aabb::EMPTY, 0), |(b, k), t| {
+                        (b.union(&Aabb::from_triangle(t[0], t[1], t[2])), k + 1)
+                    })
+            },
+            |(a, i), (b, j)| (a.union(&b), i + j),
+        );
+        let (box_, live) = live;
+        let mut lambda = self.options.lambda as f64;
+        loop {
+            self.set_resolution(&box_, lambda * live as f64);
+            let refs = self.bin();
+            if refs <= MAX_REFS_PER_TRIANGLE * live || self.res == UVec3::ONE {
+                break;
+            }
+            lambda *= 0.25;
+        }
+        self.sort();
+        self.mark_macrocells();
+        Ok(())
+    }
+
+    /// Chooses cells per axis (about `cells` in all, shaped like `b`), the grid box, the margin and the far
+    /// limit. An empty `b` gives one cell and an empty box.
+    fn set_resolution(&mut self, b: &Aabb, cells: f64) {
+        if b.is_empty() {
+            self.bounds = Aabb::EMPTY;
+            self.res = UVec3::ONE;
+            self.cell = Vec3::ZERO;
+            self.inv_cell = Vec3::ZERO;
+            self.margin = 0.0;
+            self.far_limit = f32::INFINITY;
+            return;
+        }
+        // Flat boxes get a thickness of 1/1000 of their longest edge, so the volume is never zero; in f64,
+        // where the volume of any finite f32 box neither overflows nor underflows.
+        let e = b.extent().as_dvec3();
+        let e = e.max(DVec3::splat(e.max_element() * 1e-3));
+        let k = (cells.max(1.0) / (e.x * e.y * e.z)).cbrt();
+        let res = (e * k)
+            .round()
+            .clamp(DVec3::ONE, DVec3::splat(MAX_RESOLUTION as f64));
+        self.res = res.as_uvec3();
+        let half = e.as_vec3() * 0.5;
+        let c = b.center();
+        let cell = (half * 2.0) / self.res.as_vec3();
+        let scale = c.abs().max_element() + half.max_element() * 2.0 + half.length() * 2.0;
+        self.margin = 0.01 * cell.min_element() + 32.0 * f32::EPSILON * scale;
+        self.far_limit = self.margin / (8.0 * f32::EPSILON);
+        self.bounds = Aabb::new(c - half - self.margin, c + half + self.margin);
+        self.cell = self.bounds.extent() / self.res.as_vec3();
+        self.inv_cell = self.res.as_vec3() / self.bounds.extent();
+    }
+
+    /// Each triangle's cell range (its box grown by the margin); returns the total number of references.
+    fn bin(&mut self) -> u64 {
+        let par = self.options.parallel;
+        let n = self.tris.len();
+        self.ranges.resize(n, [UVec3::ONE, UVec3::ZERO]);
+        let mut ranges = std::mem::take(&mut self.ranges);
+        let (grid, m) = (&*self, self.margin);
+        parallel::fill(par, &mut ranges, CHUNK, |i| {
+            let tris = &grid.tris;
+            let t = &tris[i];
+            if collapsed(t) || grid.bounds.is_empty() {
+                return [UVec3::ONE, UVec3::ZERO];
+            }
+            let b = Aabb::from_triangle(t[0], t[1], t[2]);
+            [grid.cell_of(b.min - m), grid.cell_of(b.max + m)]
+        });
+        self.ranges = ranges;
+        parallel::map_reduce(
+            par,
+            &self.ranges,
+            CHUNK,
+            0u64,
+            |rs| rs.iter().map(range_cells).sum(),
+            |a, b| a + b,
+        )
+    }
+
+    /// The counting sort: per-cell counts, prefix sums (each cell's end), then triangles written in reverse
+    /// order at their cells' ends, leaving each cell's start behind and its triangles ascending.
+    fn sort(&mut self) {
+        let par = self.options.parallel;
+        let (rx, ry, rz) = (self.res.x, self.res.y, self.res.z);
+        let sxy = (rx * ry) as usize;
+        let cells = sxy * rz as usize;
+        self.cell_start.clear();
+        self.cell_start.resize(cells + 1, 0);
+        let ranges = &self.ranges;
+        let slab_grain = (rz as usize / (2 * parallel::threads())).max(1) as u32;
+        let starts = &mut self.cell_start[..cells];
+        for_slabs(
+            par,
+            slab_grain,
+            0,
+            rz,
+            sxy,
+            starts,
+            &mut [],
+            0,
+            &|z0, z1, counts, _, _| {
+                for r in ranges {
+                    each_cell(r, z0, z1, rx, sxy, |c| counts[c] += 1);
+                }
+            },
+        );
+        let mut sum = 0u32;
+        for c in starts.iter_mut() {
+            sum += *c;
+            *c = sum;
+        }
+        self.cell_start[cells] = sum;
+        self.refs.clear();
+        self.refs.resize(sum as usize, 0);
+        let starts = &mut self.cell_start[..cells];
+        for_slabs(
+            par,
+            slab_grain,
+            0,
+            rz,
+            sxy,
+            starts,
+            &mut self.refs,
+            0,
+            &|z0, z1, ends, refs, base| {
+                for (t, r) in ranges.iter().enumerate().rev() {
+                    each_cell(r, z0, z1, rx, sxy, |c| {
+                        ends[c] -= 1;
+                        refs[(ends[c] - base) as usize] = t as u32;
+                    });
+                }
+            },
+        );
+    }
+
+    /// Which `M³` blocks of cells hold any reference.
+    fn mark_macrocells(&mut self) {
+        let m = self.options.macrocell;
+        self.macro_res = (self.res + (m - 1)) / m;
+        self.macro_full.clear();
+        self.macro_full.resize(
+            (self.macro_res.x * self.macro_res.y * self.macro_res.z) as usize,
+            false,
+        );
+        let r = self.res;
+        for z in 0..r.z {
+            for y in 0..r.y {
+                for x in 0..r.x {
+                    let c = self.cell_index(UVec3::new(x, y, z));
+                    if self.cell_start[c + 1] > self.cell_start[c] {
+                        let mc = UVec3::new(x, y, z) / m;
+                        let i = mc.x + self.macro_res.x * (mc.y + self.macro_res.y * mc.z);
+                        self.macro_full[i as usize] = true;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Number of cells in an inclusive cell range (0 for an unbinned triangle).
+#[inline]
+fn range_cells(r: &[UVec3; 2]) -> u64 {
+    if r[0].x > r[1].x {
+        return 0;
+    }
+    let d = (r[1] - r[0] + 1).as_u64vec3();
+    d.x * d.y * d.z
+}
+
+/// Calls `f` with the slab-local index of every cell of range `r` in z-layers `z0..z1` (`sxy` cells a layer).
+#[inline]
+fn each_cell(r: &[UVec3; 2], z0: u32, z1: u32, rx: u32, sxy: usize, mut f: impl FnMut(usize)) {
+    let (lo, hi) = (r[0], r[1]);
+    if lo.x > hi.x || hi.z < z0 || lo.z >= z1 {
+        return;
+    }
+    for z in lo.z.max(z0)..=hi.z.min(z1 - 1) {
+        let layer = (z - z0) as usize * sxy;
+        for y in lo.y..=hi.y {
+            let row = layer + (y * rx) as usize;
+            for x in lo.x..=hi.x {
+                f(row + x as usize);
+            }
+        }
+    }
+}
+
+/// Runs `f(z0, z1, starts, refs, base)` over slabs of at most `grain` z-layers, in parallel when asked.
+/// `starts` holds the slab's cells; `refs`, when not empty, the slab's references, which begin at absolute
+/// position `base`, and `starts` then holds each cell's end (so a slab's references end at its last cell's).
+#[allow(clippy::too_many_arguments)]
+fn for_slabs<F>(
+    par: bool,
+    grain: u32,
+    z0: u32,
+    z1: u32,
+    sxy: usize,
+    starts: &mut [u32],
+    refs: &mut [u32],
+    base: u32,
+    f: &F,
+) where
+    F: Fn(u32, u32, &mut [u32], &mut [u32], u32) + Sync,
+{
+    if !par || z1 - z0 <= grain {
+        f(z0, z1, starts, refs, base);
+        return;
+    }
+    let mid = (z0 + z1) / 2;
+    let (sa, sb) = starts.split_at_mut((mid - z0) as usize * sxy);
+    let cut = if refs.is_empty() {
+        0
+    } else {
+        sa.last().map_or(base, |&e| e) - base
+    };
+    let (ra, rb) = refs.split_at_mut(cut as usize);
+    parallel::join(
+        true,
+        || for_slabs(par, grain, z0, mid, sxy, sa, ra, base, f),
+        || for_slabs(par, grain, mid, z1, sxy, sb, rb, base + cut, f),
+    );
+}

@@ -1,0 +1,352 @@
+//! The uniform grid (single-ray 3D-DDA and frustum packets) against brute force over every triangle.
+
+mod common;
+#[path = "../examples/report/scenes.rs"]
+#[allow(dead_code)]
+mod scenes;
+
+use common::*;
+use glam::{UVec3, Vec3};
+use kinetrace::bvh::TraversalStats;
+use kinetrace::grid::{GridOptions, MAX_PACKET, UniformGrid};
+use kinetrace::scenes::bumpy_torus;
+use kinetrace::{Error, Mesh, Ray};
+use rand::Rng;
+use std::path::Path;
+
+fn grid(m: &Mesh) -> UniformGrid {
+    UniformGrid::build(m, &GridOptions::default()).unwrap()
+}
+
+/// Closest and any hit of every ray, single ray and in packets of 16 and 64, against brute force.
+fn check(m: &Mesh, g: &UniformGrid, rays: &[Ray], what: &str) -> usize {
+    let mut hits = 0;
+    for (i, ray) in rays.iter().enumerate() {
+        let expect = brute_closest(m, ray);
+        let got = g.closest_hit(ray).map(|h| (h.primitive, h.t));
+        assert_same_hit(m, ray, got, expect, &format!("{what} ray {i}"));
+        assert_eq!(g.any_hit(ray), expect.is_some(), "{what} any-hit ray {i}");
+        hits += expect.is_some() as usize;
+    }
+    for size in [16, MAX_PACKET] {
+        check_packets(m, g, rays, size, what);
+    }
+    hits
+}
+
+/// Packets of `size` consecutive rays give what brute force gives (the same triangle, or an exact tie).
+fn check_packets(m: &Mesh, g: &UniformGrid, rays: &[Ray], size: usize, what: &str) {
+    let mut out = vec![None; rays.len()];
+    let mut any = vec![false; rays.len()];
+    let mut stats = TraversalStats::default();
+    for (r, (o, a)) in rays
+        .chunks(size)
+        .zip(out.chunks_mut(size).zip(any.chunks_mut(size)))
+    {
+        g.closest_hits_packet(r, o, &mut stats);
+        g.any_hits_packet(r, a, &mut stats);
+    }
+    for (i, ray) in rays.iter().enumerate() {
+        let expect = brute_closest(m, ray);
+        let got = out[i].map(|h| (h.primitive, h.t));
+        assert_same_hit(
+            m,
+            ray,
+            got,
+            expect,
+            &format!("{what} packet {size} ray {i}"),
+        );
+        assert_eq!(
+            any[i],
+            expect.is_some(),
+            "{what} packet {size} any-hit ray {i}"
+        );
+    }
+}
+
+/// An `n`×`n` tile-ordered pinhole camera at `eye` looking at `target`: coherent packets of `tile`².
+fn camera(eye: Vec3, target: Vec3, n: u32, tile: u32, fov: f32) -> Vec<Ray> {
+    let f = (target - eye).normalize();
+    let r = f.cross(Vec3::Y).normalize_or(Vec3::X);
+    let up = r.cross(f);
+    let s = (fov * 0.5).tan();
+    let mut rays = Vec::new();
+    for ty in (0..n).step_by(tile as usize) {
+        for tx in (0..n).step_by(tile as usize) {
+            for y in ty..(ty + tile).min(n) {
+                for x in tx..(tx + tile).min(n) {
+                    let px = ((x as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
+                    let py = ((y as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
+                    rays.push(Ray::new(eye, f + r * px + up * py));
+                }
+            }
+        }
+    }
+    rays
+}
+
+/// Random rays: from inside the mesh's box, and from outside aimed into it.
+fn random_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
+    let b = m
+        .triangle_bounds()
+        .iter()
+        .fold(kinetrace::Aabb::EMPTY, |a, b| a.union(b));
+    let (c, e) = (b.center(), b.extent().max(Vec3::splat(1e-3)));
+    let mut r = rng(seed);
+    (0..n)
+        .map(|i| {
+            let inside = c + (rand_vec(&mut r, -0.5, 0.5) * e);
+            if i % 2 == 0 {
+                Ray::new(inside, rand_dir(&mut r))
+            } else {
+                let o = c + rand_dir(&mut r) * e.length() * 2.0;
+                Ray::new(o, inside - o)
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn every_report_scene_matches_brute_force() {
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets");
+    let (all, skipped) = scenes::Scene::all(6000, &assets);
+    for s in skipped {
+        eprintln!("note: {s}");
+    }
+    let mut pos = Vec::new();
+    for s in &all {
+        for frame in [0, 45] {
+            s.positions(frame, &mut pos);
+            let m = s.mesh(&pos);
+            let g = grid(&m);
+            let b = g.bounds();
+            let eye = b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length();
+            let mut rays = camera(eye, b.center(), 32, 8, 0.9);
+            rays.extend(random_rays(&m, frame as u64 + 7, 400));
+            let hits = check(&m, &g, &rays, &format!("{} frame {frame}", s.name));
+            assert!(hits > 0, "{}: no ray hits", s.name);
+        }
+    }
+}
+
+#[test]
+fn rays_along_cell_planes_and_axes_with_signed_zeros() {
+    // A regular sheet of quads and a sphere: rays exactly on the grid's cell planes, parallel to the axes,
+    // with +0 and −0 in their zero components, from inside and outside the grid.
+    for m in [
+        cube_sphere(6),
+        map_mesh(&cube_sphere(4), |p| p * Vec3::new(3.0, 1.0, 0.5)),
+    ] {
+        let g = grid(&m);
+        let (b, res) = (g.bounds(), g.resolution());
+        let cell = b.extent() / res.as_vec3();
+        let mut rays = Vec::new();
+        for a in 0..3 {
+            let (u, v) = ((a + 1) % 3, (a + 2) % 3);
+            for i in 0..=res[u] {
+                for j in [0, res[v] / 2, res[v]] {
+                    let mut o = b.center();
+                    o[u] = b.min[u] + i as f32 * cell[u];
+                    o[v] = b.min[v] + j as f32 * cell[v];
+                    for (start, sign) in [
+                        (b.min[a] - 1.0, 1.0f32),
+                        (b.max[a] + 1.0, -1.0),
+                        (b.center()[a], 1.0),
+                    ] {
+                        o[a] = start;
+                        for zero in [0.0f32, -0.0] {
+                            let mut d = Vec3::splat(zero);
+                            d[a] = sign;
+                            rays.push(Ray::new(o, d));
+                        }
+                    }
+                }
+            }
+        }
+        // Diagonal rays through cell corners.
+        for i in 0..=res.x {
+            let o = b.min + cell * i as f32 - Vec3::splat(1.0);
+            rays.push(Ray::new(o, Vec3::ONE));
+            rays.push(Ray::new(o + Vec3::splat(2.0), -Vec3::ONE));
+        }
+        check(&m, &g, &rays, "planes");
+    }
+}
+
+#[test]
+fn offsets_of_1e5_and_origins_far_outside() {
+    let base = icosphere(3);
+    for off in [Vec3::splat(1e5), Vec3::new(-1e5, 3.0, 1e5)] {
+        let m = map_mesh(&base, |p| p + off);
+        let g = grid(&m);
+        let rays = random_rays(&m, 3, 600);
+        check(&m, &g, &rays, "offset");
+    }
+    // Origins 1e5 away from a unit mesh near the origin: far rays take the brute-force path.
+    let g = grid(&base);
+    let mut r = rng(5);
+    let rays: Vec<Ray> = (0..300)
+        .map(|_| {
+            let o = rand_dir(&mut r) * 1e5;
+            Ray::new(o, rand_vec(&mut r, -0.5, 0.5) - o)
+        })
+        .collect();
+    assert!(g.is_far(rays[0].origin));
+    assert!(check(&base, &g, &rays, "far origin") > 100);
+}
+
+#[test]
+fn teapot_in_stadium_one_cell_one_triangle_and_empty() {
+    // A dense sphere of 0.01 in a box of 1000: the grid's size stays bounded and answers stay exact.
+    let teapot = map_mesh(&icosphere(4), |p| p * 0.01);
+    let mut pos = teapot.positions().to_vec();
+    let mut idx = teapot.indices().to_vec();
+    let k = pos.len() as u32;
+    pos.extend([
+        Vec3::splat(-500.0),
+        Vec3::new(500.0, -500.0, -500.0),
+        Vec3::new(0.0, 500.0, 500.0),
+    ]);
+    idx.extend([k, k + 1, k + 2]);
+    let m = Mesh::new(pos, idx).unwrap();
+    let g = grid(&m);
+    assert!(g.reference_count() as u64 <= 32 * m.triangle_count() as u64);
+    let mut rays = random_rays(&teapot, 9, 500);
+    rays.extend(camera(Vec3::new(0.0, 0.0, 0.05), Vec3::ZERO, 16, 4, 0.8));
+    rays.extend(random_rays(&m, 10, 300));
+    check(&m, &g, &rays, "stadium");
+
+    // Every triangle overlapping every other: identical large triangles, all in every cell.
+    let tri = [
+        Vec3::ZERO,
+        Vec3::new(1.0, 0.0, 0.2),
+        Vec3::new(0.0, 1.0, 0.7),
+    ];
+    let pos: Vec<Vec3> = (0..300).flat_map(|_| tri).collect();
+    let m = Mesh::new(pos, (0..900).collect::<Vec<u32>>()).unwrap();
+    let g = grid(&m);
+    assert!(
+        g.reference_count() as u64 <= 32 * 300,
+        "{} refs",
+        g.reference_count()
+    );
+    check(&m, &g, &random_rays(&m, 11, 300), "one cell");
+
+    // One triangle.
+    let m = Mesh::new(tri.to_vec(), vec![0, 1, 2]).unwrap();
+    let g = grid(&m);
+    assert!(check(&m, &g, &random_rays(&m, 12, 300), "one triangle") > 0);
+
+    // No triangles, and only zero-area triangles: nothing is ever hit.
+    for m in [
+        Mesh::new(Vec::<Vec3>::new(), Vec::<u32>::new()).unwrap(),
+        Mesh::new(
+            vec![Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+            vec![0, 1, 2, 1, 1, 1],
+        )
+        .unwrap(),
+    ] {
+        let g = grid(&m);
+        for ray in random_rays(&cube_sphere(2), 13, 100) {
+            assert!(g.closest_hit(&ray).is_none() && !g.any_hit(&ray));
+        }
+        check(&m, &g, &random_rays(&cube_sphere(2), 14, 64), "empty");
+    }
+}
+
+#[test]
+fn million_rays_from_inside_a_closed_mesh_never_miss() {
+    // Every ray from inside a closed mesh must hit it; counted without an oracle, and a sample checked
+    // against brute force.
+    let m = cube_sphere(16);
+    let g = grid(&m);
+    let mut r = rng(17);
+    let mut misses = 0;
+    let mut sample = Vec::new();
+    for i in 0..1_000_000 {
+        let ray = Ray::new(rand_vec(&mut r, -0.5, 0.5), rand_dir(&mut r));
+        misses += g.closest_hit(&ray).is_none() as usize;
+        if i % 5000 == 0 {
+            sample.push(ray);
+        }
+    }
+    assert_eq!(misses, 0);
+    check(&m, &g, &sample, "inside");
+}
+
+#[test]
+fn incoherent_packets_equal_single_rays() {
+    // Packets of random directions (falling back to single rays) and packets of shadow rays toward a
+    // point light (coherent, different origins).
+    let m = bumpy_torus(4000);
+    let g = grid(&m);
+    check(&m, &g, &random_rays(&m, 21, 640), "incoherent");
+    let mut r = rng(22);
+    let light = Vec3::new(0.3, 3.0, 0.2);
+    let shadow: Vec<Ray> = (0..640)
+        .map(|_| {
+            Ray::segment(
+                rand_vec(&mut r, -1.5, 1.5) * Vec3::new(1.0, 0.2, 1.0),
+                light,
+            )
+        })
+        .collect();
+    check(&m, &g, &shadow, "shadow");
+}
+
+#[test]
+fn parallel_build_equals_sequential_and_rebuild_reuses() {
+    let m = soup(3, 20_000);
+    let par = grid(&m);
+    let seq = UniformGrid::build(
+        &m,
+        &GridOptions {
+            parallel: false,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(par.resolution(), seq.resolution());
+    assert_eq!(par.reference_count(), seq.reference_count());
+    let res = par.resolution();
+    let mut brute_refs = 0;
+    for z in 0..res.z {
+        for y in 0..res.y {
+            for x in 0..res.x {
+                let c = UVec3::new(x, y, z);
+                assert_eq!(par.cell_triangles(c), seq.cell_triangles(c));
+                assert!(par.cell_triangles(c).is_sorted());
+                brute_refs += par.cell_triangles(c).len();
+            }
+        }
+    }
+    assert_eq!(brute_refs, par.reference_count());
+    // Rebuilding over another mesh gives what a fresh build gives.
+    let mut g = grid(&icosphere(2));
+    g.rebuild(&m).unwrap();
+    assert_eq!(g.reference_count(), par.reference_count());
+}
+
+#[test]
+fn bad_options_are_errors() {
+    for o in [
+        GridOptions {
+            lambda: 0.0,
+            ..Default::default()
+        },
+        GridOptions {
+            lambda: f32::NAN,
+            ..Default::default()
+        },
+        GridOptions {
+            macrocell: 0,
+            ..Default::default()
+        },
+    ] {
+        assert!(matches!(
+            UniformGrid::build(&icosphere(1), &o),
+            Err(Error::InvalidOption(_))
+        ));
+    }
+    let _ = rng(0).random_range(0..1);
+}
