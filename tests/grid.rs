@@ -350,3 +350,44 @@ fn bad_options_are_errors() {
     }
     let _ = rng(0).random_range(0..1);
 }
+
+/// A flat mesh gets about λ·N cells, one layer thick: the thin axis's single cell does not count as a
+/// thousandth of one (which once made a one-triangle grid 10 × 10 × 1 at any budget, and the bounded-size
+/// retry loop never ended).
+#[test]
+fn flat_meshes_get_their_cell_budget() {
+    let one = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![0, 1, 2]).unwrap();
+    let g = grid(&one);
+    let r = g.resolution();
+    assert_eq!(r.z, 1, "{r:?}");
+    let cells = (r.x * r.y * r.z) as f32;
+    assert!(cells <= 2.0 * GridOptions::default().lambda, "{r:?}");
+    let ray = Ray::new(Vec3::new(0.2, 0.2, 1.0), -Vec3::Z);
+    assert_eq!(
+        g.closest_hit(&ray).map(|h| h.primitive),
+        brute_closest(&one, &ray).map(|(i, _)| i)
+    );
+    // A flat sheet of many triangles: still one layer, about λ·N cells.
+    let sheet = Mesh::new(
+        (0..=40)
+            .flat_map(|y| (0..=40).map(move |x| Vec3::new(x as f32, y as f32, 0.0)))
+            .collect::<Vec<_>>(),
+        (0..40u32)
+            .flat_map(|y| {
+                (0..40u32).flat_map(move |x| {
+                    let i = y * 41 + x;
+                    [i, i + 1, i + 42, i, i + 42, i + 41]
+                })
+            })
+            .collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let g = grid(&sheet);
+    let r = g.resolution();
+    let budget = GridOptions::default().lambda * sheet.triangle_count() as f32;
+    assert_eq!(r.z, 1, "{r:?}");
+    assert!(
+        ((r.x * r.y) as f32 - budget).abs() <= 0.1 * budget,
+        "{r:?} for about {budget} cells"
+    );
+}

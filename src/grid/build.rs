@@ -56,9 +56,12 @@ impl UniformGrid {
         let (box_, live) = live;
         let mut lambda = self.options.lambda as f64;
         loop {
+            let before = self.res;
             self.set_resolution(&box_, lambda * live as f64);
             let refs = self.bin();
-            if refs <= MAX_REFS_PER_TRIANGLE * live || self.res == UVec3::ONE {
+            // Stop once within the bound, or when a smaller budget no longer changes the grid.
+            if refs <= MAX_REFS_PER_TRIANGLE * live || self.res == UVec3::ONE || self.res == before
+            {
                 break;
             }
             lambda *= 0.25;
@@ -84,11 +87,7 @@ impl UniformGrid {
         // where the volume of any finite f32 box neither overflows nor underflows.
         let e = b.extent().as_dvec3();
         let e = e.max(DVec3::splat(e.max_element() * 1e-3));
-        let k = (cells.max(1.0) / (e.x * e.y * e.z)).cbrt();
-        let res = (e * k)
-            .round()
-            .clamp(DVec3::ONE, DVec3::splat(MAX_RESOLUTION as f64));
-        self.res = res.as_uvec3();
+        self.res = cells_per_axis(e, cells);
         let half = e.as_vec3() * 0.5;
         let c = b.center();
         let cell = (half * 2.0) / self.res.as_vec3();
@@ -210,6 +209,36 @@ impl UniformGrid {
 
 /// Number of cells in an inclusive cell range (0 for an unbinned triangle).
 #[inline]
+/// Cells per axis for a box of extent `e` (all positive) and a budget of about `cells`: the same edge length
+/// on every axis, `(cells / volume)^(1/3)` per unit. An axis thinner than one cell gets one cell and the
+/// budget is spread over the others again, so a flat box of `cells` cells is `√cells × √cells × 1`, not a
+/// grid sized for a thickness it does not have. Each axis has 1 to [`MAX_RESOLUTION`] cells.
+fn cells_per_axis(e: DVec3, cells: f64) -> UVec3 {
+    let cells = cells.max(1.0);
+    let mut free = [true; 3];
+    loop {
+        let dims = free.iter().filter(|&&f| f).count();
+        if dims == 0 {
+            return UVec3::ONE;
+        }
+        let volume: f64 = (0..3).filter(|&i| free[i]).map(|i| e[i]).product();
+        let k = (cells / volume).powf(1.0 / dims as f64);
+        let thin = std::array::from_fn::<bool, 3, _>(|i| free[i] && e[i] * k < 1.0);
+        if thin == [false; 3] {
+            let res = DVec3::from_array(std::array::from_fn(
+                |i| if free[i] { e[i] * k } else { 1.0 },
+            ));
+            return res
+                .round()
+                .clamp(DVec3::ONE, DVec3::splat(MAX_RESOLUTION as f64))
+                .as_uvec3();
+        }
+        for i in 0..3 {
+            free[i] &= !thin[i];
+        }
+    }
+}
+
 fn range_cells(r: &[UVec3; 2]) -> u64 {
     if r[0].x > r[1].x {
         return 0;
