@@ -764,20 +764,18 @@ fn sphere_casts_equal_brute_force() {
     }
 }
 
+/// The square `[-1, 1]²` in the plane y = 0, two upward-facing triangles sharing the diagonal through the
+/// origin: the floor of the analytic cast cases.
+fn floor() -> MeshBvh {
+    let corners =
+        [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].map(|(x, z)| Vec3::new(x, 0.0, z));
+    let mesh = Mesh::new(corners.to_vec(), vec![0, 2, 1, 0, 3, 2]).unwrap();
+    MeshBvh::build(&mesh, &BuildOptions::default()).unwrap()
+}
+
 #[test]
 fn sphere_casts_on_analytic_cases() {
-    // A floor of two triangles sharing the diagonal through the origin.
-    let floor = Mesh::new(
-        vec![
-            Vec3::new(-1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, 1.0),
-            Vec3::new(-1.0, 0.0, 1.0),
-        ],
-        vec![0, 2, 1, 0, 3, 2],
-    )
-    .unwrap();
-    let bvh = MeshBvh::build(&floor, &BuildOptions::default()).unwrap();
+    let bvh = floor();
     // Dropped onto the shared edge: lands at the analytic time, on the face, normal up.
     let h = bvh
         .cast_sphere(Vec3::new(0.25, 2.0, 0.25), -Vec3::Y, 0.5, 10.0)
@@ -947,17 +945,7 @@ fn capsule_casts_equal_brute_force() {
 
 #[test]
 fn capsule_casts_on_analytic_cases() {
-    let floor = Mesh::new(
-        vec![
-            Vec3::new(-1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, 1.0),
-            Vec3::new(-1.0, 0.0, 1.0),
-        ],
-        vec![0, 2, 1, 0, 3, 2],
-    )
-    .unwrap();
-    let bvh = MeshBvh::build(&floor, &BuildOptions::default()).unwrap();
+    let bvh = floor();
     // Lying flat, falling: the whole segment lands at once, at the radius.
     let h = bvh
         .cast_capsule(
@@ -1127,17 +1115,7 @@ fn box_casts_equal_brute_force() {
 
 #[test]
 fn box_casts_on_analytic_cases() {
-    let floor = Mesh::new(
-        vec![
-            Vec3::new(-1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, -1.0),
-            Vec3::new(1.0, 0.0, 1.0),
-            Vec3::new(-1.0, 0.0, 1.0),
-        ],
-        vec![0, 2, 1, 0, 3, 2],
-    )
-    .unwrap();
-    let bvh = MeshBvh::build(&floor, &BuildOptions::default()).unwrap();
+    let bvh = floor();
     // Flat: the bottom face lands at t = 3 - 0.5.
     let h = bvh
         .cast_box(
