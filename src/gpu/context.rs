@@ -43,11 +43,24 @@ impl GpuContext {
     }
 
     async fn new_async() -> Result<Self> {
-        let instance =
-            compute_instance(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-            .await
-            .map_err(|e| Error::NoGpu(e.to_string()))?;
+        let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        // The headless Vulkan instance first; when it yields no adapter, wgpu's ordinary instance with every
+        // back end the environment allows (GL, …), which may print the display warnings but finds what exists.
+        let headless = match headless_vulkan(&desc) {
+            Some(instance) => wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+                .await
+                .ok(),
+            None => None,
+        };
+        let adapter = match headless {
+            Some(adapter) => adapter,
+            None => {
+                let instance = wgpu::Instance::new(desc);
+                wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
+                    .await
+                    .map_err(|e| Error::NoGpu(e.to_string()))?
+            }
+        };
         let info = adapter.get_info();
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
@@ -118,16 +131,17 @@ impl GpuContext {
     }
 }
 
-/// A wgpu instance for compute only.
+/// A Vulkan-only wgpu instance for compute.
 ///
 /// Where Vulkan is the window-system API (Linux and the BSDs), wgpu enables the Xlib, XCB and Wayland
 /// surface extensions on every instance. Mesa's implicit device-select layer sees them and, while listing
 /// adapters, connects to the Wayland compositor and the X server to find the GPU driving the display; on a
 /// headless machine libwayland prints `error: XDG_RUNTIME_DIR is invalid or not set in the environment.`
 /// once per listing. A compute device presents nothing, so this instance enables none of those three
-/// extensions: no display connection is attempted and nothing is printed. Elsewhere, or when
-/// `WGPU_BACKEND` leaves Vulkan out, it is wgpu's ordinary instance.
-fn compute_instance(desc: wgpu::InstanceDescriptor) -> wgpu::Instance {
+/// extensions: no display connection is attempted and nothing is printed. `None` elsewhere, when
+/// `WGPU_BACKEND` leaves Vulkan out, or when no Vulkan instance can be made; the caller then uses wgpu's
+/// ordinary instance, which also tries the other back ends.
+fn headless_vulkan(desc: &wgpu::InstanceDescriptor) -> Option<wgpu::Instance> {
     #[cfg(all(
         unix,
         not(target_os = "macos"),
@@ -159,12 +173,15 @@ fn compute_instance(desc: wgpu::InstanceDescriptor) -> wgpu::Instance {
         // `from_hal` takes ownership of a valid Vulkan instance.
         match unsafe { wgpu::hal::vulkan::Instance::init_with_callback(&hal_desc, Some(headless)) }
         {
-            Ok(hal) => return unsafe { wgpu::Instance::from_hal::<wgpu::hal::api::Vulkan>(hal) },
+            Ok(hal) => {
+                return Some(unsafe { wgpu::Instance::from_hal::<wgpu::hal::api::Vulkan>(hal) });
+            }
             // No Vulkan loader: wgpu's ordinary instance reports that, and tries other back ends.
             Err(e) => log::debug!("kinetrace: headless Vulkan instance: {e}"),
         }
     }
-    wgpu::Instance::new(desc)
+    let _ = desc; // unused where Vulkan is not the window-system API
+    None
 }
 
 /// Test hook (feature `testing`): the shared context of the integration tests, created once per process,
