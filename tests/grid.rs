@@ -391,3 +391,55 @@ fn flat_meshes_get_their_cell_budget() {
         "{r:?} for about {budget} cells"
     );
 }
+
+/// The reference bound holds on a rebuild whose box and triangle count equal the last frame's but whose
+/// triangles grew to span the box (an explosion's debris reassembling): the budget is cut as on a fresh build.
+#[test]
+fn rebuilds_keep_the_reference_bound_when_triangles_grow() {
+    let n = 400;
+    let corner = |i: usize, k: usize| {
+        Vec3::new(
+            ((i * 7 + k * 3) % 20) as f32,
+            ((i * 11 + k) % 20) as f32,
+            ((i * 13 + k * 5) % 20) as f32,
+        )
+    };
+    // Small triangles spread over [0, 20]³, plus two fixed corners so every frame has the same box.
+    let small: Vec<Vec3> = (0..n)
+        .flat_map(|i| {
+            let c = corner(i, 0);
+            [
+                c,
+                c + Vec3::new(0.5, 0.0, 0.0),
+                c + Vec3::new(0.0, 0.5, 0.0),
+            ]
+        })
+        .chain([Vec3::ZERO, Vec3::splat(20.5), Vec3::new(0.0, 20.5, 0.0)])
+        .collect();
+    // The same count and box, every triangle spanning it.
+    let big: Vec<Vec3> = (0..n)
+        .flat_map(|i| {
+            [
+                Vec3::ZERO,
+                Vec3::new(20.5, 20.5, (i % 20) as f32),
+                Vec3::new(0.0, 20.5, 20.5),
+            ]
+        })
+        .chain([Vec3::ZERO, Vec3::splat(20.5), Vec3::new(0.0, 20.5, 0.0)])
+        .collect();
+    let idx: Vec<u32> = (0..3 * (n as u32 + 1)).collect();
+    let (a, b) = (
+        Mesh::new(small, idx.clone()).unwrap(),
+        Mesh::new(big, idx).unwrap(),
+    );
+    let mut g = grid(&a);
+    g.rebuild(&b).unwrap();
+    let fresh = grid(&b);
+    assert!(
+        g.reference_count() <= 32 * b.triangle_count(),
+        "{} refs",
+        g.reference_count()
+    );
+    assert_eq!(g.resolution(), fresh.resolution());
+    assert_eq!(g.reference_count(), fresh.reference_count());
+}

@@ -7,7 +7,7 @@
 //! frames: once they have grown to the largest mesh seen, a rebuild allocates nothing.
 
 use super::UniformGrid;
-use crate::bvh::query_corners;
+use crate::bvh::{is_collapsed, query_corners};
 use crate::geometry::Aabb;
 use crate::{Mesh, Result, parallel};
 use glam::{DVec3, UVec3, Vec3};
@@ -21,12 +21,6 @@ pub const MAX_REFS_PER_TRIANGLE: u64 = 32;
 
 /// Triangles per parallel task for the per-triangle passes.
 const CHUNK: usize = 4096;
-
-/// True for a triangle collapsed by [`query_corners`] (zero area: it never hits and is not binned).
-#[inline]
-fn collapsed(t: &[Vec3; 3]) -> bool {
-    t[0] == t[1] && t[1] == t[2]
-}
 
 impl UniformGrid {
     /// Rebuilds the grid over `mesh` (any triangle count, any positions), reusing the buffers: no allocation
@@ -46,7 +40,7 @@ impl UniformGrid {
             (Aabb::EMPTY, 0u64),
             |ts| {
                 ts.iter()
-                    .filter(|t| !collapsed(t))
+                    .filter(|t| !is_collapsed(t))
                     .fold((Aabb::EMPTY, 0), |(b, k), t| {
                         (b.union(&Aabb::from_triangle(t[0], t[1], t[2])), k + 1)
                     })
@@ -55,15 +49,18 @@ impl UniformGrid {
         );
         let (box_, live) = live;
         let mut lambda = self.options.lambda as f64;
+        let mut before = None;
         loop {
-            let before = self.res;
             self.set_resolution(&box_, lambda * live as f64);
             let refs = self.bin();
             // Stop once within the bound, or when a smaller budget no longer changes the grid.
-            if refs <= MAX_REFS_PER_TRIANGLE * live || self.res == UVec3::ONE || self.res == before
+            if refs <= MAX_REFS_PER_TRIANGLE * live
+                || self.res == UVec3::ONE
+                || before == Some(self.res)
             {
                 break;
             }
+            before = Some(self.res);
             lambda *= 0.25;
         }
         self.sort();
@@ -109,7 +106,7 @@ impl UniformGrid {
         parallel::fill(par, &mut ranges, CHUNK, |i| {
             let tris = &grid.tris;
             let t = &tris[i];
-            if collapsed(t) || grid.bounds.is_empty() {
+            if is_collapsed(t) || grid.bounds.is_empty() {
                 return [UVec3::ONE, UVec3::ZERO];
             }
             let b = Aabb::from_triangle(t[0], t[1], t[2]);
@@ -207,8 +204,6 @@ impl UniformGrid {
     }
 }
 
-/// Number of cells in an inclusive cell range (0 for an unbinned triangle).
-#[inline]
 /// Cells per axis for a box of extent `e` (all positive) and a budget of about `cells`: the same edge length
 /// on every axis, `(cells / volume)^(1/3)` per unit. An axis thinner than one cell gets one cell and the
 /// budget is spread over the others again, so a flat box of `cells` cells is `√cells × √cells × 1`, not a
@@ -239,6 +234,8 @@ fn cells_per_axis(e: DVec3, cells: f64) -> UVec3 {
     }
 }
 
+/// Number of cells in an inclusive cell range (0 for an unbinned triangle).
+#[inline]
 fn range_cells(r: &[UVec3; 2]) -> u64 {
     if r[0].x > r[1].x {
         return 0;
