@@ -339,6 +339,13 @@ fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
             TraceTransform(Affine3A::from_scale(Vec3::ZERO)),
         ))
         .id();
+    // Finite transform and finite mesh, but together past f32's range: no world box.
+    let overflow = world
+        .spawn((
+            TraceMesh(map_mesh(&m, |p| p * 1e38)),
+            TraceTransform(Affine3A::from_translation(Vec3::X * 3e38)),
+        ))
+        .id();
     let ok_skin = world
         .spawn((
             TraceMesh(m.clone()),
@@ -349,17 +356,19 @@ fn bad_skins_and_transforms_are_errors_and_the_rest_keeps_working() {
         ))
         .id();
     frame(&mut world, &mut schedule);
-    for e in [bad_joint, nan, bad_transform] {
+    for e in [bad_joint, nan, bad_transform, overflow] {
         assert!(world.get::<TraceError>(e).is_some(), "{e} has no error");
         assert!(!world.resource::<TraceWorld>().contains(e));
     }
-    let transform_error = &world.get::<TraceError>(bad_transform).unwrap().0;
-    assert!(
-        matches!(transform_error, kinetrace::Error::InvalidTransform(_)),
-        "{transform_error:?}"
-    );
+    for e in [bad_transform, overflow] {
+        let transform_error = &world.get::<TraceError>(e).unwrap().0;
+        assert!(
+            matches!(transform_error, kinetrace::Error::InvalidTransform(_)),
+            "{transform_error:?}"
+        );
+    }
     let messages = world.resource::<Messages<TraceErrorMessage>>();
-    assert_eq!(messages.len(), 3);
+    assert_eq!(messages.len(), 4);
     let tw = world.resource::<TraceWorld>();
     assert!(tw.contains(good) && tw.contains(ok_skin));
     // The good skin moved the mesh halfway up: it is hit where the skinned positions are.

@@ -74,7 +74,7 @@ pub fn lauterbach_policy(input: &PolicyInput<'_>) -> Decision {
 }
 
 /// Lauterbach's threshold (thesis §4.1.5).
-const THESIS_THRESHOLD: f32 = 0.40;
+pub(super) const THESIS_THRESHOLD: f32 = 0.40;
 
 pub(super) fn lauterbach(degradation: f32, threshold: f32) -> Decision {
     if degradation > threshold {

@@ -118,6 +118,22 @@ pub(crate) fn top_level_system(
         let Some(inst) = world.instances.get_mut(&e) else {
             continue;
         };
+        // A finite transform can still carry finite geometry past f32's range (a 3e38 offset): such an
+        // entity has no world box, and is an error like a singular transform.
+        let checked = checked.and_then(|tr| {
+            let b = inst.bvh.bvh().bounds();
+            if b.is_empty()
+                || b.corners()
+                    .iter()
+                    .all(|&c| tr.transform_point3(c).is_finite())
+            {
+                Ok(tr)
+            } else {
+                Err(Error::InvalidTransform(format!(
+                    "the transform carries the mesh past f32's range (root box {b:?})"
+                )))
+            }
+        });
         match checked {
             Ok(tr) => {
                 if inst.transform != tr {

@@ -19,7 +19,7 @@
 //! allocation), under the adaptive policy an SAH-cost pass over the nodes; a rebuild is O(n log n) and
 //! allocates. What happened is in [`TraceStats::top_level`](super::TraceStats).
 
-use super::config::lauterbach;
+use super::config::{THESIS_THRESHOLD, lauterbach};
 use super::{Decision, RebuildPolicy, TopLevelAction, TopLevelReason, TopLevelStats, TraceWorld};
 use crate::adaptive::AdaptivePolicy;
 use crate::bvh::{BuildOptions, Builder, Bvh};
@@ -30,9 +30,6 @@ use std::time::Instant;
 /// The top level's builder: binned SAH, whose trees are the best and whose cost over entity boxes (a few
 /// thousand at most) is small.
 const BUILDER: Builder = Builder::SAH;
-
-/// Lauterbach's threshold (thesis §4.1.5), for policies that do not give one for the top level.
-const THESIS_THRESHOLD: f32 = 0.40;
 
 /// What the top level keeps from frame to frame besides its tree.
 #[derive(Default)]
@@ -76,8 +73,8 @@ impl TraceWorld {
                 b
             }
         }));
-        // Entity boxes are finite (checked transforms of finite trees), so a refit fails only when the
-        // count changed, which membership covers.
+        // Entity boxes are finite (the top-level system refuses transforms that carry a mesh past f32's
+        // range), so a refit fails only when the count changed, which membership covers.
         let refit = if membership {
             None
         } else {

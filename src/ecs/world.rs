@@ -105,13 +105,7 @@ impl Instance {
         self.world_bounds = if b.is_empty() {
             Aabb::EMPTY
         } else {
-            (0..8).fold(Aabb::EMPTY, |acc, i| {
-                let c = Vec3::new(
-                    if i & 1 == 0 { b.min.x } else { b.max.x },
-                    if i & 2 == 0 { b.min.y } else { b.max.y },
-                    if i & 4 == 0 { b.min.z } else { b.max.z },
-                );
-                let mut acc = acc;
+            b.corners().iter().fold(Aabb::EMPTY, |mut acc, &c| {
                 acc.grow(self.transform.transform_point3(c));
                 acc
             })
