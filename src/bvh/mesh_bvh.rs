@@ -90,6 +90,13 @@ pub(crate) fn next_topology_id() -> u64 {
 /// larger ones by walking triangles in mesh order (see [`MeshBvh::refit`]).
 pub const GATHER_BELOW_BYTES: usize = 16 << 20;
 
+/// True for a triangle [`query_corners`] collapsed to one point (zero area): every query treats it as
+/// absent, so grids do not bin it and point queries skip it.
+#[inline]
+pub(crate) fn is_collapsed(t: &[Vec3; 3]) -> bool {
+    t[0] == t[1] && t[1] == t[2]
+}
+
 /// The corners a query tests: the triangle itself, or a single point for a zero-area triangle (exactly zero
 /// cross product in `f32`), so that rounding in the ray's frame can never turn a degenerate triangle into a hit.
 #[inline]

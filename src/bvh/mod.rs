@@ -31,8 +31,8 @@ mod traverse;
 mod validate;
 
 pub use build_sah::MAX_BINS;
-pub(crate) use mesh_bvh::query_corners;
 pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
+pub(crate) use mesh_bvh::{is_collapsed, query_corners};
 pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub(crate) use refit::refit_nodes;

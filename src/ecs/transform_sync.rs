@@ -12,7 +12,7 @@ impl KinetracePlugin {
     /// `to_affine(&t)` into [`TraceTransform`] whenever `T` is inserted or changed, or the entity gets a
     /// [`TraceMesh`], and puts it back at the identity when `T` is removed. Use it instead of writing that
     /// copy system by hand; `to_affine` can be a method of a type you do not own (such as bevy's
-    /// `GlobalTransform::affine`). Follow one component per entity: with two, the later system wins.
+    /// `GlobalTransform::affine`). Follow one component per entity: with two, which copy lands last is unspecified.
     ///
     /// The copy runs in [`TraceSystems::TopLevel`] before the top level is updated, so a write to `T`
     /// ordered before that set counts the same frame, exactly like a write to [`TraceTransform`]. Cost: one

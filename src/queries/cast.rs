@@ -9,7 +9,7 @@
 //! the same time.
 
 use super::closest::{Feature, closest_on_triangle, present};
-use super::shapes::{DBox, segment_segment, segment_triangle_closest};
+use super::shapes::{DBox, Shape, segment_segment, segment_triangle_closest};
 use crate::MeshBvh;
 use crate::bvh::{Node, traverse_by};
 use crate::geometry::{Aabb, Ray};
@@ -362,11 +362,7 @@ impl MeshBvh {
         dir: Vec3,
         max_t: f32,
     ) -> Option<CastHit> {
-        if !(half.is_finite()
-            && half.min_element() >= 0.0
-            && rotation.is_finite()
-            && rotation.is_normalized())
-        {
+        if !Shape::cuboid(center, half, rotation).is_valid() {
             return None;
         }
         let core = Core::Box(DBox::new(center, half, rotation));

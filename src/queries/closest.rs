@@ -1,7 +1,7 @@
 //! The closest point of a mesh to a point: Ericson's region test per triangle, best-first over the tree.
 
 use crate::MeshBvh;
-use crate::bvh::{Node, traverse_by};
+use crate::bvh::{Node, is_collapsed, traverse_by};
 use glam::{DVec3, Vec3};
 use std::ops::Range;
 
@@ -123,20 +123,13 @@ pub(crate) fn box_dist2(n: &Node, p: DVec3) -> f64 {
     d.length_squared()
 }
 
-/// Whether a slot holds a zero-area triangle, which [`MeshBvh`] stores as one repeated point and every query
-/// treats as absent.
-#[inline]
-pub(crate) fn is_absent(t: &[Vec3; 3]) -> bool {
-    t[0] == t[1] && t[1] == t[2]
-}
-
 /// The present (not zero-area) triangles of a leaf's `slots`, with their slot, corners in `f64`.
 pub(crate) fn present(
     tris: &[[Vec3; 3]],
     slots: Range<usize>,
 ) -> impl Iterator<Item = (usize, [DVec3; 3])> + '_ {
     slots
-        .filter(|&s| !is_absent(&tris[s]))
+        .filter(|&s| !is_collapsed(&tris[s]))
         .map(|s| (s, tris[s].map(Vec3::as_dvec3)))
 }
 

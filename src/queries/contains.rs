@@ -18,10 +18,9 @@
 //! closed mesh: the moved ray never meets them. A point exactly on the surface — on the plane of a triangle
 //! and within its closed face, decided exactly — counts as inside.
 
-use super::closest::is_absent;
 use crate::MeshBvh;
 use crate::Ray;
-use crate::bvh::traverse;
+use crate::bvh::{is_collapsed, traverse};
 use crate::geometry::{Plane, normal_est, orient2d_est};
 use glam::Vec3;
 
@@ -121,7 +120,7 @@ impl MeshBvh {
         let ray = Ray::new(p, Vec3::X);
         traverse(self.bvh().nodes(), &ray, &mut (), |slots, _| {
             for t in &tris[slots] {
-                if is_absent(t) {
+                if is_collapsed(t) {
                     continue;
                 }
                 match crossing(t, p) {
