@@ -64,6 +64,8 @@ mod gpu_queries;
 mod maintain;
 mod params;
 mod plugin;
+mod shape_batch;
+mod shape_queries;
 mod stats;
 mod systems;
 mod top_level;
@@ -88,6 +90,11 @@ pub use params::SpatialRays;
 #[allow(deprecated)] // the old name, re-exported until it is removed
 pub use plugin::TraceSet;
 pub use plugin::{KinetracePlugin, Plugin, TraceSystems};
+pub use shape_batch::{
+    ClosestPointRequest, ContainsRequest, OverlapRequest, ShapeCastRequest, ShapeQueue,
+    ShapeResults,
+};
+pub use shape_queries::{NearestPoint, ShapeHit};
 pub use stats::{
     MeshAction, MeshStats, RebuildReason, TopLevelAction, TopLevelReason, TopLevelStats, TraceStats,
 };

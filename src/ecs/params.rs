@@ -1,7 +1,8 @@
 //! The immediate query system parameter.
 
-use super::{QueryFilter, RayHit, TraceWorld};
+use super::{NearestPoint, QueryFilter, RayHit, ShapeHit, TraceWorld};
 use crate::geometry::Ray;
+use crate::queries::Shape;
 use bevy_ecs::prelude::*;
 use bevy_ecs::system::SystemParam;
 use glam::Vec3;
@@ -45,6 +46,41 @@ impl SpatialRays<'_> {
     pub fn ray_hits(&self, ray: &Ray, filter: &QueryFilter) -> Vec<RayHit> {
         let mut out = Vec::new();
         self.world.ray_hits(ray, filter, &mut out);
+        out
+    }
+
+    /// The first contact of `shape` (world space) swept along `dir` up to `max_t`, among accepted entities
+    /// (see [`TraceWorld::cast_shape`]): a character's capsule before it moves, a thrown ball's path.
+    pub fn cast_shape(
+        &self,
+        shape: &Shape,
+        dir: Vec3,
+        max_t: f32,
+        filter: &QueryFilter,
+    ) -> Option<ShapeHit> {
+        self.world.cast_shape(shape, dir, max_t, filter)
+    }
+
+    /// The nearest surface point of an accepted entity within `max_distance` (see
+    /// [`TraceWorld::closest_point`]).
+    pub fn closest_point(
+        &self,
+        p: Vec3,
+        max_distance: f32,
+        filter: &QueryFilter,
+    ) -> Option<NearestPoint> {
+        self.world.closest_point(p, max_distance, filter)
+    }
+
+    /// Every `(entity, triangle)` the shape touches, into `out` (see [`TraceWorld::overlaps`]).
+    pub fn overlaps(&self, shape: &Shape, filter: &QueryFilter, out: &mut Vec<(Entity, u32)>) {
+        self.world.overlaps(shape, filter, out);
+    }
+
+    /// The accepted entities whose closed meshes hold `p` (see [`TraceWorld::containing`]).
+    pub fn contains(&self, p: Vec3, filter: &QueryFilter) -> Vec<Entity> {
+        let mut out = Vec::new();
+        self.world.containing(p, filter, &mut out);
         out
     }
 

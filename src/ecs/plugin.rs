@@ -91,6 +91,8 @@ impl KinetracePlugin {
         world.init_resource::<TraceWorld>();
         world.init_resource::<RayQueue>();
         world.init_resource::<RayResults>();
+        world.init_resource::<super::ShapeQueue>();
+        world.init_resource::<super::ShapeResults>();
         world.init_resource::<TraceStats>();
         world.init_resource::<super::AnimationClock>();
         world.init_resource::<Contacts>();
@@ -122,6 +124,7 @@ impl KinetracePlugin {
             maintain_system.in_set(TraceSystems::Maintain),
             top_level_system.in_set(TraceSystems::TopLevel),
             queries_system.in_set(TraceSystems::Queries),
+            super::shape_batch::shape_queries_system.in_set(TraceSystems::Queries),
             super::collide::collide_system
                 .run_if(super::collide::collisions_needed)
                 .in_set(TraceSystems::Queries),

@@ -9,9 +9,10 @@
 //! the same time.
 
 use super::closest::{Feature, closest_on_triangle, present};
+use super::frame::Frame;
 use super::shapes::{DBox, Shape, segment_segment, segment_triangle_closest};
 use crate::MeshBvh;
-use crate::bvh::{Node, traverse_by};
+use crate::bvh::traverse_by;
 use crate::geometry::{Aabb, Ray};
 use glam::{DVec3, Quat, Vec3};
 
@@ -293,7 +294,8 @@ impl MeshBvh {
         {
             return None;
         }
-        self.cast_core(Core::Point(origin.as_dvec3()), origin, dir, radius, max_t)
+        let core = Core::Point(origin.as_dvec3());
+        self.cast_core(core, origin, dir, radius, max_t, Frame::Mesh)
     }
 
     /// Sweeps a capsule (the points within `radius` of the segment `a`–`b`) along `dir` up to `max_t` and
@@ -325,13 +327,8 @@ impl MeshBvh {
         if !(a.is_finite() && b.is_finite()) {
             return None;
         }
-        self.cast_core(
-            Core::Segment(a.as_dvec3(), b.as_dvec3()),
-            a,
-            dir,
-            radius,
-            max_t,
-        )
+        let core = Core::Segment(a.as_dvec3(), b.as_dvec3());
+        self.cast_core(core, a, dir, radius, max_t, Frame::Mesh)
     }
 
     /// Sweeps an oriented box (half-extents `half` around `center`, turned by `rotation`) along `dir` up to
@@ -366,7 +363,39 @@ impl MeshBvh {
             return None;
         }
         let core = Core::Box(DBox::new(center, half, rotation));
-        self.cast_core(core, center, dir, 0.0, max_t)
+        self.cast_core(core, center, dir, 0.0, max_t, Frame::Mesh)
+    }
+
+    /// Sweeps any [`Shape`] along `dir` up to `max_t`: [`cast_sphere`](Self::cast_sphere),
+    /// [`cast_capsule`](Self::cast_capsule) or [`cast_box`](Self::cast_box) by its kind, with their
+    /// conventions and costs.
+    pub fn cast_shape(&self, shape: &Shape, dir: Vec3, max_t: f32) -> Option<CastHit> {
+        self.cast_shape_in(shape, dir, max_t, Frame::Mesh)
+    }
+
+    /// [`cast_shape`](Self::cast_shape) with the shape, the direction and the answer in `frame`.
+    pub(crate) fn cast_shape_in(
+        &self,
+        shape: &Shape,
+        dir: Vec3,
+        max_t: f32,
+        frame: Frame,
+    ) -> Option<CastHit> {
+        if !shape.is_valid() {
+            return None;
+        }
+        let (core, anchor, radius) = match *shape {
+            Shape::Sphere { center, radius } => (Core::Point(center.as_dvec3()), center, radius),
+            Shape::Capsule { a, b, radius } => {
+                (Core::Segment(a.as_dvec3(), b.as_dvec3()), a, radius)
+            }
+            Shape::Box {
+                center,
+                half,
+                rotation,
+            } => (Core::Box(DBox::new(center, half, rotation)), center, 0.0),
+        };
+        self.cast_core(core, anchor, dir, radius, max_t, frame)
     }
 
     /// The shared sweep: `core` grown by `radius`, moved along `dir`; `anchor` is the core's first point,
@@ -378,15 +407,87 @@ impl MeshBvh {
         dir: Vec3,
         radius: f32,
         max_t: f32,
+        frame: Frame,
     ) -> Option<CastHit> {
-        if !(anchor.is_finite() && dir.is_finite() && radius.is_finite() && radius >= 0.0)
-            || max_t.is_nan()
-        {
+        let sweep = Sweep::new(core, anchor, dir, radius, max_t)?;
+        let (d, r) = (dir.as_dvec3(), f64::from(radius));
+        let tris = self.slot_triangles();
+        let prims = self.bvh().prim_indices();
+        let mut best: Option<(f64, u32, [DVec3; 3])> = None;
+        traverse_by(
+            self.bvh().nodes(),
+            sweep.ray.tmax,
+            &mut (),
+            |n, tmax| sweep.enter(&frame.node_box(n), tmax),
+            |slots, tmax| {
+                for (slot, tri) in present(tris, slots, frame) {
+                    let toi = if core.touches(r, tri) {
+                        Some(0.0)
+                    } else if sweep.moving {
+                        core.toi(d, r, tri)
+                            .filter(|&t| t <= f64::from(sweep.ray.tmax))
+                    } else {
+                        None
+                    };
+                    let Some(toi) = toi else { continue };
+                    let prim = prims[slot];
+                    if best.is_none_or(|(bt, bp, _)| toi < bt || (toi == bt && prim < bp)) {
+                        best = Some((toi, prim, tri));
+                        // Boxes entered after the hit (by more than the box test's rounding) hold nothing earlier.
+                        *tmax = (toi as f32) * (1.0 + 4.0 * f32::EPSILON) + f32::MIN_POSITIVE;
+                    }
+                }
+                false
+            },
+        );
+        best.map(|(t, prim, tri)| cast_hit(core, d, t, prim, tri))
+    }
+}
+
+/// The contact of a cast that touches triangle `prim` (corners `tri`) at time `t`.
+fn cast_hit(core: Core, d: DVec3, t: f64, prim: u32, tri: [DVec3; 3]) -> CastHit {
+    let (point, normal) = core.contact(d, t, tri);
+    let q = closest_on_triangle(point, tri);
+    CastHit {
+        t: t as f32,
+        point: q.point.as_vec3(),
+        normal: normal.as_vec3(),
+        primitive: prim,
+        u: q.u as f32,
+        v: q.v as f32,
+        feature: q.feature,
+    }
+}
+
+/// A swept shape as the boxes of a tree see it: the ray its anchor follows and the shape's extent around
+/// the anchor. Shared by the mesh's tree and the scene's top level.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sweep {
+    /// The anchor's path, `[0, max_t]`.
+    pub ray: Ray,
+    /// False for a zero direction (or `max_t = 0`): only boxes holding the start are entered.
+    pub moving: bool,
+    anchor: Vec3,
+    lo: Vec3,
+    hi: Vec3,
+}
+
+impl Sweep {
+    /// The sweep of `shape` along `dir` up to `max_t`; `None` for invalid input.
+    pub(crate) fn of(shape: &Shape, dir: Vec3, max_t: f32) -> Option<Sweep> {
+        if !shape.is_valid() {
             return None;
         }
-        let (d, r) = (dir.as_dvec3(), f64::from(radius));
-        let ray = Ray::with_range(anchor, dir, 0.0, max_t.max(0.0));
-        let moving = ray.is_valid();
+        let b = shape.bounds();
+        let anchor = b.center();
+        let (lo, hi) = (b.min - anchor, b.max - anchor);
+        Sweep::around(anchor, lo, hi, dir, max_t)
+    }
+
+    fn new(core: Core, anchor: Vec3, dir: Vec3, radius: f32, max_t: f32) -> Option<Sweep> {
+        if !(anchor.is_finite() && radius.is_finite() && radius >= 0.0) {
+            return None;
+        }
         // The core's extent around the anchor, grown by the radius.
         let (lo, hi) = match core {
             Core::Point(_) => (Vec3::splat(-radius), Vec3::splat(radius)),
@@ -403,67 +504,42 @@ impl MeshBvh {
                 (-ext, ext)
             }
         };
-        // Entry distance of the anchor into a node's box grown by the shape's extent (and 4 ulp of the
-        // magnitudes, so that it holds the box's Minkowski sum with the shape despite rounding); a box
-        // holding the start is entered at 0.
-        let enter = |n: &Node, tmax: f32| -> Option<f32> {
-            let b = n.aabb();
-            let m = b.min.abs().max(b.max.abs()).max(anchor.abs()).max_element()
-                + hi.max(-lo).max_element();
-            let pad = Vec3::splat(m * 4.0 * f32::EPSILON);
-            let b = Aabb::new(b.min - hi - pad, b.max - lo + pad);
-            if b.contains_point(anchor) {
-                Some(0.0)
-            } else if moving {
-                ray.intersect_aabb(&b, tmax)
-            } else {
-                None
-            }
-        };
-        let tris = self.slot_triangles();
-        let prims = self.bvh().prim_indices();
-        let mut best: Option<(f64, u32, usize)> = None;
-        traverse_by(
-            self.bvh().nodes(),
-            ray.tmax,
-            &mut (),
-            enter,
-            |slots, tmax| {
-                for (slot, tri) in present(tris, slots) {
-                    let toi = if core.touches(r, tri) {
-                        Some(0.0)
-                    } else if moving {
-                        core.toi(d, r, tri).filter(|&t| t <= f64::from(ray.tmax))
-                    } else {
-                        None
-                    };
-                    let Some(toi) = toi else { continue };
-                    let prim = prims[slot];
-                    if best.is_none_or(|(bt, bp, _)| toi < bt || (toi == bt && prim < bp)) {
-                        best = Some((toi, prim, slot));
-                        // Boxes entered after the hit (by more than the box test's rounding) hold nothing earlier.
-                        *tmax = (toi as f32) * (1.0 + 4.0 * f32::EPSILON) + f32::MIN_POSITIVE;
-                    }
-                }
-                false
-            },
-        );
-        best.map(|(t, prim, slot)| self.cast_hit(core, d, t, prim, slot))
+        Sweep::around(anchor, lo, hi, dir, max_t)
     }
 
-    /// The contact of a cast that touches triangle `prim` (in `slot`) at time `t`.
-    fn cast_hit(&self, core: Core, d: DVec3, t: f64, prim: u32, slot: usize) -> CastHit {
-        let tri = self.slot_triangles()[slot].map(Vec3::as_dvec3);
-        let (point, normal) = core.contact(d, t, tri);
-        let q = closest_on_triangle(point, tri);
-        CastHit {
-            t: t as f32,
-            point: q.point.as_vec3(),
-            normal: normal.as_vec3(),
-            primitive: prim,
-            u: q.u as f32,
-            v: q.v as f32,
-            feature: q.feature,
+    fn around(anchor: Vec3, lo: Vec3, hi: Vec3, dir: Vec3, max_t: f32) -> Option<Sweep> {
+        if !(anchor.is_finite() && dir.is_finite()) || max_t.is_nan() {
+            return None;
+        }
+        let ray = Ray::with_range(anchor, dir, 0.0, max_t.max(0.0));
+        Some(Sweep {
+            ray,
+            moving: ray.is_valid(),
+            anchor,
+            lo,
+            hi,
+        })
+    }
+
+    /// Entry distance of the anchor into box `b` grown by the shape's extent (and 4 ulp of the magnitudes,
+    /// so that it holds the box's Minkowski sum with the shape despite rounding), if before `tmax`; a box
+    /// holding the start is entered at 0.
+    pub(crate) fn enter(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        let m = b
+            .min
+            .abs()
+            .max(b.max.abs())
+            .max(self.anchor.abs())
+            .max_element()
+            + self.hi.max(-self.lo).max_element();
+        let pad = Vec3::splat(m * 4.0 * f32::EPSILON);
+        let b = Aabb::new(b.min - self.hi - pad, b.max - self.lo + pad);
+        if b.contains_point(self.anchor) {
+            Some(0.0)
+        } else if self.moving {
+            self.ray.intersect_aabb(&b, tmax)
+        } else {
+            None
         }
     }
 }

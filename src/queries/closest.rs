@@ -1,7 +1,9 @@
 //! The closest point of a mesh to a point: Ericson's region test per triangle, best-first over the tree.
 
+use super::frame::Frame;
 use crate::MeshBvh;
-use crate::bvh::{Node, is_collapsed, traverse_by};
+use crate::bvh::{is_collapsed, traverse_by};
+use crate::geometry::Aabb;
 use glam::{DVec3, Vec3};
 use std::ops::Range;
 
@@ -114,23 +116,24 @@ pub(crate) fn closest_on_triangle(p: DVec3, [a, b, c]: [DVec3; 3]) -> TrianglePo
         .expect("three edges")
 }
 
-/// Squared distance from `p` to the node's box, in `f64` (0 inside).
+/// Squared distance from `p` to a box, in `f64` (0 inside).
 #[inline]
-pub(crate) fn box_dist2(n: &Node, p: DVec3) -> f64 {
-    let min = Vec3::from(n.min).as_dvec3();
-    let max = Vec3::from(n.max).as_dvec3();
-    let d = (min - p).max(p - max).max(DVec3::ZERO);
+pub(crate) fn box_dist2(b: &Aabb, p: DVec3) -> f64 {
+    let d = (b.min.as_dvec3() - p)
+        .max(p - b.max.as_dvec3())
+        .max(DVec3::ZERO);
     d.length_squared()
 }
 
-/// The present (not zero-area) triangles of a leaf's `slots`, with their slot, corners in `f64`.
+/// The present (not zero-area) triangles of a leaf's `slots`, with their slot, corners in `f64` in `frame`.
 pub(crate) fn present(
     tris: &[[Vec3; 3]],
     slots: Range<usize>,
+    frame: Frame,
 ) -> impl Iterator<Item = (usize, [DVec3; 3])> + '_ {
     slots
         .filter(|&s| !is_collapsed(&tris[s]))
-        .map(|s| (s, tris[s].map(Vec3::as_dvec3)))
+        .map(move |s| (s, frame.triangle(&tris[s])))
 }
 
 /// A box farther than the best distance by more than this relative margin is skipped. The margin covers the
@@ -162,6 +165,16 @@ impl MeshBvh {
     /// # Ok::<(), kinetrace::Error>(())
     /// ```
     pub fn closest_point(&self, p: Vec3, max_distance: f32) -> Option<PointHit> {
+        self.closest_point_in(p, max_distance, Frame::Mesh)
+    }
+
+    /// [`closest_point`](Self::closest_point) with `p`, the limit and the answer in `frame`.
+    pub(crate) fn closest_point_in(
+        &self,
+        p: Vec3,
+        max_distance: f32,
+        frame: Frame,
+    ) -> Option<PointHit> {
         if !p.is_finite() || max_distance.is_nan() || max_distance < 0.0 {
             return None;
         }
@@ -174,9 +187,9 @@ impl MeshBvh {
             self.bvh().nodes(),
             limit,
             &mut (),
-            |n, bound| Some(box_dist2(n, q)).filter(|&d| d <= bound),
+            |n, bound| Some(box_dist2(&frame.node_box(n), q)).filter(|&d| d <= bound),
             |slots, bound| {
-                for (slot, t) in present(tris, slots) {
+                for (slot, t) in present(tris, slots, frame) {
                     let tp = closest_on_triangle(q, t);
                     let prim = prims[slot];
                     let better = match best {

@@ -31,8 +31,13 @@
 mod cast;
 mod closest;
 mod contains;
+mod frame;
 mod overlap;
 mod shapes;
+
+pub(crate) use cast::Sweep;
+pub(crate) use closest::box_dist2;
+pub(crate) use frame::Frame;
 
 pub use cast::CastHit;
 pub use closest::{Feature, PointHit};

@@ -1,6 +1,7 @@
 //! Which triangles of a mesh a shape overlaps.
 
 use super::closest::present;
+use super::frame::Frame;
 use super::shapes::Shape;
 use crate::MeshBvh;
 use crate::bvh::traverse_by;
@@ -31,6 +32,12 @@ impl MeshBvh {
     /// ```
     pub fn overlapping(&self, shape: &Shape, out: &mut Vec<u32>) {
         out.clear();
+        self.overlapping_each(shape, Frame::Mesh, |p| out.push(p));
+        out.sort_unstable();
+    }
+
+    /// Calls `found` with each triangle that `shape` (given in `frame`) overlaps, in tree order.
+    pub(crate) fn overlapping_each(&self, shape: &Shape, frame: Frame, mut found: impl FnMut(u32)) {
         if !shape.is_valid() {
             return;
         }
@@ -41,16 +48,15 @@ impl MeshBvh {
             self.bvh().nodes(),
             (),
             &mut (),
-            |n, _| n.aabb().overlaps(&bounds).then_some(()),
+            |n, _| frame.node_box(n).overlaps(&bounds).then_some(()),
             |slots, _| {
-                out.extend(
-                    present(tris, slots)
-                        .filter(|(_, t)| shape.overlaps_triangle(*t))
-                        .map(|(slot, _)| prims[slot]),
-                );
+                for (slot, t) in present(tris, slots, frame) {
+                    if shape.overlaps_triangle(t) {
+                        found(prims[slot]);
+                    }
+                }
                 false
             },
         );
-        out.sort_unstable();
     }
 }
