@@ -3,7 +3,7 @@
 
 use super::RayOracle;
 use bevy_ecs::prelude::*;
-use glam::Affine3A;
+use glam::{Affine3A, Vec3};
 use kinetrace::Ray;
 use kinetrace::ecs::*;
 
@@ -36,6 +36,20 @@ pub fn brute_placed(
     filter: &QueryFilter,
     place: impl Fn(EntityRef) -> Affine3A,
 ) -> Option<(Entity, u32, f32)> {
+    let (keys, tris) = placed_triangles(world, filter, place);
+    RayOracle::new(ray, tris).closest().map(|(k, t)| {
+        let (e, i) = keys[k as usize];
+        (e, i, t as f32)
+    })
+}
+
+/// Every triangle of every accepted, healthy entity in world space (its current positions placed by
+/// `place`), with its `(entity, triangle index)`.
+pub fn placed_triangles(
+    world: &mut World,
+    filter: &QueryFilter,
+    place: impl Fn(EntityRef) -> Affine3A,
+) -> (Vec<(Entity, u32)>, Vec<[Vec3; 3]>) {
     let mut q = world.query_filtered::<(
         Entity,
         &TraceMesh,
@@ -58,9 +72,16 @@ pub fn brute_placed(
             tris.push([0, 1, 2].map(|k| t.transform_point3(pos[tri[k] as usize])));
         }
     }
-    RayOracle::new(ray, tris).closest().map(|(k, t)| {
-        let (e, i) = keys[k as usize];
-        (e, i, t as f32)
+    (keys, tris)
+}
+
+/// [`placed_triangles`] placed by each entity's `TraceTransform`.
+pub fn world_triangles(
+    world: &mut World,
+    filter: &QueryFilter,
+) -> (Vec<(Entity, u32)>, Vec<[Vec3; 3]>) {
+    placed_triangles(world, filter, |e| {
+        e.get::<TraceTransform>().expect("required by TraceMesh").0
     })
 }
 

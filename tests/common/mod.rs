@@ -175,3 +175,36 @@ pub fn closest_on_triangle(p: DVec3, [a, b, c]: [DVec3; 3]) -> DVec3 {
     let denom = 1.0 / (va + vb + vc);
     a + ab * (vb * denom) + ac * (vc * denom)
 }
+
+/// f64 Möller–Trumbore, both faces: `Some(t)` when the ray from `o` along `dir` crosses the closed triangle
+/// at `t > 0`.
+pub fn crossing(o: DVec3, dir: DVec3, [a, b, c]: [DVec3; 3]) -> Option<f64> {
+    let (e1, e2) = (b - a, c - a);
+    let pv = dir.cross(e2);
+    let det = e1.dot(pv);
+    if det == 0.0 {
+        return None;
+    }
+    let tv = o - a;
+    let u = tv.dot(pv) / det;
+    let qv = tv.cross(e1);
+    let v = dir.dot(qv) / det;
+    let t = e2.dot(qv) / det;
+    (u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t > 0.0).then_some(t)
+}
+
+/// Inside a closed triangle set by the parity of [`crossing`]s along each of `dirs` (an odd number of
+/// random directions), majority vote: a direction that grazes an edge miscounts, the others outvote it.
+pub fn parity_inside(tris: &[[Vec3; 3]], p: Vec3, dirs: &[DVec3]) -> bool {
+    let odd = dirs
+        .iter()
+        .filter(|&&dir| {
+            tris.iter()
+                .filter(|t| crossing(p.as_dvec3(), dir, t.map(Vec3::as_dvec3)).is_some())
+                .count()
+                % 2
+                == 1
+        })
+        .count();
+    2 * odd > dirs.len()
+}

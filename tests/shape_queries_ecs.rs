@@ -1,0 +1,604 @@
+//! Shape casts, closest points, overlaps and containment through the ECS (immediate [`SpatialRays`] /
+//! [`TraceWorld`] methods and the batched [`ShapeQueue`]) on a deforming mesh and on rigid, uniformly scaled
+//! and sheared entities, against brute force over every world-space triangle with oracles of the tests' own
+//! (f64 point–triangle distance, conservative advancement for casts, ray parity for containment); and the
+//! acceptance's 100,000 points on a closed skinned glTF mesh against a high-resolution ray-parity oracle.
+#![cfg(feature = "parallel")]
+
+mod common;
+use bevy_ecs::prelude::*;
+use common::ecs::{app_with, world_triangles};
+use common::*;
+use glam::{Affine3A, DVec3, Mat3, Quat, Vec3};
+use kinetrace::ecs::*;
+use kinetrace::queries::Shape;
+use rand::Rng;
+use std::sync::Arc;
+
+/// Entities of the test scene: a deforming sphere (identity placement), a rigid one on layer 2, a uniformly
+/// scaled and turned one, and a sheared, non-uniformly scaled one.
+struct Scene {
+    world: World,
+    schedule: Schedule,
+    deforming: Entity,
+    rigid: Entity,
+    scaled: Entity,
+    sheared: Entity,
+    rest: kinetrace::Mesh,
+}
+
+fn wobble(rest: &kinetrace::Mesh, f: u32) -> Vec<Vec3> {
+    let ph = f as f32 * 0.7;
+    rest.positions()
+        .iter()
+        .map(|p| {
+            *p * (1.0 + 0.25 * (3.0 * p.y + ph).sin()) + Vec3::X * 0.3 * (p.y * 2.0 + ph).cos()
+        })
+        .collect()
+}
+
+fn scene() -> Scene {
+    let (mut world, schedule) = app_with(TraceConfig::default());
+    let rest = icosphere(3);
+    let deforming = world
+        .spawn((TraceMesh(rest.clone()), VertexPositions(wobble(&rest, 0))))
+        .id();
+    let rigid = world
+        .spawn((
+            TraceMesh(icosphere(2)),
+            MotionHint::Rigid,
+            QueryLayers(0b10),
+            TraceTransform(Affine3A::from_rotation_translation(
+                Quat::from_rotation_y(0.7),
+                Vec3::new(3.0, 0.5, 0.0),
+            )),
+        ))
+        .id();
+    let scaled = world
+        .spawn((
+            TraceMesh(icosphere(2)),
+            MotionHint::Rigid,
+            TraceTransform(Affine3A::from_scale_rotation_translation(
+                Vec3::splat(1.7),
+                Quat::from_rotation_x(0.4) * Quat::from_rotation_z(1.1),
+                Vec3::new(-3.5, 0.0, 1.0),
+            )),
+        ))
+        .id();
+    let shear = Mat3::from_cols(
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(0.6, 2.5, 0.0),
+        Vec3::new(0.0, 0.3, 0.5),
+    );
+    let sheared = world
+        .spawn((
+            TraceMesh(icosphere(2)),
+            MotionHint::Rigid,
+            TraceTransform(Affine3A::from_mat3_translation(
+                Mat3::from_rotation_z(0.3) * shear,
+                Vec3::new(0.0, 0.5, 3.5),
+            )),
+        ))
+        .id();
+    Scene {
+        world,
+        schedule,
+        deforming,
+        rigid,
+        scaled,
+        sheared,
+        rest,
+    }
+}
+
+impl Scene {
+    /// Deforms the sphere to frame `f`'s shape and runs a frame.
+    fn frame(&mut self, f: u32) {
+        self.world
+            .get_mut::<VertexPositions>(self.deforming)
+            .unwrap()
+            .0 = wobble(&self.rest, f);
+        self.schedule.run(&mut self.world);
+        self.world.clear_trackers();
+    }
+
+    /// The filters the checks run under: everything, layer 2 only, all but the deforming sphere, and a
+    /// predicate that drops the sheared entity.
+    fn filters(&self) -> Vec<QueryFilter> {
+        let sheared = self.sheared;
+        vec![
+            QueryFilter::default(),
+            QueryFilter::default().layers(0b10),
+            QueryFilter::default().exclude(self.deforming),
+            QueryFilter::default().predicate(move |e| e != sheared),
+        ]
+    }
+}
+
+/// Rounding allowance in world units: queries and answers pass through `f32` affine maps (a few ulp of
+/// the coordinates' magnitude, times the transforms' largest stretch, 2.5), the oracle's triangles too.
+const TOL: f64 = 64.0 * f32::EPSILON as f64 * 8.0;
+
+fn point_triangle(p: DVec3, t: [Vec3; 3]) -> f64 {
+    (closest_on_triangle(p, t.map(Vec3::as_dvec3)) - p).length()
+}
+
+/// Brute-force nearest distance from `p` over `tris`, with the index.
+fn brute_nearest(tris: &[[Vec3; 3]], p: Vec3) -> Option<(usize, f64)> {
+    tris.iter()
+        .map(|t| point_triangle(p.as_dvec3(), *t))
+        .enumerate()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
+#[test]
+fn closest_points_equal_brute_force_on_every_placement() {
+    let mut s = scene();
+    let mut r = rng(31);
+    for f in 0..3 {
+        s.frame(f);
+        for filter in s.filters() {
+            let (keys, tris) = world_triangles(&mut s.world, &filter);
+            let tw = s.world.resource::<TraceWorld>();
+            for i in 0..40 {
+                let p = rand_vec(&mut r, -6.0, 6.0);
+                let what = format!("frame {f} {filter:?} point {i} {p}");
+                let (k, want) = brute_nearest(&tris, p).unwrap();
+                let got = tw.closest_point(p, f32::INFINITY, &filter).expect(&what);
+                assert!(
+                    (got.distance as f64 - want).abs() <= TOL,
+                    "{what}: {got:?} vs {want} on {:?}",
+                    keys[k]
+                );
+                // The point is on the named triangle, at the reported distance.
+                let idx = keys
+                    .iter()
+                    .position(|&x| x == (got.entity, got.triangle))
+                    .expect(&what);
+                assert!(
+                    point_triangle(got.point.as_dvec3(), tris[idx]) <= TOL,
+                    "{what}: point off its triangle"
+                );
+                assert!(
+                    ((got.point - p).length() as f64 - want).abs() <= TOL,
+                    "{what}: point not at the distance"
+                );
+                // A limit below the distance finds nothing; one above finds the same.
+                if want > 0.1 {
+                    assert_eq!(
+                        tw.closest_point(p, (want * 0.9) as f32, &filter),
+                        None,
+                        "{what}"
+                    );
+                    assert_eq!(
+                        tw.closest_point(p, (want * 1.1) as f32, &filter),
+                        Some(got),
+                        "{what}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn overlaps_equal_brute_force_on_every_placement() {
+    let mut s = scene();
+    let mut r = rng(32);
+    let mut out = Vec::new();
+    let mut seen = 0;
+    for f in 0..3 {
+        s.frame(f);
+        for filter in s.filters() {
+            let (keys, tris) = world_triangles(&mut s.world, &filter);
+            let tw = s.world.resource::<TraceWorld>();
+            for i in 0..30 {
+                let c = rand_vec(&mut r, -5.0, 5.0);
+                let rad = r.random_range(0.05f32..1.5);
+                let what = format!("frame {f} {filter:?} sphere {i} {c} r {rad}");
+                tw.overlaps(&Shape::sphere(c, rad), &filter, &mut out);
+                assert!(out.is_sorted(), "{what}");
+                for (k, t) in keys.iter().zip(&tris) {
+                    let dist = point_triangle(c.as_dvec3(), *t) - rad as f64;
+                    let got = out.binary_search(k).is_ok();
+                    // Triangles within rounding of the sphere's surface may go either way.
+                    if dist.abs() > TOL {
+                        assert_eq!(got, dist < 0.0, "{what}: {k:?} at gap {dist}");
+                    }
+                }
+                assert!(
+                    out.iter().all(|k| keys.contains(k)),
+                    "{what}: an entity the filter drops"
+                );
+                seen += out.len();
+            }
+        }
+    }
+    assert!(seen > 100, "the spheres must touch something ({seen})");
+}
+
+#[test]
+fn containment_equals_ray_parity_on_every_placement() {
+    let mut s = scene();
+    let mut r = rng(33);
+    let dirs: Vec<DVec3> = (0..5).map(|_| rand_dir(&mut r).as_dvec3()).collect();
+    let mut inside = 0;
+    for f in 0..3 {
+        s.frame(f);
+        let filter = QueryFilter::default();
+        let (keys, tris) = world_triangles(&mut s.world, &filter);
+        let entities = [s.deforming, s.rigid, s.scaled, s.sheared];
+        let per_entity: Vec<Vec<[Vec3; 3]>> = entities
+            .iter()
+            .map(|e| {
+                keys.iter()
+                    .zip(&tris)
+                    .filter(|(k, _)| k.0 == *e)
+                    .map(|(_, t)| *t)
+                    .collect()
+            })
+            .collect();
+        let tw = s.world.resource::<TraceWorld>();
+        let mut out = Vec::new();
+        for _ in 0..1500 {
+            let p = rand_vec(&mut r, -4.5, 4.5);
+            // Points within rounding of a surface may go either way.
+            if brute_nearest(&tris, p).unwrap().1 <= TOL {
+                continue;
+            }
+            let mut want: Vec<Entity> = entities
+                .iter()
+                .zip(&per_entity)
+                .filter(|(_, t)| parity_inside(t, p, &dirs))
+                .map(|(e, _)| *e)
+                .collect();
+            want.sort();
+            tw.containing(p, &filter, &mut out);
+            assert_eq!(out, want, "frame {f} {p}");
+            for e in entities {
+                assert_eq!(tw.contains_point(e, p), Some(want.contains(&e)), "{e} {p}");
+            }
+            inside += want.len();
+        }
+        // Layers apply.
+        tw.containing(
+            Vec3::new(3.0, 0.5, 0.0),
+            &QueryFilter::default().layers(0b01),
+            &mut out,
+        );
+        assert!(out.is_empty(), "the rigid sphere is on layer 2 only");
+        tw.containing(
+            Vec3::new(3.0, 0.5, 0.0),
+            &QueryFilter::default().layers(0b10),
+            &mut out,
+        );
+        assert_eq!(out, [s.rigid]);
+    }
+    assert!(inside > 100, "points must fall inside ({inside})");
+}
+
+/// Conservative-advancement check of a sphere cast over world triangles: at the reported time the sphere
+/// touches (gap 0 up to rounding; not positive for a start in contact), and it never sinks deeper than
+/// rounding on the way there (or to `max_t` for a miss).
+fn check_sphere_cast(
+    tris: &[[Vec3; 3]],
+    c: Vec3,
+    dir: Vec3,
+    rad: f32,
+    max_t: f32,
+    got: Option<&ShapeHit>,
+    what: &str,
+) {
+    let gap = |t: f64| {
+        let at = c.as_dvec3() + dir.as_dvec3() * t;
+        tris.iter()
+            .map(|tri| point_triangle(at, *tri))
+            .fold(f64::INFINITY, f64::min)
+            - rad as f64
+    };
+    let speed = dir.as_dvec3().length();
+    let end = got.map_or(max_t as f64, |h| h.distance as f64);
+    if let Some(h) = got {
+        let g = gap(h.distance as f64);
+        let tol = TOL * (1.0 + h.distance as f64 * speed / 8.0);
+        if h.distance == 0.0 {
+            assert!(g <= tol, "{what}: start contact with gap {g}");
+        } else {
+            assert!(g.abs() <= tol, "{what}: gap {g} at {}", h.distance);
+            let reach = (h.point - (c + dir * h.distance)).length() - rad;
+            assert!(
+                (reach as f64).abs() <= tol,
+                "{what}: contact {reach} off the radius"
+            );
+        }
+        assert!(
+            (h.normal.length() - 1.0).abs() < 1e-5,
+            "{what}: normal {:?}",
+            h.normal
+        );
+    }
+    let mut t = 0.0;
+    while t < end - TOL / speed {
+        let g = gap(t);
+        assert!(g > -TOL, "{what}: penetrates by {} at {t} before {end}", -g);
+        t += g.max(TOL) / speed;
+    }
+}
+
+#[test]
+fn sphere_casts_equal_brute_force_on_every_placement() {
+    let mut s = scene();
+    let mut r = rng(34);
+    let mut hits = 0;
+    for f in 0..2 {
+        s.frame(f);
+        for filter in s.filters() {
+            let (keys, tris) = world_triangles(&mut s.world, &filter);
+            let tw = s.world.resource::<TraceWorld>();
+            for i in 0..12 {
+                let c = rand_dir(&mut r) * 8.0;
+                let aim = rand_vec(&mut r, -4.0, 4.0);
+                let dir = (aim - c).normalize() * r.random_range(0.5f32..2.0);
+                let rad = r.random_range(0.05f32..0.8);
+                let max_t = 16.0;
+                let what = format!("frame {f} {filter:?} cast {i}");
+                let got = tw.cast_shape(&Shape::sphere(c, rad), dir, max_t, &filter);
+                if let Some(h) = &got {
+                    let idx = keys
+                        .iter()
+                        .position(|&k| k == (h.entity, h.triangle))
+                        .expect(&what);
+                    assert!(
+                        point_triangle(h.point.as_dvec3(), tris[idx]) <= TOL,
+                        "{what}: point off its triangle"
+                    );
+                    hits += 1;
+                }
+                check_sphere_cast(&tris, c, dir, rad, max_t, got.as_ref(), &what);
+            }
+        }
+    }
+    assert!(hits > 20, "casts must hit ({hits})");
+}
+
+#[test]
+fn casts_and_overlaps_of_capsules_and_boxes_see_transformed_entities() {
+    // The sheared entity runs in world space, the scaled one in its mesh's frame: each must answer as the
+    // same mesh built from the world-space triangles (the mesh-level queries are checked against brute
+    // force and parry3d in point_queries.rs; this checks the placement).
+    let mut s = scene();
+    s.frame(0);
+    let mut r = rng(35);
+    for e in [s.scaled, s.sheared, s.rigid] {
+        let filter = QueryFilter::default().predicate(move |x| x == e);
+        let (_, tris) = world_triangles(&mut s.world, &filter);
+        let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
+        let flat = kinetrace::Mesh::new(positions, (0..3 * tris.len() as u32).collect::<Vec<_>>())
+            .unwrap();
+        let bvh = kinetrace::MeshBvh::build(&flat, &Default::default()).unwrap();
+        let tw = s.world.resource::<TraceWorld>();
+        let centre = tw.tlas().bounds().center();
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for i in 0..40 {
+            let c = rand_vec(&mut r, -6.0, 6.0);
+            let shape = if i % 2 == 0 {
+                Shape::capsule(
+                    c,
+                    c + rand_vec(&mut r, -1.0, 1.0),
+                    r.random_range(0.1f32..0.6),
+                )
+            } else {
+                let q = Quat::from_axis_angle(rand_dir(&mut r), r.random_range(0.0f32..3.0));
+                Shape::cuboid(c, rand_vec(&mut r, 0.1, 0.8), q)
+            };
+            let dir = (centre - c).normalize();
+            let what = format!("{e} {shape:?}");
+            let got = tw.cast_shape(&shape, dir, 20.0, &filter);
+            let want = bvh.cast_shape(&shape, dir, 20.0);
+            match (got, want) {
+                (None, None) => {}
+                (Some(g), Some(w)) => {
+                    assert!(
+                        ((g.distance - w.t) as f64).abs() <= TOL,
+                        "{what}: {g:?} vs {w:?}"
+                    );
+                    assert!(
+                        (g.point - w.point).length() as f64 <= TOL * 16.0
+                            || g.triangle != w.primitive,
+                        "{what}"
+                    );
+                }
+                // A graze decided by rounding.
+                (g, w) => panic!("{what}: {g:?} vs {w:?}"),
+            }
+            tw.overlaps(&shape, &filter, &mut a);
+            bvh.overlapping(&shape, &mut b);
+            let tris_a: Vec<u32> = a.iter().map(|(_, t)| *t).collect();
+            assert_eq!(tris_a, b, "{what}");
+        }
+    }
+}
+
+/// The same requests, immediate and batched on 1, 2 and 7 threads: equal answers.
+#[test]
+fn batched_answers_equal_immediate_ones_on_every_thread_count() {
+    let mut s = scene();
+    s.frame(1);
+    let mut r = rng(36);
+    let filters = s.filters();
+    let mut queue = ShapeQueue::default();
+    for i in 0..200u64 {
+        let filter = filters[i as usize % filters.len()].clone();
+        let c = rand_vec(&mut r, -4.0, 4.0);
+        let shape = match i % 3 {
+            0 => Shape::sphere(c, r.random_range(0.05f32..1.0)),
+            1 => Shape::capsule(c, c + rand_vec(&mut r, -1.0, 1.0), 0.3),
+            _ => Shape::cuboid(c, Vec3::splat(0.4), Quat::from_rotation_y(i as f32)),
+        };
+        queue.cast(i, shape, -c.normalize(), 12.0, filter.clone());
+        queue.closest_point(i, c, 4.0, filter.clone());
+        queue.overlap(i, shape, filter.clone());
+        queue.contains(i, c * 0.5, filter);
+    }
+    let tw = s.world.resource::<TraceWorld>();
+    let mut reference = ShapeResults::default();
+    tw.answer_shapes(&queue, &mut reference);
+    // Immediate answers, regenerated from the same seed.
+    let mut r2 = rng(36);
+    let mut out_o = Vec::new();
+    let mut out_c = Vec::new();
+    for i in 0..200usize {
+        let filter = &filters[i % filters.len()];
+        let c = rand_vec(&mut r2, -4.0, 4.0);
+        let shape = match i % 3 {
+            0 => Shape::sphere(c, r2.random_range(0.05f32..1.0)),
+            1 => Shape::capsule(c, c + rand_vec(&mut r2, -1.0, 1.0), 0.3),
+            _ => Shape::cuboid(c, Vec3::splat(0.4), Quat::from_rotation_y(i as f32)),
+        };
+        assert!(
+            [
+                reference.casts[i].0,
+                reference.closest[i].0,
+                reference.overlaps[i].0,
+                reference.contains[i].0
+            ] == [i as u64; 4]
+        );
+        assert_eq!(
+            reference.casts[i].1,
+            tw.cast_shape(&shape, -c.normalize(), 12.0, filter),
+            "{i}"
+        );
+        assert_eq!(
+            reference.closest[i].1,
+            tw.closest_point(c, 4.0, filter),
+            "{i}"
+        );
+        tw.overlaps(&shape, filter, &mut out_o);
+        assert_eq!(reference.overlaps[i].1, out_o, "{i}");
+        tw.containing(c * 0.5, filter, &mut out_c);
+        assert_eq!(reference.contains[i].1, out_c, "{i}");
+    }
+    assert!(reference.casts.iter().filter(|c| c.1.is_some()).count() > 20);
+    assert!(
+        reference
+            .overlaps
+            .iter()
+            .filter(|c| !c.1.is_empty())
+            .count()
+            > 20
+    );
+    for n in [1, 2, 7] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
+        let mut got = ShapeResults::default();
+        pool.install(|| tw.answer_shapes(&queue, &mut got));
+        assert!(got.casts == reference.casts, "{n} threads: casts");
+        assert!(
+            got.closest == reference.closest,
+            "{n} threads: closest points"
+        );
+        assert!(got.overlaps == reference.overlaps, "{n} threads: overlaps");
+        assert!(
+            got.contains == reference.contains,
+            "{n} threads: containment"
+        );
+    }
+    // Through the schedule: the queue is answered in TraceSystems::Queries and drained.
+    for req in 0..3u64 {
+        s.world.resource_mut::<ShapeQueue>().closest_point(
+            req,
+            Vec3::ZERO,
+            f32::INFINITY,
+            QueryFilter::default(),
+        );
+    }
+    s.frame(1);
+    let res = s.world.resource::<ShapeResults>();
+    assert_eq!(res.closest.len(), 3);
+    assert_eq!(res.frame, s.world.resource::<TraceStats>().frame);
+    assert!(s.world.resource::<ShapeQueue>().is_empty());
+}
+
+/// The acceptance test: 100,000 random points against a closed skinned mesh mid-animation, through the
+/// batched containment queries, equal a ray-parity oracle with seven random directions in f64.
+#[test]
+fn containment_of_100k_points_on_a_skinned_mesh_equals_ray_parity() {
+    let Some(path) = shared_asset_or_skip("RiggedSimple.gltf") else {
+        return;
+    };
+    let meshes = kinetrace::anim::load_gltf(&path).unwrap();
+    let asset = Arc::new(meshes[0].character.clone().expect("skinned"));
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    let e = world.spawn(AnimationPlayer::bundle(&asset, 0, 0.0)).id();
+    schedule.run(&mut world);
+    world.clear_trackers();
+    let filter = QueryFilter::default();
+    // Random points in the box of the whole animation's reach (the rest pose's box, grown).
+    let (_, rest_tris) = world_triangles(&mut world, &filter);
+    let b = rest_tris
+        .iter()
+        .flatten()
+        .fold(kinetrace::Aabb::EMPTY, |mut b, p| {
+            b.grow(*p);
+            b
+        });
+    let (lo, hi) = (b.min - b.extent() * 0.3, b.max + b.extent() * 0.3);
+    let mut r = rng(37);
+    let n = 100_000;
+    let points: Vec<Vec3> = (0..n)
+        .map(|_| lo + (hi - lo) * Vec3::new(r.random(), r.random(), r.random()))
+        .collect();
+    {
+        let mut q = world.resource_mut::<ShapeQueue>();
+        for (i, p) in points.iter().enumerate() {
+            q.contains(i as u64, *p, filter.clone());
+        }
+    }
+    // Mid-animation: skinned, refitted and queried in the same frame.
+    world.resource_mut::<AnimationClock>().delta = 0.9;
+    schedule.run(&mut world);
+    let (_, tris) = world_triangles(&mut world, &filter);
+    // Closed: every edge (by position) is shared by exactly two triangles, so parity is meaningful.
+    let mut edges = std::collections::HashMap::new();
+    for t in &tris {
+        for k in 0..3 {
+            let (a, b) = (
+                t[k].to_array().map(f32::to_bits),
+                t[(k + 1) % 3].to_array().map(f32::to_bits),
+            );
+            *edges
+                .entry(if a < b { (a, b) } else { (b, a) })
+                .or_insert(0) += 1;
+        }
+    }
+    assert!(
+        edges.values().all(|&n| n == 2),
+        "the skinned mesh must be closed"
+    );
+    // It has moved away from its rest pose.
+    let rest = &asset.mesh;
+    let vp = &world.get::<VertexPositions>(e).unwrap().0;
+    let moved = vp
+        .iter()
+        .zip(rest.positions())
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0, f32::max);
+    assert!(moved > 0.1, "the animation must deform the mesh ({moved})");
+
+    let got = &world.resource::<ShapeResults>().contains;
+    assert_eq!(got.len(), n);
+    let dirs: Vec<DVec3> = (0..7).map(|_| rand_dir(&mut r).as_dvec3()).collect();
+    let mut inside = 0;
+    for (i, p) in points.iter().enumerate() {
+        let want = parity_inside(&tris, *p, &dirs);
+        assert_eq!(got[i].0, i as u64);
+        assert_eq!(!got[i].1.is_empty(), want, "point {i} {p}");
+        inside += want as usize;
+    }
+    assert!(
+        inside > n / 20 && inside < n - n / 20,
+        "both sides sampled ({inside})"
+    );
+}
