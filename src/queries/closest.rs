@@ -190,6 +190,11 @@ impl MeshBvh {
             |n, bound| Some(box_dist2(&frame.node_box(n), q)).filter(|&d| d <= bound),
             |slots, bound| {
                 for (slot, t) in present(tris, slots, frame) {
+                    // The triangle's own box first: most triangles of a leaf are farther than the best.
+                    let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                    if (lo - q).max(q - hi).max(DVec3::ZERO).length_squared() > *bound {
+                        continue;
+                    }
                     let tp = closest_on_triangle(q, t);
                     let prim = prims[slot];
                     let better = match best {

@@ -51,7 +51,10 @@ impl MeshBvh {
             |n, _| frame.node_box(n).overlaps(&bounds).then_some(()),
             |slots, _| {
                 for (slot, t) in present(tris, slots, frame) {
-                    if shape.overlaps_triangle(t) {
+                    // The triangle's box against the shape's (conservative) box first: exact comparisons.
+                    let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                    let reach = lo.cmple(bounds.max.as_dvec3()) & hi.cmpge(bounds.min.as_dvec3());
+                    if reach.all() && shape.overlaps_triangle(t) {
                         found(prims[slot]);
                     }
                 }
