@@ -18,6 +18,8 @@ mod gpu;
 mod grid;
 #[path = "../examples/bench/peers.rs"]
 mod peers;
+#[path = "../examples/bench/queries.rs"]
+mod queries;
 #[path = "../examples/bench/rays.rs"]
 mod rays;
 #[path = "../examples/bench/record.rs"]
@@ -120,4 +122,9 @@ fn collide_suite_json_parses() {
 #[test]
 fn grid_suite_json_parses() {
     check("grid", false);
+}
+
+#[test]
+fn queries_suite_json_parses() {
+    check("queries", false);
 }

@@ -7,7 +7,8 @@
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
-//! single-ray and packet queries).
+//! single-ray and packet queries), `queries` (sphere and capsule casts, closest points, containment and
+//! sphere overlaps on a deforming mesh, refit included, against parry3d).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -21,6 +22,7 @@ mod ecs;
 mod gpu;
 mod grid;
 mod peers;
+mod queries;
 mod rays;
 mod record;
 #[path = "../report/scenes.rs"]

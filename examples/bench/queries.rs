@@ -1,0 +1,290 @@
+//! Suite `queries`: gameplay queries on a deforming mesh, against parry3d in the same run — sphere casts,
+//! capsule casts, closest points, containment and sphere overlaps, each frame after the mesh moved, on one
+//! thread. Both sides pay their cheapest honest update every frame: our refit, parry's
+//! `TriMesh::set_vertices` (a refit of its BVH; for containment also its pseudo-normals, which its
+//! inside test needs). Throughput counts refit + queries.
+
+use crate::cpu::one_thread;
+use crate::record::{Records, machine};
+use glam::Vec3;
+use kinetrace::bvh::BuildOptions;
+use kinetrace::queries::Shape;
+use kinetrace::scenes::bumpy_torus;
+use kinetrace::{Mesh, MeshBvh};
+use parry3d::math::{Pose, Vector};
+use parry3d::query::{PointQuery, ShapeCastOptions, cast_shapes, intersection_test};
+use parry3d::shape::{Ball, Capsule, TriMesh, TriMeshFlags};
+use std::time::{Duration, Instant};
+
+const SUITE: &str = "queries";
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Kind {
+    SphereCast,
+    CapsuleCast,
+    ClosestPoint,
+    Containment,
+    SphereOverlap,
+}
+
+const KINDS: [Kind; 5] = [
+    Kind::SphereCast,
+    Kind::CapsuleCast,
+    Kind::ClosestPoint,
+    Kind::Containment,
+    Kind::SphereOverlap,
+];
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::SphereCast => "sphere cast",
+            Kind::CapsuleCast => "capsule cast",
+            Kind::ClosestPoint => "closest point",
+            Kind::Containment => "containment",
+            Kind::SphereOverlap => "sphere overlap",
+        }
+    }
+}
+
+/// One query's input: a point (the cast's start, the overlap's centre), a second point (the cast's
+/// target or the capsule's other end) and a radius.
+struct Query {
+    p: Vec3,
+    q: Vec3,
+    r: f32,
+}
+
+pub fn run(rec: &mut Records) {
+    println!("suite queries on {}", machine());
+    let (tris, frames, n) = if rec.quick {
+        (20_000, 4, 2_000)
+    } else {
+        (200_000, 10, 20_000)
+    };
+    let rest = bumpy_torus(tris);
+    let poses: Vec<Vec<Vec3>> = (0..frames).map(|f| deform(&rest, f as f32)).collect();
+    let queries = sample(&rest, n);
+    let scene = format!("deforming torus {}k", rest.triangle_count() / 1000);
+    for kind in KINDS {
+        let count = (frames * n) as f64;
+        let ours = one_thread(|| {
+            best(rec.reps(), || {
+                kinetrace_frames(kind, &rest, &poses, &queries)
+            })
+        });
+        let theirs = best(rec.reps(), || parry_frames(kind, &rest, &poses, &queries));
+        let per_s = |t: Duration| count / t.as_secs_f64() / 1e3;
+        rec.add(
+            SUITE,
+            &scene,
+            "kinetrace",
+            kind.name(),
+            per_s(ours.0),
+            "k/s",
+        );
+        rec.add(
+            SUITE,
+            &scene,
+            "parry3d 0.31",
+            kind.name(),
+            per_s(theirs.0),
+            "k/s",
+        );
+        rec.add(
+            SUITE,
+            &scene,
+            "kinetrace / parry3d",
+            kind.name(),
+            theirs.0.as_secs_f64() / ours.0.as_secs_f64(),
+            "x",
+        );
+        if ours.1 != theirs.1 {
+            println!(
+                "  ({}: {} answers vs parry's {})",
+                kind.name(),
+                ours.1,
+                theirs.1
+            );
+        }
+    }
+}
+
+/// The least time of `reps` runs of `f`, and its answer count.
+fn best(reps: usize, mut f: impl FnMut() -> (Duration, usize)) -> (Duration, usize) {
+    (0..reps.max(1))
+        .map(|_| f())
+        .min_by_key(|r| r.0)
+        .expect("one run")
+}
+
+/// The torus twisted about its axis and rippled, by an amount that changes with `f`.
+fn deform(rest: &Mesh, f: f32) -> Vec<Vec3> {
+    rest.positions()
+        .iter()
+        .map(|p| {
+            let a = 0.3 * p.y * (0.7 * f).sin();
+            let (s, c) = a.sin_cos();
+            Vec3::new(p.x * c - p.z * s, p.y, p.x * s + p.z * c)
+                + Vec3::Y * 0.03 * (4.0 * p.x + f).sin()
+        })
+        .collect()
+}
+
+/// Queries around the mesh: points uniform in its box grown by a fifth, targets on its vertices, radii a
+/// few hundredths of its size.
+fn sample(m: &Mesh, n: usize) -> Vec<Query> {
+    let mut rng = kinetrace::scenes::SceneRng::new(11);
+    let b = m
+        .positions()
+        .iter()
+        .fold(kinetrace::Aabb::EMPTY, |mut b, p| {
+            b.grow(*p);
+            b
+        });
+    let size = b.extent().length();
+    let (lo, hi) = (b.min - b.extent() * 0.2, b.max + b.extent() * 0.2);
+    (0..n)
+        .map(|_| {
+            let p = lo + (hi - lo) * Vec3::new(rng.unit(), rng.unit(), rng.unit());
+            let target = m.positions()[(rng.next_u64() % m.positions().len() as u64) as usize];
+            Query {
+                p,
+                q: target,
+                r: size * rng.range(0.005, 0.03),
+            }
+        })
+        .collect()
+}
+
+/// Refit + the queries, every frame, on our tree; the time and the number of hits (or inside points,
+/// or overlapped triangles).
+fn kinetrace_frames(
+    kind: Kind,
+    rest: &Mesh,
+    poses: &[Vec<Vec3>],
+    queries: &[Query],
+) -> (Duration, usize) {
+    let mut bvh = MeshBvh::build(rest, &BuildOptions::default()).expect("a valid mesh");
+    let mut found = Vec::new();
+    let mut answers = 0;
+    let t = Instant::now();
+    for pos in poses {
+        bvh.refit(pos).expect("same vertex count");
+        for q in queries {
+            answers += match kind {
+                Kind::SphereCast => {
+                    let dir = (q.q - q.p).normalize();
+                    bvh.cast_sphere(q.p, dir, q.r, f32::INFINITY).is_some() as usize
+                }
+                Kind::CapsuleCast => {
+                    let dir = (q.q - q.p).normalize();
+                    let b = q.p + dir.any_orthonormal_vector() * q.r * 3.0;
+                    bvh.cast_capsule(q.p, b, dir, q.r, f32::INFINITY).is_some() as usize
+                }
+                Kind::ClosestPoint => bvh.closest_point(q.p, f32::INFINITY).is_some() as usize,
+                Kind::Containment => bvh.contains_point(q.p) as usize,
+                Kind::SphereOverlap => {
+                    bvh.overlapping(&Shape::sphere(q.q, q.r), &mut found);
+                    found.len()
+                }
+            };
+        }
+    }
+    (t.elapsed(), answers)
+}
+
+/// The same on parry3d's `TriMesh`, updated with `set_vertices` each frame.
+fn parry_frames(
+    kind: Kind,
+    rest: &Mesh,
+    poses: &[Vec<Vec3>],
+    queries: &[Query],
+) -> (Duration, usize) {
+    let v = |x: Vec3| Vector::new(x.x, x.y, x.z);
+    // parry's inside test reads the winding (outward counter-clockwise faces); ours does not.
+    let p = rest.positions();
+    let volume: f64 = rest
+        .indices()
+        .chunks(3)
+        .map(|t| {
+            let [a, b, c] = [0, 1, 2].map(|k| p[t[k] as usize].as_dvec3());
+            a.dot(b.cross(c))
+        })
+        .sum();
+    let idx: Vec<[u32; 3]> = rest
+        .indices()
+        .chunks(3)
+        .map(|t| {
+            if volume >= 0.0 {
+                [t[0], t[1], t[2]]
+            } else {
+                [t[0], t[2], t[1]]
+            }
+        })
+        .collect();
+    let flags = if kind == Kind::Containment {
+        TriMeshFlags::DEFORMABLE | TriMeshFlags::ORIENTED
+    } else {
+        TriMeshFlags::DEFORMABLE
+    };
+    let verts: Vec<Vector> = rest.positions().iter().map(|&p| v(p)).collect();
+    let mut mesh = TriMesh::with_flags(verts, idx, flags).expect("a valid parry mesh");
+    let frames: Vec<Vec<Vector>> = poses
+        .iter()
+        .map(|p| p.iter().map(|&x| v(x)).collect())
+        .collect();
+    let mut found = Vec::new();
+    let mut answers = 0;
+    let t = Instant::now();
+    for pos in &frames {
+        mesh.set_vertices(pos);
+        for q in queries {
+            let dir = (q.q - q.p).normalize();
+            let cast = |pose: Pose, shape: &dyn parry3d::shape::Shape| {
+                let options = ShapeCastOptions::with_max_time_of_impact(f32::MAX);
+                cast_shapes(
+                    &pose,
+                    v(dir),
+                    shape,
+                    &Pose::IDENTITY,
+                    Vector::ZERO,
+                    &mesh,
+                    options,
+                )
+                .expect("supported shapes")
+                .is_some() as usize
+            };
+            answers += match kind {
+                Kind::SphereCast => cast(Pose::from_translation(v(q.p)), &Ball::new(q.r)),
+                Kind::CapsuleCast => {
+                    let b = q.p + dir.any_orthonormal_vector() * q.r * 3.0;
+                    cast(Pose::IDENTITY, &Capsule::new(v(q.p), v(b), q.r))
+                }
+                Kind::ClosestPoint => {
+                    std::hint::black_box(mesh.project_point(&Pose::IDENTITY, v(q.p), false));
+                    1
+                }
+                Kind::Containment => mesh.contains_point(&Pose::IDENTITY, v(q.p)) as usize,
+                Kind::SphereOverlap => {
+                    let ball = Ball::new(q.r);
+                    let at = Pose::from_translation(v(q.q));
+                    let aabb = parry3d::bounding_volume::Aabb::new(v(q.q - q.r), v(q.q + q.r));
+                    found.clear();
+                    for leaf in mesh.bvh().intersect_aabb(&aabb) {
+                        let tri = mesh.triangle(leaf);
+                        if intersection_test(&at, &ball, &Pose::IDENTITY, &tri)
+                            .expect("supported")
+                            .intersecting
+                        {
+                            found.push(leaf);
+                        }
+                    }
+                    found.sort_unstable();
+                    found.len()
+                }
+            };
+        }
+    }
+    (t.elapsed(), answers)
+}
