@@ -68,6 +68,39 @@ fn refit_and_single_ray_queries_do_not_allocate() {
     }
 }
 
+/// A plugin world run on the calling thread under `policy`, with a sphere whose `VertexPositions` the test
+/// rewrites: the world, its schedule, the sphere's rest mesh and its entity.
+fn deforming_sphere_app(
+    policy: kinetrace::ecs::RebuildPolicy,
+) -> (
+    bevy_ecs::world::World,
+    bevy_ecs::schedule::Schedule,
+    kinetrace::Mesh,
+    bevy_ecs::entity::Entity,
+) {
+    use bevy_ecs::prelude::*;
+    use kinetrace::ecs::*;
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    KinetracePlugin {
+        config: TraceConfig {
+            policy,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+    .build(&mut world, &mut schedule);
+    let rest = icosphere(3);
+    let e = world
+        .spawn((
+            TraceMesh(rest.clone()),
+            VertexPositions(rest.positions().to_vec()),
+        ))
+        .id();
+    (world, schedule, rest, e)
+}
+
 /// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
 /// thread once warm, under a fixed policy and under the adaptive one (its SAH cost, decision and query
 /// attribution included, for the meshes and for the top level).
@@ -82,24 +115,7 @@ fn refit_only_ecs_frames_do_not_allocate() {
         builders: &[Builder::LBVH],
     };
     for policy in [never, adaptive] {
-        let mut world = World::new();
-        let mut schedule = Schedule::default();
-        schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
-        KinetracePlugin {
-            config: TraceConfig {
-                policy,
-                ..Default::default()
-            },
-            ..Default::default()
-        }
-        .build(&mut world, &mut schedule);
-        let rest = icosphere(3);
-        let e = world
-            .spawn((
-                TraceMesh(rest.clone()),
-                VertexPositions(rest.positions().to_vec()),
-            ))
-            .id();
+        let (mut world, mut schedule, rest, e) = deforming_sphere_app(policy);
         // Rigid entities above the sphere, out of the rays' way, moving together: the top level refits.
         let walkers: Vec<Entity> = (0..8)
             .map(|i| {
@@ -192,30 +208,13 @@ fn warm_collision_queries_do_not_allocate() {
 #[cfg(feature = "parallel")]
 #[test]
 fn warm_shape_query_batches_do_not_allocate() {
-    use bevy_ecs::prelude::*;
     use glam::{Affine3A, Mat3, Quat};
     use kinetrace::ecs::*;
     use kinetrace::queries::Shape;
-    let mut world = World::new();
-    let mut schedule = Schedule::default();
-    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
-    KinetracePlugin {
-        config: TraceConfig {
-            policy: RebuildPolicy::Lauterbach {
-                threshold: f32::INFINITY,
-            },
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-    .build(&mut world, &mut schedule);
-    let rest = icosphere(3);
-    let e = world
-        .spawn((
-            TraceMesh(rest.clone()),
-            VertexPositions(rest.positions().to_vec()),
-        ))
-        .id();
+    let never = RebuildPolicy::Lauterbach {
+        threshold: f32::INFINITY,
+    };
+    let (mut world, mut schedule, rest, e) = deforming_sphere_app(never);
     let sheared = Mat3::from_cols(Vec3::X, Vec3::new(0.5, 2.0, 0.0), Vec3::Z * 0.5);
     for (i, m) in [Mat3::from_rotation_y(0.5) * 1.5, sheared]
         .into_iter()
