@@ -1,7 +1,8 @@
 //! `bevy_ecs` integration: components to make entities traceable, a plugin whose systems keep their trees
 //! current each frame, an immediate query parameter ([`SpatialRays`]), batched queries ([`RayQueue`] →
-//! [`RayResults`]) and collision contacts between entities that opt in ([`Collider`] → [`Contacts`],
-//! [`CollisionStarted`] / [`CollisionEnded`]).
+//! [`RayResults`]), shape casts, closest points, overlaps and containment across all entities (immediate on
+//! [`SpatialRays`], batched through [`ShapeQueue`] → [`ShapeResults`]) and collision contacts between entities
+//! that opt in ([`Collider`] → [`Contacts`], [`CollisionStarted`] / [`CollisionEnded`]).
 //!
 //! Change detection decides the work: an untouched mesh costs nothing; a moved entity only updates the top
 //! level; a deformed mesh ([`VertexPositions`] or [`TraceSkin`] changed) is refitted and rebuilt when the

@@ -33,7 +33,7 @@ impl Frame {
     }
 
     /// The node's box in this frame (in the world: holds every carried triangle of the node).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn node_box(&self, n: &Node) -> Aabb {
         match self {
             Frame::Mesh => n.aabb(),
@@ -54,7 +54,7 @@ impl Frame {
     }
 
     /// A stored triangle's corners in this frame, in `f64`.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn triangle(&self, t: &[Vec3; 3]) -> [DVec3; 3] {
         match self {
             Frame::Mesh => t.map(Vec3::as_dvec3),

@@ -102,8 +102,10 @@ impl Shape {
     pub(crate) fn overlaps_triangle(&self, t: [DVec3; 3]) -> bool {
         match *self {
             Shape::Sphere { center, radius } => {
-                let r = f64::from(radius);
-                closest_on_triangle(center.as_dvec3(), t).dist2 <= r * r
+                let (c, r) = (center.as_dvec3(), f64::from(radius));
+                // A corner in the ball settles it (common when the ball is large against the triangles).
+                t.iter().any(|p| p.distance_squared(c) <= r * r)
+                    || closest_on_triangle(c, t).dist2 <= r * r
             }
             Shape::Capsule { a, b, radius } => {
                 let r = f64::from(radius);
