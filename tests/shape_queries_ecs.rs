@@ -287,6 +287,7 @@ fn check_sphere_cast(
     rad: f32,
     max_t: f32,
     got: Option<&ShapeHit>,
+    tol0: f64,
     what: &str,
 ) {
     let gap = |t: f64| {
@@ -300,7 +301,7 @@ fn check_sphere_cast(
     let end = got.map_or(max_t as f64, |h| h.distance as f64);
     if let Some(h) = got {
         let g = gap(h.distance as f64);
-        let tol = TOL * (1.0 + h.distance as f64 * speed / 8.0);
+        let tol = tol0 * (1.0 + h.distance as f64 * speed / 8.0);
         if h.distance == 0.0 {
             assert!(g <= tol, "{what}: start contact with gap {g}");
         } else {
@@ -318,10 +319,14 @@ fn check_sphere_cast(
         );
     }
     let mut t = 0.0;
-    while t < end - TOL / speed {
+    while t < end - tol0 / speed {
         let g = gap(t);
-        assert!(g > -TOL, "{what}: penetrates by {} at {t} before {end}", -g);
-        t += g.max(TOL) / speed;
+        assert!(
+            g > -tol0,
+            "{what}: penetrates by {} at {t} before {end}",
+            -g
+        );
+        t += g.max(tol0) / speed;
     }
 }
 
@@ -354,7 +359,7 @@ fn sphere_casts_equal_brute_force_on_every_placement() {
                     );
                     hits += 1;
                 }
-                check_sphere_cast(&tris, c, dir, rad, max_t, got.as_ref(), &what);
+                check_sphere_cast(&tris, c, dir, rad, max_t, got.as_ref(), TOL, &what);
             }
         }
     }
@@ -601,4 +606,73 @@ fn containment_of_100k_points_on_a_skinned_mesh_equals_ray_parity() {
         inside > n / 20 && inside < n - n / 20,
         "both sides sampled ({inside})"
     );
+}
+
+/// Tiny (1e-4) and huge (1e4) radii on the test scene, and entities 1e5 from the origin (one turned, one
+/// sheared), against the same brute force; tolerances scale with the magnitudes involved.
+#[test]
+fn extreme_radii_and_far_offsets_through_the_ecs() {
+    let mut s = scene();
+    s.frame(0);
+    let filter = QueryFilter::default();
+    let (_, tris) = world_triangles(&mut s.world, &filter);
+    let tw = s.world.resource::<TraceWorld>();
+    let mut r = rng(38);
+    let mut hits = 0;
+    for i in 0..20 {
+        let c = rand_dir(&mut r) * 8.0;
+        let dir = (rand_vec(&mut r, -3.0, 3.0) - c).normalize();
+        let rad = [1e-4, 1e4][i % 2];
+        let what = format!("cast {i} radius {rad}");
+        let got = tw.cast_shape(&Shape::sphere(c, rad), dir, 16.0, &filter);
+        if rad > 1.0 {
+            assert_eq!(
+                got.map(|h| h.distance),
+                Some(0.0),
+                "{what}: starts around the scene"
+            );
+        }
+        hits += got.is_some() as usize;
+        let tol = TOL * f64::from(rad).max(1.0);
+        check_sphere_cast(&tris, c, dir, rad, 16.0, got.as_ref(), tol, &what);
+    }
+    assert!(hits > 12, "{hits}");
+
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    let far = Vec3::new(1e5, -1e5, 1e5);
+    let shear = Mat3::from_cols(Vec3::X, Vec3::new(0.6, 2.5, 0.0), Vec3::Z * 0.5);
+    for (m, at) in [
+        (Mat3::from_rotation_y(0.7), far),
+        (shear, far + Vec3::X * 6.0),
+    ] {
+        world.spawn((
+            TraceMesh(icosphere(2)),
+            MotionHint::Rigid,
+            TraceTransform(Affine3A::from_mat3_translation(m, at)),
+        ));
+    }
+    schedule.run(&mut world);
+    let (keys, tris) = world_triangles(&mut world, &filter);
+    let tw = world.resource::<TraceWorld>();
+    // 16 ulp of 1e5: the query point and the oracle's triangles are rounded to f32 there.
+    let tol = 16.0 * 1e5 * f32::EPSILON as f64;
+    let mut out = Vec::new();
+    for i in 0..60 {
+        let p = far + rand_vec(&mut r, -4.0, 10.0);
+        let what = format!("far point {i} {p}");
+        let (_, want) = brute_nearest(&tris, p).unwrap();
+        let got = tw.closest_point(p, f32::INFINITY, &filter).expect(&what);
+        assert!(
+            (got.distance as f64 - want).abs() <= tol,
+            "{what}: {got:?} vs {want}"
+        );
+        let rad = 0.5;
+        tw.overlaps(&Shape::sphere(p, rad), &filter, &mut out);
+        for (k, t) in keys.iter().zip(&tris) {
+            let gap = point_triangle(p.as_dvec3(), *t) - rad as f64;
+            if gap.abs() > tol {
+                assert_eq!(out.binary_search(k).is_ok(), gap < 0.0, "{what}: {k:?}");
+            }
+        }
+    }
 }
