@@ -277,19 +277,26 @@ fn containment_equals_ray_parity_on_every_placement() {
     assert!(inside > 100, "points must fall inside ({inside})");
 }
 
+/// A sphere of radius `rad` at `c` swept along `dir` up to `max_t`.
+#[derive(Clone, Copy)]
+struct SphereCast {
+    c: Vec3,
+    dir: Vec3,
+    rad: f32,
+    max_t: f32,
+}
+
 /// Conservative-advancement check of a sphere cast over world triangles: at the reported time the sphere
 /// touches (gap 0 up to rounding; not positive for a start in contact), and it never sinks deeper than
 /// rounding on the way there (or to `max_t` for a miss).
 fn check_sphere_cast(
     tris: &[[Vec3; 3]],
-    c: Vec3,
-    dir: Vec3,
-    rad: f32,
-    max_t: f32,
+    cast: SphereCast,
     got: Option<&ShapeHit>,
     tol0: f64,
     what: &str,
 ) {
+    let SphereCast { c, dir, rad, max_t } = cast;
     let gap = |t: f64| {
         let at = c.as_dvec3() + dir.as_dvec3() * t;
         tris.iter()
@@ -359,7 +366,8 @@ fn sphere_casts_equal_brute_force_on_every_placement() {
                     );
                     hits += 1;
                 }
-                check_sphere_cast(&tris, c, dir, rad, max_t, got.as_ref(), TOL, &what);
+                let cast = SphereCast { c, dir, rad, max_t };
+                check_sphere_cast(&tris, cast, got.as_ref(), TOL, &what);
             }
         }
     }
@@ -634,7 +642,13 @@ fn extreme_radii_and_far_offsets_through_the_ecs() {
         }
         hits += got.is_some() as usize;
         let tol = TOL * f64::from(rad).max(1.0);
-        check_sphere_cast(&tris, c, dir, rad, 16.0, got.as_ref(), tol, &what);
+        let cast = SphereCast {
+            c,
+            dir,
+            rad,
+            max_t: 16.0,
+        };
+        check_sphere_cast(&tris, cast, got.as_ref(), tol, &what);
     }
     assert!(hits > 12, "{hits}");
 
