@@ -5,9 +5,10 @@
 //! cargo run --release --example controller -- [--frames N] [--out DIR]
 //! ```
 //! The cloth (a 20 m sheet of 64 × 64 quads) waves under the character, who walks a circle of 6 m at
-//! 3 m/s and climbs onto a platform (its top 0.3 m above the cloth's rest height) on the way. Writes `top.png` (path over the cloth's height map) and
-//! `side.png` (height of the character's feet and of the cloth below them over time) into `DIR`
-//! (default `target/controller`), and prints how far the capsule ever sank into the surface.
+//! 3 m/s and climbs onto a platform (its top 0.3 m above the cloth's rest height) on the way. Writes
+//! `top.png` (path over the cloth's height map) and `side.png` (height of the feet and of the ground below
+//! them over time) into `DIR` (default `target/controller`), and prints how far the capsule ever sank into
+//! the surface.
 
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Vec3};
@@ -244,7 +245,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         sheet.triangle_count()
     );
     println!(
-        "deepest penetration after a move {deepest:.4} m; least feet clearance above the surface below {clearance:.4} m; grounded at the end: {}",
+        "deepest penetration after a move {deepest:.4} m; least feet clearance above the ground below \
+         {clearance:.4} m; grounded at the end: {}",
         ch.grounded
     );
     std::fs::create_dir_all(&out)?;

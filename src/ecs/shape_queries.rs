@@ -205,8 +205,10 @@ impl TraceWorld {
     /// Sweeps `shape` (in world space) along `dir` up to `max_t` (in units of `dir`) and returns its first
     /// contact with an accepted entity: the earliest time of impact, among equal times the lowest entity.
     /// The conventions are [`MeshBvh::cast_sphere`](crate::MeshBvh::cast_sphere)'s (start in contact:
-    /// distance 0 and the way out); entities under non-uniform scale are handled as the
-    /// [module documentation](self) says. An invalid shape or direction hits nothing.
+    /// distance 0 and the way out). An entity placed by a rotation, translation and uniform scale is
+    /// queried in its mesh's frame; one under a non-uniform scale or a shear in world space on its
+    /// transformed triangles (exact either way; the second costs about twice as much per box and triangle).
+    /// An invalid shape or direction hits nothing.
     ///
     /// Cost: a top-level traversal of the boxes grown by the shape, nearest first, and one mesh cast per
     /// entity whose grown box the sweep reaches before the best hit so far. No allocation.

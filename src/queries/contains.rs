@@ -94,10 +94,10 @@ impl MeshBvh {
     /// inside).
     ///
     /// Exact: every decision is an exact orientation predicate on the tree's current corners, with ties on
-    /// projected edges broken by simulation of simplicity (see the [module documentation](self)), so points
-    /// on shared edges, at vertices and on silhouettes are never counted twice or missed. For an open mesh
-    /// the answer is the winding number along +x, which depends on the direction. A non-finite `p` is
-    /// outside.
+    /// projected edges broken by simulation of simplicity (the point taken as moved by `ε` along +y and `ε²`
+    /// along +z), so points on shared edges, at vertices and on silhouettes are never counted twice or
+    /// missed. For an open mesh the answer is the winding number along +x, which depends on the direction.
+    /// A non-finite `p` is outside.
     ///
     /// Cost: one ray traversal along +x that visits every triangle the ray meets (not only the nearest) plus
     /// a few dozen flops per triangle it tests. No allocation.

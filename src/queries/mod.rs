@@ -9,7 +9,10 @@
 //! - [`MeshBvh::overlapping`]: the triangles a [`Shape`] (sphere, capsule, oriented box) touches.
 //! - [`MeshBvh::cast_sphere`], [`MeshBvh::cast_capsule`], [`MeshBvh::cast_box`]: the first contact of a
 //!   shape swept along a line (time of impact, point, normal, triangle, barycentrics), including a start in
-//!   contact (`t = 0` with the way out).
+//!   contact (`t = 0` with the way out); [`MeshBvh::cast_shape`] takes any [`Shape`].
+//!
+//! Across the entities of a `bevy_ecs` scene, with world transforms and filters, the same queries are on
+//! [`SpatialRays`](crate::ecs::SpatialRays) and, batched, [`ShapeQueue`](crate::ecs::ShapeQueue).
 //!
 //! All of them read the tree's current corners, so after [`MeshBvh::refit`] they answer for the deformed
 //! mesh; zero-area triangles are absent, as they are for rays and collisions. Distances and overlap tests
@@ -27,6 +30,9 @@
 //! assert!(!touched.is_empty());
 //! # Ok::<(), kinetrace::Error>(())
 //! ```
+
+#[cfg(doc)]
+use crate::MeshBvh;
 
 mod cast;
 mod closest;
