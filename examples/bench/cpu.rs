@@ -5,7 +5,9 @@ use crate::peers::{self, BenchRay, PeerResult};
 use crate::record::{Records, best_of};
 use glam::Vec3;
 use kinetrace::bvh::wide::WideBvh;
+use kinetrace::bvh::wide::simd::{self, RayLanes};
 use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::geometry::TriangleRay;
 use kinetrace::scenes::{bumpy_torus, soup};
 use kinetrace::{Hit, Mesh, MeshBvh, Ray};
 
@@ -144,6 +146,7 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
     }
     let wide = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
     let binary = MeshBvh::build(mesh, &BuildOptions::default().wide(false)).unwrap();
+    kernel_rows(rec, name, &wide);
 
     // Peers on the same triangles.
     let ray_count = if rec.quick { 1 << 16 } else { 1 << 18 };
@@ -307,6 +310,59 @@ fn wide_rows(rec: &mut Records, name: &str, builder: &str, bvh: &MeshBvh) {
     );
     let bytes = wide.memory_bytes() as f64 / n;
     rec.add(SUITE, name, &subject, "bytes per triangle", bytes, "B");
+}
+
+/// The collapse's cost ratio, measured: one four-box test against one watertight triangle test, each run
+/// over every node (triangle) of `bvh` for a few rays through the mesh's box, one thread.
+fn kernel_rows(rec: &mut Records, name: &str, bvh: &MeshBvh) {
+    let wide = bvh.wide().expect("built with the wide tree");
+    let b = bvh.bvh().bounds();
+    let rays: Vec<Ray> = (0..16)
+        .map(|i| {
+            let f = i as f32 / 16.0;
+            Ray::new(
+                b.min - b.extent() * 0.1,
+                b.extent() * Vec3::new(1.0, f, 1.0 - f),
+            )
+        })
+        .collect();
+    let (tb, _) = one_thread(|| {
+        best_of(rec.reps(), || {
+            let mut k = 0u32;
+            for r in &rays {
+                let lanes = RayLanes::new(r);
+                for node in wide.nodes() {
+                    k += simd::hit4(std::hint::black_box(node), &lanes, r.tmax).0;
+                }
+            }
+            k
+        })
+    });
+    let (tt, _) = one_thread(|| {
+        best_of(rec.reps(), || {
+            let mut k = 0usize;
+            for r in &rays {
+                let tr = TriangleRay::new(r);
+                for &[a, b, c] in bvh.slot_triangles() {
+                    k += tr.intersect(a, b, c, r.tmin, r.tmax).is_some() as usize;
+                }
+            }
+            k
+        })
+    });
+    let per_box = tb / (rays.len() * wide.nodes().len()) as f64;
+    let per_tri = tt / (rays.len() * bvh.slot_triangles().len()) as f64;
+    let subject = "kinetrace kernels";
+    rec.add(SUITE, name, subject, "four-box test", per_box * 1e9, "ns");
+    rec.add(SUITE, name, subject, "triangle test", per_tri * 1e9, "ns");
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "four-box/triangle",
+        per_box / per_tri,
+        "x",
+    );
 }
 
 fn peer<'a>(v: &'a [PeerResult], name: &str) -> &'a PeerResult {

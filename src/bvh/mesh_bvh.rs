@@ -63,7 +63,8 @@ pub struct MeshBvh {
     /// order and scatters to slots, so the vertex reads stream through memory.
     indices: Arc<[u32]>,
     slot_of: Vec<u32>,
-    /// Refit scratch: each slot's triangle box, kept between calls.
+    /// Refit scratch: each slot's triangle box, kept between calls; only meshes past
+    /// [`GATHER_BELOW_BYTES`] of vertices use it, the others keep it empty.
     slot_bounds: Vec<Aabb>,
     /// Identity of this build's topology (see [`MeshBvh::topology_id`]).
     topology: u64,
@@ -144,7 +145,11 @@ impl MeshBvh {
             vertex_count: pos.len(),
             indices: mesh.indices_arc(),
             slot_of,
-            slot_bounds: vec![Aabb::EMPTY; n],
+            slot_bounds: if std::mem::size_of_val(pos) > GATHER_BELOW_BYTES {
+                vec![Aabb::EMPTY; n]
+            } else {
+                Vec::new()
+            },
             topology: next_topology_id(),
             wide: wide.then(|| WideBvh::collapse(bvh.nodes())),
             bvh,

@@ -10,10 +10,11 @@
 //! wide tree is collapsed from it once per build and refitted in place by copying the refitted binary boxes
 //! into its lanes: a refit frame never re-collapses.
 //!
-//! Cost (2-core dev VM, one thread): the collapse is one bottom-up and one top-down pass over the binary
-//! nodes, O(n), a small fraction of an LBVH build of the same mesh (see `bench cpu`); the refit copy is
-//! O(wide nodes). Memory: 128 bytes per wide node (112 of node, 16 of refit sources); with leaves of a few
-//! triangles that is about 10–15 bytes per triangle, on top of the binary tree's ~64.
+//! Cost: the collapse is one bottom-up and one top-down pass over the binary nodes, O(n), somewhat less
+//! than an LBVH build of the same mesh (`bench cpu`, rows `collapse 1 thread`); the refit copy is
+//! O(wide nodes) and adds about a fifth to a refit. Memory: 128 bytes per wide node (112 of node, 16 of refit sources); with the small
+//! leaves the measured cost ratio picks, about 0.4 wide nodes per triangle, 48–59 bytes per triangle on
+//! the `bench cpu` scenes, on top of the binary tree's ~64.
 //!
 //! Collapse: a binary subtree becomes one wide leaf when it holds at most [`MAX_WIDE_LEAF`] triangles and
 //! its SAH leaf cost `A · n · C_tri` is no more than the cost of keeping it inner, `A · C_wide / 3 +
@@ -38,9 +39,12 @@ pub const WIDTH: usize = 4;
 /// Most triangles one wide leaf holds.
 pub const MAX_WIDE_LEAF: usize = 8;
 
-/// Cost of one wide node visit (a four-box SIMD test plus the ordering) in units of one watertight
-/// triangle test, measured with `bench cpu` on this crate's kernels (2-core dev VM).
-pub const WIDE_NODE_COST: f32 = 1.0;
+/// Cost of one wide node visit in units of one watertight triangle test. `bench cpu` measures the bare
+/// kernels (rows `kinetrace kernels`): a four-box SSE test 1.7 ns, a triangle test 7.3 ns, ratio 0.23
+/// (2-core dev VM, release); a visit also sorts the hit lanes and pushes them, which we count as as much
+/// again, hence 0.5. With so cheap a node against the watertight triangle test, the SAH rule keeps leaves
+/// small: most wide leaves hold the binary tree's single triangles.
+pub const WIDE_NODE_COST: f32 = 0.5;
 
 /// Payload of an unused lane (its box is empty, so no ray ever reaches it).
 const EMPTY_LANE: u32 = u32::MAX;
