@@ -12,7 +12,8 @@
 //!
 //! Cost: the collapse is one bottom-up and one top-down pass over the binary nodes, O(n), somewhat less
 //! than an LBVH build of the same mesh (`bench cpu`, rows `collapse 1 thread`); the refit copy is
-//! O(wide nodes) and adds about a fifth to a refit. Memory: 128 bytes per wide node (112 of node, 16 of refit sources); with the small
+//! O(wide nodes) and adds a third to two thirds to a refit (`bench cpu`, rows `refit + wide4`).
+//! Memory: 128 bytes per wide node (112 of node, 16 of refit sources); with the small
 //! leaves the measured cost ratio picks, about 0.4 wide nodes per triangle, 48–59 bytes per triangle on
 //! the `bench cpu` scenes, on top of the binary tree's ~64.
 //!
@@ -116,16 +117,20 @@ pub struct WideBvh {
 }
 
 impl WideBvh {
-    /// Collapses a binary tree (see the [module docs](self)). O(n) time, 13 bytes of scratch per binary node.
+    /// Collapses a binary tree (see the [module docs](self)). O(n) time, 20 bytes of scratch per binary node.
     pub fn collapse(bin: &[Node]) -> WideBvh {
         if bin.is_empty() {
             return WideBvh::default();
         }
         let plan = LeafPlan::new(bin);
+        // About 0.4 wide nodes per triangle with the usual small leaves: reserve that (a binary tree has
+        // about two nodes per triangle) so the arrays do not move while they grow.
         let mut w = WideBvh {
-            nodes: vec![WideNode::EMPTY],
-            src: vec![[EMPTY_LANE; WIDTH]],
+            nodes: Vec::with_capacity(bin.len() / 4 + 1),
+            src: Vec::with_capacity(bin.len() / 4 + 1),
         };
+        w.nodes.push(WideNode::EMPTY);
+        w.src.push([EMPTY_LANE; WIDTH]);
         let mut work = vec![(0usize, 0usize)];
         while let Some((wi, b)) = work.pop() {
             // Only the root can be a planned leaf here: inner wide children are never planned leaves.
@@ -138,7 +143,8 @@ impl WideBvh {
                 w.nodes[wi].set_lane_box(lane, &bin[c]);
                 w.src[wi][lane] = c as u32;
                 w.nodes[wi].child[lane] = if plan.is_leaf(c) {
-                    LEAF_BIT | (plan.count[c] << COUNT_SHIFT) | plan.first[c]
+                    let Planned { count, first, .. } = plan.0[c];
+                    LEAF_BIT | (count << COUNT_SHIFT) | first
                 } else {
                     w.nodes.push(WideNode::EMPTY);
                     w.src.push([EMPTY_LANE; WIDTH]);
@@ -242,48 +248,60 @@ impl WideBvh {
     }
 }
 
-/// Per binary node: its triangle count, first slot, and whether the collapse makes it a wide leaf.
-struct LeafPlan {
-    count: Vec<u32>,
-    first: Vec<u32>,
-    leaf: Vec<bool>,
+/// What the collapse knows of one binary node.
+#[derive(Clone, Copy, Default)]
+struct Planned {
+    /// Triangles in the subtree.
+    count: u32,
+    /// First slot of the subtree (subtrees own contiguous slot ranges).
+    first: u32,
+    /// Half surface area of the node's box.
+    area: f32,
+    /// True when the subtree becomes one wide leaf.
+    leaf: bool,
 }
+
+/// Per binary node, in node order: counts, areas and the leaf decisions.
+struct LeafPlan(Vec<Planned>);
 
 impl LeafPlan {
     /// One reverse pass (children follow their parent): SAH costs in half-area units, leaf cost
     /// `A · n`, inner cost `A · WIDE_NODE_COST / 3 + cost(children)`.
     fn new(bin: &[Node]) -> LeafPlan {
-        let n = bin.len();
-        let mut p = LeafPlan {
-            count: vec![0; n],
-            first: vec![0; n],
-            leaf: vec![false; n],
-        };
-        let mut cost = vec![0f32; n];
-        for i in (0..n).rev() {
+        let mut p = vec![Planned::default(); bin.len()];
+        let mut cost = vec![0f32; bin.len()];
+        for i in (0..bin.len()).rev() {
             let node = &bin[i];
             let area = node.aabb().half_area();
             if node.is_leaf() {
-                p.count[i] = node.count() as u32;
-                p.first[i] = node.first() as u32;
-                p.leaf[i] = true;
-                cost[i] = area * node.count() as f32;
+                let count = node.count() as u32;
+                p[i] = Planned {
+                    count,
+                    first: node.first() as u32,
+                    area,
+                    leaf: true,
+                };
+                cost[i] = area * count as f32;
                 continue;
             }
             let (l, r) = (node.left(), node.left() + 1);
-            p.count[i] = p.count[l] + p.count[r];
-            p.first[i] = p.first[l].min(p.first[r]);
+            let count = p[l].count + p[r].count;
             let inner = area * WIDE_NODE_COST / (WIDTH - 1) as f32 + cost[l] + cost[r];
-            let as_leaf = area * p.count[i] as f32;
-            // Subtrees own contiguous slot ranges, so a small one can be one leaf.
-            p.leaf[i] = p.count[i] as usize <= MAX_WIDE_LEAF && as_leaf <= inner;
-            cost[i] = if p.leaf[i] { as_leaf } else { inner };
+            let as_leaf = area * count as f32;
+            let leaf = count as usize <= MAX_WIDE_LEAF && as_leaf <= inner;
+            p[i] = Planned {
+                count,
+                first: p[l].first.min(p[r].first),
+                area,
+                leaf,
+            };
+            cost[i] = if leaf { as_leaf } else { inner };
         }
-        p
+        LeafPlan(p)
     }
 
     fn is_leaf(&self, i: usize) -> bool {
-        self.leaf[i]
+        self.0[i].leaf
     }
 }
 
@@ -297,7 +315,7 @@ fn open(bin: &[Node], plan: &LeafPlan, b: usize) -> ([usize; WIDTH], usize) {
     while len < WIDTH {
         let mut best: Option<(usize, f32)> = None;
         for (j, &k) in kids[..len].iter().enumerate() {
-            let area = bin[k].aabb().half_area();
+            let area = plan.0[k].area;
             if !plan.is_leaf(k) && best.is_none_or(|(_, a)| area > a) {
                 best = Some((j, area));
             }
