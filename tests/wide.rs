@@ -80,8 +80,8 @@ fn check_structure(m: &Mesh, bvh: &MeshBvh, what: &str) {
                 let first = (c & ((1 << 27) - 1)) as usize;
                 let count = ((c >> 27) & 0xf) as usize;
                 assert!((1..=15).contains(&count), "{what}: leaf of {count}");
-                for s in first..first + count {
-                    seen[s] += 1;
+                for k in &mut seen[first..first + count] {
+                    *k += 1;
                 }
             } else {
                 assert!(c as usize > i, "{what}: child {c} before its parent {i}");
@@ -127,6 +127,16 @@ fn check_answers(m: &Mesh, bvh: &MeshBvh, rays: &[Ray], what: &str) -> usize {
     hits
 }
 
+/// The wide tree's child payloads, node by node: its topology.
+fn wide_topology(bvh: &MeshBvh) -> Vec<[u32; 4]> {
+    bvh.wide()
+        .unwrap()
+        .nodes()
+        .iter()
+        .map(|n| n.child)
+        .collect()
+}
+
 #[test]
 fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
     let scenes = [
@@ -142,13 +152,7 @@ fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
             check_structure(m, &bvh, &what);
             let hits = check_answers(m, &bvh, &rays, &what);
             assert!(hits > rays.len() / 4, "{what}: only {hits} hits");
-            let children: Vec<[u32; 4]> = bvh
-                .wide()
-                .unwrap()
-                .nodes()
-                .iter()
-                .map(|n| n.child)
-                .collect();
+            let children = wide_topology(&bvh);
             // Two deformations, refitted in place: the wide topology stays, the boxes follow.
             for frame in 1..=2 {
                 let f = frame as f32;
@@ -162,13 +166,7 @@ fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
                 bvh.refit(&pos).unwrap();
                 let moved = m.with_positions(pos).unwrap();
                 let what = format!("{what} refit {frame}");
-                let now: Vec<[u32; 4]> = bvh
-                    .wide()
-                    .unwrap()
-                    .nodes()
-                    .iter()
-                    .map(|n| n.child)
-                    .collect();
+                let now = wide_topology(&bvh);
                 assert_eq!(children, now, "{what}: the refit changed the wide topology");
                 check_structure(&moved, &bvh, &what);
                 check_answers(&moved, &bvh, &rays, &what);

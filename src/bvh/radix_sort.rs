@@ -10,7 +10,7 @@ const BUCKETS: usize = 1 << DIGIT_BITS;
 /// Sorts `keys` (and `vals` along with them) by the low `bits` bits of the keys, stably: pairs with equal
 /// keys keep their order. `keys` and `vals` must have the same length. Moves 16-byte pairs; where the key
 /// and the value fit one `u64` together, [`sort_by_bits`] on packed words moves half as many bytes.
-pub(crate) fn sort_pairs(keys: &mut Vec<u64>, vals: &mut Vec<u32>, bits: u32) {
+pub(crate) fn sort_pairs(keys: &mut [u64], vals: &mut [u32], bits: u32) {
     assert_eq!(keys.len(), vals.len(), "one value per key");
     let mut pairs: Vec<(u64, u32)> = keys.iter().copied().zip(vals.iter().copied()).collect();
     sort_by_bits(&mut pairs, bits, |p| p.0);

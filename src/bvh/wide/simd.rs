@@ -10,7 +10,7 @@
 //! guarantees them, and the loads and stores take pointers to the node's `[f32; 4]` rows.
 
 use super::WideNode;
-use crate::geometry::{ROBUST_TMAX_SCALE, Ray};
+use crate::geometry::{ROBUST_TMAX_SCALE, Ray, max_keep, min_keep};
 
 /// Per-ray constants of the four-box test, computed once per query.
 #[derive(Clone, Copy, Debug)]
@@ -57,18 +57,6 @@ pub fn hit4(node: &WideNode, r: &RayLanes, tmax: f32) -> (u32, [f32; 4]) {
     {
         hit4_portable(node, r, tmax)
     }
-}
-
-/// `max(x, acc)`, `acc` when `x` is NaN: `maxss` semantics, as in `Ray::intersect_aabb`.
-#[inline(always)]
-fn max_keep(x: f32, acc: f32) -> f32 {
-    if x > acc { x } else { acc }
-}
-
-/// `min(x, acc)`, `acc` when `x` is NaN.
-#[inline(always)]
-fn min_keep(x: f32, acc: f32) -> f32 {
-    if x < acc { x } else { acc }
 }
 
 /// The reference path: one lane at a time, plain `f32`.
