@@ -1,4 +1,5 @@
-//! Numerically extreme scenes: every builder, checked against brute force and analytic answers.
+//! Numerically extreme scenes: every builder, with and without the wide query tree, checked against brute
+//! force and analytic answers.
 
 mod common;
 use common::*;
@@ -13,7 +14,13 @@ fn builders() -> Vec<BuildOptions> {
         .chain([Builder::Lbvh {
             morton: MortonBits::Bits63,
         }])
-        .flat_map(|b| [BuildOptions::new(b), BuildOptions::new(b).max_leaf_size(4)])
+        .flat_map(|b| {
+            [
+                BuildOptions::new(b),
+                BuildOptions::new(b).max_leaf_size(4),
+                BuildOptions::new(b).wide(false),
+            ]
+        })
         .collect()
 }
 

@@ -4,7 +4,10 @@
 use crate::peers::{self, BenchRay, PeerResult};
 use crate::record::{Records, best_of};
 use glam::Vec3;
+use kinetrace::bvh::wide::WideBvh;
+use kinetrace::bvh::wide::simd::{self, RayLanes};
 use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::geometry::TriangleRay;
 use kinetrace::scenes::{bumpy_torus, soup};
 use kinetrace::{Hit, Mesh, MeshBvh, Ray};
 
@@ -73,14 +76,11 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
     let mut sah_1t = 0.0;
     let mut sah_cost = 0.0;
     for b in Builder::ALL {
-        let (t1, bvh) = one_thread(|| {
-            best_of(reps, || {
-                MeshBvh::build(mesh, &BuildOptions::new(b).parallel(false)).unwrap()
-            })
-        });
-        let (tn, _) = best_of(reps, || {
-            MeshBvh::build(mesh, &BuildOptions::new(b)).unwrap()
-        });
+        // The binary tree alone: the wide query tree's collapse is timed on its own below.
+        let opt = BuildOptions::new(b).wide(false);
+        let (t1, bvh) =
+            one_thread(|| best_of(reps, || MeshBvh::build(mesh, &opt.parallel(false)).unwrap()));
+        let (tn, _) = best_of(reps, || MeshBvh::build(mesh, &opt).unwrap());
         rec.add(
             SUITE,
             name,
@@ -106,6 +106,9 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             cost,
             "",
         );
+        if matches!(b, Builder::Lbvh { .. } | Builder::Sah { .. }) {
+            wide_rows(rec, name, b.name(), &bvh);
+        }
         match b {
             Builder::Lbvh { .. } => lbvh_1t = t1,
             Builder::Sah { .. } => (sah_1t, sah_cost) = (t1, cost),
@@ -113,8 +116,8 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
         }
     }
 
-    // Refit, one thread, alternating between two poses so every call really moves the boxes.
-    let mut bvh = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+    // Refit, one thread, alternating between two poses so every call really moves the boxes: the binary
+    // tree alone, and with the wide tree's lanes copied after it.
     let poses: [Vec<Vec3>; 2] = [
         mesh.positions().to_vec(),
         mesh.positions()
@@ -122,20 +125,28 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             .map(|p| *p + Vec3::new((p.y * 9.0).sin(), 0.0, (p.x * 7.0).cos()) * 0.01)
             .collect(),
     ];
-    let mut k = 0;
-    let (t_refit, _) = best_of(reps * 4, || {
-        k += 1;
-        bvh.refit(&poses[k % 2]).unwrap()
-    });
-    rec.add(
-        SUITE,
-        name,
-        "kinetrace refit",
-        "refit 1 thread",
-        n / t_refit / 1e6,
-        "Mtris/s",
-    );
-    let bvh = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+    for (subject, wide) in [
+        ("kinetrace refit", false),
+        ("kinetrace refit + wide4", true),
+    ] {
+        let mut bvh = MeshBvh::build(mesh, &BuildOptions::default().wide(wide)).unwrap();
+        let mut k = 0;
+        let (t_refit, _) = best_of(reps * 4, || {
+            k += 1;
+            bvh.refit(&poses[k % 2]).unwrap()
+        });
+        rec.add(
+            SUITE,
+            name,
+            subject,
+            "refit 1 thread",
+            n / t_refit / 1e6,
+            "Mtris/s",
+        );
+    }
+    let wide = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+    let binary = MeshBvh::build(mesh, &BuildOptions::default().wide(false)).unwrap();
+    kernel_rows(rec, name, &wide);
 
     // Peers on the same triangles.
     let ray_count = if rec.quick { 1 << 16 } else { 1 << 18 };
@@ -199,76 +210,63 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
         );
     }
 
-    // Queries on the SAH tree: one thread per ray loop, and batched on all threads.
+    // Queries on the SAH tree, binary and 4-wide: one thread per ray loop, and batched on all threads.
     for (set, (kind, brays)) in sets.iter().enumerate() {
         let rays = to_rays(brays);
         let m = rays.len() as f64;
-        let (tc, hits) = one_thread(|| {
-            best_of(reps, || {
-                rays.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
-            })
-        });
-        let (ta, _) =
-            one_thread(|| best_of(reps, || rays.iter().filter(|r| bvh.any_hit(r)).count()));
-        let mut out = vec![None; rays.len()];
-        let (tcn, _) = best_of(reps, || bvh.closest_hits(&rays, &mut out));
-        let subject = format!("kinetrace sah {kind}");
-        rec.add(
-            SUITE,
-            name,
-            &subject,
-            "closest 1 thread",
-            m / tc / 1e6,
-            "Mrays/s",
-        );
-        rec.add(
-            SUITE,
-            name,
-            &subject,
-            "any-hit 1 thread",
-            m / ta / 1e6,
-            "Mrays/s",
-        );
-        rec.add(
-            SUITE,
-            name,
-            &subject,
-            "closest all threads",
-            m / tcn / 1e6,
-            "Mrays/s",
-        );
+        for (tree, bvh) in [("sah", &binary), ("sah wide4", &wide)] {
+            let (tc, hits) = one_thread(|| {
+                best_of(reps, || {
+                    rays.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
+                })
+            });
+            let (ta, _) =
+                one_thread(|| best_of(reps, || rays.iter().filter(|r| bvh.any_hit(r)).count()));
+            let mut out = vec![None; rays.len()];
+            let (tcn, _) = best_of(reps, || bvh.closest_hits(&rays, &mut out));
+            let mut any = vec![false; rays.len()];
+            let (tan, _) = best_of(reps, || bvh.any_hits(&rays, &mut any));
+            let subject = format!("kinetrace {tree} {kind}");
+            for (metric, t) in [
+                ("closest 1 thread", tc),
+                ("any-hit 1 thread", ta),
+                ("closest all threads", tcn),
+                ("any-hit all threads", tan),
+            ] {
+                rec.add(SUITE, name, &subject, metric, m / t / 1e6, "Mrays/s");
+            }
+            for p in &obvhs[set] {
+                let s = format!("{} {kind}", p.name);
+                if let Some(t) = p.closest_s {
+                    let r = leak(format!("closest {tree}/{} {kind}", p.name));
+                    rec.add(SUITE, name, "ratio", r, t / tc, "x");
+                }
+                if let Some(t) = p.any_s {
+                    let r = leak(format!("any-hit {tree}/{} {kind}", p.name));
+                    rec.add(SUITE, name, "ratio", r, t / ta, "x");
+                }
+                if let Some(h) = &p.closest_hits {
+                    let what = leak(format!("hits differing from kinetrace {tree}"));
+                    rec.add(SUITE, name, &s, what, differing(&hits, h) as f64, "rays");
+                }
+            }
+        }
         for p in &obvhs[set] {
             let s = format!("{} {kind}", p.name);
             if let Some(t) = p.closest_s {
                 rec.add(SUITE, name, &s, "closest 1 thread", m / t / 1e6, "Mrays/s");
-                rec.add(
-                    SUITE,
-                    name,
-                    "ratio",
-                    leak(format!("closest/{} {kind}", p.name)),
-                    t / tc,
-                    "x",
-                );
             }
             if let Some(t) = p.any_s {
                 rec.add(SUITE, name, &s, "any-hit 1 thread", m / t / 1e6, "Mrays/s");
             }
-            if let Some(h) = &p.closest_hits {
-                rec.add(
-                    SUITE,
-                    name,
-                    &s,
-                    "hits differing",
-                    differing(&hits, h) as f64,
-                    "rays",
-                );
-            }
         }
-        // The bvh crate traced a prefix of the rays; time ours on the same prefix.
+        // The bvh crate traced a prefix of the rays; time ours (binary) on the same prefix.
         let sub = &rays[..BVH_CRATE_RAYS];
         let (tcs, _) = one_thread(|| {
             best_of(reps, || {
-                sub.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
+                sub.iter()
+                    .map(|r| binary.closest_hit(r))
+                    .collect::<Vec<_>>()
             })
         });
         for p in &bvh_crate[set] {
@@ -293,6 +291,78 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             }
         }
     }
+}
+
+/// The wide query tree derived from `bvh` (built with `builder`): collapse time on one thread, its bytes
+/// per triangle.
+fn wide_rows(rec: &mut Records, name: &str, builder: &str, bvh: &MeshBvh) {
+    let n = bvh.bvh().primitive_count() as f64;
+    let nodes = bvh.bvh().nodes();
+    let (t, wide) = one_thread(|| best_of(rec.reps(), || WideBvh::collapse(nodes)));
+    let subject = format!("kinetrace {builder} wide4");
+    rec.add(
+        SUITE,
+        name,
+        &subject,
+        "collapse 1 thread",
+        n / t / 1e6,
+        "Mtris/s",
+    );
+    let bytes = wide.memory_bytes() as f64 / n;
+    rec.add(SUITE, name, &subject, "bytes per triangle", bytes, "B");
+}
+
+/// The collapse's cost ratio, measured: one four-box test against one watertight triangle test, each run
+/// over every node (triangle) of `bvh` for a few rays through the mesh's box, one thread.
+fn kernel_rows(rec: &mut Records, name: &str, bvh: &MeshBvh) {
+    let wide = bvh.wide().expect("built with the wide tree");
+    let b = bvh.bvh().bounds();
+    let rays: Vec<Ray> = (0..16)
+        .map(|i| {
+            let f = i as f32 / 16.0;
+            Ray::new(
+                b.min - b.extent() * 0.1,
+                b.extent() * Vec3::new(1.0, f, 1.0 - f),
+            )
+        })
+        .collect();
+    let (tb, _) = one_thread(|| {
+        best_of(rec.reps(), || {
+            let mut k = 0u32;
+            for r in &rays {
+                let lanes = RayLanes::new(r);
+                for node in wide.nodes() {
+                    k += simd::hit4(std::hint::black_box(node), &lanes, r.tmax).0;
+                }
+            }
+            k
+        })
+    });
+    let (tt, _) = one_thread(|| {
+        best_of(rec.reps(), || {
+            let mut k = 0usize;
+            for r in &rays {
+                let tr = TriangleRay::new(r);
+                for &[a, b, c] in bvh.slot_triangles() {
+                    k += tr.intersect(a, b, c, r.tmin, r.tmax).is_some() as usize;
+                }
+            }
+            k
+        })
+    });
+    let per_box = tb / (rays.len() * wide.nodes().len()) as f64;
+    let per_tri = tt / (rays.len() * bvh.slot_triangles().len()) as f64;
+    let subject = "kinetrace kernels";
+    rec.add(SUITE, name, subject, "four-box test", per_box * 1e9, "ns");
+    rec.add(SUITE, name, subject, "triangle test", per_tri * 1e9, "ns");
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "four-box/triangle",
+        per_box / per_tri,
+        "x",
+    );
 }
 
 fn peer<'a>(v: &'a [PeerResult], name: &str) -> &'a PeerResult {

@@ -53,21 +53,33 @@ pub(crate) fn build(
 }
 
 /// Morton codes of the primitives' centroids in the centroids' box, sorted; `prims` is reordered with them.
+/// 30-bit codes travel packed with their primitive in one `u64` (code in the high half), so the sort moves
+/// 8 bytes per primitive instead of 12.
 pub(crate) fn sorted_codes(input: &BuildInput, prims: &mut [u32], bits: MortonBits) -> Vec<u64> {
     let cb = bounds_of(input.parallel, prims, |&p| {
         input.centroids[p as usize].into()
     });
     let mut codes = vec![0u64; prims.len()];
-    parallel::fill(input.parallel, &mut codes, 1 << 14, |i| {
-        let c = input.centroids[prims[i] as usize];
-        match bits {
-            MortonBits::Bits30 => morton30(c, &cb) as u64,
-            MortonBits::Bits63 => morton63(c, &cb),
+    match bits {
+        MortonBits::Bits30 => {
+            parallel::fill(input.parallel, &mut codes, 1 << 14, |i| {
+                let p = prims[i];
+                ((morton30(input.centroids[p as usize], &cb) as u64) << 32) | p as u64
+            });
+            radix_sort::sort_by_bits(&mut codes, 30, |&x| x >> 32);
+            for (p, c) in prims.iter_mut().zip(codes.iter_mut()) {
+                (*p, *c) = (*c as u32, *c >> 32);
+            }
         }
-    });
-    let mut vals = prims.to_vec();
-    radix_sort::sort_pairs(&mut codes, &mut vals, bits.bits());
-    prims.copy_from_slice(&vals);
+        MortonBits::Bits63 => {
+            parallel::fill(input.parallel, &mut codes, 1 << 14, |i| {
+                morton63(input.centroids[prims[i] as usize], &cb)
+            });
+            let mut vals = prims.to_vec();
+            radix_sort::sort_pairs(&mut codes, &mut vals, bits.bits());
+            prims.copy_from_slice(&vals);
+        }
+    }
     codes
 }
 

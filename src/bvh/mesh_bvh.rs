@@ -1,11 +1,13 @@
 //! A BVH over the triangles of a [`Mesh`], with ray queries.
 
 use super::traverse::{Counter, TraversalStats, traverse};
+use super::wide::WideBvh;
 use super::{BuildOptions, Bvh, refit::refit_nodes};
 use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
 use glam::Vec3;
+use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -61,10 +63,13 @@ pub struct MeshBvh {
     /// order and scatters to slots, so the vertex reads stream through memory.
     indices: Arc<[u32]>,
     slot_of: Vec<u32>,
-    /// Refit scratch: each slot's triangle box, kept between calls.
+    /// Refit scratch: each slot's triangle box, kept between calls; only meshes past
+    /// [`GATHER_BELOW_BYTES`] of vertices use it, the others keep it empty.
     slot_bounds: Vec<Aabb>,
     /// Identity of this build's topology (see [`MeshBvh::topology_id`]).
     topology: u64,
+    /// The 4-wide query tree collapsed from `bvh`, refitted with it; ray queries walk it when present.
+    wide: Option<WideBvh>,
 }
 
 /// Source of [`MeshBvh::topology_id`]s.
@@ -112,12 +117,17 @@ impl MeshBvh {
     /// Builds the tree over `mesh`'s triangles. An empty mesh gives an empty tree that no ray hits.
     pub fn build(mesh: &Mesh, options: &BuildOptions) -> Result<MeshBvh> {
         let bvh = Bvh::build(&mesh.triangle_bounds(), options)?;
-        Ok(Self::from_tree(mesh, bvh))
+        Ok(Self::pair(mesh, bvh, options.wide))
     }
 
-    /// Pairs `bvh`, a valid tree over `mesh`'s triangle boxes (as a GPU build reads back), with the mesh.
-    /// O(n), allocates the per-slot arrays; the tree gets a new [`topology_id`](Self::topology_id).
+    /// Pairs `bvh`, a valid tree over `mesh`'s triangle boxes (as a GPU build reads back), with the mesh,
+    /// and derives the wide query tree. O(n), allocates the per-slot arrays; the tree gets a new
+    /// [`topology_id`](Self::topology_id).
     pub(crate) fn from_tree(mesh: &Mesh, bvh: Bvh) -> MeshBvh {
+        Self::pair(mesh, bvh, true)
+    }
+
+    fn pair(mesh: &Mesh, bvh: Bvh, wide: bool) -> MeshBvh {
         let slot_indices = slot_indices(&bvh, mesh.indices());
         let pos = mesh.positions();
         let tris = slot_indices
@@ -130,14 +140,48 @@ impl MeshBvh {
             slot_of[p as usize] = slot as u32;
         }
         MeshBvh {
-            bvh,
             tris,
             slot_indices,
             vertex_count: pos.len(),
             indices: mesh.indices_arc(),
             slot_of,
-            slot_bounds: vec![Aabb::EMPTY; n],
+            slot_bounds: if std::mem::size_of_val(pos) > GATHER_BELOW_BYTES {
+                vec![Aabb::EMPTY; n]
+            } else {
+                Vec::new()
+            },
             topology: next_topology_id(),
+            wide: wide.then(|| WideBvh::collapse(bvh.nodes())),
+            bvh,
+        }
+    }
+
+    /// Derives the wide query tree (`true`, a collapse pass when there is none yet) or drops it (`false`,
+    /// queries walk the binary tree again). See [`BuildOptions::wide`].
+    pub fn set_wide(&mut self, on: bool) {
+        if !on {
+            self.wide = None;
+        } else if self.wide.is_none() {
+            self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
+        }
+    }
+
+    /// The wide query tree, when derived.
+    pub fn wide(&self) -> Option<&WideBvh> {
+        self.wide.as_ref()
+    }
+
+    /// The traversal every ray query runs: the wide tree when there is one, else the binary tree.
+    #[inline]
+    fn walk<C: Counter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
+    ) {
+        match &self.wide {
+            Some(w) => w.traverse(ray, counter, leaf),
+            None => traverse(&self.bvh.nodes, ray, counter, leaf),
         }
     }
 
@@ -161,11 +205,12 @@ impl MeshBvh {
         if std::mem::size_of_val(positions) <= GATHER_BELOW_BYTES {
             // The vertices stay in cache: read them in leaf order, straight into the node pass.
             let (tris, idx) = (&mut self.tris, &self.slot_indices);
-            return Ok(refit_nodes(&mut self.bvh.nodes, |slot| {
+            let d = refit_nodes(&mut self.bvh.nodes, |slot| {
                 let [a, b, c] = idx[slot].map(|i| positions[i as usize]);
                 tris[slot] = query_corners([a, b, c]);
                 Aabb::from_triangle(a, b, c)
-            }));
+            });
+            return Ok(self.refit_wide(d));
         }
         // Triangles in mesh order (vertex reads follow the mesh's own layout), results scattered to slots:
         // stores do not stall the way a gather of vertices in leaf order does once they miss the cache.
@@ -176,7 +221,16 @@ impl MeshBvh {
             self.slot_bounds[slot] = Aabb::from_triangle(a, b, c);
         }
         let boxes = &self.slot_bounds;
-        Ok(refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot]))
+        let d = refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot]);
+        Ok(self.refit_wide(d))
+    }
+
+    /// Copies the refitted binary boxes into the wide tree's lanes (no re-collapse); passes `degradation` on.
+    fn refit_wide(&mut self, degradation: f32) -> f32 {
+        if let Some(w) = &mut self.wide {
+            w.refit(&self.bvh.nodes);
+        }
+        degradation
     }
 
     /// A number that changes with every build and stays through refits (clones keep it): two trees with
@@ -230,7 +284,7 @@ impl MeshBvh {
         }
         let tr = TriangleRay::new(ray);
         let prims = self.bvh.prim_indices();
-        traverse(&self.bvh.nodes, ray, &mut (), |slots, _| {
+        self.walk(ray, &mut (), |slots, _| {
             for s in slots {
                 let [a, b, c] = self.tris[s];
                 if let Some(h) = tr.intersect(a, b, c, ray.tmin, ray.tmax) {
@@ -268,7 +322,7 @@ impl MeshBvh {
         let prims = self.bvh.prim_indices();
         // (t, primitive, slot, u, v) of the best hit so far.
         let mut best: Option<(f32, u32, usize, f32, f32)> = None;
-        traverse(&self.bvh.nodes, ray, counter, |slots, tmax| {
+        self.walk(ray, counter, |slots, tmax| {
             for s in slots {
                 let [a, b, c] = self.tris[s];
                 if let Some(h) = tr.intersect(a, b, c, ray.tmin, *tmax) {
@@ -299,7 +353,7 @@ impl MeshBvh {
         }
         let tr = TriangleRay::new(ray);
         let mut hit = false;
-        traverse(&self.bvh.nodes, ray, counter, |slots, tmax| {
+        self.walk(ray, counter, |slots, tmax| {
             hit = slots
                 .map(|s| self.tris[s])
                 .any(|[a, b, c]| tr.intersect(a, b, c, ray.tmin, *tmax).is_some());

@@ -34,8 +34,8 @@ const _: () = assert!(std::mem::align_of::<Node>() == 4);
 
 /// Bit 31 of [`Node::index`] marks a leaf.
 pub const LEAF_BIT: u32 = 1 << 31;
-const COUNT_SHIFT: u32 = 27;
-const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
+pub(crate) const COUNT_SHIFT: u32 = 27;
+pub(crate) const FIRST_MASK: u32 = (1 << COUNT_SHIFT) - 1;
 
 /// Largest number of primitives one leaf can hold.
 pub const MAX_LEAF_SIZE: u32 = 15;

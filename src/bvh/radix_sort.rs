@@ -8,22 +8,37 @@ const DIGIT_BITS: u32 = 11;
 const BUCKETS: usize = 1 << DIGIT_BITS;
 
 /// Sorts `keys` (and `vals` along with them) by the low `bits` bits of the keys, stably: pairs with equal
-/// keys keep their order. `keys` and `vals` must have the same length.
-pub(crate) fn sort_pairs(keys: &mut Vec<u64>, vals: &mut Vec<u32>, bits: u32) {
+/// keys keep their order. `keys` and `vals` must have the same length. Moves 16-byte pairs; where the key
+/// and the value fit one `u64` together, [`sort_by_bits`] on packed words moves half as many bytes.
+pub(crate) fn sort_pairs(keys: &mut [u64], vals: &mut [u32], bits: u32) {
     assert_eq!(keys.len(), vals.len(), "one value per key");
-    let n = keys.len();
+    let mut pairs: Vec<(u64, u32)> = keys.iter().copied().zip(vals.iter().copied()).collect();
+    sort_by_bits(&mut pairs, bits, |p| p.0);
+    for (i, (k, v)) in pairs.into_iter().enumerate() {
+        keys[i] = k;
+        vals[i] = v;
+    }
+}
+
+/// Sorts `items` stably by the low `bits` bits of `key(item)`.
+pub(crate) fn sort_by_bits<T: Copy + Default>(
+    items: &mut Vec<T>,
+    bits: u32,
+    key: impl Fn(&T) -> u64,
+) {
+    let n = items.len();
     if n < 2 || bits == 0 {
         return;
     }
     let passes = bits.div_ceil(DIGIT_BITS) as usize;
     let mut hist = vec![[0u32; BUCKETS]; passes];
-    for &k in keys.iter() {
+    for x in items.iter() {
+        let k = key(x);
         for (p, h) in hist.iter_mut().enumerate() {
             h[((k >> (p as u32 * DIGIT_BITS)) as usize) & (BUCKETS - 1)] += 1;
         }
     }
-    let mut keys2 = vec![0u64; n];
-    let mut vals2 = vec![0u32; n];
+    let mut out = vec![T::default(); n];
     for (p, h) in hist.iter_mut().enumerate() {
         if h.iter().any(|&c| c as usize == n) {
             continue; // every key has the same digit here
@@ -35,15 +50,13 @@ pub(crate) fn sort_pairs(keys: &mut Vec<u64>, vals: &mut Vec<u32>, bits: u32) {
             sum += x;
         }
         let shift = p as u32 * DIGIT_BITS;
-        for (&k, &v) in keys.iter().zip(vals.iter()) {
-            let d = ((k >> shift) as usize) & (BUCKETS - 1);
+        for x in items.iter() {
+            let d = ((key(x) >> shift) as usize) & (BUCKETS - 1);
             let at = h[d] as usize;
             h[d] += 1;
-            keys2[at] = k;
-            vals2[at] = v;
+            out[at] = *x;
         }
-        std::mem::swap(keys, &mut keys2);
-        std::mem::swap(vals, &mut vals2);
+        std::mem::swap(items, &mut out);
     }
 }
 

@@ -132,13 +132,13 @@ impl Ray {
 
 /// `max(x, acc)`, returning `acc` when `x` is NaN (one `maxss`).
 #[inline(always)]
-fn max_keep(x: f32, acc: f32) -> f32 {
+pub(crate) fn max_keep(x: f32, acc: f32) -> f32 {
     if x > acc { x } else { acc }
 }
 
 /// `min(x, acc)`, returning `acc` when `x` is NaN (one `minss`).
 #[inline(always)]
-fn min_keep(x: f32, acc: f32) -> f32 {
+pub(crate) fn min_keep(x: f32, acc: f32) -> f32 {
     if x < acc { x } else { acc }
 }
 

@@ -42,7 +42,8 @@ pub fn rand_dir(r: &mut SmallRng) -> Vec3 {
 pub use kinetrace::scenes::{cube_sphere, icosphere, soup};
 
 /// Every builder (the presets and a non-default setting of each family), with one and four triangles per
-/// leaf: the build configurations a whole-crate property is checked under.
+/// leaf, and with one per leaf without the wide query tree (so ray queries walk the binary tree): the build
+/// configurations a whole-crate property is checked under.
 pub fn all_build_options() -> Vec<BuildOptions> {
     let mut v = Vec::new();
     for b in Builder::ALL.into_iter().chain([
@@ -59,6 +60,7 @@ pub fn all_build_options() -> Vec<BuildOptions> {
         for leaf in [1, 4] {
             v.push(BuildOptions::new(b).max_leaf_size(leaf));
         }
+        v.push(BuildOptions::new(b).wide(false));
     }
     v
 }

@@ -1,0 +1,330 @@
+//! A 4-wide BVH derived from the binary tree, for faster ray queries on the CPU.
+//!
+//! When to use: any mesh that answers more than a handful of rays between rebuilds. [`MeshBvh`] derives
+//! one by default ([`BuildOptions::wide`](super::BuildOptions::wide)) and its closest-hit, any-hit and
+//! all-hits queries walk it instead of the binary tree; the answers are the same (same triangle, or a
+//! triangle hit at exactly the same `t`), because the child boxes are the binary tree's boxes and the SIMD
+//! box test rounds exactly like the scalar one (see [`simd`]).
+//!
+//! The binary tree stays the maintenance structure (GPU layout, degradation metric, other queries). The
+//! wide tree is collapsed from it once per build and refitted in place by copying the refitted binary boxes
+//! into its lanes: a refit frame never re-collapses.
+//!
+//! Cost: the collapse is one bottom-up and one top-down pass over the binary nodes, O(n), somewhat less
+//! than an LBVH build of the same mesh (`bench cpu`, rows `collapse 1 thread`); the refit copy is
+//! O(wide nodes) and adds a third to two thirds to a refit (`bench cpu`, rows `refit + wide4`).
+//! Memory: 128 bytes per wide node (112 of node, 16 of refit sources); with the small
+//! leaves the measured cost ratio picks, about 0.4 wide nodes per triangle, 48–59 bytes per triangle on
+//! the `bench cpu` scenes, on top of the binary tree's ~64.
+//!
+//! Collapse: a binary subtree becomes one wide leaf when it holds at most [`MAX_WIDE_LEAF`] triangles and
+//! its SAH leaf cost `A · n · C_tri` is no more than the cost of keeping it inner, `A · C_wide / 3 +
+//! cost(children)` (a wide node replaces about three binary inner nodes); [`WIDE_NODE_COST`] is the
+//! measured cost of one four-box test in triangle tests. Each wide node then takes its binary node's two
+//! children and opens the largest-area inner child until it has four.
+//!
+//! [`MeshBvh`]: super::MeshBvh
+
+pub mod simd;
+
+use super::node::{COUNT_SHIFT, FIRST_MASK};
+use super::traverse::Counter;
+use super::{LEAF_BIT, MAX_DEPTH, Node};
+use crate::geometry::{Aabb, Ray};
+use simd::{RayLanes, hit4};
+use std::ops::Range;
+
+/// Children per wide node.
+pub const WIDTH: usize = 4;
+
+/// Most triangles one wide leaf holds.
+pub const MAX_WIDE_LEAF: usize = 8;
+
+/// Cost of one wide node visit in units of one watertight triangle test. `bench cpu` measures the bare
+/// kernels (rows `kinetrace kernels`): a four-box SSE test 1.7 ns, a triangle test 7.3 ns, ratio 0.23
+/// (2-core dev VM, release); a visit also sorts the hit lanes and pushes them, which we count as as much
+/// again, hence 0.5. With so cheap a node against the watertight triangle test, the SAH rule keeps leaves
+/// small: most wide leaves hold the binary tree's single triangles.
+pub const WIDE_NODE_COST: f32 = 0.5;
+
+/// Payload of an unused lane (its box is empty, so no ray ever reaches it).
+const EMPTY_LANE: u32 = u32::MAX;
+
+/// One node of a [`WideBvh`]: four child boxes as structure of arrays, 112 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WideNode {
+    /// Child boxes by row: `[min x, min y, min z, max x, max y, max z][lane]`. Unused lanes hold the empty
+    /// box (`+∞` minima, `−∞` maxima).
+    pub bounds: [[f32; WIDTH]; 6],
+    /// Per lane: an inner child's index in [`WideBvh::nodes`]; a leaf as in [`Node::index`] (bit 31 set,
+    /// bits 27..=30 the count, bits 0..=26 the first slot); `u32::MAX` for an unused lane.
+    pub child: [u32; WIDTH],
+}
+
+const _: () = assert!(std::mem::size_of::<WideNode>() == 112);
+
+impl WideNode {
+    const EMPTY: WideNode = WideNode {
+        bounds: [
+            [f32::INFINITY; WIDTH],
+            [f32::INFINITY; WIDTH],
+            [f32::INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
+            [f32::NEG_INFINITY; WIDTH],
+        ],
+        child: [EMPTY_LANE; WIDTH],
+    };
+
+    /// The box of lane `i`.
+    pub fn lane_box(&self, i: usize) -> Aabb {
+        let b = &self.bounds;
+        Aabb::new(
+            [b[0][i], b[1][i], b[2][i]].into(),
+            [b[3][i], b[4][i], b[5][i]].into(),
+        )
+    }
+
+    fn set_lane_box(&mut self, i: usize, n: &Node) {
+        for a in 0..3 {
+            self.bounds[a][i] = n.min[a];
+            self.bounds[3 + a][i] = n.max[a];
+        }
+    }
+}
+
+/// True for a lane payload that is a leaf (unused lanes included).
+#[inline]
+fn is_leaf(payload: u32) -> bool {
+    payload & LEAF_BIT != 0
+}
+
+/// Slots of a leaf payload.
+#[inline]
+fn leaf_slots(payload: u32) -> Range<usize> {
+    let first = (payload & FIRST_MASK) as usize;
+    first..first + ((payload >> COUNT_SHIFT) & 0xf) as usize
+}
+
+/// A 4-wide BVH over the same slots as the binary [`Bvh`](super::Bvh) it was collapsed from. See the
+/// [module docs](self).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct WideBvh {
+    nodes: Vec<WideNode>,
+    /// For each node and lane, the binary node whose box the lane copies on a refit (`u32::MAX`: unused).
+    src: Vec<[u32; WIDTH]>,
+}
+
+impl WideBvh {
+    /// Collapses a binary tree (see the [module docs](self)). O(n) time, 20 bytes of scratch per binary node.
+    pub fn collapse(bin: &[Node]) -> WideBvh {
+        if bin.is_empty() {
+            return WideBvh::default();
+        }
+        let plan = LeafPlan::new(bin);
+        // About 0.4 wide nodes per triangle with the usual small leaves: reserve that (a binary tree has
+        // about two nodes per triangle) so the arrays do not move while they grow.
+        let mut w = WideBvh {
+            nodes: Vec::with_capacity(bin.len() / 4 + 1),
+            src: Vec::with_capacity(bin.len() / 4 + 1),
+        };
+        w.nodes.push(WideNode::EMPTY);
+        w.src.push([EMPTY_LANE; WIDTH]);
+        let mut work = vec![(0usize, 0usize)];
+        while let Some((wi, b)) = work.pop() {
+            // Only the root can be a planned leaf here: inner wide children are never planned leaves.
+            let (kids, len) = if plan.is_leaf(b) {
+                ([b; WIDTH], 1)
+            } else {
+                open(bin, &plan, b)
+            };
+            for (lane, &c) in kids[..len].iter().enumerate() {
+                w.nodes[wi].set_lane_box(lane, &bin[c]);
+                w.src[wi][lane] = c as u32;
+                w.nodes[wi].child[lane] = if plan.is_leaf(c) {
+                    let Planned { count, first, .. } = plan.0[c];
+                    LEAF_BIT | (count << COUNT_SHIFT) | first
+                } else {
+                    w.nodes.push(WideNode::EMPTY);
+                    w.src.push([EMPTY_LANE; WIDTH]);
+                    work.push((w.nodes.len() - 1, c));
+                    (w.nodes.len() - 1) as u32
+                };
+            }
+        }
+        w
+    }
+
+    /// The nodes, root first.
+    pub fn nodes(&self) -> &[WideNode] {
+        &self.nodes
+    }
+
+    /// Bytes held: nodes plus refit sources.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * std::mem::size_of::<WideNode>() + self.src.len() * 4 * WIDTH
+    }
+
+    /// Copies the (refitted) boxes of `bin`, the binary tree this was collapsed from, into the lanes.
+    /// O(wide nodes), no allocation.
+    pub(crate) fn refit(&mut self, bin: &[Node]) {
+        for (node, src) in self.nodes.iter_mut().zip(&self.src) {
+            for (lane, &s) in src.iter().enumerate() {
+                if s != EMPTY_LANE {
+                    node.set_lane_box(lane, &bin[s as usize]);
+                }
+            }
+        }
+    }
+
+    /// Walks the leaves whose boxes the ray reaches within the current `tmax`, nearest box first, with the
+    /// contract of the binary `traverse`: `leaf(slots, tmax)` may lower `*tmax` and returns true to stop.
+    /// The ray must be valid.
+    #[inline]
+    pub(crate) fn traverse<C: Counter>(
+        &self,
+        ray: &Ray,
+        counter: &mut C,
+        mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let lanes = RayLanes::new(ray);
+        let mut tmax = ray.tmax;
+        // Each level pushes at most three siblings; wide trees are no deeper than their binary tree.
+        let mut stack = [(0u32, 0f32); (WIDTH - 1) * MAX_DEPTH + 1];
+        let mut sp = 0usize;
+        let mut cur = 0u32;
+        loop {
+            if is_leaf(cur) {
+                let slots = leaf_slots(cur);
+                counter.leaf(slots.len());
+                if leaf(slots, &mut tmax) {
+                    return;
+                }
+            } else {
+                counter.inner();
+                let node = &self.nodes[cur as usize];
+                let (mut mask, near) = hit4(node, &lanes, tmax);
+                if mask != 0 {
+                    // Hit lanes sorted by entry distance (stable: lane order among equals).
+                    let mut order = [(0u32, 0f32); WIDTH];
+                    let mut k = 0;
+                    while mask != 0 {
+                        let i = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        let e = (node.child[i], near[i]);
+                        let mut j = k;
+                        while j > 0 && order[j - 1].1 > e.1 {
+                            order[j] = order[j - 1];
+                            j -= 1;
+                        }
+                        order[j] = e;
+                        k += 1;
+                    }
+                    for &e in order[1..k].iter().rev() {
+                        stack[sp] = e;
+                        sp += 1;
+                    }
+                    cur = order[0].0;
+                    continue;
+                }
+            }
+            // Pop the next subtree that can still hold something within tmax.
+            loop {
+                if sp == 0 {
+                    return;
+                }
+                sp -= 1;
+                let (node, entry) = stack[sp];
+                if entry <= tmax {
+                    cur = node;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// What the collapse knows of one binary node.
+#[derive(Clone, Copy, Default)]
+struct Planned {
+    /// Triangles in the subtree.
+    count: u32,
+    /// First slot of the subtree (subtrees own contiguous slot ranges).
+    first: u32,
+    /// Half surface area of the node's box.
+    area: f32,
+    /// True when the subtree becomes one wide leaf.
+    leaf: bool,
+}
+
+/// Per binary node, in node order: counts, areas and the leaf decisions.
+struct LeafPlan(Vec<Planned>);
+
+impl LeafPlan {
+    /// One reverse pass (children follow their parent): SAH costs in half-area units, leaf cost
+    /// `A · n`, inner cost `A · WIDE_NODE_COST / 3 + cost(children)`.
+    fn new(bin: &[Node]) -> LeafPlan {
+        let mut p = vec![Planned::default(); bin.len()];
+        let mut cost = vec![0f32; bin.len()];
+        for i in (0..bin.len()).rev() {
+            let node = &bin[i];
+            let area = node.aabb().half_area();
+            if node.is_leaf() {
+                let count = node.count() as u32;
+                p[i] = Planned {
+                    count,
+                    first: node.first() as u32,
+                    area,
+                    leaf: true,
+                };
+                cost[i] = area * count as f32;
+                continue;
+            }
+            let (l, r) = (node.left(), node.left() + 1);
+            let count = p[l].count + p[r].count;
+            let inner = area * WIDE_NODE_COST / (WIDTH - 1) as f32 + cost[l] + cost[r];
+            let as_leaf = area * count as f32;
+            let leaf = count as usize <= MAX_WIDE_LEAF && as_leaf <= inner;
+            p[i] = Planned {
+                count,
+                first: p[l].first.min(p[r].first),
+                area,
+                leaf,
+            };
+            cost[i] = if leaf { as_leaf } else { inner };
+        }
+        LeafPlan(p)
+    }
+
+    fn is_leaf(&self, i: usize) -> bool {
+        self.0[i].leaf
+    }
+}
+
+/// The up to four binary nodes a wide node over inner binary node `b` gets (in `kids[..len]`): its two
+/// children, then the largest-area child that is not a planned leaf opened into its two, until there are
+/// four or none is left.
+fn open(bin: &[Node], plan: &LeafPlan, b: usize) -> ([usize; WIDTH], usize) {
+    let mut kids = [0usize; WIDTH];
+    (kids[0], kids[1]) = (bin[b].left(), bin[b].left() + 1);
+    let mut len = 2;
+    while len < WIDTH {
+        let mut best: Option<(usize, f32)> = None;
+        for (j, &k) in kids[..len].iter().enumerate() {
+            let area = plan.0[k].area;
+            if !plan.is_leaf(k) && best.is_none_or(|(_, a)| area > a) {
+                best = Some((j, area));
+            }
+        }
+        let Some((j, _)) = best else { break };
+        let c = bin[kids[j]].left();
+        kids.copy_within(j + 1..len, j + 2);
+        (kids[j], kids[j + 1]) = (c, c + 1);
+        len += 1;
+    }
+    (kids, len)
+}
