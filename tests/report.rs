@@ -3,6 +3,8 @@
 //! PNG of its size with text, a legend entry per strategy and data drawn.
 
 mod common;
+#[path = "../examples/report/grid_rows.rs"]
+mod grid_rows;
 #[path = "../examples/report/harness.rs"]
 mod harness;
 #[path = "../examples/report/output.rs"]

@@ -10,7 +10,7 @@ use common::*;
 use glam::{Affine3A, Quat, Vec3};
 use kinetrace::characterize::SceneProfile;
 use kinetrace::ecs::*;
-use kinetrace::grid::choice::{MAX_EMPTY_BIN_FRACTION, MAX_SIZE_SPREAD, MIN_GRID_TRIANGLES};
+use kinetrace::grid::choice::{MAX_EMPTY_BIN_FRACTION, MIN_GRID_TRIANGLES, MIN_SIZE_SPREAD};
 use kinetrace::grid::{ChoiceInput, StructureCosts, choose_structure};
 use kinetrace::scenes::bumpy_torus;
 use kinetrace::{Mesh, Ray};
@@ -181,7 +181,7 @@ fn documented_rule(p: &SceneProfile) -> StructureKind {
     let empty = p.empty_bins as f64 / p.bins.max(1) as f64;
     if p.primitives >= MIN_GRID_TRIANGLES
         && empty <= MAX_EMPTY_BIN_FRACTION
-        && p.size_spread <= MAX_SIZE_SPREAD
+        && p.size_spread > MIN_SIZE_SPREAD
     {
         StructureKind::Grid
     } else {
@@ -189,19 +189,20 @@ fn documented_rule(p: &SceneProfile) -> StructureKind {
     }
 }
 
-/// `n` triangles of one size (edge about `s`) in the unit cube, centres on a jittered lattice: evenly
-/// spread, alike triangles.
-fn even_soup(n: usize, s: f32) -> Mesh {
+/// `n` triangles in the unit cube, centres on a jittered lattice (evenly spread), edges `s` times `10^x`
+/// with `x` uniform in `[0, decades]`: alike triangles for 0 decades, mixed sizes for more.
+fn even_soup(n: usize, s: f32, decades: f32) -> Mesh {
     let mut r = rng(3);
     let k = (n as f32).cbrt().ceil() as usize;
     let mut pos = Vec::with_capacity(3 * n);
     for i in 0..n {
         let cell = Vec3::new((i % k) as f32, ((i / k) % k) as f32, (i / (k * k)) as f32);
         let c = (cell + Vec3::splat(0.5) + rand_vec(&mut r, -0.3, 0.3)) / k as f32;
+        let e = s * 10f32.powf(decades * rand_vec(&mut r, 0.0, 1.0).x);
         pos.extend([
             c,
-            c + Vec3::new(s, 0.0, 0.2 * s),
-            c + Vec3::new(0.0, s, 0.5 * s),
+            c + Vec3::new(e, 0.0, 0.2 * e),
+            c + Vec3::new(0.0, e, 0.5 * e),
         ]);
     }
     Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
@@ -217,7 +218,7 @@ fn stadium(n: usize) -> Mesh {
         Vec3::new(100.0, 0.0, 100.0),
         Vec3::new(-100.0, 0.0, 100.0),
     ];
-    let teapot = even_soup(n, 0.02);
+    let teapot = even_soup(n, 0.02, 0.0);
     pos.extend(
         teapot
             .positions()
@@ -234,7 +235,12 @@ fn auto_follows_the_documented_rule_and_reports_it() {
         structure: Structure::Auto,
         ..Default::default()
     });
-    let meshes = [even_soup(2000, 0.02), stadium(2000), icosphere(1)];
+    let meshes = [
+        even_soup(2000, 0.002, 2.5),
+        even_soup(2000, 0.02, 0.0),
+        stadium(2000),
+        icosphere(1),
+    ];
     let entities: Vec<Entity> = meshes
         .iter()
         .enumerate()
@@ -288,10 +294,16 @@ fn auto_follows_the_documented_rule_and_reports_it() {
             }
         }
     }
-    // The scenes exercise both answers: the even soup is a grid, the stadium and the small sphere are not.
+    // The scenes exercise every test of the rule: the evenly spread soup of mixed sizes is a grid; the
+    // soup of alike triangles, the stadium and the small sphere are not.
     assert_eq!(
         expected,
-        [StructureKind::Grid, StructureKind::Bvh, StructureKind::Bvh]
+        [
+            StructureKind::Grid,
+            StructureKind::Bvh,
+            StructureKind::Bvh,
+            StructureKind::Bvh
+        ]
     );
     // Rays through the world still equal brute force, grid and BVH meshes together.
     let mut r = rng(5);

@@ -149,7 +149,7 @@ impl Default for RebuildPolicy {
 /// | structure | costs per frame the mesh changes | use when |
 /// |---|---|---|
 /// | [`Bvh`](Self::Bvh) | a refit, a rebuild when the policy asks | almost always: BVH queries are the fastest on CPU (docs/BENCHMARKS.md) |
-/// | [`Grid`](Self::Grid) | a refit of the BVH *and* a grid rebuild (O(n), no allocation once warm) | geometry whose BVH would need a rebuild every frame (explosions, soups), if the grid's rebuild is cheaper |
+/// | [`Grid`](Self::Grid) | a refit of the BVH *and* a grid rebuild (O(n), no allocation once warm) | evenly spread triangles of mixed sizes (soups, debris), or geometry whose BVH would be rebuilt every frame (explosions) |
 /// | [`Auto`](Self::Auto) | [`Grid`](Self::Grid)'s or [`Bvh`](Self::Bvh)'s, plus an O(1) decision | let the characteriser's profile choose ([`choose_structure`](crate::grid::choose_structure)) |
 ///
 /// A mesh kept as a grid keeps its BVH too, refitted every frame but never rebuilt by the policy: the
