@@ -70,7 +70,8 @@ fn refit_and_single_ray_queries_do_not_allocate() {
 
 /// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
 /// thread once warm, under a fixed policy and under the adaptive one (its SAH cost, decision and query
-/// attribution included, for the meshes and for the top level).
+/// attribution included, for the meshes and for the top level), and with every mesh kept as a grid (the
+/// deforming one's grid rebuilt in place every frame, closest and any hits through it).
 #[test]
 fn refit_only_ecs_frames_do_not_allocate() {
     use bevy_ecs::prelude::*;
@@ -81,13 +82,18 @@ fn refit_only_ecs_frames_do_not_allocate() {
     let adaptive = RebuildPolicy::Adaptive {
         builders: &[Builder::LBVH],
     };
-    for policy in [never, adaptive] {
+    for (policy, structure) in [
+        (never, Structure::Bvh),
+        (adaptive, Structure::Bvh),
+        (never, Structure::Grid),
+    ] {
         let mut world = World::new();
         let mut schedule = Schedule::default();
         schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
         KinetracePlugin {
             config: TraceConfig {
                 policy,
+                structure,
                 ..Default::default()
             },
             ..Default::default()
@@ -126,6 +132,7 @@ fn refit_only_ecs_frames_do_not_allocate() {
                 for i in 0..8 {
                     let from = Vec3::new(0.01 * i as f32, 0.0, -5.0);
                     queue.cast(i, Ray::new(from, Vec3::Z), QueryFilter::default());
+                    queue.shadow(i, from, Vec3::ZERO, QueryFilter::default());
                 }
             }
             let before = allocations();
@@ -133,17 +140,25 @@ fn refit_only_ecs_frames_do_not_allocate() {
             world.clear_trackers();
             let allocated = allocations() - before;
             let stats = world.resource::<TraceStats>();
+            let structure_of = |e| world.resource::<TraceWorld>().structure(e).unwrap().0;
+            assert_eq!(
+                structure_of(e) == StructureKind::Grid,
+                structure == Structure::Grid
+            );
             if f >= 2 {
-                assert_eq!(allocated, 0, "{policy:?} frame {f}");
+                assert_eq!(allocated, 0, "{policy:?} {structure:?} frame {f}");
                 assert_eq!(stats.meshes[0].action, MeshAction::Refit, "{policy:?}");
                 assert_eq!(stats.moved, walkers.len(), "{policy:?}");
                 assert_eq!(stats.top_level.action, TopLevelAction::Refit, "{policy:?}");
             }
-            // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s.
-            for (_, hit) in &world.resource::<RayResults>().hits {
+            // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s, and blocks the
+            // segments to its centre.
+            let results = world.resource::<RayResults>();
+            for (_, hit) in &results.hits {
                 let depth = 5.0 - hit.as_ref().expect("aimed at the sphere").distance;
                 assert!(depth <= 1.0001 * s && depth >= 0.985 * s, "{depth} vs {s}");
             }
+            assert!(results.shadows.iter().all(|(_, blocked)| *blocked));
         }
     }
 }
@@ -184,60 +199,4 @@ fn warm_collision_queries_do_not_allocate() {
         contacts > 0,
         "the spheres must touch for the test to mean anything"
     );
-}
-
-/// A deforming mesh kept as a grid ([`Structure::Grid`](kinetrace::ecs::Structure)) rebuilds its grid in
-/// place and answers through it with no allocation on the frame's thread once warm, as the BVH path does.
-#[test]
-fn grid_ecs_frames_do_not_allocate() {
-    use bevy_ecs::prelude::*;
-    use kinetrace::ecs::*;
-    let mut world = World::new();
-    let mut schedule = Schedule::default();
-    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
-    KinetracePlugin {
-        config: TraceConfig {
-            structure: Structure::Grid,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-    .build(&mut world, &mut schedule);
-    let rest = icosphere(3);
-    let e = world
-        .spawn((
-            TraceMesh(rest.clone()),
-            VertexPositions(rest.positions().to_vec()),
-        ))
-        .id();
-    for f in 0..12 {
-        let s = 1.0 + 0.01 * f as f32;
-        {
-            let mut vp = world.get_mut::<VertexPositions>(e).unwrap();
-            for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
-                *p = *q * s;
-            }
-            let mut queue = world.resource_mut::<RayQueue>();
-            for i in 0..8 {
-                let from = Vec3::new(0.01 * i as f32, 0.0, -5.0);
-                queue.cast(i, Ray::new(from, Vec3::Z), QueryFilter::default());
-                queue.shadow(i, from, Vec3::ZERO, QueryFilter::default());
-            }
-        }
-        let before = allocations();
-        schedule.run(&mut world);
-        world.clear_trackers();
-        let allocated = allocations() - before;
-        let stats = world.resource::<TraceStats>();
-        assert_eq!(stats.structures[0].structure, StructureKind::Grid);
-        if f >= 2 {
-            assert_eq!(allocated, 0, "frame {f}");
-        }
-        let results = world.resource::<RayResults>();
-        for (_, hit) in &results.hits {
-            let depth = 5.0 - hit.as_ref().expect("aimed at the sphere").distance;
-            assert!(depth <= 1.0001 * s && depth >= 0.985 * s, "{depth} vs {s}");
-        }
-        assert!(results.shadows.iter().all(|(_, blocked)| *blocked));
-    }
 }

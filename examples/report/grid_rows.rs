@@ -19,7 +19,9 @@
 //! runs the chosen structure: `grid-single` for the grid, `lauterbach-0.4` (the ECS's default policy) for
 //! the BVH. Its choice and the profile's figures are printed, one line per scene.
 
-use super::harness::{Frame, FrameRecord, Settings, Strategy, mismatches, run_strategy};
+use super::harness::{
+    Frame, FrameRecord, Settings, Strategy, Traced, mismatches, query, run_strategy,
+};
 use glam::Vec3;
 use kinetrace::Ray;
 use kinetrace::bvh::{Hit, TraversalStats};
@@ -122,7 +124,7 @@ fn run_grid(frames: &[Frame], settings: &Settings, packets: bool) -> Vec<FrameRe
             let (query_s, steps) = if packets {
                 scratch.query_packets(&grid, rays, *light)
             } else {
-                query_single(&grid, rays, *light)
+                query(&grid, rays, *light)
             };
             let checked = &rays[..settings.checked_rays.min(rays.len())];
             let answer = |r: &Ray| {
@@ -147,22 +149,17 @@ fn run_grid(frames: &[Frame], settings: &Settings, packets: bool) -> Vec<FrameRe
         .collect()
 }
 
-/// A grid's steps: cells visited plus triangle tests.
-fn grid_steps(stats: &TraversalStats) -> u64 {
-    stats.inner_visits + stats.prim_tests
-}
-
-/// The report's ray load through the grid ray by ray, as `harness::query` does through a BVH.
-fn query_single(grid: &UniformGrid, rays: &[Ray], light: Vec3) -> (f64, u64) {
-    let mut stats = TraversalStats::default();
-    let start = Instant::now();
-    for ray in rays {
-        if let Some(h) = grid.closest_hit_counted(ray, &mut stats) {
-            let p = ray.at(h.t);
-            grid.any_hit_counted(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
-        }
+impl Traced for UniformGrid {
+    fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
+        self.closest_hit_counted(ray, stats)
     }
-    (start.elapsed().as_secs_f64(), grid_steps(&stats))
+    fn any(&self, ray: &Ray, stats: &mut TraversalStats) -> bool {
+        self.any_hit_counted(ray, stats)
+    }
+    /// Cells visited plus triangle tests.
+    fn steps(stats: &TraversalStats) -> u64 {
+        stats.inner_visits + stats.prim_tests
+    }
 }
 
 /// Buffers of the packet queries, grown once.
@@ -199,6 +196,6 @@ impl Scratch {
         {
             grid.any_hits_packet(r, out, &mut stats);
         }
-        (start.elapsed().as_secs_f64(), grid_steps(&stats))
+        (start.elapsed().as_secs_f64(), UniformGrid::steps(&stats))
     }
 }

@@ -6,7 +6,7 @@ use super::grid_rows::{self, StructureStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::{AdaptivePolicy, Build, Device};
-use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::bvh::{BuildOptions, Builder, Hit, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use std::time::Instant;
@@ -162,22 +162,38 @@ fn frame_rays(bounds: &Aabb, n: usize, frame: u32) -> Vec<Ray> {
         .collect()
 }
 
+/// A structure the fixed ray load runs through, and how its work counts as traversal steps.
+pub trait Traced {
+    fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit>;
+    fn any(&self, ray: &Ray, stats: &mut TraversalStats) -> bool;
+    fn steps(stats: &TraversalStats) -> u64;
+}
+
+impl Traced for MeshBvh {
+    fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
+        self.closest_hit_counted(ray, stats)
+    }
+    fn any(&self, ray: &Ray, stats: &mut TraversalStats) -> bool {
+        self.any_hit_counted(ray, stats)
+    }
+    /// Node visits plus triangle tests.
+    fn steps(stats: &TraversalStats) -> u64 {
+        stats.inner_visits + stats.leaf_visits + stats.prim_tests
+    }
+}
+
 /// The fixed ray load: closest hits, then a shadow ray from each hit towards a light. Returns seconds and
 /// traversal steps.
-fn query(bvh: &MeshBvh, rays: &[Ray], light: Vec3) -> (f64, u64) {
+pub fn query<T: Traced>(structure: &T, rays: &[Ray], light: Vec3) -> (f64, u64) {
     let mut stats = TraversalStats::default();
     let start = Instant::now();
     for ray in rays {
-        if let Some(h) = bvh.closest_hit_counted(ray, &mut stats) {
+        if let Some(h) = structure.closest(ray, &mut stats) {
             let p = ray.at(h.t);
-            bvh.any_hit_counted(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
+            structure.any(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
         }
     }
-    let seconds = start.elapsed().as_secs_f64();
-    (
-        seconds,
-        stats.inner_visits + stats.leaf_visits + stats.prim_tests,
-    )
+    (start.elapsed().as_secs_f64(), T::steps(&stats))
 }
 
 /// Closest t by brute force in f64 (Möller–Trumbore), with the smallest barycentric margin of the hit, so
