@@ -8,6 +8,10 @@
 //! rays; its SAH ratio is undefined and reported as NaN (left out of the figures' scales). The sampled rays
 //! are checked against brute force from the answers the timed run gave.
 //!
+//! The grid is rebuilt on one thread (the BVH strategies build on all): for the report's few thousand
+//! triangles the parallel build's task overhead exceeds its work, and on a loaded machine its time varied
+//! by an order of magnitude from frame to frame.
+//!
 //! `grid-packets` traces the report's rays in packets of 16 consecutive rays (a 4×4 tile's size), and the
 //! shadow rays of their hits the same way. The report's rays run from random points on a sphere around
 //! the scene to random points inside it, so they are *incoherent*: most packets fail the direction-sign
