@@ -112,7 +112,7 @@ fn run_grid(frames: &[Frame], settings: &Settings, packets: bool) -> Vec<FrameRe
         parallel: false,
         ..Default::default()
     };
-    let mut grid = UniformGrid::new(options).expect("the default options are valid");
+    let mut grid = UniformGrid::new(options).expect("λ 5, macrocells of 6: valid");
     let mut scratch = Scratch::default();
     frames
         .iter()
