@@ -46,7 +46,11 @@
 //! explosion it spares the BVH a rebuild every frame for 14% more steps; [`MIN_SIZE_SPREAD`] = 0.8 lies in
 //! the gap between 0.50 and 1.10. Seven scenes are few: the thresholds are a first fit, and measured
 //! costs (rule 1) override the prediction wherever they exist. The run's *times* could not decide it:
-//! with the machine's load average above 10, the same strategy's time differed up to 5× between two runs.
+//! with the machine's load average above 10, the same strategy's time differed up to 5× between two runs,
+//! and in most runs the grid's picks (explosion, soup, teapot in stadium) were *slower* in time than
+//! `lauterbach-0.4` (grid single-ray queries cost more per step than BVH ones: the steps are not the same
+//! unit). Until an idle-machine run confirms them in time, `Structure::Auto` stays opt-in and the ECS's
+//! default is the BVH.
 //!
 //! Cost: O(1) (the profile is computed by the characteriser).
 
