@@ -68,10 +68,11 @@ fn refit_and_single_ray_queries_do_not_allocate() {
     }
 }
 
-/// A plugin world run on the calling thread under `policy`, with a sphere whose `VertexPositions` the test
-/// rewrites: the world, its schedule, the sphere's rest mesh and its entity.
+/// A plugin world run on the calling thread under `policy`, every mesh kept as `structure`, with a sphere
+/// whose `VertexPositions` the test rewrites: the world, its schedule, the sphere's rest mesh and its entity.
 fn deforming_sphere_app(
     policy: kinetrace::ecs::RebuildPolicy,
+    structure: kinetrace::ecs::Structure,
 ) -> (
     bevy_ecs::world::World,
     bevy_ecs::schedule::Schedule,
@@ -86,6 +87,7 @@ fn deforming_sphere_app(
     KinetracePlugin {
         config: TraceConfig {
             policy,
+            structure,
             ..Default::default()
         },
         ..Default::default()
@@ -103,7 +105,8 @@ fn deforming_sphere_app(
 
 /// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
 /// thread once warm, under a fixed policy and under the adaptive one (its SAH cost, decision and query
-/// attribution included, for the meshes and for the top level).
+/// attribution included, for the meshes and for the top level), and with every mesh kept as a grid (the
+/// deforming one's grid rebuilt in place every frame, closest and any hits through it).
 #[test]
 fn refit_only_ecs_frames_do_not_allocate() {
     use bevy_ecs::prelude::*;
@@ -114,8 +117,12 @@ fn refit_only_ecs_frames_do_not_allocate() {
     let adaptive = RebuildPolicy::Adaptive {
         builders: &[Builder::LBVH],
     };
-    for policy in [never, adaptive] {
-        let (mut world, mut schedule, rest, e) = deforming_sphere_app(policy);
+    for (policy, structure) in [
+        (never, Structure::Bvh),
+        (adaptive, Structure::Bvh),
+        (never, Structure::Grid),
+    ] {
+        let (mut world, mut schedule, rest, e) = deforming_sphere_app(policy, structure);
         // Rigid entities above the sphere, out of the rays' way, moving together: the top level refits.
         let walkers: Vec<Entity> = (0..8)
             .map(|i| {
@@ -142,6 +149,7 @@ fn refit_only_ecs_frames_do_not_allocate() {
                 for i in 0..8 {
                     let from = Vec3::new(0.01 * i as f32, 0.0, -5.0);
                     queue.cast(i, Ray::new(from, Vec3::Z), QueryFilter::default());
+                    queue.shadow(i, from, Vec3::ZERO, QueryFilter::default());
                 }
             }
             let before = allocations();
@@ -149,17 +157,25 @@ fn refit_only_ecs_frames_do_not_allocate() {
             world.clear_trackers();
             let allocated = allocations() - before;
             let stats = world.resource::<TraceStats>();
+            let structure_of = |e| world.resource::<TraceWorld>().structure(e).unwrap().0;
+            assert_eq!(
+                structure_of(e) == StructureKind::Grid,
+                structure == Structure::Grid
+            );
             if f >= 2 {
-                assert_eq!(allocated, 0, "{policy:?} frame {f}");
+                assert_eq!(allocated, 0, "{policy:?} {structure:?} frame {f}");
                 assert_eq!(stats.meshes[0].action, MeshAction::Refit, "{policy:?}");
                 assert_eq!(stats.moved, walkers.len(), "{policy:?}");
                 assert_eq!(stats.top_level.action, TopLevelAction::Refit, "{policy:?}");
             }
-            // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s.
-            for (_, hit) in &world.resource::<RayResults>().hits {
+            // The sphere of radius s (faceted: within 1.5% inside) is hit near z = -s, and blocks the
+            // segments to its centre.
+            let results = world.resource::<RayResults>();
+            for (_, hit) in &results.hits {
                 let depth = 5.0 - hit.as_ref().expect("aimed at the sphere").distance;
                 assert!(depth <= 1.0001 * s && depth >= 0.985 * s, "{depth} vs {s}");
             }
+            assert!(results.shadows.iter().all(|(_, blocked)| *blocked));
         }
     }
 }
@@ -214,7 +230,7 @@ fn warm_shape_query_batches_do_not_allocate() {
     let never = RebuildPolicy::Lauterbach {
         threshold: f32::INFINITY,
     };
-    let (mut world, mut schedule, rest, e) = deforming_sphere_app(never);
+    let (mut world, mut schedule, rest, e) = deforming_sphere_app(never, Structure::Bvh);
     let sheared = Mat3::from_cols(Vec3::X, Vec3::new(0.5, 2.0, 0.0), Vec3::Z * 0.5);
     for (i, m) in [Mat3::from_rotation_y(0.5) * 1.5, sheared]
         .into_iter()

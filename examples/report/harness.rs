@@ -2,10 +2,11 @@
 //! time for a fixed ray load (closest + shadow), the error against a fresh binned-SAH build of the same
 //! frame (SAH cost and traversal steps per ray), and sampled rays checked against brute force.
 
+use super::grid_rows::{self, StructureStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::{AdaptivePolicy, Build, Device};
-use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::bvh::{BuildOptions, Builder, Hit, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use std::time::Instant;
@@ -36,6 +37,8 @@ pub enum Strategy {
     Adaptive {
         gpu: bool,
     },
+    /// A grid instead of a maintained BVH, or the structure rule's choice (see `grid_rows`).
+    Structure(StructureStrategy),
 }
 
 impl Strategy {
@@ -62,7 +65,13 @@ impl Strategy {
     /// The strategies to run: the GPU ones too when there is a GPU.
     pub fn all(gpu: bool) -> Vec<Strategy> {
         let extra = if gpu { &Self::GPU[..] } else { &[] };
-        Self::CPU.iter().chain(extra).copied().collect()
+        let structures = grid_rows::STRATEGIES.map(Strategy::Structure);
+        Self::CPU
+            .iter()
+            .chain(&structures)
+            .chain(extra)
+            .copied()
+            .collect()
     }
 
     pub fn name(&self) -> String {
@@ -73,11 +82,16 @@ impl Strategy {
             Strategy::Lauterbach(t) => format!("lauterbach-{t}"),
             Strategy::Adaptive { gpu: false } => "adaptive".into(),
             Strategy::Adaptive { gpu: true } => "adaptive-gpu".into(),
+            Strategy::Structure(s) => s.name().into(),
         }
     }
 
     pub fn is_fixed(&self) -> bool {
-        !matches!(self, Strategy::Adaptive { .. })
+        match self {
+            Strategy::Adaptive { .. } => false,
+            Strategy::Structure(s) => s.is_fixed(),
+            _ => true,
+        }
     }
 }
 
@@ -126,10 +140,13 @@ impl Settings {
 }
 
 /// Per frame of a scene: what every strategy is compared with (a fresh SAH build's SAH cost and steps).
-struct Reference {
-    sah: f64,
-    steps: f64,
+pub struct Reference {
+    pub sah: f64,
+    pub steps: f64,
 }
+
+/// One frame of a scene: the mesh, the rays, the light, and the reference.
+pub type Frame = (Mesh, Vec<Ray>, Vec3, Reference);
 
 /// Rays of a frame: from points on a sphere around the scene towards points inside it.
 fn frame_rays(bounds: &Aabb, n: usize, frame: u32) -> Vec<Ray> {
@@ -145,22 +162,38 @@ fn frame_rays(bounds: &Aabb, n: usize, frame: u32) -> Vec<Ray> {
         .collect()
 }
 
+/// A structure the fixed ray load runs through, and how its work counts as traversal steps.
+pub trait Traced {
+    fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit>;
+    fn any(&self, ray: &Ray, stats: &mut TraversalStats) -> bool;
+    fn steps(stats: &TraversalStats) -> u64;
+}
+
+impl Traced for MeshBvh {
+    fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit> {
+        self.closest_hit_counted(ray, stats)
+    }
+    fn any(&self, ray: &Ray, stats: &mut TraversalStats) -> bool {
+        self.any_hit_counted(ray, stats)
+    }
+    /// Node visits plus triangle tests.
+    fn steps(stats: &TraversalStats) -> u64 {
+        stats.inner_visits + stats.leaf_visits + stats.prim_tests
+    }
+}
+
 /// The fixed ray load: closest hits, then a shadow ray from each hit towards a light. Returns seconds and
 /// traversal steps.
-fn query(bvh: &MeshBvh, rays: &[Ray], light: Vec3) -> (f64, u64) {
+pub fn query<T: Traced>(structure: &T, rays: &[Ray], light: Vec3) -> (f64, u64) {
     let mut stats = TraversalStats::default();
     let start = Instant::now();
     for ray in rays {
-        if let Some(h) = bvh.closest_hit_counted(ray, &mut stats) {
+        if let Some(h) = structure.closest(ray, &mut stats) {
             let p = ray.at(h.t);
-            bvh.any_hit_counted(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
+            structure.any(&Ray::with_range(p, light - p, 1e-4, 1.0), &mut stats);
         }
     }
-    let seconds = start.elapsed().as_secs_f64();
-    (
-        seconds,
-        stats.inner_visits + stats.leaf_visits + stats.prim_tests,
-    )
+    (start.elapsed().as_secs_f64(), T::steps(&stats))
 }
 
 /// Closest t by brute force in f64 (Möller–Trumbore), with the smallest barycentric margin of the hit, so
@@ -191,10 +224,11 @@ fn brute(mesh: &Mesh, ray: &Ray) -> Option<(f64, f64)> {
     best
 }
 
-fn mismatches(bvh: &MeshBvh, mesh: &Mesh, rays: &[Ray]) -> u32 {
+/// Sampled rays whose closest distance by `closest` differs from brute force's.
+pub fn mismatches(closest: impl Fn(&Ray) -> Option<f32>, mesh: &Mesh, rays: &[Ray]) -> u32 {
     let mut bad = 0;
     for ray in rays {
-        let got = bvh.closest_hit(ray).map(|h| h.t as f64);
+        let got = closest(ray).map(|t| t as f64);
         let agree = match (got, brute(mesh, ray)) {
             (None, None) => true,
             (Some(t), Some((bt, _))) => (t - bt).abs() <= 1e-4 * bt.max(1.0),
@@ -277,12 +311,16 @@ pub fn run_scene(
         .collect()
 }
 
-fn run_strategy(
+/// Runs one strategy over a scene's frames (GPU strategies on `gpu`).
+pub fn run_strategy(
     strategy: Strategy,
-    frames: &[(Mesh, Vec<Ray>, Vec3, Reference)],
+    frames: &[Frame],
     settings: &Settings,
     gpu: Option<&Gpu>,
 ) -> Vec<FrameRecord> {
+    if let Strategy::Structure(s) = strategy {
+        return grid_rows::run(s, frames, settings);
+    }
     let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
     let mut adaptive = match strategy {
         // The GPU build second, as the plugin offers it: cheapest first, the best tree left last.
@@ -340,6 +378,7 @@ fn run_strategy(
                     }
                     d > t
                 }
+                Strategy::Structure(_) => unreachable!("run by grid_rows"),
                 Strategy::Adaptive { .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
                     if adaptive.after_refit(bvh.bvh().sah_cost(), settings.rays as f64) {
@@ -373,7 +412,7 @@ fn run_strategy(
             rebuilt,
             sah_ratio: cost / reference.sah.max(1e-30),
             steps_ratio: steps as f64 / rays.len().max(1) as f64 / reference.steps.max(1e-30),
-            mismatches: mismatches(&bvh, mesh, checked),
+            mismatches: mismatches(|r| bvh.closest_hit(r).map(|h| h.t), mesh, checked),
         });
     }
     records

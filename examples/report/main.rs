@@ -10,6 +10,7 @@
 //! options: --frames N --triangles N --rays N --out DIR --assets DIR
 //! ```
 
+mod grid_rows;
 mod harness;
 mod output;
 mod plots;

@@ -30,8 +30,13 @@ pub struct Row {
 fn row(scene: &'static str, strategy: &Strategy, recs: &[FrameRecord]) -> Row {
     let n = recs.len().max(1) as f64;
     let ms = |r: &FrameRecord| 1e3 * (r.update_s + r.query_s);
-    let fold = |f: fn(f64, f64) -> f64, init: f64, g: &dyn Fn(&FrameRecord) -> f64| {
-        recs.iter().map(g).fold(init, f)
+    // Over finite values only, NaN when there are none: a grid's SAH ratio is undefined (see grid_rows).
+    let fold = |f: fn(f64, f64) -> f64, g: &dyn Fn(&FrameRecord) -> f64| {
+        recs.iter()
+            .map(g)
+            .filter(|v| v.is_finite())
+            .reduce(f)
+            .unwrap_or(f64::NAN)
     };
     Row {
         scene,
@@ -42,18 +47,12 @@ fn row(scene: &'static str, strategy: &Strategy, recs: &[FrameRecord]) -> Row {
         query_ms: recs.iter().map(|r| 1e3 * r.query_s).sum::<f64>() / n,
         rebuilds: recs.iter().filter(|r| r.rebuilt).count(),
         sah_mean: recs.iter().map(|r| r.sah_ratio).sum::<f64>() / n,
-        sah_max: fold(f64::max, 0.0, &|r| r.sah_ratio),
+        sah_max: fold(f64::max, &|r| r.sah_ratio),
         steps_mean: recs.iter().map(|r| r.steps_ratio).sum::<f64>() / n,
         mismatches: recs.iter().map(|r| r.mismatches).sum(),
         spread: [
-            (
-                fold(f64::min, f64::MAX, &ms),
-                fold(f64::min, f64::MAX, &|r| r.sah_ratio),
-            ),
-            (
-                fold(f64::max, 0.0, &ms),
-                fold(f64::max, 0.0, &|r| r.sah_ratio),
-            ),
+            (fold(f64::min, &ms), fold(f64::min, &|r| r.sah_ratio)),
+            (fold(f64::max, &ms), fold(f64::max, &|r| r.sah_ratio)),
         ],
     }
 }

@@ -73,6 +73,7 @@ pub fn looks(strategies: &[Strategy]) -> Vec<Look> {
                 Strategy::Refit | Strategy::RefitEvery(_) => Shape::Square,
                 Strategy::Lauterbach(_) => Shape::Triangle,
                 Strategy::Adaptive { .. } => Shape::Diamond,
+                Strategy::Structure(_) => Shape::Square,
             },
         })
         .collect()

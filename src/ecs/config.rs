@@ -4,6 +4,7 @@ use super::MotionHint;
 use crate::adaptive::Build;
 use crate::bvh::Builder;
 use crate::characterize::SceneProfile;
+use crate::grid::GridOptions;
 use bevy_ecs::prelude::*;
 
 /// Where batched queries run. Immediate queries ([`SpatialRays`](super::SpatialRays)) and tree maintenance
@@ -142,6 +143,37 @@ impl Default for RebuildPolicy {
     }
 }
 
+/// Which structure answers a mesh's closest-hit and any-hit rays (batched and [`SpatialRays`](super::SpatialRays)).
+/// Set it for every mesh in [`TraceConfig::structure`], or per entity with a [`TraceStructure`] component.
+///
+/// | structure | costs per frame the mesh changes | use when |
+/// |---|---|---|
+/// | [`Bvh`](Self::Bvh) | a refit, a rebuild when the policy asks | almost always: BVH queries are the fastest on CPU (docs/BENCHMARKS.md) |
+/// | [`Grid`](Self::Grid) | a refit of the BVH *and* a grid rebuild (O(n), no allocation once warm) | evenly spread triangles of mixed sizes (soups, debris), or geometry whose BVH would be rebuilt every frame (explosions) |
+/// | [`Auto`](Self::Auto) | [`Grid`](Self::Grid)'s or [`Bvh`](Self::Bvh)'s, plus an O(1) decision | let the characteriser's profile choose ([`choose_structure`](crate::grid::choose_structure)) |
+///
+/// A mesh kept as a grid keeps its BVH too, refitted every frame but never rebuilt by the policy: the
+/// queries the grid does not answer read it — [`ray_hits`](super::TraceWorld::ray_hits), collisions, and
+/// batches answered on the GPU — as does the entity's world box. Under [`Auto`](Self::Auto) the ECS
+/// decides from the profile alone (no per-mesh query times are measured yet); the decision and its reason
+/// are in [`TraceStats::structures`](super::TraceStats). A change of structure takes effect the next
+/// time the mesh is maintained: at once for a changed [`TraceStructure`], at the mesh's next deformation
+/// for a changed [`TraceConfig::structure`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Structure {
+    /// A BVH, refitted and rebuilt by the [`RebuildPolicy`] (the default).
+    #[default]
+    Bvh,
+    /// A uniform grid ([`UniformGrid`](crate::grid::UniformGrid)) rebuilt every frame the mesh changes.
+    Grid,
+    /// The rule of [`grid::choice`](crate::grid::choice) on the mesh's current profile.
+    Auto,
+}
+
+/// Per-entity override of [`TraceConfig::structure`].
+#[derive(Component, Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct TraceStructure(pub Structure);
+
 /// The plugin's settings, a resource that may be changed at run time.
 #[derive(Resource, Clone, Debug)]
 pub struct TraceConfig {
@@ -159,6 +191,11 @@ pub struct TraceConfig {
     /// A mesh is characterised again when its degradation has moved by more than this since its last
     /// profile (hysteresis: profiles, and choices made from them, do not flip every frame). 0.2 by default.
     pub profile_refresh: f32,
+    /// Which structure answers rays, for meshes without a [`TraceStructure`]; [`Structure::Bvh`] by
+    /// default.
+    pub structure: Structure,
+    /// Options of the grids of meshes kept as grids.
+    pub grid: GridOptions,
 }
 
 impl Default for TraceConfig {
@@ -170,6 +207,8 @@ impl Default for TraceConfig {
             static_builder: Builder::SAH,
             policy: RebuildPolicy::LAUTERBACH,
             profile_refresh: 0.2,
+            structure: Structure::Bvh,
+            grid: GridOptions::default(),
         }
     }
 }

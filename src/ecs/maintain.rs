@@ -7,6 +7,7 @@ use super::world::{Instance, Kept, topology_id};
 use super::*;
 use crate::adaptive::{AdaptivePolicy, Build, Device, Prediction};
 use crate::bvh::{BuildOptions, MeshBvh};
+use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
 use crate::{Error, Mesh};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -22,7 +23,11 @@ type MeshData<'a> = (
 /// Meshes whose geometry changed this frame.
 type GeometryChanged = (
     Without<TraceError>,
-    Or<(Changed<TraceMesh>, Changed<VertexPositions>)>,
+    Or<(
+        Changed<TraceMesh>,
+        Changed<VertexPositions>,
+        Changed<TraceStructure>,
+    )>,
 );
 
 /// GPU rebuilds asked for that ran on the CPU, each said once in the log.
@@ -68,6 +73,7 @@ pub(crate) fn maintain_system(
     mut errors: MessageWriter<TraceErrorMessage>,
     gpu: Option<Res<GpuQueries>>,
     mut fallbacks: Local<Fallbacks>,
+    structures: Query<&TraceStructure>,
 ) {
     let start = Instant::now();
     for e in removed.read() {
@@ -92,6 +98,8 @@ pub(crate) fn maintain_system(
         let mut degradation = 0.0;
         let mut prediction = None;
         let mut decision = None;
+        let wanted = structures.get(e).map_or(config.structure, |s| s.0);
+        let (structure, why) = structure_for(wanted, world.instances.get(&e));
         if let Some(inst) = world
             .instances
             .get_mut(&e)
@@ -102,16 +110,22 @@ pub(crate) fn maintain_system(
                     degradation = d;
                     inst.frames_since_rebuild += 1;
                     inst.remember(d);
-                    let asked = Asked {
+                    // A grid answers the rays: its BVH is only refitted, for what the grid does not answer.
+                    let asked = (structure == StructureKind::Bvh).then_some(Asked {
                         policy: config.policy,
                         hint: hint.copied().unwrap_or_default(),
                         triangles: mesh.0.triangle_count(),
                         degradation: d,
                         rays_last_frame: stats.rays_last_frame,
                         gpu: rebuilder.gpu.is_some(),
+                    });
+                    (decision, prediction) = match asked {
+                        Some(asked) => {
+                            let (d, p) = asked.decide(inst);
+                            (Some(d), p)
+                        }
+                        None => (Some(Decision::Keep), None),
                     };
-                    let (d, p) = asked.decide(inst);
-                    (decision, prediction) = (Some(d), p);
                 }
                 Err(err) => {
                     fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
@@ -145,6 +159,16 @@ pub(crate) fn maintain_system(
                 }
             }
         };
+        let inst = world.instances.get_mut(&e).expect("refitted or rebuilt");
+        if let Err(err) = inst.keep_structure(structure, why, &config.grid, mesh, positions) {
+            fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+            continue;
+        }
+        stats.structures.push(StructureStats {
+            entity: e,
+            structure,
+            why,
+        });
         world.tlas_dirty = true;
         stats.meshes.push(MeshStats {
             entity: e,
@@ -155,6 +179,48 @@ pub(crate) fn maintain_system(
         });
     }
     stats.maintain_time = start.elapsed();
+}
+
+/// The structure a mesh is to be kept in under `wanted`, and why; under [`Structure::Auto`] the rule of
+/// [`crate::grid::choice`] on the instance's profile (none yet for a new mesh: the BVH).
+fn structure_for(wanted: Structure, inst: Option<&Instance>) -> (StructureKind, StructureWhy) {
+    match wanted {
+        Structure::Bvh => (StructureKind::Bvh, StructureWhy::Fixed),
+        Structure::Grid => (StructureKind::Grid, StructureWhy::Fixed),
+        Structure::Auto => {
+            let choice = choose_structure(&ChoiceInput {
+                profile: inst.and_then(|i| i.profile.as_deref()),
+                costs: None,
+                current: inst.map(|i| i.structure),
+            });
+            (choice.structure, StructureWhy::Rule(choice.reason))
+        }
+    }
+}
+
+impl Instance {
+    /// Records the structure that answers the mesh's rays and, for a grid, rebuilds it over `positions`
+    /// (its buffers kept from frame to frame: no allocation once warm; a new grid when the options
+    /// changed). Errors: [`Error::InvalidOption`] for bad grid options.
+    fn keep_structure(
+        &mut self,
+        structure: StructureKind,
+        why: StructureWhy,
+        options: &GridOptions,
+        mesh: &TraceMesh,
+        positions: &[glam::Vec3],
+    ) -> Result<(), Error> {
+        if structure == StructureKind::Grid {
+            let grid = match &mut self.kept.grid {
+                Some(g) if g.options() == options => g,
+                slot => slot.insert(UniformGrid::new(*options)?),
+            };
+            grid.rebuild_deformed(&mesh.0, positions)?;
+        }
+        self.structure = structure;
+        self.why = why;
+        Ok(())
+    }
 }
 
 /// What rebuilds need beyond the mesh.

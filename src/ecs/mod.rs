@@ -99,5 +99,9 @@ pub use shape_queries::{NearestPoint, ShapeHit};
 pub use stats::{
     MeshAction, MeshStats, RebuildReason, TopLevelAction, TopLevelReason, TopLevelStats, TraceStats,
 };
+// Structure choice (issue 12): which structure answers a mesh's rays.
+pub use crate::grid::{ChoiceReason, StructureKind};
+pub use config::{Structure, TraceStructure};
+pub use stats::{StructureStats, StructureWhy};
 pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

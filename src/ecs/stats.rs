@@ -1,6 +1,7 @@
 //! What the crate did this frame, and why.
 
 use crate::adaptive::{Build, Prediction};
+use crate::grid::{ChoiceReason, StructureKind};
 use bevy_ecs::prelude::*;
 use std::time::Duration;
 
@@ -49,6 +50,27 @@ pub struct MeshStats {
     /// (the predicted rebuild time against the extra query time paid so far, or the cost guard, or a
     /// build being tried). `None` for other policies and for meshes that were not refitted.
     pub prediction: Option<Prediction>,
+}
+
+/// Which structure answers one mesh's rays, and why (see [`Structure`](super::Structure)).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StructureStats {
+    /// The entity.
+    pub entity: Entity,
+    /// The structure that answers its closest-hit and any-hit rays.
+    pub structure: StructureKind,
+    /// Why that one.
+    pub why: StructureWhy,
+}
+
+/// Why a mesh is kept in its structure.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StructureWhy {
+    /// [`Structure::Bvh`](super::Structure) or [`Structure::Grid`](super::Structure), by the config or the
+    /// entity's [`TraceStructure`](super::TraceStructure).
+    Fixed,
+    /// [`Structure::Auto`](super::Structure): the rule's reason.
+    Rule(ChoiceReason),
 }
 
 /// What happened to the top-level tree this frame.
@@ -105,6 +127,9 @@ pub struct TraceStats {
     /// Meshes characterised this frame, with their new profile (the current one of every mesh is in
     /// [`TraceWorld::profile`](super::TraceWorld::profile)).
     pub profiles: Vec<(Entity, std::sync::Arc<crate::characterize::SceneProfile>)>,
+    /// Per mesh maintained this frame, which structure answers its rays and why (meshes not maintained keep
+    /// last frame's).
+    pub structures: Vec<StructureStats>,
     /// Time spent characterising.
     pub characterize_time: Duration,
     /// Refits, rebuilds, and meshes only moved.

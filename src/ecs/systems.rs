@@ -12,10 +12,13 @@ pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
     meshes.clear();
     let mut profiles = std::mem::take(&mut stats.profiles);
     profiles.clear();
+    let mut structures = std::mem::take(&mut stats.structures);
+    structures.clear();
     *stats = TraceStats {
         frame,
         meshes,
         profiles,
+        structures,
         rays_last_frame: stats.batched_rays,
         ..Default::default()
     };

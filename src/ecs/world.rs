@@ -2,11 +2,12 @@
 //! world boxes, and the two-level queries.
 
 use super::top_level::TopLevelState;
-use super::{QueryFilter, RayHit};
+use super::{QueryFilter, RayHit, StructureWhy};
 use crate::Mesh;
 use crate::bvh::{Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
+use crate::grid::{StructureKind, UniformGrid};
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::collections::HashMap;
@@ -36,6 +37,9 @@ pub(crate) struct Instance {
     /// Rays expected to reach the mesh per frame: last frame's batched requests × the mesh's share of the
     /// scene's surface area (adaptive policy only).
     pub rays: f64,
+    /// Which structure answers the mesh's closest-hit and any-hit rays, and why.
+    pub structure: StructureKind,
+    pub why: StructureWhy,
 }
 
 /// The state of an entity that a rebuild carries over to the new tree.
@@ -46,6 +50,9 @@ pub(crate) struct Kept {
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
+    /// The mesh's grid, made the first time it is kept as one and kept (with its buffers) from then on;
+    /// queries read it only while [`Instance::structure`] is the grid.
+    pub grid: Option<UniformGrid>,
 }
 
 /// Refits remembered for motion incoherence.
@@ -86,6 +93,8 @@ impl Instance {
             kept,
             sah: 0.0,
             rays: 0.0,
+            structure: StructureKind::Bvh,
+            why: StructureWhy::Fixed,
         };
         inst.update_world_bounds();
         inst
@@ -121,6 +130,32 @@ impl Instance {
             ray.tmin,
             tmax,
         )
+    }
+
+    /// The grid that answers the mesh's rays, when it is kept as one.
+    fn grid(&self) -> Option<&UniformGrid> {
+        match self.structure {
+            StructureKind::Grid => self.kept.grid.as_ref(),
+            StructureKind::Bvh => None,
+        }
+    }
+
+    /// The nearest hit of an object-space ray, through the mesh's structure, counted into `stats` if given.
+    fn closest_hit(&self, ray: &Ray, stats: Option<&mut TraversalStats>) -> Option<Hit> {
+        match (self.grid(), stats) {
+            (Some(g), Some(s)) => g.closest_hit_counted(ray, s),
+            (Some(g), None) => g.closest_hit(ray),
+            (None, Some(s)) => self.bvh.closest_hit_counted(ray, s),
+            (None, None) => self.bvh.closest_hit(ray),
+        }
+    }
+
+    /// Whether an object-space ray hits the mesh, through the mesh's structure.
+    fn any_hit(&self, ray: &Ray) -> bool {
+        match self.grid() {
+            Some(g) => g.any_hit(ray),
+            None => self.bvh.any_hit(ray),
+        }
     }
 
     fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
@@ -180,6 +215,16 @@ impl TraceWorld {
     /// The entity's object-space tree.
     pub fn blas(&self, e: Entity) -> Option<&MeshBvh> {
         self.instances.get(&e).map(|i| &i.bvh)
+    }
+
+    /// The entity's grid, when its rays are answered by one (see [`Structure`](super::Structure)).
+    pub fn grid(&self, e: Entity) -> Option<&UniformGrid> {
+        self.instances.get(&e).and_then(Instance::grid)
+    }
+
+    /// Which structure answers the entity's closest-hit and any-hit rays, and why.
+    pub fn structure(&self, e: Entity) -> Option<(StructureKind, StructureWhy)> {
+        self.instances.get(&e).map(|i| (i.structure, i.why))
     }
 
     /// The characteriser's current profile of the entity's mesh (see [`TraceSystems::Characterize`](super::TraceSystems)).
@@ -285,11 +330,7 @@ impl TraceWorld {
                     continue;
                 }
                 let oray = inst.object_ray(&ray, *tmax);
-                let h = if counting {
-                    inst.bvh.closest_hit_counted(&oray, &mut bottom)
-                } else {
-                    inst.bvh.closest_hit(&oray)
-                };
+                let h = inst.closest_hit(&oray, counting.then_some(&mut bottom));
                 if let Some(h) = h
                     && best.is_none_or(|(_, b)| h.t < b.t)
                 {
@@ -317,8 +358,7 @@ impl TraceWorld {
             for s in slots {
                 let e = self.tlas_entities[self.tlas.prim_indices()[s] as usize];
                 let inst = &self.instances[&e];
-                if filter.accepts(e, inst.layers) && inst.bvh.any_hit(&inst.object_ray(&ray, *tmax))
-                {
+                if filter.accepts(e, inst.layers) && inst.any_hit(&inst.object_ray(&ray, *tmax)) {
                     hit = true;
                     return true;
                 }
@@ -328,7 +368,8 @@ impl TraceWorld {
         hit
     }
 
-    /// Every hit along the ray on accepted entities, nearest first, into `out` (cleared first).
+    /// Every hit along the ray on accepted entities, nearest first, into `out` (cleared first). Always
+    /// through the meshes' BVHs, also for meshes whose closest hits a grid answers.
     pub fn ray_hits(&self, ray: &Ray, filter: &QueryFilter, out: &mut Vec<RayHit>) {
         out.clear();
         if !ray.is_valid() {

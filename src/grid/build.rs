@@ -26,12 +26,33 @@ impl UniformGrid {
     /// Rebuilds the grid over `mesh` (any triangle count, any positions), reusing the buffers: no allocation
     /// once they have grown. O(N + cells + references).
     pub fn rebuild(&mut self, mesh: &Mesh) -> Result<()> {
+        self.rebuild_from(mesh.indices(), mesh.positions())
+    }
+
+    /// [`rebuild`](Self::rebuild) over `mesh`'s triangles at new vertex `positions` (a deformed frame),
+    /// without making a new [`Mesh`]: what the ECS does every frame for a mesh kept as a grid. Same cost, no
+    /// allocation once warm. Errors: [`Error::VertexCountMismatch`](crate::Error::VertexCountMismatch) when
+    /// `positions` is not as long as the mesh's, [`Error::NonFiniteVertex`](crate::Error::NonFiniteVertex);
+    /// the grid is unchanged then.
+    pub fn rebuild_deformed(&mut self, mesh: &Mesh, positions: &[Vec3]) -> Result<()> {
+        if positions.len() != mesh.positions().len() {
+            return Err(crate::Error::VertexCountMismatch {
+                expected: mesh.positions().len(),
+                got: positions.len(),
+            });
+        }
+        crate::mesh::check_positions(positions)?;
+        self.rebuild_from(mesh.indices(), positions)
+    }
+
+    /// The rebuild over checked `indices` into checked `positions`.
+    fn rebuild_from(&mut self, indices: &[u32], positions: &[Vec3]) -> Result<()> {
         self.options.check()?;
         let par = self.options.parallel;
-        let n = mesh.triangle_count();
+        let n = indices.len() / 3;
         self.tris.resize(n, [Vec3::ZERO; 3]);
         parallel::fill(par, &mut self.tris, CHUNK, |i| {
-            query_corners(mesh.triangle(i))
+            query_corners(crate::mesh::triangle(positions, indices, i))
         });
         let live = parallel::map_reduce(
             par,

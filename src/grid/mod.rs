@@ -20,9 +20,13 @@
 //! exceed that margin are answered by testing every triangle (see [`UniformGrid::is_far`]).
 
 mod build;
+pub mod choice;
 mod dda;
 mod packet;
 
+pub use choice::{
+    ChoiceInput, ChoiceReason, StructureChoice, StructureCosts, StructureKind, choose_structure,
+};
 pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT};
 
 use crate::bvh::Hit;
