@@ -20,6 +20,8 @@ mod grid;
 mod peers;
 #[path = "../examples/bench/rays.rs"]
 mod rays;
+#[path = "../examples/bench/raysort.rs"]
+mod raysort;
 #[path = "../examples/bench/record.rs"]
 mod record;
 #[path = "../examples/report/scenes.rs"]
@@ -120,4 +122,9 @@ fn collide_suite_json_parses() {
 #[test]
 fn grid_suite_json_parses() {
     check("grid", false);
+}
+
+#[test]
+fn raysort_suite_json_parses() {
+    check("raysort", false);
 }

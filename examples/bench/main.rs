@@ -7,7 +7,7 @@
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
-//! single-ray and packet queries).
+//! single-ray and packet queries), `raysort` (secondary rays: BVH, sorted BVH, CRSH and RAH).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -22,6 +22,7 @@ mod gpu;
 mod grid;
 mod peers;
 mod rays;
+mod raysort;
 mod record;
 #[path = "../report/scenes.rs"]
 #[allow(dead_code)]
