@@ -65,7 +65,7 @@ impl RayHierarchy {
 }
 
 /// `Error::InvalidOption` unless `s >= 2`, `D >= 1` and `s^D <= 2^24`.
-pub(crate) fn check_shape(branching: usize, depth: usize) -> Result<()> {
+fn check_shape(branching: usize, depth: usize) -> Result<()> {
     let rays_per_top = (branching as u64).checked_pow(depth as u32);
     if branching < 2 || depth < 1 || rays_per_top.is_none_or(|n| n > 1 << 24) {
         return Err(Error::InvalidOption(format!(

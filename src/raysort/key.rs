@@ -2,13 +2,17 @@
 //!
 //! Layouts, most significant field first, packed into the low bits of the key (unused high bits are zero):
 //!
-//! - shadow: `light (light_bits) | θ (shadow_direction_bits) | φ (shadow_direction_bits)`
-//! - reflection: `x | y | z (origin_bits each) | θ | φ (reflection_direction_bits each)`
+//! - shadow: `light (light_bits) | direction (2 · shadow_direction_bits)`
+//! - reflection: `origin (3 · origin_bits) | direction (2 · reflection_direction_bits)`
 //!
-//! θ ∈ [0, π] is the polar angle of the direction from +z, φ ∈ (-π, π] its azimuth from +x; each is cut
-//! into `2^bits` equal steps. The origin is quantised in a grid of `2^origin_bits` cells per axis over the
-//! batch's origin bounds (the virtual grid of Garanzha & Loop). The seed gives no bit counts; the defaults
-//! fill 32 bits per kind. Cost: one `acos` and one `atan2` per ray.
+//! The direction field interleaves the bits of θ and φ (θ's bit first in each pair: a 2D Morton code), where
+//! θ ∈ [0, π] is the polar angle of the direction from +z and φ ∈ (-π, π] its azimuth from +x, each cut
+//! into `2^bits` equal steps. The origin field interleaves x, y, z (a 3D Morton code) of the origin's cell
+//! in a grid of `2^origin_bits` cells per axis over the batch's origin bounds (the virtual grid of
+//! Garanzha & Loop). The seed gives neither the bit counts nor the order of the fields; ours interleave
+//! because a θ-major key sorts a run of rays into a thin ring of directions around the whole circle of φ,
+//! a cone wider than the request order's (measured in `bench raysort`: 1.75× RAH's tests for one light
+//! before, fewer after). The defaults fill 32 bits per kind. Cost: one `acos` and one `atan2` per ray.
 
 use crate::geometry::Aabb;
 use crate::{Error, Result};
@@ -80,7 +84,7 @@ impl KeyLayout {
                     };
                     quantise(f, b)
                 };
-                let origin = (cell(0) << (2 * b)) | (cell(1) << b) | cell(2);
+                let origin = interleave(&[cell(0), cell(1), cell(2)], b);
                 let dir = direction(d, self.reflection_direction_bits);
                 ((origin << (2 * self.reflection_direction_bits)) | dir) as u32
             }
@@ -98,13 +102,24 @@ fn quantise(f: f32, bits: u32) -> u64 {
     ((f * steps).max(0.0) as u64).min(mask(bits))
 }
 
-/// `θ | φ` of a non-zero direction, `bits` each.
+/// The bits of `fields` (`bits` each) interleaved, the first field's bit most significant in each group.
+fn interleave(fields: &[u64], bits: u32) -> u64 {
+    let mut out = 0;
+    for bit in (0..bits).rev() {
+        for f in fields {
+            out = (out << 1) | ((f >> bit) & 1);
+        }
+    }
+    out
+}
+
+/// θ and φ of a non-zero direction, `bits` each, interleaved.
 fn direction(d: Vec3, bits: u32) -> u64 {
     use std::f32::consts::PI;
     let z = (d.z / d.length()).clamp(-1.0, 1.0);
     let theta = quantise(z.acos() / PI, bits);
     let phi = quantise((d.y.atan2(d.x) + PI) / (2.0 * PI), bits);
-    (theta << bits) | phi
+    interleave(&[theta, phi], bits)
 }
 
 #[cfg(test)]

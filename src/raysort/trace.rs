@@ -12,7 +12,7 @@
 //! Shadow rays ask for any hit, reflection rays for the closest (smallest `t`, then lowest triangle).
 
 use super::cone::bounding_sphere;
-use super::hierarchy::{RayHierarchy, check_shape};
+use super::hierarchy::RayHierarchy;
 use super::{KeyLayout, RayKind, SecondaryRay, sort_rays};
 use crate::bvh::{BuildOptions, Hit, MeshBvh, TraversalStats, query_corners};
 use crate::geometry::TriangleRay;
@@ -81,7 +81,7 @@ pub struct Traced {
 }
 
 /// One mesh prepared for every strategy: its BVH, its bounding sphere and one sphere per triangle.
-/// Memory: the BVH plus 52 bytes per triangle.
+/// Memory: the BVH plus 56 bytes per triangle.
 #[derive(Clone, Debug)]
 pub struct RayScene {
     bvh: MeshBvh,
@@ -133,13 +133,12 @@ impl RayScene {
                 Ok(self.trace_bvh(rays, order, parallel))
             }
             Strategy::Crsh { branching, depth } => {
-                check_shape(branching, depth)?;
-                let mut order = sort_rays(rays, layout, parallel)?.order;
-                order.retain(|&i| rays[i as usize].ray.is_valid());
+                let sorted = sort_rays(rays, layout, parallel)?;
+                let mut order = sorted.order;
+                order.truncate(sorted.keys.len()); // the valid rays
                 self.trace_hierarchy(rays, order, branching, depth, true, parallel)
             }
             Strategy::Rah { branching, depth } => {
-                check_shape(branching, depth)?;
                 let order = (0..rays.len() as u32)
                     .filter(|&i| rays[i as usize].ray.is_valid())
                     .collect();
