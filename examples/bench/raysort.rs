@@ -7,7 +7,8 @@ use crate::record::{Records, best_of};
 use crate::report_scenes::Scene;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
-use kinetrace::raysort::{KeyLayout, RayKind, RayScene, SecondaryRay, Strategy};
+use kinetrace::raysort::{KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays};
+use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, Ray};
 use std::path::Path;
 
@@ -32,9 +33,65 @@ pub fn run(rec: &mut Records) {
     let scene = RayScene::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("a scene");
     for &side in sides {
         for (set, rays) in secondary_rays(&mesh, &scene, side) {
-            measure(rec, &scene, &format!("crowd {side}x{side} {set}"), &rays);
+            let name = format!("crowd {side}x{side} {set}");
+            measure(rec, &scene, &name, &rays);
+            shuffled(rec, &scene, &name, &rays);
         }
     }
+}
+
+/// The sort alone, and the BVH with and without sorting on the rays in random request order: what
+/// sorting recovers when a batch arrives incoherent (pixel order already is coherent).
+fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay]) {
+    let layout = KeyLayout::default();
+    let n = rays.len() as f64;
+    let (t, sorted) =
+        one_thread(|| best_of(rec.reps(), || sort_rays(rays, &layout, false).unwrap()));
+    rec.add(
+        SUITE,
+        name,
+        "sort only",
+        "Mrays/s 1 thread",
+        n / t / 1e6,
+        "Mrays/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "sort only",
+        "rays per chunk",
+        n / sorted.chunks as f64,
+        "rays",
+    );
+    let mut random = rays.to_vec();
+    let mut r = SceneRng::new(7);
+    for i in (1..random.len()).rev() {
+        random.swap(i, (r.next_u64() % (i as u64 + 1)) as usize);
+    }
+    let mut speed = [0.0; 2];
+    for (k, (label, s)) in [
+        ("BVH, shuffled", Strategy::Bvh),
+        ("sorted BVH, shuffled", Strategy::SortedBvh),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let (t, _) = one_thread(|| {
+            best_of(rec.reps(), || {
+                scene.trace(&random, s, &layout, false).unwrap()
+            })
+        });
+        speed[k] = n / t / 1e6;
+        rec.add(SUITE, name, label, "Mrays/s 1 thread", speed[k], "Mrays/s");
+    }
+    rec.add(
+        SUITE,
+        name,
+        "sorted BVH / BVH, shuffled",
+        "speed-up 1 thread",
+        speed[1] / speed[0],
+        "x",
+    );
 }
 
 /// The three ray sets of the crowd seen from a camera at `side`×`side` pixels, in pixel order. Shadow rays
