@@ -67,6 +67,7 @@ pub mod grid;
 mod mesh;
 mod parallel;
 pub mod queries;
+pub mod raysort;
 pub mod scenes;
 
 pub use bvh::{Hit, MeshBvh};

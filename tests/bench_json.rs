@@ -22,6 +22,8 @@ mod peers;
 mod queries;
 #[path = "../examples/bench/rays.rs"]
 mod rays;
+#[path = "../examples/bench/raysort.rs"]
+mod raysort;
 #[path = "../examples/bench/record.rs"]
 mod record;
 #[path = "../examples/report/scenes.rs"]
@@ -127,4 +129,9 @@ fn grid_suite_json_parses() {
 #[test]
 fn queries_suite_json_parses() {
     check("queries", false);
+}
+
+#[test]
+fn raysort_suite_json_parses() {
+    check("raysort", false);
 }

@@ -3,8 +3,8 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 7] = [
-    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries",
+const SUITES: [&str; 8] = [
+    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort",
 ];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
@@ -37,6 +37,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "collide" => crate::collide::run(&mut rec),
             "grid" => crate::grid::run(&mut rec),
             "queries" => crate::queries::run(&mut rec),
+            "raysort" => crate::raysort::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

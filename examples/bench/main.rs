@@ -8,7 +8,8 @@
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
 //! single-ray and packet queries), `queries` (sphere and capsule casts, closest points, containment and
-//! sphere overlaps on a deforming mesh, refit included, against parry3d).
+//! sphere overlaps on a deforming mesh, refit included, against parry3d),
+//! `raysort` (secondary rays: BVH, sorted BVH, CRSH and RAH).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -24,6 +25,7 @@ mod grid;
 mod peers;
 mod queries;
 mod rays;
+mod raysort;
 mod record;
 #[path = "../report/scenes.rs"]
 #[allow(dead_code)]

@@ -24,7 +24,7 @@ mod layout;
 mod mesh_bvh;
 mod node;
 pub mod quality;
-mod radix_sort;
+pub(crate) mod radix_sort;
 mod refit;
 mod topdown;
 mod traverse;

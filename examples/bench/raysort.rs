@@ -1,0 +1,235 @@
+//! Suite `raysort`: the crowd's secondary rays (one shadow ray per primary hit toward one light, toward one
+//! of four lights chosen per pixel, and one reflection ray per hit) through the BVH in pixel order, the BVH
+//! in key order, CRSH (s and D swept) and RAH: intersection tests per ray and Mrays/s on one thread.
+
+use crate::cpu::one_thread;
+use crate::record::{Records, best_of};
+use crate::report_scenes::Scene;
+use glam::Vec3;
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::raysort::{KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays};
+use kinetrace::scenes::SceneRng;
+use kinetrace::{Aabb, Mesh, Ray};
+use std::path::Path;
+
+const SUITE: &str = "raysort";
+
+pub fn run(rec: &mut Records) {
+    println!("suite raysort on {}", crate::record::machine());
+    let (n, sides): (usize, &[usize]) = if rec.quick {
+        (8_000, &[512])
+    } else {
+        (20_000, &[512, 1024])
+    };
+    let assets = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets");
+    let (scenes, _) = Scene::all(n, &assets);
+    let crowd = scenes
+        .iter()
+        .find(|s| s.name == "crowd")
+        .expect("the crowd");
+    let mut pos = Vec::new();
+    crowd.positions(30, &mut pos);
+    let mesh = crowd.mesh(&pos);
+    let scene = RayScene::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("a scene");
+    for &side in sides {
+        for (set, rays) in secondary_rays(&mesh, &scene, side) {
+            let name = format!("crowd {side}x{side} {set}");
+            measure(rec, &scene, &name, &rays);
+            shuffled(rec, &scene, &name, &rays);
+        }
+    }
+}
+
+/// The sort alone, and the BVH with and without sorting on the rays in random request order: what
+/// sorting recovers when a batch arrives incoherent (pixel order already is coherent).
+fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay]) {
+    let layout = KeyLayout::default();
+    let n = rays.len() as f64;
+    let (t, sorted) =
+        one_thread(|| best_of(rec.reps(), || sort_rays(rays, &layout, false).unwrap()));
+    rec.add(
+        SUITE,
+        name,
+        "sort only",
+        "Mrays/s 1 thread",
+        n / t / 1e6,
+        "Mrays/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "sort only",
+        "rays per chunk",
+        n / sorted.chunks as f64,
+        "rays",
+    );
+    let mut random = rays.to_vec();
+    let mut r = SceneRng::new(7);
+    for i in (1..random.len()).rev() {
+        random.swap(i, (r.next_u64() % (i as u64 + 1)) as usize);
+    }
+    let mut speed = [0.0; 2];
+    for (k, (label, s)) in [
+        ("BVH, shuffled", Strategy::Bvh),
+        ("sorted BVH, shuffled", Strategy::SortedBvh),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let (t, _) = one_thread(|| {
+            best_of(rec.reps(), || {
+                scene.trace(&random, s, &layout, false).unwrap()
+            })
+        });
+        speed[k] = n / t / 1e6;
+        rec.add(SUITE, name, label, "Mrays/s 1 thread", speed[k], "Mrays/s");
+    }
+    rec.add(
+        SUITE,
+        name,
+        "sorted BVH / BVH, shuffled",
+        "speed-up 1 thread",
+        speed[1] / speed[0],
+        "x",
+    );
+}
+
+/// The three ray sets of the crowd seen from a camera at `side`×`side` pixels, in pixel order. Shadow rays
+/// run from the light to the hit point (the seed's direction), reflection rays from the hit point.
+fn secondary_rays(
+    mesh: &Mesh,
+    scene: &RayScene,
+    side: usize,
+) -> [(&'static str, Vec<SecondaryRay>); 3] {
+    let b = mesh
+        .triangle_bounds()
+        .iter()
+        .fold(Aabb::EMPTY, |a, t| a.union(t));
+    let (c, size) = (b.center(), b.extent().length());
+    let eye = c + Vec3::new(0.3, 0.5, 0.8).normalize() * size * 0.9;
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let lights = [
+        c + Vec3::new(0.2, 1.0, 0.3) * size,
+        c + Vec3::new(-0.8, 0.6, 0.1) * size,
+        c + Vec3::new(0.5, 0.7, -0.6) * size,
+        c + Vec3::new(-0.1, 0.9, 0.9) * size,
+    ];
+    let (mut one, mut four, mut reflect) = (Vec::new(), Vec::new(), Vec::new());
+    for pixel in 0..side * side {
+        let (x, y) = (
+            (pixel % side) as f32 / side as f32 - 0.5,
+            (pixel / side) as f32 / side as f32 - 0.5,
+        );
+        let primary = Ray::new(eye, fwd + right * x + up * y);
+        let Some(h) = scene.bvh().closest_hit(&primary) else {
+            continue;
+        };
+        let p = primary.at(h.t);
+        let tag = pixel as u32;
+        let shadow = |l: usize| SecondaryRay {
+            ray: Ray::with_range(lights[l], p - lights[l], 0.0, 1.0 - 1e-4),
+            kind: RayKind::Shadow { light: l as u32 },
+            tag,
+        };
+        one.push(shadow(0));
+        four.push(shadow(pixel % 4));
+        let d = primary.dir();
+        let r = d - 2.0 * d.dot(h.normal) * h.normal;
+        reflect.push(SecondaryRay {
+            ray: Ray::with_range(p, r, 1e-4, f32::INFINITY),
+            kind: RayKind::Reflection,
+            tag,
+        });
+    }
+    [
+        ("shadow 1 light", one),
+        ("shadow 4 lights", four),
+        ("reflection", reflect),
+    ]
+}
+
+fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay]) {
+    println!("\n{name}: {} rays", rays.len());
+    let layout = KeyLayout::default();
+    let n = rays.len() as f64;
+    let mut strategies = vec![
+        ("BVH", Strategy::Bvh),
+        ("sorted BVH", Strategy::SortedBvh),
+        (
+            "RAH s8 D2",
+            Strategy::Rah {
+                branching: 8,
+                depth: 2,
+            },
+        ),
+    ];
+    let labels: Vec<String> = [8, 16]
+        .iter()
+        .flat_map(|s| [2, 3, 4].map(move |d| (*s, d)))
+        .map(|(s, d)| format!("CRSH s{s} D{d}"))
+        .collect();
+    for (label, (s, d)) in labels
+        .iter()
+        .zip([(8, 2), (8, 3), (8, 4), (16, 2), (16, 3), (16, 4)])
+    {
+        strategies.push((
+            label,
+            Strategy::Crsh {
+                branching: s,
+                depth: d,
+            },
+        ));
+    }
+    let mut tests = Vec::new();
+    let mut speed = Vec::new();
+    for (label, s) in strategies {
+        // The hierarchies are slow on the CPU: one timed run in quick mode.
+        let reps = if matches!(s, Strategy::Bvh | Strategy::SortedBvh) {
+            rec.reps()
+        } else {
+            1
+        };
+        let (t, traced) =
+            one_thread(|| best_of(reps, || scene.trace(rays, s, &layout, false).unwrap()));
+        let per_ray = traced.stats.total() as f64 / n;
+        rec.add(SUITE, name, label, "tests per ray", per_ray, "tests");
+        rec.add(
+            SUITE,
+            name,
+            label,
+            "Mrays/s 1 thread",
+            n / t / 1e6,
+            "Mrays/s",
+        );
+        tests.push((label, per_ray));
+        speed.push((label, n / t / 1e6));
+    }
+    let get =
+        |v: &[(&str, f64)], l: &str| v.iter().find(|(k, _)| *k == l).map_or(f64::NAN, |x| x.1);
+    rec.add(
+        SUITE,
+        name,
+        "CRSH s8 D2 / RAH s8 D2",
+        "tests ratio",
+        get(&tests, "CRSH s8 D2") / get(&tests, "RAH s8 D2"),
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "sorted BVH / BVH",
+        "speed-up 1 thread",
+        get(&speed, "sorted BVH") / get(&speed, "BVH"),
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "CRSH s8 D2 / BVH",
+        "speed-up 1 thread",
+        get(&speed, "CRSH s8 D2") / get(&speed, "BVH"),
+        "x",
+    );
+}

@@ -1,0 +1,306 @@
+//! The strategies that answer a batch of secondary rays against one mesh, answers in request order.
+//!
+//! - [`Strategy::Bvh`]: each ray through the mesh's BVH, in request order.
+//! - [`Strategy::SortedBvh`]: the same traversal in key order ([`sort_rays`]); pays where request order is
+//!   incoherent, costs the sort (a few ns per ray).
+//! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
+//!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
+//!   children, and each level-1 node's survivors to the exact watertight test of its rays. Cost per top node:
+//!   one sphere test per triangle, so O(rays / s^D · triangles) — far above a BVH on big meshes.
+//! - [`Strategy::Rah`]: the baseline, the same hierarchy over the rays in request order, no mesh sphere.
+//!
+//! Shadow rays ask for any hit, reflection rays for the closest (smallest `t`, then lowest triangle).
+
+use super::cone::bounding_sphere;
+use super::hierarchy::RayHierarchy;
+use super::{KeyLayout, RayKind, SecondaryRay, sort_rays};
+use crate::bvh::{BuildOptions, Hit, MeshBvh, TraversalStats, query_corners};
+use crate::geometry::TriangleRay;
+use crate::{Mesh, Result, parallel};
+use glam::Vec3;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// How a batch is traced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Strategy {
+    /// The BVH, rays in request order.
+    Bvh,
+    /// The BVH, rays in key order.
+    SortedBvh,
+    /// The coherent ray-space hierarchy: sorted rays, branching `s`, depth `D`, mesh-sphere cull.
+    Crsh {
+        /// Children per node `s` (the seed: 8 or 16).
+        branching: usize,
+        /// Node levels `D` (the seed: 2 to 4).
+        depth: usize,
+    },
+    /// RAH: the hierarchy over rays in request order, no mesh-sphere cull.
+    Rah {
+        /// Children per node.
+        branching: usize,
+        /// Node levels.
+        depth: usize,
+    },
+}
+
+/// The answer to one secondary ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Answer {
+    /// Nothing in the ray's range (also the answer to an invalid ray).
+    Miss,
+    /// A shadow ray found something in its range.
+    Occluded,
+    /// A reflection ray's closest hit.
+    Hit(Hit),
+}
+
+/// Intersection tests a batch took, the seed's metric.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RayTestStats {
+    /// Coarse tests: ray-node against triangle or mesh sphere (hierarchies), ray against box (BVH: two per
+    /// inner node visited).
+    pub node_tests: u64,
+    /// Exact ray–triangle tests.
+    pub triangle_tests: u64,
+}
+
+impl RayTestStats {
+    /// All tests.
+    pub fn total(&self) -> u64 {
+        self.node_tests + self.triangle_tests
+    }
+}
+
+/// Answers in request order and the tests they took.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Traced {
+    /// One per ray, in request order.
+    pub answers: Vec<Answer>,
+    /// Work done.
+    pub stats: RayTestStats,
+}
+
+/// One mesh prepared for every strategy: its BVH, its bounding sphere and one sphere per triangle.
+/// Memory: the BVH plus 56 bytes per triangle.
+#[derive(Clone, Debug)]
+pub struct RayScene {
+    bvh: MeshBvh,
+    sphere: (Vec3, f32),
+    /// Triangles of non-zero area: mesh index, corners and bounding sphere.
+    tris: Vec<(u32, [Vec3; 3], Vec3, f32)>,
+}
+
+impl RayScene {
+    /// Builds the BVH with `options` and the spheres. Errors as [`MeshBvh::build`].
+    pub fn build(mesh: &Mesh, options: &BuildOptions) -> Result<Self> {
+        let bvh = MeshBvh::build(mesh, options)?;
+        let tris: Vec<_> = (0..mesh.triangle_count())
+            .filter_map(|i| {
+                let t = mesh.triangle(i);
+                if query_corners(t) != t {
+                    return None; // zero area: never hit
+                }
+                let (c, r) = bounding_sphere(&t);
+                Some((i as u32, t, c, r))
+            })
+            .collect();
+        let sphere = if mesh.positions().is_empty() {
+            (Vec3::ZERO, 0.0)
+        } else {
+            bounding_sphere(mesh.positions())
+        };
+        Ok(Self { bvh, sphere, tris })
+    }
+
+    /// The mesh's BVH.
+    pub fn bvh(&self) -> &MeshBvh {
+        &self.bvh
+    }
+
+    /// Answers `rays` with `strategy`; `layout` keys the sorting strategies. `Error::InvalidOption` for a
+    /// layout over 32 bits or a hierarchy shape out of range.
+    pub fn trace(
+        &self,
+        rays: &[SecondaryRay],
+        strategy: Strategy,
+        layout: &KeyLayout,
+        parallel: bool,
+    ) -> Result<Traced> {
+        match strategy {
+            Strategy::Bvh => Ok(self.trace_bvh(rays, (0..rays.len() as u32).collect(), parallel)),
+            Strategy::SortedBvh => {
+                let order = sort_rays(rays, layout, parallel)?.order;
+                Ok(self.trace_bvh(rays, order, parallel))
+            }
+            Strategy::Crsh { branching, depth } => {
+                let sorted = sort_rays(rays, layout, parallel)?;
+                let mut order = sorted.order;
+                order.truncate(sorted.keys.len()); // the valid rays
+                self.trace_hierarchy(rays, order, branching, depth, true, parallel)
+            }
+            Strategy::Rah { branching, depth } => {
+                let order = (0..rays.len() as u32)
+                    .filter(|&i| rays[i as usize].ray.is_valid())
+                    .collect();
+                self.trace_hierarchy(rays, order, branching, depth, false, parallel)
+            }
+        }
+    }
+
+    /// Every ray through the BVH in `order` (a permutation of the batch).
+    fn trace_bvh(&self, rays: &[SecondaryRay], order: Vec<u32>, parallel: bool) -> Traced {
+        let mut done = vec![(Answer::Miss, TraversalStats::default()); rays.len()];
+        parallel::fill(parallel, &mut done, 256, |j| {
+            let r = &rays[order[j] as usize];
+            let mut st = TraversalStats::default();
+            let a = match r.kind {
+                RayKind::Shadow { .. } if self.bvh.any_hit_counted(&r.ray, &mut st) => {
+                    Answer::Occluded
+                }
+                RayKind::Shadow { .. } => Answer::Miss,
+                RayKind::Reflection => self
+                    .bvh
+                    .closest_hit_counted(&r.ray, &mut st)
+                    .map_or(Answer::Miss, Answer::Hit),
+            };
+            (a, st)
+        });
+        let mut answers = vec![Answer::Miss; rays.len()];
+        let mut stats = RayTestStats::default();
+        for (&i, (a, st)) in order.iter().zip(done) {
+            answers[i as usize] = a;
+            stats.node_tests += 2 * st.inner_visits;
+            stats.triangle_tests += st.prim_tests;
+        }
+        Traced { answers, stats }
+    }
+
+    /// The valid rays of `order` through a hierarchy built over them in that order.
+    fn trace_hierarchy(
+        &self,
+        rays: &[SecondaryRay],
+        order: Vec<u32>,
+        branching: usize,
+        depth: usize,
+        cull_mesh: bool,
+        parallel: bool,
+    ) -> Result<Traced> {
+        let ordered: Vec<_> = order.iter().map(|&i| rays[i as usize].ray).collect();
+        let h = RayHierarchy::build(&ordered, branching, depth, parallel)?;
+        let counts = [AtomicU64::new(0), AtomicU64::new(0)];
+        let everything: Vec<u32> = (0..self.tris.len() as u32).collect();
+        let per_top = branching.pow(depth as u32);
+        let mut done = vec![Answer::Miss; ordered.len()];
+        parallel::fill_chunks(parallel, &mut done, per_top, |top, out| {
+            let mut walk = Walk {
+                scene: self,
+                h: &h,
+                rays: &ordered,
+                kinds: rays,
+                order: &order,
+                out,
+                base: top * per_top,
+                stats: RayTestStats::default(),
+            };
+            let node = &h.level(depth)[top];
+            let (c, r) = self.sphere;
+            if cull_mesh {
+                walk.stats.node_tests += 1;
+            }
+            if !cull_mesh || node.hits_sphere(c, r) {
+                walk.descend(depth, top, &everything);
+            }
+            counts[0].fetch_add(walk.stats.node_tests, Ordering::Relaxed);
+            counts[1].fetch_add(walk.stats.triangle_tests, Ordering::Relaxed);
+        });
+        let mut answers = vec![Answer::Miss; rays.len()];
+        for (&i, a) in order.iter().zip(done) {
+            answers[i as usize] = a;
+        }
+        let stats = RayTestStats {
+            node_tests: counts[0].load(Ordering::Relaxed),
+            triangle_tests: counts[1].load(Ordering::Relaxed),
+        };
+        Ok(Traced { answers, stats })
+    }
+}
+
+/// The traversal of one top node's subtree.
+struct Walk<'a> {
+    scene: &'a RayScene,
+    h: &'a RayHierarchy,
+    /// The hierarchy's rays and, through `order`, their kinds.
+    rays: &'a [crate::Ray],
+    kinds: &'a [SecondaryRay],
+    order: &'a [u32],
+    /// Answers of the top node's rays, from hierarchy position `base` on.
+    out: &'a mut [Answer],
+    base: usize,
+    stats: RayTestStats,
+}
+
+impl Walk<'_> {
+    /// Tests node `j` of level `k` against the triangles `candidates` and takes the survivors down.
+    fn descend(&mut self, k: usize, j: usize, candidates: &[u32]) {
+        let node = &self.h.level(k)[j];
+        let tris = &self.scene.tris;
+        self.stats.node_tests += candidates.len() as u64;
+        let survivors: Vec<u32> = candidates
+            .iter()
+            .copied()
+            .filter(|&t| {
+                let (_, _, c, r) = tris[t as usize];
+                node.hits_sphere(c, r)
+            })
+            .collect();
+        if survivors.is_empty() {
+            return;
+        }
+        let s = self.h.branching();
+        let below = if k == 1 {
+            self.rays.len()
+        } else {
+            self.h.level(k - 1).len()
+        };
+        for child in j * s..((j + 1) * s).min(below) {
+            if k == 1 {
+                self.out[child - self.base] = self.exact(child, &survivors);
+            } else {
+                self.descend(k - 1, child, &survivors);
+            }
+        }
+    }
+
+    /// The exact watertight tests of hierarchy ray `i` against `candidates`.
+    fn exact(&mut self, i: usize, candidates: &[u32]) -> Answer {
+        let ray = &self.rays[i];
+        let shadow = matches!(
+            self.kinds[self.order[i] as usize].kind,
+            RayKind::Shadow { .. }
+        );
+        let tr = TriangleRay::new(ray);
+        let mut best: Option<Hit> = None;
+        let mut tmax = ray.tmax;
+        for &t in candidates {
+            let (p, [a, b, c], ..) = self.scene.tris[t as usize];
+            self.stats.triangle_tests += 1;
+            let Some(h) = tr.intersect(a, b, c, ray.tmin, tmax) else {
+                continue;
+            };
+            if shadow {
+                return Answer::Occluded;
+            }
+            if best.is_none_or(|o| h.t < o.t || (h.t == o.t && p < o.primitive)) {
+                tmax = h.t;
+                best = Some(Hit {
+                    t: h.t,
+                    primitive: p,
+                    u: h.u,
+                    v: h.v,
+                    normal: (b - a).cross(c - a).normalize_or_zero(),
+                });
+            }
+        }
+        best.map_or(Answer::Miss, Answer::Hit)
+    }
+}
