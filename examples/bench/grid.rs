@@ -1,6 +1,6 @@
 //! Suite `grid`: the per-frame uniform grid (seed 001) against our LBVH on the same triangles — build rate on
 //! one and all threads, and single-ray vs packet queries (camera rays in 8×8 tiles, shadow rays toward a
-//! point light) on one thread.
+//! point light) through the grid and through the BVH, on one thread.
 
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
@@ -142,29 +142,32 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
             "Mrays/s",
         );
         for size in [16, 64] {
-            let (t, _) = best_of(reps, || {
-                let mut st = TraversalStats::default();
-                for (r, (o, a)) in rays
-                    .chunks(size)
-                    .zip(out.chunks_mut(size).zip(occ.chunks_mut(size)))
-                {
-                    if any {
-                        grid.any_hits_packet(r, a, &mut st);
-                    } else {
-                        grid.closest_hits_packet(r, o, &mut st);
+            for (who, single) in [("grid", t_grid), ("BVH", t_bvh)] {
+                let (t, _) = best_of(reps, || {
+                    let mut st = TraversalStats::default();
+                    for (r, (o, a)) in rays
+                        .chunks(size)
+                        .zip(out.chunks_mut(size).zip(occ.chunks_mut(size)))
+                    {
+                        match (who, any) {
+                            ("grid", true) => grid.any_hits_packet(r, a, &mut st),
+                            ("grid", false) => grid.closest_hits_packet(r, o, &mut st),
+                            (_, true) => bvh.any_hits_packet(r, a, &mut st),
+                            (_, false) => bvh.closest_hits_packet(r, o, &mut st),
+                        }
                     }
-                }
-            });
-            let subject = format!("grid packet {size}, {kind}");
-            rec.add(
-                SUITE,
-                name,
-                &subject,
-                "Mrays/s 1 thread",
-                m(rays, t),
-                "Mrays/s",
-            );
-            rec.add(SUITE, name, &subject, "speed-up vs single", t_grid / t, "x");
+                });
+                let subject = format!("{who} packet {size}, {kind}");
+                rec.add(
+                    SUITE,
+                    name,
+                    &subject,
+                    "Mrays/s 1 thread",
+                    m(rays, t),
+                    "Mrays/s",
+                );
+                rec.add(SUITE, name, &subject, "speed-up vs single", single / t, "x");
+            }
         }
     }
 }

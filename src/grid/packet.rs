@@ -21,8 +21,7 @@ use crate::geometry::{Ray, TriangleRay};
 use crate::parallel;
 use glam::{UVec3, Vec3, Vec4};
 
-/// Most rays in one packet; longer slices given to the packet queries are cut into packets of this size.
-pub const MAX_PACKET: usize = 64;
+pub use crate::bvh::MAX_PACKET;
 
 /// Largest sum of the slope spreads `(max − min)` of `du/dk` and `dv/dk` over a packet that is still traced
 /// as a packet. Ours: 0.5 is a frustum 27° wide, far beyond a camera tile (an 8×8 tile of a 60° 512-pixel
