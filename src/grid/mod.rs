@@ -23,7 +23,7 @@ mod build;
 mod dda;
 mod packet;
 
-pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT};
+pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT, PACKET_START_CELLS};
 
 use crate::bvh::Hit;
 use crate::geometry::Aabb;

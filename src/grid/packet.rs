@@ -12,8 +12,9 @@
 //!
 //! **Splitting rule (ours).** A packet is traced ray by ray ([`UniformGrid::closest_hit`]) when its rays do
 //! not share a direction sign on the major axis of their mean direction, when one of its rays is
-//! [far](UniformGrid::is_far), or when the spread of its slopes exceeds [`PACKET_SPREAD_LIMIT`]: past that
-//! width the frustum covers so many cells per slice that single rays are cheaper.
+//! [far](UniformGrid::is_far), when the spread of its slopes exceeds [`PACKET_SPREAD_LIMIT`] (past that
+//! width the frustum covers so many cells per slice that single rays are cheaper), or when its entry points
+//! scatter over more than [`PACKET_START_CELLS`] cells per ray across the major axis.
 
 use super::{Mailbox, UniformGrid};
 use crate::bvh::{Hit, TraversalStats};
@@ -27,6 +28,11 @@ pub use crate::bvh::MAX_PACKET;
 /// as a packet. Ours: 0.5 is a frustum 27° wide, far beyond a camera tile (an 8×8 tile of a 60° 512-pixel
 /// view spreads about 0.02) and about where it starts to overlap more cells per slice than the rays cross.
 pub const PACKET_SPREAD_LIMIT: f32 = 0.5;
+
+/// Largest area, in cells per ray, of the rectangle across the major axis that a packet's entry points
+/// cover for it to be traced as a packet. Ours: a camera tile enters within a few cells; shadow rays from
+/// one tile's hits scattered through an explosion spread over hundreds, and single rays win there.
+pub const PACKET_START_CELLS: f32 = 4.0;
 
 /// Entries of a packet's mailbox.
 const PACKET_MAILBOX: usize = 256;
@@ -145,18 +151,36 @@ impl UniformGrid {
         // Frustum: each ray's (u, v) on the first plane and its slopes per unit of w.
         let (mut amin, mut amax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let (mut smin, mut smax) = (amin, amax);
-        for (_, r) in live() {
+        // Each lane's own line in the same frame, `(u, v) = a + s·w`, for the per-lane triangle cull.
+        let mut lane_line = [(Vec3::ZERO, Vec3::ZERO); MAX_PACKET];
+        for (i, r) in rays.iter().enumerate() {
+            if lanes[i].is_none() {
+                continue;
+            }
             let d = r.dir();
             let s = Vec3::new(0.0, d[u] / d[k], d[v] / d[k]);
             let dx = x0 - r.origin[k];
             let a = Vec3::new(0.0, r.origin[u] + s.y * dx, r.origin[v] + s.z * dx);
             let s = s * sgn;
+            lane_line[i] = (a, s);
             amin = amin.min(a);
             amax = amax.max(a);
             smin = smin.min(s);
             smax = smax.max(s);
         }
         if (smax - smin).y + (smax - smin).z > PACKET_SPREAD_LIMIT {
+            return false;
+        }
+        // Where the rays enter, in cells across k: a packet whose starts scatter over more cells than it
+        // has rays walks a rectangle wider than the rays' own cells (shadow rays from hits at different depths).
+        let (mut elo, mut ehi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let mut count = 0.0;
+        for ((_, t_in, _), r) in live() {
+            let p = r.at(t_in) * self.inv_cell;
+            (elo, ehi, count) = (elo.min(p), ehi.max(p), count + 1.0);
+        }
+        let e = ehi - elo + Vec3::ONE;
+        if e[u] * e[v] > PACKET_START_CELLS * count {
             return false;
         }
         // Plane i of the four is `f_i(p) = P_i − (A_i + S_i·w) ≥ 0` inside, with P = (pu, −pu, pv, −pv).
@@ -186,8 +210,21 @@ impl UniformGrid {
                 (plane_hi, plane_lo)
             };
             let (w_in, w_out) = (((x_in - x0) * sgn).max(0.0), ((x_out - x0) * sgn).max(0.0));
-            let lo = (amin + smin * w_in).min(amin + smin * w_out) - m;
-            let hi = (amax + smax * w_in).max(amax + smax * w_out) + m;
+            // The rectangle the live rays' own segments cover in this slice: tighter than the whole
+            // frustum when origins are spread along k (shadow rays from a tile's hits).
+            let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+            for (i, lane) in lanes.iter().enumerate() {
+                let Some((_, t_in, _)) = *lane else { continue };
+                let w_start = sgn * rays[i].at(t_in)[k] - s0;
+                if w_start > w_out + m {
+                    continue;
+                }
+                let (a, s) = lane_line[i];
+                let (p, q) = (a + s * w_in.max(w_start), a + s * w_out);
+                lo = lo.min(p.min(q));
+                hi = hi.max(p.max(q));
+            }
+            let (lo, hi) = (lo - m, hi + m);
             let cell_range = |a: usize, j: usize| {
                 let to_cell = |x: f32| ((x - g0[a]) * self.inv_cell[a]).floor();
                 let (l, h) = (to_cell(lo[j]), to_cell(hi[j]));
@@ -220,8 +257,25 @@ impl UniformGrid {
                                     if f.cmplt(Vec4::splat(-m)).any() {
                                         continue;
                                     }
+                                    // The corners in the frustum frame: a lane whose line passes on
+                                    // one side of all three in u or in v (beyond the margin) misses.
+                                    let w = Vec3::new(a[k], b[k], cc[k]) - Vec3::splat(x0);
+                                    let w = w * sgn;
+                                    let pu = Vec3::new(a[u], b[u], cc[u]);
+                                    let pv = Vec3::new(a[v], b[v], cc[v]);
+                                    let misses = |(la, ls): (Vec3, Vec3)| {
+                                        let du = pu - (Vec3::splat(la.y) + w * ls.y);
+                                        let dv = pv - (Vec3::splat(la.z) + w * ls.z);
+                                        du.min_element() > m
+                                            || du.max_element() < -m
+                                            || dv.min_element() > m
+                                            || dv.max_element() < -m
+                                    };
                                     for (i, lane) in lanes.iter().enumerate() {
                                         let Some((tr, ..)) = lane else { continue };
+                                        if misses(lane_line[i]) {
+                                            continue;
+                                        }
                                         stats.prim_tests += 1;
                                         let r = &rays[i];
                                         if let Some(h) = tr.intersect(a, b, cc, r.tmin, tmax[i])
