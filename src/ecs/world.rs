@@ -114,7 +114,7 @@ impl Instance {
 
     /// The world ray in object space: same `t` values, since origin and direction go through the same
     /// affine map.
-    fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
+    pub(super) fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
         Ray::with_range(
             self.inverse.transform_point3(ray.origin),
             self.inverse.transform_vector3(ray.dir()),
@@ -123,7 +123,7 @@ impl Instance {
         )
     }
 
-    fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
+    pub(super) fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
         RayHit {
             entity,
             distance: h.t,
