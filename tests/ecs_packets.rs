@@ -34,18 +34,16 @@ fn tiles(eye: Vec3, target: Vec3, n: u32) -> Vec<Ray> {
 fn queued_packets_answer_like_single_rays() {
     let (mut world, mut schedule) = app_with(TraceConfig::default());
     // The ground, on a layer of its own.
-    world
-        .spawn((
-            TraceMesh(cube_sphere(4)),
-            MotionHint::Static,
-            TraceTransform(Affine3A::from_scale_rotation_translation(
-                Vec3::new(8.0, 0.2, 8.0),
-                Quat::IDENTITY,
-                Vec3::new(0.0, -1.2, 0.0),
-            )),
-            QueryLayers(0b10),
-        ))
-        .id();
+    world.spawn((
+        TraceMesh(cube_sphere(4)),
+        MotionHint::Static,
+        TraceTransform(Affine3A::from_scale_rotation_translation(
+            Vec3::new(8.0, 0.2, 8.0),
+            Quat::IDENTITY,
+            Vec3::new(0.0, -1.2, 0.0),
+        )),
+        QueryLayers(0b10),
+    ));
     let movers: Vec<Entity> = (0..4)
         .map(|_| {
             world
