@@ -199,10 +199,59 @@ impl UniformGrid {
         for (i, r) in rays.iter().enumerate() {
             tmax[i] = r.tmax;
         }
+        // Per lane: where along w its segment starts, and the slice where its range ends.
+        let mut w_start = [0.0f32; MAX_PACKET];
+        let mut end_slice = [c_last; MAX_PACKET];
+        let mut w_start_max = f32::NEG_INFINITY;
+        for ((i, lane), r) in lanes.iter().enumerate().zip(rays) {
+            if let Some((_, t_in, t_out)) = *lane {
+                w_start[i] = sgn * r.at(t_in)[k] - s0;
+                w_start_max = w_start_max.max(w_start[i]);
+                end_slice[i] = slice_of(r.at(t_out)[k]);
+            }
+        }
+        // The (a, s) bounds of the live lanes, and the first slice (in travel order) where one may end.
+        let before = |a: u32, b: u32| if sgn > 0.0 { a < b } else { a > b };
+        let live_bounds = |lanes: &[Option<(TriangleRay, f32, f32)>; MAX_PACKET], c: u32| {
+            let (mut lo, mut hi) = ([Vec3::INFINITY; 2], [Vec3::NEG_INFINITY; 2]);
+            let mut next = c_last;
+            for (i, lane) in lanes.iter().enumerate() {
+                if lane.is_some() {
+                    let (a, s) = lane_line[i];
+                    (lo[0], hi[0]) = (lo[0].min(a), hi[0].max(a));
+                    (lo[1], hi[1]) = (lo[1].min(s), hi[1].max(s));
+                    if before(c, end_slice[i]) && before(end_slice[i], next) {
+                        next = end_slice[i];
+                    }
+                }
+            }
+            (lo, hi, next)
+        };
+        let (mut live_lo, mut live_hi, mut next_end) = live_bounds(&lanes, c_first);
+        if !before(c_first, next_end) {
+            next_end = c_first;
+        }
+        // The lanes' lines again, four lanes per entry for the per-lane triangle cull:
+        // `([a_u, a_v], [s_u, s_v])`; a dead lane's `a` is +∞.
+        let groups = rays.len().div_ceil(4);
+        let mut soa = [([Vec4::INFINITY; 2], [Vec4::ZERO; 2]); MAX_PACKET / 4];
+        for (i, lane) in lanes.iter().enumerate() {
+            if lane.is_some() {
+                let (a, s) = lane_line[i];
+                let (la, ls) = &mut soa[i / 4];
+                (la[0][i % 4], la[1][i % 4]) = (a.y, a.z);
+                (ls[0][i % 4], ls[1][i % 4]) = (s.y, s.z);
+            }
+        }
+        let kill = |soa: &mut [([Vec4; 2], [Vec4; 2]); MAX_PACKET / 4], i: usize| {
+            soa[i / 4].0[0][i % 4] = f32::INFINITY;
+            soa[i / 4].0[1][i % 4] = f32::INFINITY;
+        };
         let mut mail = Mailbox::<PACKET_MAILBOX>::new();
         let mc = self.options.macrocell;
         let mut c = c_first;
         loop {
+            let mut tested = false;
             let (plane_lo, plane_hi) = (g0[k] + c as f32 * cs[k], g0[k] + (c + 1) as f32 * cs[k]);
             let (x_in, x_out) = if sgn > 0.0 {
                 (plane_lo, plane_hi)
@@ -212,17 +261,22 @@ impl UniformGrid {
             let (w_in, w_out) = (((x_in - x0) * sgn).max(0.0), ((x_out - x0) * sgn).max(0.0));
             // The rectangle the live rays' own segments cover in this slice: tighter than the whole
             // frustum when origins are spread along k (shadow rays from a tile's hits).
+            // Once every segment has started, the live lanes' bounds give it in four multiply-adds.
             let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-            for (i, lane) in lanes.iter().enumerate() {
-                let Some((_, t_in, _)) = *lane else { continue };
-                let w_start = sgn * rays[i].at(t_in)[k] - s0;
-                if w_start > w_out + m {
-                    continue;
+            if w_in >= w_start_max {
+                let [(la, ls), (ha, hs)] = [(live_lo[0], live_lo[1]), (live_hi[0], live_hi[1])];
+                lo = (la + ls * w_in).min(la + ls * w_out);
+                hi = (ha + hs * w_in).max(ha + hs * w_out);
+            } else {
+                for (i, lane) in lanes.iter().enumerate() {
+                    if lane.is_none() || w_start[i] > w_out + m {
+                        continue;
+                    }
+                    let (a, s) = lane_line[i];
+                    let (p, q) = (a + s * w_in.max(w_start[i]), a + s * w_out);
+                    lo = lo.min(p.min(q));
+                    hi = hi.max(p.max(q));
                 }
-                let (a, s) = lane_line[i];
-                let (p, q) = (a + s * w_in.max(w_start), a + s * w_out);
-                lo = lo.min(p.min(q));
-                hi = hi.max(p.max(q));
             }
             let (lo, hi) = (lo - m, hi + m);
             let cell_range = |a: usize, j: usize| {
@@ -259,38 +313,43 @@ impl UniformGrid {
                                     }
                                     // The corners in the frustum frame: a lane whose line passes on
                                     // one side of all three in u or in v (beyond the margin) misses.
-                                    let w = Vec3::new(a[k], b[k], cc[k]) - Vec3::splat(x0);
-                                    let w = w * sgn;
-                                    let pu = Vec3::new(a[u], b[u], cc[u]);
-                                    let pv = Vec3::new(a[v], b[v], cc[v]);
-                                    let misses = |(la, ls): (Vec3, Vec3)| {
-                                        let du = pu - (Vec3::splat(la.y) + w * ls.y);
-                                        let dv = pv - (Vec3::splat(la.z) + w * ls.z);
-                                        du.min_element() > m
-                                            || du.max_element() < -m
-                                            || dv.min_element() > m
-                                            || dv.max_element() < -m
-                                    };
-                                    for (i, lane) in lanes.iter().enumerate() {
-                                        let Some((tr, ..)) = lane else { continue };
-                                        if misses(lane_line[i]) {
-                                            continue;
-                                        }
-                                        stats.prim_tests += 1;
-                                        let r = &rays[i];
-                                        if let Some(h) = tr.intersect(a, b, cc, r.tmin, tmax[i])
-                                            && best[i].is_none_or(|(bt, bp, ..)| h.t < bt || p < bp)
-                                        {
-                                            best[i] = Some((h.t, p, h.u, h.v));
-                                            if !any {
+                                    // Four lanes at a time; dead lanes sit at +∞ and always miss.
+                                    let w = (Vec3::new(a[k], b[k], cc[k]) - Vec3::splat(x0)) * sgn;
+                                    let (pu, pv) = (
+                                        [a[u], b[u], cc[u]].map(Vec4::splat),
+                                        [a[v], b[v], cc[v]].map(Vec4::splat),
+                                    );
+                                    for g in 0..groups {
+                                        let (la, ls) = soa[g];
+                                        let d = |p: &[Vec4; 3], a: Vec4, s: Vec4| {
+                                            let d = [0, 1, 2].map(|j| p[j] - (a + s * w[j]));
+                                            (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+                                        };
+                                        let (umin, umax) = d(&pu, la[0], ls[0]);
+                                        let (vmin, vmax) = d(&pv, la[1], ls[1]);
+                                        let (mp, mn) = (Vec4::splat(m), Vec4::splat(-m));
+                                        let miss = umin.cmpgt(mp)
+                                            | umax.cmplt(mn)
+                                            | vmin.cmpgt(mp)
+                                            | vmax.cmplt(mn);
+                                        let mut near = !miss.bitmask() & 0xF;
+                                        while near != 0 {
+                                            let i = 4 * g + near.trailing_zeros() as usize;
+                                            near &= near - 1;
+                                            let Some((tr, ..)) = lanes[i] else { continue };
+                                            tested = true;
+                                            stats.prim_tests += 1;
+                                            let r = &rays[i];
+                                            if let Some(h) = tr.intersect(a, b, cc, r.tmin, tmax[i])
+                                                && best[i]
+                                                    .is_none_or(|(bt, bp, ..)| h.t < bt || p < bp)
+                                            {
+                                                best[i] = Some((h.t, p, h.u, h.v));
                                                 tmax[i] = h.t;
-                                            }
-                                        }
-                                    }
-                                    if any {
-                                        for (l, b) in lanes.iter_mut().zip(best.iter()) {
-                                            if b.is_some() {
-                                                *l = None;
+                                                if any {
+                                                    lanes[i] = None;
+                                                    kill(&mut soa, i);
+                                                }
                                             }
                                         }
                                     }
@@ -300,7 +359,15 @@ impl UniformGrid {
                     }
                 }
             }
-            // Rays whose best hit lies before this slice's exit, or whose range ends in it, are done.
+            if c == c_last {
+                return true;
+            }
+            // Rays whose best hit lies before this slice's exit, or whose range ends in it, are done:
+            // only a slice that tested a triangle or where some range may end can finish one.
+            if !tested && c != next_end {
+                c = if sgn > 0.0 { c + 1 } else { c - 1 };
+                continue;
+            }
             let mut alive = false;
             for (i, lane) in lanes.iter_mut().enumerate() {
                 if let Some((_, _, t_out)) = *lane {
@@ -308,14 +375,16 @@ impl UniformGrid {
                     let t_exit = (x_out - r.origin[k]) * r.inv_dir()[k];
                     if t_exit >= t_out || best[i].is_some_and(|(t, ..)| t <= t_exit) {
                         *lane = None;
+                        kill(&mut soa, i);
                     } else {
                         alive = true;
                     }
                 }
             }
-            if !alive || c == c_last {
+            if !alive {
                 return true;
             }
+            (live_lo, live_hi, next_end) = live_bounds(&lanes, c);
             c = if sgn > 0.0 { c + 1 } else { c - 1 };
         }
     }
