@@ -493,7 +493,8 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
         let (mut tile, mut idx, mut segments) = (Vec::new(), Vec::new(), Vec::new());
         for ty in (0..h).step_by(8) {
             for tx in (0..w).step_by(8) {
-                (tile.clear(), idx.clear());
+                tile.clear();
+                idx.clear();
                 for y in ty..(ty + 8).min(h) {
                     for x in tx..(tx + 8).min(w) {
                         tile.push(pixel_ray(x, y));

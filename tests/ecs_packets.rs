@@ -11,25 +11,6 @@ use kinetrace::Ray;
 use kinetrace::ecs::*;
 use kinetrace::scenes::bumpy_torus;
 
-/// Camera rays in 8×8 tiles, tile after tile.
-fn tiles(eye: Vec3, target: Vec3, n: u32) -> Vec<Ray> {
-    let f = (target - eye).normalize();
-    let r = f.cross(Vec3::Y).normalize();
-    let up = r.cross(f);
-    let mut rays = Vec::new();
-    for ty in (0..n).step_by(8) {
-        for tx in (0..n).step_by(8) {
-            for y in ty..ty + 8 {
-                for x in tx..tx + 8 {
-                    let (px, py) = (x as f32 / n as f32 - 0.5, y as f32 / n as f32 - 0.5);
-                    rays.push(Ray::new(eye, f + r * px * 0.9 + up * py * 0.9));
-                }
-            }
-        }
-    }
-    rays
-}
-
 #[test]
 fn queued_packets_answer_like_single_rays() {
     let (mut world, mut schedule) = app_with(TraceConfig::default());
@@ -83,7 +64,7 @@ fn queued_packets_answer_like_single_rays() {
         }
         // Singles, a 32×32 camera in tiles, more singles, and shadow packets from random points, two of
         // them with filters (layers, an excluded entity).
-        let camera = tiles(eye, Vec3::ZERO, 32);
+        let camera = camera(eye, Vec3::ZERO, 32, 8, 0.9);
         let singles: Vec<Ray> = (0..40)
             .map(|_| Ray::new(rand_vec(&mut r, -5.0, 5.0), rand_dir(&mut r)))
             .collect();
@@ -180,7 +161,7 @@ fn world_packets_match_brute_force() {
         ));
     }
     schedule.run(&mut world);
-    let mut rays = tiles(Vec3::new(0.0, 2.0, -8.0), Vec3::ZERO, 16);
+    let mut rays = camera(Vec3::new(0.0, 2.0, -8.0), Vec3::ZERO, 16, 8, 0.9);
     // An invalid ray and a ray with a short range inside a packet.
     rays[3] = Ray::new(Vec3::NAN, Vec3::Z);
     rays[9] = Ray::with_range(rays[9].origin, rays[9].dir(), 0.0, 0.5);

@@ -37,6 +37,7 @@ pub(crate) use mesh_bvh::{is_collapsed, query_corners};
 pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub use packet::MAX_PACKET;
+pub(crate) use packet::for_each_packet;
 pub(crate) use refit::refit_nodes;
 pub use traverse::TraversalStats;
 pub(crate) use traverse::{traverse, traverse_by};

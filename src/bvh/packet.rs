@@ -37,6 +37,22 @@ use glam::{BVec3, Vec3};
 /// packets of this size.
 pub const MAX_PACKET: usize = 64;
 
+/// Runs `trace(rays, out)` over consecutive packets of `packet` rays (clamped to `1..=MAX_PACKET`), on all
+/// threads with the `parallel` feature: the batched form of every packet query. `out` must be as long as
+/// `rays`.
+pub(crate) fn for_each_packet<T: Send>(
+    rays: &[Ray],
+    packet: usize,
+    out: &mut [T],
+    trace: impl Fn(&[Ray], &mut [T]) + Sync + Send,
+) {
+    assert_eq!(rays.len(), out.len(), "one output per ray");
+    let packet = packet.clamp(1, MAX_PACKET);
+    parallel::fill_chunks(true, out, packet, |i, out| {
+        trace(&rays[i * packet..i * packet + out.len()], out)
+    });
+}
+
 /// Interval bounds over a packet's rays, per axis: origins, reciprocal directions, and which axes every
 /// ray crosses in the same direction (the only axes that can cull).
 struct Bounds {
@@ -178,21 +194,15 @@ impl MeshBvh {
     /// Batched closest-hit queries: `rays` holds consecutive packets of `packet` rays each (camera tiles in
     /// tile order, or shadow rays grouped by light), traced on all threads with the `parallel` feature.
     pub fn closest_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [Option<Hit>]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.closest_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.closest_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 
     /// Batched any-hit queries (shadow rays), as [`closest_hits_packets`](Self::closest_hits_packets).
     pub fn any_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [bool]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.any_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.any_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 

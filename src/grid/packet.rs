@@ -17,9 +17,8 @@
 //! scatter over more than [`PACKET_START_CELLS`] cells per ray across the major axis.
 
 use super::{Mailbox, UniformGrid};
-use crate::bvh::{Hit, TraversalStats};
+use crate::bvh::{Hit, TraversalStats, for_each_packet};
 use crate::geometry::{Ray, TriangleRay};
-use crate::parallel;
 use glam::{UVec3, Vec3, Vec4};
 
 pub use crate::bvh::MAX_PACKET;
@@ -85,21 +84,15 @@ impl UniformGrid {
     /// Batched closest-hit queries: `rays` holds consecutive packets of `packet` rays each (camera tiles in
     /// tile order, or shadow rays grouped by light), traced on all threads with the `parallel` feature.
     pub fn closest_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [Option<Hit>]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.closest_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.closest_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 
     /// Batched any-hit queries (shadow rays), as [`closest_hits_packets`](Self::closest_hits_packets).
     pub fn any_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [bool]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.any_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.any_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 
