@@ -455,7 +455,17 @@ pub enum View {
     Boxes,
 }
 
-/// Ray traces the world from `camera`.
+/// The normal turned toward the ray's origin.
+fn facing(normal: Vec3, dir: Vec3) -> Vec3 {
+    if normal.dot(dir) > 0.0 {
+        -normal
+    } else {
+        normal
+    }
+}
+
+/// Ray traces the world from `camera`: primary and shadow rays as packets of 8×8 pixels
+/// ([`TraceWorld::cast_packet`], [`TraceWorld::occluded_packet`]).
 pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> image::RgbImage {
     let tw = world.resource::<TraceWorld>();
     let marks = &world.resource::<Crowd>().turret_marks;
@@ -466,34 +476,69 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
     let up = right.cross(fwd);
     let aspect = w as f32 / h as f32;
     let all = QueryFilter::default();
-    let mut img = image::RgbImage::new(w, h);
-    for (x, y, px) in img.enumerate_pixels_mut() {
+    let pixel_ray = |x: u32, y: u32| {
         let (u, v) = (
             (x as f32 + 0.5) / w as f32 - 0.5,
             0.5 - (y as f32 + 0.5) / h as f32,
         );
-        let ray = Ray::new(
+        Ray::new(
             eye,
             (fwd + right * u * aspect * 0.9 + up * v * 0.9).normalize(),
-        );
+        )
+    };
+    // Primary rays in 8×8 tiles and the shadow rays of their hits toward the sun, traced as packets;
+    // the heatmap counts the work of single rays instead.
+    let (mut hits, mut lit) = (vec![None; (w * h) as usize], vec![false; (w * h) as usize]);
+    if view != View::Heatmap {
+        let (mut tile, mut idx, mut segments) = (Vec::new(), Vec::new(), Vec::new());
+        for ty in (0..h).step_by(8) {
+            for tx in (0..w).step_by(8) {
+                tile.clear();
+                idx.clear();
+                for y in ty..(ty + 8).min(h) {
+                    for x in tx..(tx + 8).min(w) {
+                        tile.push(pixel_ray(x, y));
+                        idx.push((y * w + x) as usize);
+                    }
+                }
+                let mut out = vec![None; tile.len()];
+                tw.cast_packet(&tile, 200.0, &all, &mut out);
+                segments.clear();
+                for ((r, &i), hit) in tile.iter().zip(&idx).zip(out) {
+                    if let Some(hit) = hit {
+                        let n = facing(hit.normal, r.dir());
+                        segments.push((i, (hit.point + n * 1e-3, hit.point + sun * 100.0)));
+                    }
+                    hits[i] = hit;
+                }
+                let (pixels, segs): (Vec<usize>, Vec<_>) = segments.iter().copied().unzip();
+                let mut occluded = vec![false; segs.len()];
+                tw.occluded_packet(&segs, &all, &mut occluded);
+                for (i, o) in pixels.into_iter().zip(occluded) {
+                    lit[i] = !o;
+                }
+            }
+        }
+    }
+    let mut img = image::RgbImage::new(w, h);
+    for (x, y, px) in img.enumerate_pixels_mut() {
+        let v = 0.5 - (y as f32 + 0.5) / h as f32;
+        let ray = pixel_ray(x, y);
+        let i = (y * w + x) as usize;
         let mut work = kinetrace::bvh::TraversalStats::default();
-        let hit = tw.cast_ray_counted(&ray, 200.0, &all, &mut work);
         if view == View::Heatmap {
+            tw.cast_ray_counted(&ray, 200.0, &all, &mut work);
             let cost = (work.inner_visits + work.prim_tests) as f32;
             let k = (cost / 150.0).min(1.0);
             let c = Vec3::new(0.1, 0.2, 0.9).lerp(Vec3::new(1.0, 0.15, 0.05), k);
             *px = image::Rgb(c.to_array().map(|x| (x * 255.0) as u8));
             continue;
         }
-        let c = match hit {
+        let c = match hits[i] {
             None => Vec3::new(0.55, 0.7, 0.9) * (0.8 + 0.2 * v),
             Some(hit) => {
-                let n = if hit.normal.dot(ray.dir()) > 0.0 {
-                    -hit.normal
-                } else {
-                    hit.normal
-                };
-                let lit = !tw.occluded(hit.point + n * 1e-3, hit.point + sun * 100.0, &all);
+                let n = facing(hit.normal, ray.dir());
+                let lit = lit[i];
                 let albedo = if hit.point.y.abs() < 1e-3 && hit.normal.y.abs() > 0.99 {
                     let check = ((hit.point.x.floor() + hit.point.z.floor()) as i32 & 1) as f32;
                     Vec3::splat(0.55 + 0.1 * check)

@@ -64,27 +64,6 @@ fn check_packets(m: &Mesh, g: &UniformGrid, rays: &[Ray], size: usize, what: &st
     }
 }
 
-/// An `n`×`n` tile-ordered pinhole camera at `eye` looking at `target`: coherent packets of `tile`².
-fn camera(eye: Vec3, target: Vec3, n: u32, tile: u32, fov: f32) -> Vec<Ray> {
-    let f = (target - eye).normalize();
-    let r = f.cross(Vec3::Y).normalize_or(Vec3::X);
-    let up = r.cross(f);
-    let s = (fov * 0.5).tan();
-    let mut rays = Vec::new();
-    for ty in (0..n).step_by(tile as usize) {
-        for tx in (0..n).step_by(tile as usize) {
-            for y in ty..(ty + tile).min(n) {
-                for x in tx..(tx + tile).min(n) {
-                    let px = ((x as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
-                    let py = ((y as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
-                    rays.push(Ray::new(eye, f + r * px + up * py));
-                }
-            }
-        }
-    }
-    rays
-}
-
 /// Random rays: from inside the mesh's box, and from outside aimed into it.
 fn random_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
     let b = m

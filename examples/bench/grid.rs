@@ -1,6 +1,6 @@
 //! Suite `grid`: the per-frame uniform grid (seed 001) against our LBVH on the same triangles — build rate on
 //! one and all threads, and single-ray vs packet queries (camera rays in 8×8 tiles, shadow rays toward a
-//! point light) on one thread.
+//! point light) through the grid and through the BVH, on one thread.
 
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
@@ -10,6 +10,7 @@ use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::grid::{GridOptions, UniformGrid};
 use kinetrace::scenes::bumpy_torus;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
+use std::ops::Range;
 use std::path::Path;
 
 const SUITE: &str = "grid";
@@ -32,6 +33,21 @@ pub fn run(rec: &mut Records) {
         scene(rec, s.name, &s.mesh(&pos), side);
     }
     scene(rec, "surface", &bumpy_torus(surface), side);
+}
+
+/// Rays per camera tile (8×8).
+const TILE_RAYS: usize = 64;
+
+/// Packets of up to `size` consecutive rays, never crossing a tile boundary.
+fn packets(tiles: &[Range<usize>], size: usize) -> Vec<Range<usize>> {
+    tiles
+        .iter()
+        .flat_map(|t| {
+            (t.start..t.end)
+                .step_by(size)
+                .map(move |s| s..(s + size).min(t.end))
+        })
+        .collect()
 }
 
 /// Camera rays over the mesh in `tile`×`tile` tiles, tile after tile.
@@ -98,14 +114,25 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
     let mut hits = vec![None; camera.len()];
     bvh.closest_hits(&camera, &mut hits);
     let light = grid.bounds().center() + Vec3::new(0.2, 1.0, 0.3) * grid.bounds().extent().length();
-    // Shadow rays from the camera hits toward the light, in the camera's tile order.
-    let shadow: Vec<Ray> = camera
-        .iter()
-        .zip(&hits)
-        .filter_map(|(r, h)| h.map(|h| Ray::with_range(r.at(h.t), light - r.at(h.t), 1e-4, 1.0)))
+    // Shadow rays from the camera hits toward the light; the hits of one camera tile form one group, so
+    // that a packet never mixes tiles.
+    let (mut shadow, mut shadow_tiles) = (Vec::new(), Vec::new());
+    for (rs, hs) in camera.chunks(TILE_RAYS).zip(hits.chunks(TILE_RAYS)) {
+        let start = shadow.len();
+        shadow.extend(rs.iter().zip(hs).filter_map(|(r, h)| {
+            h.map(|h| Ray::with_range(r.at(h.t), light - r.at(h.t), 1e-4, 1.0))
+        }));
+        shadow_tiles.push(start..shadow.len());
+    }
+    let camera_tiles: Vec<_> = (0..camera.len())
+        .step_by(TILE_RAYS)
+        .map(|s| s..s + TILE_RAYS)
         .collect();
     let m = |rays: &[Ray], t: f64| rays.len() as f64 / t / 1e6;
-    for (kind, rays) in [("camera", &camera), ("shadow", &shadow)] {
+    for (kind, rays, tiles) in [
+        ("camera", &camera, &camera_tiles),
+        ("shadow", &shadow, &shadow_tiles),
+    ] {
         let any = kind == "shadow";
         let mut out = vec![None; rays.len()];
         let mut occ = vec![false; rays.len()];
@@ -141,30 +168,75 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
             m(rays, t_bvh),
             "Mrays/s",
         );
-        for size in [16, 64] {
-            let (t, _) = best_of(reps, || {
-                let mut st = TraversalStats::default();
-                for (r, (o, a)) in rays
-                    .chunks(size)
-                    .zip(out.chunks_mut(size).zip(occ.chunks_mut(size)))
-                {
-                    if any {
-                        grid.any_hits_packet(r, a, &mut st);
-                    } else {
-                        grid.closest_hits_packet(r, o, &mut st);
-                    }
-                }
-            });
-            let subject = format!("grid packet {size}, {kind}");
+        // Work per ray behind the times: cells (grid) or nodes (BVH) visited and triangle tests, one by
+        // one and as 64-ray packets (a packet's cell visit counts once for all its rays).
+        let mut single = [TraversalStats::default(); 2];
+        for r in rays.iter() {
+            if any {
+                grid.any_hit_counted(r, &mut single[0]);
+                bvh.any_hit_counted(r, &mut single[1]);
+            } else {
+                grid.closest_hit_counted(r, &mut single[0]);
+                bvh.closest_hit_counted(r, &mut single[1]);
+            }
+        }
+        let mut packed = [TraversalStats::default(); 2];
+        for r in packets(tiles, TILE_RAYS) {
+            let (rays, o, a) = (&rays[r.clone()], &mut out[r.clone()], &mut occ[r]);
+            if any {
+                grid.any_hits_packet(rays, a, &mut packed[0]);
+                bvh.any_hits_packet(rays, a, &mut packed[1]);
+            } else {
+                grid.closest_hits_packet(rays, o, &mut packed[0]);
+                bvh.closest_hits_packet(rays, o, &mut packed[1]);
+            }
+        }
+        let per_ray = |x: u64| x as f64 / rays.len() as f64;
+        for (who, st) in [
+            ("grid single ray", single[0]),
+            ("BVH single ray", single[1]),
+            ("grid packet 64", packed[0]),
+            ("BVH packet 64", packed[1]),
+        ] {
+            let subject = format!("{who}, {kind}");
+            let steps = per_ray(st.inner_visits);
+            rec.add(SUITE, name, &subject, "cells or nodes per ray", steps, "");
             rec.add(
                 SUITE,
                 name,
                 &subject,
-                "Mrays/s 1 thread",
-                m(rays, t),
-                "Mrays/s",
+                "triangle tests per ray",
+                per_ray(st.prim_tests),
+                "",
             );
-            rec.add(SUITE, name, &subject, "speed-up vs single", t_grid / t, "x");
+        }
+        for size in [16, 64] {
+            let ranges = packets(tiles, size);
+            for (who, single) in [("grid", t_grid), ("BVH", t_bvh)] {
+                let (t, _) = best_of(reps, || {
+                    let mut st = TraversalStats::default();
+                    for range in &ranges {
+                        let r = &rays[range.clone()];
+                        let (o, a) = (&mut out[range.clone()], &mut occ[range.clone()]);
+                        match (who, any) {
+                            ("grid", true) => grid.any_hits_packet(r, a, &mut st),
+                            ("grid", false) => grid.closest_hits_packet(r, o, &mut st),
+                            (_, true) => bvh.any_hits_packet(r, a, &mut st),
+                            (_, false) => bvh.closest_hits_packet(r, o, &mut st),
+                        }
+                    }
+                });
+                let subject = format!("{who} packet {size}, {kind}");
+                rec.add(
+                    SUITE,
+                    name,
+                    &subject,
+                    "Mrays/s 1 thread",
+                    m(rays, t),
+                    "Mrays/s",
+                );
+                rec.add(SUITE, name, &subject, "speed-up vs single", single / t, "x");
+            }
         }
     }
 }

@@ -5,6 +5,7 @@ use super::{QueryFilter, RayHit};
 use crate::geometry::Ray;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
+use std::ops::Range;
 
 /// A closest-hit request; `tag` is yours (an entity's bits, an index...), returned with the answer.
 #[derive(Clone, Debug)]
@@ -37,6 +38,10 @@ pub struct ShadowRequest {
 pub struct RayQueue {
     pub(crate) rays: Vec<RayRequest>,
     pub(crate) shadows: Vec<ShadowRequest>,
+    /// Runs of `rays` queued by [`cast_packet`](Self::cast_packet), in order.
+    pub(crate) ray_packets: Vec<Range<usize>>,
+    /// Runs of `shadows` queued by [`shadow_packet`](Self::shadow_packet), in order.
+    pub(crate) shadow_packets: Vec<Range<usize>>,
 }
 
 impl RayQueue {
@@ -55,6 +60,49 @@ impl RayQueue {
         });
     }
 
+    /// Queues coherent closest-hit queries answered as packets (see
+    /// [`TraceWorld::cast_packet`](super::TraceWorld::cast_packet)): a tile of camera rays, tile after tile,
+    /// cut into packets of up to [`MAX_PACKET`](crate::bvh::MAX_PACKET). Ray `i` gets tag `first_tag + i`;
+    /// answers appear in [`RayResults::hits`] in queue order, exactly as if each ray had been
+    /// [`cast`](Self::cast) (same distances; the same entity and triangle unless two tie exactly).
+    ///
+    /// ```
+    /// use kinetrace::ecs::{QueryFilter, RayQueue};
+    /// use kinetrace::Ray;
+    /// use glam::Vec3;
+    /// let mut queue = RayQueue::default(); // normally the plugin's resource, in a gameplay system
+    /// let eye = Vec3::new(0.0, 2.0, 10.0);
+    /// for tile in 0..4u64 {
+    ///     let rays: Vec<Ray> = (0..64)
+    ///         .map(|i| Ray::new(eye, Vec3::new((i % 8) as f32 * 0.01, (i / 8) as f32 * 0.01, -1.0)))
+    ///         .collect();
+    ///     queue.cast_packet(tile * 64, &rays, QueryFilter::default());
+    /// }
+    /// // Shadow rays from points toward one light, as packets too.
+    /// let points = [Vec3::ZERO, Vec3::X, Vec3::Z];
+    /// queue.shadow_packet(1000, &points, Vec3::new(3.0, 20.0, 1.0), QueryFilter::default());
+    /// assert_eq!(queue.len(), 4 * 64 + 3);
+    /// ```
+    pub fn cast_packet(&mut self, first_tag: u64, rays: &[Ray], filter: QueryFilter) {
+        let start = self.rays.len();
+        for (i, &ray) in rays.iter().enumerate() {
+            self.cast(first_tag + i as u64, ray, filter.clone());
+        }
+        push_packets(&mut self.ray_packets, start, self.rays.len());
+    }
+
+    /// Queues occlusion queries from every point of `from` to the common point `to` (shadow rays toward a
+    /// point light, line of sight toward one eye), answered as packets (see
+    /// [`TraceWorld::occluded_packet`](super::TraceWorld::occluded_packet)). Segment `i` gets tag
+    /// `first_tag + i`; answers appear in [`RayResults::shadows`] in queue order.
+    pub fn shadow_packet(&mut self, first_tag: u64, from: &[Vec3], to: Vec3, filter: QueryFilter) {
+        let start = self.shadows.len();
+        for (i, &p) in from.iter().enumerate() {
+            self.shadow(first_tag + i as u64, p, to, filter.clone());
+        }
+        push_packets(&mut self.shadow_packets, start, self.shadows.len());
+    }
+
     /// Requests waiting.
     pub fn len(&self) -> usize {
         self.rays.len() + self.shadows.len()
@@ -64,6 +112,12 @@ impl RayQueue {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+}
+
+/// Records `start..end` as packets of up to [`MAX_PACKET`](crate::bvh::MAX_PACKET) requests.
+fn push_packets(packets: &mut Vec<Range<usize>>, start: usize, end: usize) {
+    let n = crate::bvh::MAX_PACKET;
+    packets.extend((start..end).step_by(n).map(|s| s..(s + n).min(end)));
 }
 
 /// Answers of the last batch, in request order: `(tag, hit)` and `(tag, occluded)`.

@@ -170,14 +170,60 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
     out.frame = frame;
     let (rays, shadows) = (&queue.rays, &queue.shadows);
     out.hits.resize(rays.len(), (0, None));
-    parallel::fill(true, &mut out.hits, 64, |i| {
-        let r = &rays[i];
-        (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter))
+    answer_units(&mut out.hits, &queue.ray_packets, |range, packet, out| {
+        let rays = &rays[range];
+        if packet {
+            let world_rays: Vec<_> = rays.iter().map(|r| r.ray).collect();
+            let mut hits = vec![None; rays.len()];
+            world.cast_packet(&world_rays, f32::INFINITY, &rays[0].filter, &mut hits);
+            for ((o, r), h) in out.iter_mut().zip(rays).zip(hits) {
+                *o = (r.tag, h);
+            }
+        } else {
+            for (o, r) in out.iter_mut().zip(rays) {
+                *o = (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter));
+            }
+        }
     });
     out.shadows.resize(shadows.len(), (0, false));
-    parallel::fill(true, &mut out.shadows, 64, |i| {
-        let s = &shadows[i];
-        (s.tag, world.occluded(s.from, s.to, &s.filter))
+    answer_units(
+        &mut out.shadows,
+        &queue.shadow_packets,
+        |range, packet, out| {
+            let shadows = &shadows[range];
+            if packet {
+                let segments: Vec<_> = shadows.iter().map(|s| (s.from, s.to)).collect();
+                let mut occluded = vec![false; shadows.len()];
+                world.occluded_packet(&segments, &shadows[0].filter, &mut occluded);
+                for ((o, s), b) in out.iter_mut().zip(shadows).zip(occluded) {
+                    *o = (s.tag, b);
+                }
+            } else {
+                for (o, s) in out.iter_mut().zip(shadows) {
+                    *o = (s.tag, world.occluded(s.from, s.to, &s.filter));
+                }
+            }
+        },
+    );
+}
+
+/// Runs `answer(range, is_packet, out[range])` for every queued packet and every run of up to 64 single
+/// requests between them, on all threads.
+fn answer_units<T: Send>(
+    out: &mut [T],
+    packets: &[std::ops::Range<usize>],
+    answer: impl Fn(std::ops::Range<usize>, bool, &mut [T]) + Sync + Send,
+) {
+    let units = super::world_packets::packet_units(out.len(), packets);
+    let mut parts = Vec::with_capacity(units.len());
+    let mut rest = out;
+    for (range, packet) in units {
+        let (part, tail) = rest.split_at_mut(range.len());
+        rest = tail;
+        parts.push((range, packet, part));
+    }
+    parallel::for_each_mut(true, &mut parts, |_, (range, packet, part)| {
+        answer(range.clone(), *packet, part)
     });
 }
 
@@ -248,6 +294,8 @@ fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     stats.batched_rays = queue.len();
     queue.rays.clear();
     queue.shadows.clear();
+    queue.ray_packets.clear();
+    queue.shadow_packets.clear();
     stats.query_time = start.elapsed();
 }
 

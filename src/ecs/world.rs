@@ -123,7 +123,7 @@ impl Instance {
 
     /// The world ray in object space: same `t` values, since origin and direction go through the same
     /// affine map.
-    fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
+    pub(super) fn object_ray(&self, ray: &Ray, tmax: f32) -> Ray {
         Ray::with_range(
             self.inverse.transform_point3(ray.origin),
             self.inverse.transform_vector3(ray.dir()),
@@ -158,7 +158,26 @@ impl Instance {
         }
     }
 
-    fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
+    /// The nearest hits of a packet of object-space rays (up to [`crate::bvh::MAX_PACKET`]), through the
+    /// mesh's structure: grid packets for a mesh kept as a grid, BVH packets otherwise.
+    pub(super) fn closest_hits_packet(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        let mut stats = TraversalStats::default();
+        match self.grid() {
+            Some(g) => g.closest_hits_packet(rays, out, &mut stats),
+            None => self.bvh.closest_hits_packet(rays, out, &mut stats),
+        }
+    }
+
+    /// Whether each object-space ray of a packet hits the mesh, through the mesh's structure.
+    pub(super) fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool]) {
+        let mut stats = TraversalStats::default();
+        match self.grid() {
+            Some(g) => g.any_hits_packet(rays, out, &mut stats),
+            None => self.bvh.any_hits_packet(rays, out, &mut stats),
+        }
+    }
+
+    pub(super) fn world_hit(&self, entity: Entity, ray: &Ray, h: &Hit) -> RayHit {
         RayHit {
             entity,
             distance: h.t,

@@ -27,7 +27,7 @@ mod packet;
 pub use choice::{
     ChoiceInput, ChoiceReason, StructureChoice, StructureCosts, StructureKind, choose_structure,
 };
-pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT};
+pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT, PACKET_START_CELLS};
 
 use crate::bvh::Hit;
 use crate::geometry::Aabb;

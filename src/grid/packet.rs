@@ -12,22 +12,26 @@
 //!
 //! **Splitting rule (ours).** A packet is traced ray by ray ([`UniformGrid::closest_hit`]) when its rays do
 //! not share a direction sign on the major axis of their mean direction, when one of its rays is
-//! [far](UniformGrid::is_far), or when the spread of its slopes exceeds [`PACKET_SPREAD_LIMIT`]: past that
-//! width the frustum covers so many cells per slice that single rays are cheaper.
+//! [far](UniformGrid::is_far), when the spread of its slopes exceeds [`PACKET_SPREAD_LIMIT`] (past that
+//! width the frustum covers so many cells per slice that single rays are cheaper), or when its entry points
+//! scatter over more than [`PACKET_START_CELLS`] cells per ray across the major axis.
 
 use super::{Mailbox, UniformGrid};
-use crate::bvh::{Hit, TraversalStats};
+use crate::bvh::{Hit, TraversalStats, for_each_packet};
 use crate::geometry::{Ray, TriangleRay};
-use crate::parallel;
 use glam::{UVec3, Vec3, Vec4};
 
-/// Most rays in one packet; longer slices given to the packet queries are cut into packets of this size.
-pub const MAX_PACKET: usize = 64;
+pub use crate::bvh::MAX_PACKET;
 
 /// Largest sum of the slope spreads `(max − min)` of `du/dk` and `dv/dk` over a packet that is still traced
 /// as a packet. Ours: 0.5 is a frustum 27° wide, far beyond a camera tile (an 8×8 tile of a 60° 512-pixel
 /// view spreads about 0.02) and about where it starts to overlap more cells per slice than the rays cross.
 pub const PACKET_SPREAD_LIMIT: f32 = 0.5;
+
+/// Largest area, in cells per ray, of the rectangle across the major axis that a packet's entry points
+/// cover for it to be traced as a packet. Ours: a camera tile enters within a few cells; shadow rays from
+/// one tile's hits scattered through an explosion spread over hundreds, and single rays win there.
+pub const PACKET_START_CELLS: f32 = 4.0;
 
 /// Entries of a packet's mailbox.
 const PACKET_MAILBOX: usize = 256;
@@ -80,21 +84,15 @@ impl UniformGrid {
     /// Batched closest-hit queries: `rays` holds consecutive packets of `packet` rays each (camera tiles in
     /// tile order, or shadow rays grouped by light), traced on all threads with the `parallel` feature.
     pub fn closest_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [Option<Hit>]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.closest_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.closest_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 
     /// Batched any-hit queries (shadow rays), as [`closest_hits_packets`](Self::closest_hits_packets).
     pub fn any_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [bool]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        let packet = packet.clamp(1, MAX_PACKET);
-        parallel::fill_chunks(true, out, packet, |i, out| {
-            let rays = &rays[i * packet..i * packet + out.len()];
-            self.any_hits_packet(rays, out, &mut TraversalStats::default());
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.any_hits_packet(rays, out, &mut TraversalStats::default())
         });
     }
 
@@ -146,18 +144,36 @@ impl UniformGrid {
         // Frustum: each ray's (u, v) on the first plane and its slopes per unit of w.
         let (mut amin, mut amax) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         let (mut smin, mut smax) = (amin, amax);
-        for (_, r) in live() {
+        // Each lane's own line in the same frame, `(u, v) = a + s·w`, for the per-lane triangle cull.
+        let mut lane_line = [(Vec3::ZERO, Vec3::ZERO); MAX_PACKET];
+        for (i, r) in rays.iter().enumerate() {
+            if lanes[i].is_none() {
+                continue;
+            }
             let d = r.dir();
             let s = Vec3::new(0.0, d[u] / d[k], d[v] / d[k]);
             let dx = x0 - r.origin[k];
             let a = Vec3::new(0.0, r.origin[u] + s.y * dx, r.origin[v] + s.z * dx);
             let s = s * sgn;
+            lane_line[i] = (a, s);
             amin = amin.min(a);
             amax = amax.max(a);
             smin = smin.min(s);
             smax = smax.max(s);
         }
         if (smax - smin).y + (smax - smin).z > PACKET_SPREAD_LIMIT {
+            return false;
+        }
+        // Where the rays enter, in cells across k: a packet whose starts scatter over more cells than it
+        // has rays walks a rectangle wider than the rays' own cells (shadow rays from hits at different depths).
+        let (mut elo, mut ehi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let mut count = 0.0;
+        for ((_, t_in, _), r) in live() {
+            let p = r.at(t_in) * self.inv_cell;
+            (elo, ehi, count) = (elo.min(p), ehi.max(p), count + 1.0);
+        }
+        let e = ehi - elo + Vec3::ONE;
+        if e[u] * e[v] > PACKET_START_CELLS * count {
             return false;
         }
         // Plane i of the four is `f_i(p) = P_i − (A_i + S_i·w) ≥ 0` inside, with P = (pu, −pu, pv, −pv).
@@ -176,10 +192,59 @@ impl UniformGrid {
         for (i, r) in rays.iter().enumerate() {
             tmax[i] = r.tmax;
         }
+        // Per lane: where along w its segment starts, and the slice where its range ends.
+        let mut w_start = [0.0f32; MAX_PACKET];
+        let mut end_slice = [c_last; MAX_PACKET];
+        let mut w_start_max = f32::NEG_INFINITY;
+        for ((i, lane), r) in lanes.iter().enumerate().zip(rays) {
+            if let Some((_, t_in, t_out)) = *lane {
+                w_start[i] = sgn * r.at(t_in)[k] - s0;
+                w_start_max = w_start_max.max(w_start[i]);
+                end_slice[i] = slice_of(r.at(t_out)[k]);
+            }
+        }
+        // The (a, s) bounds of the live lanes, and the first slice (in travel order) where one may end.
+        let before = |a: u32, b: u32| if sgn > 0.0 { a < b } else { a > b };
+        let live_bounds = |lanes: &[Option<(TriangleRay, f32, f32)>; MAX_PACKET], c: u32| {
+            let (mut lo, mut hi) = ([Vec3::INFINITY; 2], [Vec3::NEG_INFINITY; 2]);
+            let mut next = c_last;
+            for (i, lane) in lanes.iter().enumerate() {
+                if lane.is_some() {
+                    let (a, s) = lane_line[i];
+                    (lo[0], hi[0]) = (lo[0].min(a), hi[0].max(a));
+                    (lo[1], hi[1]) = (lo[1].min(s), hi[1].max(s));
+                    if before(c, end_slice[i]) && before(end_slice[i], next) {
+                        next = end_slice[i];
+                    }
+                }
+            }
+            (lo, hi, next)
+        };
+        let (mut live_lo, mut live_hi, mut next_end) = live_bounds(&lanes, c_first);
+        if !before(c_first, next_end) {
+            next_end = c_first;
+        }
+        // The lanes' lines again, four lanes per entry for the per-lane triangle cull:
+        // `([a_u, a_v], [s_u, s_v])`; a dead lane's `a` is +∞.
+        let groups = rays.len().div_ceil(4);
+        let mut soa = [([Vec4::INFINITY; 2], [Vec4::ZERO; 2]); MAX_PACKET / 4];
+        for (i, lane) in lanes.iter().enumerate() {
+            if lane.is_some() {
+                let (a, s) = lane_line[i];
+                let (la, ls) = &mut soa[i / 4];
+                (la[0][i % 4], la[1][i % 4]) = (a.y, a.z);
+                (ls[0][i % 4], ls[1][i % 4]) = (s.y, s.z);
+            }
+        }
+        let kill = |soa: &mut [([Vec4; 2], [Vec4; 2]); MAX_PACKET / 4], i: usize| {
+            soa[i / 4].0[0][i % 4] = f32::INFINITY;
+            soa[i / 4].0[1][i % 4] = f32::INFINITY;
+        };
         let mut mail = Mailbox::<PACKET_MAILBOX>::new();
         let mc = self.options.macrocell;
         let mut c = c_first;
         loop {
+            let mut tested = false;
             let (plane_lo, plane_hi) = (g0[k] + c as f32 * cs[k], g0[k] + (c + 1) as f32 * cs[k]);
             let (x_in, x_out) = if sgn > 0.0 {
                 (plane_lo, plane_hi)
@@ -187,8 +252,26 @@ impl UniformGrid {
                 (plane_hi, plane_lo)
             };
             let (w_in, w_out) = (((x_in - x0) * sgn).max(0.0), ((x_out - x0) * sgn).max(0.0));
-            let lo = (amin + smin * w_in).min(amin + smin * w_out) - m;
-            let hi = (amax + smax * w_in).max(amax + smax * w_out) + m;
+            // The rectangle the live rays' own segments cover in this slice: tighter than the whole
+            // frustum when origins are spread along k (shadow rays from a tile's hits).
+            // Once every segment has started, the live lanes' bounds give it in four multiply-adds.
+            let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+            if w_in >= w_start_max {
+                let [(la, ls), (ha, hs)] = [(live_lo[0], live_lo[1]), (live_hi[0], live_hi[1])];
+                lo = (la + ls * w_in).min(la + ls * w_out);
+                hi = (ha + hs * w_in).max(ha + hs * w_out);
+            } else {
+                for (i, lane) in lanes.iter().enumerate() {
+                    if lane.is_none() || w_start[i] > w_out + m {
+                        continue;
+                    }
+                    let (a, s) = lane_line[i];
+                    let (p, q) = (a + s * w_in.max(w_start[i]), a + s * w_out);
+                    lo = lo.min(p.min(q));
+                    hi = hi.max(p.max(q));
+                }
+            }
+            let (lo, hi) = (lo - m, hi + m);
             let cell_range = |a: usize, j: usize| {
                 let to_cell = |x: f32| ((x - g0[a]) * self.inv_cell[a]).floor();
                 let (l, h) = (to_cell(lo[j]), to_cell(hi[j]));
@@ -221,23 +304,45 @@ impl UniformGrid {
                                     if f.cmplt(Vec4::splat(-m)).any() {
                                         continue;
                                     }
-                                    for (i, lane) in lanes.iter().enumerate() {
-                                        let Some((tr, ..)) = lane else { continue };
-                                        stats.prim_tests += 1;
-                                        let r = &rays[i];
-                                        if let Some(h) = tr.intersect(a, b, cc, r.tmin, tmax[i])
-                                            && best[i].is_none_or(|(bt, bp, ..)| h.t < bt || p < bp)
-                                        {
-                                            best[i] = Some((h.t, p, h.u, h.v));
-                                            if !any {
+                                    // The corners in the frustum frame: a lane whose line passes on
+                                    // one side of all three in u or in v (beyond the margin) misses.
+                                    // Four lanes at a time; dead lanes sit at +∞ and always miss.
+                                    let w = (Vec3::new(a[k], b[k], cc[k]) - Vec3::splat(x0)) * sgn;
+                                    let (pu, pv) = (
+                                        [a[u], b[u], cc[u]].map(Vec4::splat),
+                                        [a[v], b[v], cc[v]].map(Vec4::splat),
+                                    );
+                                    for g in 0..groups {
+                                        let (la, ls) = soa[g];
+                                        let d = |p: &[Vec4; 3], a: Vec4, s: Vec4| {
+                                            let d = [0, 1, 2].map(|j| p[j] - (a + s * w[j]));
+                                            (d[0].min(d[1]).min(d[2]), d[0].max(d[1]).max(d[2]))
+                                        };
+                                        let (umin, umax) = d(&pu, la[0], ls[0]);
+                                        let (vmin, vmax) = d(&pv, la[1], ls[1]);
+                                        let (mp, mn) = (Vec4::splat(m), Vec4::splat(-m));
+                                        let miss = umin.cmpgt(mp)
+                                            | umax.cmplt(mn)
+                                            | vmin.cmpgt(mp)
+                                            | vmax.cmplt(mn);
+                                        let mut near = !miss.bitmask() & 0xF;
+                                        while near != 0 {
+                                            let i = 4 * g + near.trailing_zeros() as usize;
+                                            near &= near - 1;
+                                            let Some((tr, ..)) = lanes[i] else { continue };
+                                            tested = true;
+                                            stats.prim_tests += 1;
+                                            let r = &rays[i];
+                                            if let Some(h) = tr.intersect(a, b, cc, r.tmin, tmax[i])
+                                                && best[i]
+                                                    .is_none_or(|(bt, bp, ..)| h.t < bt || p < bp)
+                                            {
+                                                best[i] = Some((h.t, p, h.u, h.v));
                                                 tmax[i] = h.t;
-                                            }
-                                        }
-                                    }
-                                    if any {
-                                        for (l, b) in lanes.iter_mut().zip(best.iter()) {
-                                            if b.is_some() {
-                                                *l = None;
+                                                if any {
+                                                    lanes[i] = None;
+                                                    kill(&mut soa, i);
+                                                }
                                             }
                                         }
                                     }
@@ -247,7 +352,15 @@ impl UniformGrid {
                     }
                 }
             }
-            // Rays whose best hit lies before this slice's exit, or whose range ends in it, are done.
+            if c == c_last {
+                return true;
+            }
+            // Rays whose best hit lies before this slice's exit, or whose range ends in it, are done:
+            // only a slice that tested a triangle or where some range may end can finish one.
+            if !tested && c != next_end {
+                c = if sgn > 0.0 { c + 1 } else { c - 1 };
+                continue;
+            }
             let mut alive = false;
             for (i, lane) in lanes.iter_mut().enumerate() {
                 if let Some((_, _, t_out)) = *lane {
@@ -255,14 +368,16 @@ impl UniformGrid {
                     let t_exit = (x_out - r.origin[k]) * r.inv_dir()[k];
                     if t_exit >= t_out || best[i].is_some_and(|(t, ..)| t <= t_exit) {
                         *lane = None;
+                        kill(&mut soa, i);
                     } else {
                         alive = true;
                     }
                 }
             }
-            if !alive || c == c_last {
+            if !alive {
                 return true;
             }
+            (live_lo, live_hi, next_end) = live_bounds(&lanes, c);
             c = if sgn > 0.0 { c + 1 } else { c - 1 };
         }
     }

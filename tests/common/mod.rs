@@ -74,6 +74,27 @@ pub fn map_mesh(m: &Mesh, f: impl Fn(Vec3) -> Vec3) -> Mesh {
     .unwrap()
 }
 
+/// An `n`×`n` tile-ordered pinhole camera at `eye` looking at `target`: coherent packets of `tile`².
+pub fn camera(eye: Vec3, target: Vec3, n: u32, tile: u32, fov: f32) -> Vec<Ray> {
+    let f = (target - eye).normalize();
+    let r = f.cross(Vec3::Y).normalize_or(Vec3::X);
+    let up = r.cross(f);
+    let s = (fov * 0.5).tan();
+    let mut rays = Vec::new();
+    for ty in (0..n).step_by(tile as usize) {
+        for tx in (0..n).step_by(tile as usize) {
+            for y in ty..(ty + tile).min(n) {
+                for x in tx..(tx + tile).min(n) {
+                    let px = ((x as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
+                    let py = ((y as f32 + 0.5) / n as f32 * 2.0 - 1.0) * s;
+                    rays.push(Ray::new(eye, f + r * px + up * py));
+                }
+            }
+        }
+    }
+    rays
+}
+
 /// Brute force closest hit by the independent oracle ([`RayOracle`]): the exact answer for the `f32` ray and
 /// triangles — smallest exact `t`, then lowest index; a ray through an edge or vertex hits; zero-area
 /// triangles and rays in a triangle's plane never hit. Returns (triangle, `t` rounded to `f32`). The crate's

@@ -1,0 +1,362 @@
+//! Coherent ray packets through a binary [`MeshBvh`]: up to [`MAX_PACKET`] rays (a 4×4 or 8×8 tile of
+//! camera rays, or shadow rays toward one light) walk the tree together.
+//!
+//! **Scheme (ours, after Wald et al. 2007 "Ray Tracing Deformable Scenes using Dynamic BVHs" and Overbeck
+//! et al. 2008 "Large Ray Packets"):** a node is first tested against the whole packet with *interval
+//! arithmetic*: on each axis where every ray's direction has the same sign, the intervals of the origins and
+//! of the reciprocal directions bound every ray's slab distances, and a box that the bounds place beyond
+//! every ray's range is culled for all rays at once (one test instead of up to 64). A box that survives is
+//! entered with the *active range*: the first and the last ray of the packet whose own slab test (the exact
+//! test single rays use, against that ray's current closest hit) accepts the box — rays outside the range
+//! skip the whole subtree. Leaves test each ray in the range against the leaf box, then its triangles. Children
+//! are visited nearer-first by their interval lower bound; a pushed sibling is re-scanned when popped, so
+//! hits found meanwhile shrink its range.
+//!
+//! **Answers equal single rays.** Every box a ray's single-ray traversal would enter with a given `tmax` is
+//! entered by the packet for that ray with the same or a larger bound: the interval bounds are computed with
+//! the same rounded operations applied to the extreme origins and reciprocals (rounding is monotone) and
+//! widened by the same Ize factor, and the range scans use [`Ray::intersect_aabb`] itself. So each ray finds
+//! the same closest `t`; among triangles hit at exactly that `t` it keeps the lowest index it tested, which
+//! can differ from the single ray's pick at a vertex fan (the tie rule of [`MeshBvh`]).
+//!
+//! **When it pays.** Packets amortise a node visit over the rays that share it: camera tiles and shadow
+//! rays toward one point light. A packet with no axis on which all directions share a sign cannot be culled
+//! as a whole and is traced ray by ray ([`MeshBvh::closest_hit`]) — the fallback rule; a merely wide packet
+//! still gives exact answers, but its active ranges stay wide and it approaches the single-ray cost plus the
+//! range scans. Costs: no allocation; the stack is [`MAX_DEPTH`] entries of 8 bytes and the packet's state
+//! about 2 KB on the stack.
+
+use super::traverse::TraversalStats;
+use super::{MAX_DEPTH, MeshBvh, Node};
+use crate::bvh::Hit;
+use crate::geometry::{Aabb, ROBUST_TMAX_SCALE, Ray, TriangleRay};
+use crate::parallel;
+use glam::{BVec3, Vec3};
+
+/// Most rays in one packet (a 64-bit active mask); longer slices given to the packet queries are cut into
+/// packets of this size.
+pub const MAX_PACKET: usize = 64;
+
+/// Runs `trace(rays, out)` over consecutive packets of `packet` rays (clamped to `1..=MAX_PACKET`), on all
+/// threads with the `parallel` feature: the batched form of every packet query. `out` must be as long as
+/// `rays`.
+pub(crate) fn for_each_packet<T: Send>(
+    rays: &[Ray],
+    packet: usize,
+    out: &mut [T],
+    trace: impl Fn(&[Ray], &mut [T]) + Sync + Send,
+) {
+    assert_eq!(rays.len(), out.len(), "one output per ray");
+    let packet = packet.clamp(1, MAX_PACKET);
+    parallel::fill_chunks(true, out, packet, |i, out| {
+        trace(&rays[i * packet..i * packet + out.len()], out)
+    });
+}
+
+/// Interval bounds over a packet's rays, per axis: origins, reciprocal directions, and which axes every
+/// ray crosses in the same direction (the only axes that can cull).
+struct Bounds {
+    olo: Vec3,
+    ohi: Vec3,
+    rlo: Vec3,
+    rhi: Vec3,
+    neg: BVec3,
+    usable: BVec3,
+    tmin: f32,
+}
+
+impl Bounds {
+    /// The bounds of the rays in `mask`; `None` when no axis can cull.
+    fn new(rays: &[Ray], mask: u64) -> Option<Bounds> {
+        let (mut olo, mut ohi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let (mut rlo, mut rhi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+        let (mut any_neg, mut any_pos, mut zero) = (BVec3::FALSE, BVec3::FALSE, BVec3::FALSE);
+        let mut tmin = f32::INFINITY;
+        for i in lanes(mask) {
+            let r = &rays[i];
+            olo = olo.min(r.origin);
+            ohi = ohi.max(r.origin);
+            rlo = rlo.min(r.inv_dir());
+            rhi = rhi.max(r.inv_dir());
+            any_neg |= r.dir_neg();
+            any_pos |= !r.dir_neg();
+            zero |= r.dir().cmpeq(Vec3::ZERO);
+            tmin = tmin.min(r.tmin);
+        }
+        let usable = !((any_neg & any_pos) | zero);
+        usable.any().then_some(Bounds {
+            olo,
+            ohi,
+            rlo,
+            rhi,
+            neg: any_neg,
+            usable,
+            tmin,
+        })
+    }
+
+    /// A lower bound of every ray's entry distance into `b` when some ray may reach it within `tmax` (the
+    /// packet's largest), else `None`.
+    #[inline]
+    fn enter(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+        // Near plane: the largest (b − o)·r any ray can have is bounded below by the extreme origin
+        // against both ends of the reciprocal interval; far plane likewise from above.
+        let n = Vec3::select(self.neg, b.max - self.olo, b.min - self.ohi);
+        let f = Vec3::select(self.neg, b.min - self.ohi, b.max - self.olo);
+        let near = (n * self.rlo).min(n * self.rhi);
+        let far = (f * self.rlo).max(f * self.rhi);
+        let near = Vec3::select(self.usable, near, Vec3::NEG_INFINITY);
+        let far = Vec3::select(self.usable, far, Vec3::INFINITY);
+        let tnear = near.max_element().max(self.tmin);
+        (tnear <= (far.min_element() * ROBUST_TMAX_SCALE).min(tmax)).then_some(tnear)
+    }
+}
+
+/// The lanes set in `mask`, lowest first.
+#[inline]
+fn lanes(mut mask: u64) -> impl Iterator<Item = usize> {
+    std::iter::from_fn(move || {
+        (mask != 0).then(|| {
+            let i = mask.trailing_zeros() as usize;
+            mask &= mask - 1;
+            i
+        })
+    })
+}
+
+/// Lanes `first..=last` of a 64-bit mask.
+#[inline]
+fn range_mask(first: usize, last: usize) -> u64 {
+    (u64::MAX >> (63 - last)) & (u64::MAX << first)
+}
+
+/// The state of one packet: its rays, their best hits and which are still looking.
+struct Packet<'a> {
+    rays: &'a [Ray],
+    tris: [Option<TriangleRay>; MAX_PACKET],
+    /// Current `tmax` of each ray (its closest hit so far).
+    tmax: [f32; MAX_PACKET],
+    /// `(primitive, slot, u, v)` of each ray's best hit.
+    best: [Option<(u32, usize, f32, f32)>; MAX_PACKET],
+    /// Rays still traversing (any-hit queries drop a ray at its first hit).
+    active: u64,
+}
+
+impl MeshBvh {
+    /// [`closest_hit`](Self::closest_hit) for every ray of `rays`, traced as packets of up to
+    /// [`MAX_PACKET`] consecutive rays (see the [module docs](self) for the scheme and when a packet is
+    /// traced ray by ray). `out` must be as long as `rays`; single-threaded (see
+    /// [`closest_hits_packets`](Self::closest_hits_packets)).
+    pub fn closest_hits_packet(
+        &self,
+        rays: &[Ray],
+        out: &mut [Option<Hit>],
+        stats: &mut TraversalStats,
+    ) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+            match self.trace_packet(rays, false, stats) {
+                Some(p) => {
+                    for (i, o) in out.iter_mut().enumerate() {
+                        *o = p.best[i]
+                            .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
+                    }
+                }
+                None => {
+                    for (o, r) in out.iter_mut().zip(rays) {
+                        *o = self.closest_hit_counted(r, stats);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`any_hit`](Self::any_hit) for every ray, as packets; like
+    /// [`closest_hits_packet`](Self::closest_hits_packet).
+    pub fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], stats: &mut TraversalStats) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+            match self.trace_packet(rays, true, stats) {
+                Some(p) => {
+                    for (i, o) in out.iter_mut().enumerate() {
+                        *o = p.best[i].is_some();
+                    }
+                }
+                None => {
+                    for (o, r) in out.iter_mut().zip(rays) {
+                        *o = self.any_hit_counted(r, stats);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Batched closest-hit queries: `rays` holds consecutive packets of `packet` rays each (camera tiles in
+    /// tile order, or shadow rays grouped by light), traced on all threads with the `parallel` feature.
+    pub fn closest_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [Option<Hit>]) {
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.closest_hits_packet(rays, out, &mut TraversalStats::default())
+        });
+    }
+
+    /// Batched any-hit queries (shadow rays), as [`closest_hits_packets`](Self::closest_hits_packets).
+    pub fn any_hits_packets(&self, rays: &[Ray], packet: usize, out: &mut [bool]) {
+        for_each_packet(rays, packet, out, |rays, out| {
+            self.any_hits_packet(rays, out, &mut TraversalStats::default())
+        });
+    }
+
+    fn packet_hit(&self, t: f32, primitive: u32, slot: usize, u: f32, v: f32) -> Hit {
+        let [a, b, c] = self.slot_triangles()[slot];
+        Hit {
+            t,
+            primitive,
+            u,
+            v,
+            normal: (b - a).cross(c - a).normalize_or_zero(),
+        }
+    }
+
+    /// Traces up to [`MAX_PACKET`] rays together; `None` when the packet must be traced ray by ray.
+    fn trace_packet<'a>(
+        &self,
+        rays: &'a [Ray],
+        any: bool,
+        stats: &mut TraversalStats,
+    ) -> Option<Packet<'a>> {
+        debug_assert!(rays.len() <= MAX_PACKET);
+        let mut p = Packet {
+            rays,
+            tris: [None; MAX_PACKET],
+            tmax: [f32::NEG_INFINITY; MAX_PACKET],
+            best: [None; MAX_PACKET],
+            active: 0,
+        };
+        for (i, r) in rays.iter().enumerate() {
+            if r.is_valid() {
+                p.tris[i] = Some(TriangleRay::new(r));
+                p.tmax[i] = r.tmax;
+                p.active |= 1 << i;
+            }
+        }
+        let nodes = self.bvh().nodes();
+        if p.active == 0 || nodes.is_empty() {
+            return Some(p);
+        }
+        let bounds = Bounds::new(rays, p.active)?;
+        let mut tmax_all = lanes(p.active)
+            .map(|i| p.tmax[i])
+            .fold(f32::NEG_INFINITY, f32::max);
+        let mut stack = [(0u32, 0u8, 0u8); MAX_DEPTH];
+        let mut sp = 0;
+        let (mut cur, mut first, mut last) = (0usize, 0usize, MAX_PACKET - 1);
+        if bounds.enter(&nodes[0].aabb(), tmax_all).is_none() {
+            return Some(p);
+        }
+        loop {
+            // Narrow the range to the first and last ray whose own slab test accepts this node.
+            if let Some((f, l)) = p.scan(&nodes[cur], first, last) {
+                (first, last) = (f, l);
+                let n = &nodes[cur];
+                if n.is_leaf() {
+                    stats.leaf_visits += 1;
+                    if p.leaf(self, n, first, last, any, stats) {
+                        if p.active == 0 {
+                            return Some(p);
+                        }
+                        tmax_all = lanes(p.active)
+                            .map(|i| p.tmax[i])
+                            .fold(f32::NEG_INFINITY, f32::max);
+                    }
+                } else {
+                    stats.inner_visits += 1;
+                    let c = n.left();
+                    let a = bounds.enter(&nodes[c].aabb(), tmax_all);
+                    let b = bounds.enter(&nodes[c + 1].aabb(), tmax_all);
+                    let next = match (a, b) {
+                        (Some(ka), Some(kb)) => {
+                            let (near, far) = if ka <= kb { (c, c + 1) } else { (c + 1, c) };
+                            stack[sp] = (far as u32, first as u8, last as u8);
+                            sp += 1;
+                            Some(near)
+                        }
+                        (Some(_), None) => Some(c),
+                        (None, Some(_)) => Some(c + 1),
+                        (None, None) => None,
+                    };
+                    if let Some(next) = next {
+                        cur = next;
+                        continue;
+                    }
+                }
+            }
+            if sp == 0 {
+                return Some(p);
+            }
+            sp -= 1;
+            let (n, f, l) = stack[sp];
+            (cur, first, last) = (n as usize, f as usize, l as usize);
+        }
+    }
+}
+
+impl Packet<'_> {
+    /// The first and last active ray in `first..=last` whose slab test accepts `n`'s box, or `None`.
+    #[inline]
+    fn scan(&self, n: &Node, first: usize, last: usize) -> Option<(usize, usize)> {
+        let b = n.aabb();
+        let hits = |i: &usize| self.rays[*i].intersect_aabb(&b, self.tmax[*i]).is_some();
+        let mask = self.active & range_mask(first, last.min(self.rays.len() - 1));
+        let f = lanes(mask).find(hits)?;
+        let mut upper = mask & !range_mask(0, f);
+        while upper != 0 {
+            let l = 63 - upper.leading_zeros() as usize;
+            if hits(&l) {
+                return Some((f, l));
+            }
+            upper &= !(1 << l);
+        }
+        Some((f, f))
+    }
+
+    /// Tests leaf `n`'s triangles against the active rays in `first..=last` that reach its box; true when
+    /// any ray's best hit changed.
+    fn leaf(
+        &mut self,
+        bvh: &MeshBvh,
+        n: &Node,
+        first: usize,
+        last: usize,
+        any: bool,
+        stats: &mut TraversalStats,
+    ) -> bool {
+        let b = n.aabb();
+        let (tris, prims) = (bvh.slot_triangles(), bvh.bvh().prim_indices());
+        let mut changed = false;
+        for i in lanes(self.active & range_mask(first, last)) {
+            let r = &self.rays[i];
+            if i != first && i != last && r.intersect_aabb(&b, self.tmax[i]).is_none() {
+                continue;
+            }
+            let tr = self.tris[i].as_ref().expect("active rays are valid");
+            for s in n.slots() {
+                stats.prim_tests += 1;
+                let [a, b, c] = tris[s];
+                if let Some(h) = tr.intersect(a, b, c, r.tmin, self.tmax[i]) {
+                    let p = prims[s];
+                    let t = self.tmax[i];
+                    if self.best[i].is_none_or(|(bp, ..)| h.t < t || p < bp) {
+                        self.best[i] = Some((p, s, h.u, h.v));
+                        self.tmax[i] = h.t;
+                        changed = true;
+                        if any {
+                            self.active &= !(1 << i);
+                            break;
+                        }
+                    }
+                }
+            }
+        }
+        changed
+    }
+}

@@ -1,0 +1,179 @@
+//! Packets in the batched queries: camera tiles and shadow rays toward one light, queued as packets among
+//! single requests, are answered exactly as the single-ray path answers each of them (and as world-space
+//! brute force does), while the entities move and deform.
+
+mod common;
+use bevy_ecs::prelude::*;
+use common::ecs::{agree, app_with, brute};
+use common::*;
+use glam::{Affine3A, Quat, Vec3};
+use kinetrace::Ray;
+use kinetrace::ecs::*;
+use kinetrace::scenes::bumpy_torus;
+
+#[test]
+fn queued_packets_answer_like_single_rays() {
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    // The ground, on a layer of its own.
+    world.spawn((
+        TraceMesh(cube_sphere(4)),
+        MotionHint::Static,
+        TraceTransform(Affine3A::from_scale_rotation_translation(
+            Vec3::new(8.0, 0.2, 8.0),
+            Quat::IDENTITY,
+            Vec3::new(0.0, -1.2, 0.0),
+        )),
+        QueryLayers(0b10),
+    ));
+    let movers: Vec<Entity> = (0..4)
+        .map(|_| {
+            world
+                .spawn((
+                    TraceMesh(icosphere(2)),
+                    MotionHint::Rigid,
+                    QueryLayers(0b01),
+                ))
+                .id()
+        })
+        .collect();
+    let rest = bumpy_torus(1500);
+    let blob = world
+        .spawn((
+            TraceMesh(rest.clone()),
+            VertexPositions(rest.positions().to_vec()),
+            TraceTransform(Affine3A::from_translation(Vec3::new(0.0, 0.5, 2.0))),
+        ))
+        .id();
+    let light = Vec3::new(3.0, 12.0, -2.0);
+    let eye = Vec3::new(0.5, 4.0, -9.0);
+    let mut r = rng(4);
+    for f in 0..6u32 {
+        let time = f as f32 * 0.4;
+        for (k, &e) in movers.iter().enumerate() {
+            let a = time + k as f32 * 1.6;
+            world.get_mut::<TraceTransform>(e).unwrap().0 =
+                Affine3A::from_scale_rotation_translation(
+                    Vec3::splat(0.8 + 0.2 * k as f32),
+                    Quat::from_rotation_y(a),
+                    Vec3::new(3.0 * a.cos(), 0.2 * k as f32, 3.0 * a.sin()),
+                );
+        }
+        let mut vp = world.get_mut::<VertexPositions>(blob).unwrap();
+        for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+            *p = *q * (1.0 + 0.2 * (time + q.x * 4.0).sin());
+        }
+        // Singles, a 32×32 camera in tiles, more singles, and shadow packets from random points, two of
+        // them with filters (layers, an excluded entity).
+        let camera = camera(eye, Vec3::ZERO, 32, 8, 0.9);
+        let singles: Vec<Ray> = (0..40)
+            .map(|_| Ray::new(rand_vec(&mut r, -5.0, 5.0), rand_dir(&mut r)))
+            .collect();
+        let points: Vec<Vec3> = (0..150).map(|_| rand_vec(&mut r, -4.0, 4.0)).collect();
+        let filters = [
+            QueryFilter::default(),
+            QueryFilter::default().layers(0b01),
+            QueryFilter::default().exclude(blob),
+        ];
+        {
+            let mut q = world.resource_mut::<RayQueue>();
+            for (i, ray) in singles[..20].iter().enumerate() {
+                q.cast(i as u64, *ray, QueryFilter::default());
+            }
+            q.cast_packet(100, &camera, QueryFilter::default());
+            q.cast_packet(5000, &camera[..100], filters[1].clone());
+            for (i, ray) in singles[20..].iter().enumerate() {
+                q.cast(20 + i as u64, *ray, QueryFilter::default());
+            }
+            q.shadow(9999, points[0], light, QueryFilter::default());
+            for (k, filter) in filters.iter().enumerate() {
+                q.shadow_packet(10_000 * (k as u64 + 1), &points, light, filter.clone());
+            }
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let results = world.resource::<RayResults>().clone();
+        // The same queries, ray by ray, in the same order.
+        let mut expect = Vec::new();
+        for (i, ray) in singles[..20].iter().enumerate() {
+            expect.push((i as u64, *ray, QueryFilter::default()));
+        }
+        for (i, ray) in camera.iter().enumerate() {
+            expect.push((100 + i as u64, *ray, QueryFilter::default()));
+        }
+        for (i, ray) in camera[..100].iter().enumerate() {
+            expect.push((5000 + i as u64, *ray, filters[1].clone()));
+        }
+        for (i, ray) in singles[20..].iter().enumerate() {
+            expect.push((20 + i as u64, *ray, QueryFilter::default()));
+        }
+        assert_eq!(results.hits.len(), expect.len());
+        let mut hits = 0;
+        for (k, ((tag, got), (etag, ray, filter))) in results.hits.iter().zip(&expect).enumerate() {
+            assert_eq!(tag, etag, "frame {f} request {k}");
+            let single = world
+                .resource::<TraceWorld>()
+                .cast_ray(ray, f32::INFINITY, filter);
+            assert_eq!(
+                got.as_ref().map(|h| h.distance.to_bits()),
+                single.as_ref().map(|h| h.distance.to_bits()),
+                "frame {f} request {k}: {got:?} vs {single:?}"
+            );
+            if got.as_ref().map(|h| (h.entity, h.triangle))
+                != single.as_ref().map(|h| (h.entity, h.triangle))
+            {
+                // Only an exact tie may name another triangle: brute force decides.
+                let b = brute(&mut world, ray, filter);
+                agree(got.as_ref(), b, &format!("frame {f} request {k}"));
+            }
+            hits += got.is_some() as usize;
+        }
+        assert!(hits > 300, "frame {f}: {hits} hits");
+        assert_eq!(results.shadows.len(), 1 + 3 * points.len());
+        assert_eq!(results.shadows[0].0, 9999);
+        let mut occluded = 0;
+        for (k, filter) in filters.iter().enumerate() {
+            for (i, &p) in points.iter().enumerate() {
+                let (tag, got) = results.shadows[1 + k * points.len() + i];
+                assert_eq!(tag, 10_000 * (k as u64 + 1) + i as u64);
+                let single = world.resource::<TraceWorld>().occluded(p, light, filter);
+                assert_eq!(got, single, "frame {f} filter {k} point {i}");
+                occluded += got as usize;
+            }
+        }
+        assert!(occluded > 20, "frame {f}: {occluded} occluded");
+    }
+}
+
+#[test]
+fn world_packets_match_brute_force() {
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    for k in 0..5 {
+        world.spawn((
+            TraceMesh(if k % 2 == 0 {
+                icosphere(2)
+            } else {
+                cube_sphere(3)
+            }),
+            TraceTransform(Affine3A::from_rotation_translation(
+                Quat::from_rotation_x(k as f32),
+                Vec3::new(k as f32 * 1.5 - 3.0, 0.0, 0.0),
+            )),
+        ));
+    }
+    schedule.run(&mut world);
+    let mut rays = camera(Vec3::new(0.0, 2.0, -8.0), Vec3::ZERO, 16, 8, 0.9);
+    // An invalid ray and a ray with a short range inside a packet.
+    rays[3] = Ray::new(Vec3::NAN, Vec3::Z);
+    rays[9] = Ray::with_range(rays[9].origin, rays[9].dir(), 0.0, 0.5);
+    let mut out = vec![None; rays.len()];
+    world
+        .resource::<TraceWorld>()
+        .cast_packet(&rays, 50.0, &QueryFilter::default(), &mut out);
+    for (i, ray) in rays.iter().enumerate() {
+        let clipped = Ray::with_range(ray.origin, ray.dir(), ray.tmin, ray.tmax.min(50.0));
+        let b = brute(&mut world, &clipped, &QueryFilter::default());
+        agree(out[i].as_ref(), b, &format!("ray {i}"));
+    }
+    assert!(out.iter().filter(|h| h.is_some()).count() > 50);
+    assert!(out[3].is_none() && out[9].is_none());
+}
