@@ -48,6 +48,9 @@ pub(super) struct Tables {
     /// Per asset: the SAH cost each build reached, relative to the asset's unit (the cost of its first
     /// tree, carried over frames by each mesh's reference).
     pub quality: HashMap<Asset, Vec<(Build, Estimate)>>,
+    /// Per asset: the per-frame change of `ln` of a fresh tree's cost (how the scene's own cost drifts
+    /// as it moves), shared because instances of one character move alike.
+    pub drift: HashMap<Asset, Estimate>,
 }
 
 impl Tables {
@@ -105,6 +108,11 @@ impl CostTable {
             build,
             relative,
         );
+    }
+
+    /// Learns one per-frame drift of `ln` of a fresh tree's cost on `asset`.
+    pub(super) fn learn_drift(&self, asset: Asset, per_frame: f64) {
+        self.lock().drift.entry(asset).or_default().add(per_frame);
     }
 
     /// Whether `build` was measured on `asset` by any mesh sharing the table.

@@ -32,7 +32,8 @@
 //!   jittering around equal costs never flip the choice.
 //! - **Explore**: a build nobody measured on this asset is tried when its expected saving per frame (from
 //!   the priors: [`Build::prior_quality`], which the characteriser's profile sharpens through
-//!   [`AdaptivePolicy::set_profile`], and [`Build::prior_time`]) times the horizon exceeds what trying it
+//!   [`AdaptivePolicy::set_profile`], and [`Build::prior_time`]; optimistic by one standard deviation, as
+//!   what is unknown may be better than assumed) times the horizon exceeds what trying it
 //!   costs (its whole time on a frame that would have refitted, its extra time over the chosen build's when
 //!   a rebuild is due). The horizon is the frames seen so far (a scene that ran `n` frames is expected to
 //!   run about `n` more), so short scenes explore little and long ones what can repay itself. One
@@ -42,14 +43,19 @@
 //! - **Guard (the SAH bound)**: the bound ([`AdaptivePolicy::sah_bound`], 1.5) is on the quantity the
 //!   report measures: the tree's SAH cost over a fresh *binned-SAH* tree's of the same frame. The fresh
 //!   cost is predicted from the last rebuild (its build's measured relative cost and the asset's measured
-//!   binned-SAH cost), carried forward at the learned drift less `z` spreads (a fresh tree's cost that
-//!   falls as the scene spreads out makes the guard earlier, never later). The ratio is extrapolated one
-//!   frame at this frame's rise, and the mesh is rebuilt *before* the next frame would pass the bound;
+//!   binned-SAH cost), carried forward at the lower of two factors: the asset's learned drift less `z`
+//!   spreads, and the root area then over the root area now ([`TreeCost`]: as a scene spreads out, every
+//!   box but the root can shrink relative to it by that much, so an explosion's fresh cost is assumed to
+//!   fall as fast as its extent grows). A fresh cost that falls makes the guard earlier, never later. The ratio is extrapolated one
+//!   frame at this frame's rise, and the mesh is rebuilt *before* the next frame would pass the bound
+//!   (while the fresh binned-SAH cost rests on the priors, before it would pass the bound over one prior
+//!   spread, 1.2, and that rebuild measures a binned-SAH tree, where one is offered; where none is, the
+//!   bound rests on the priors);
 //!   should motion be more explosive than the trend, the check runs on the refitted tree before the
 //!   frame's queries and rebuilds in the same frame. So no tree answers queries above the bound, under the
-//!   one assumption that the fresh tree's cost does not fall faster than its learned drift less `z`
-//!   spreads (`tests/policy.rs` checks every frame of every report scene against a real fresh build).
-//!   Builds whose fresh trees sit more than three quarters of the way to the bound are not chosen.
+//!   one assumption that the fresh tree's cost falls no faster than the slower of those two factors allow
+//!   (`tests/policy.rs` checks every frame of every report scene against a real fresh build).
+//!   Builds whose fresh trees sit more than 90% of the way to the bound are not chosen.
 //!   With no rays, the rent stays 0 and nothing is worth exploring: only the guard rebuilds.
 //!
 //! # Adding an option
@@ -72,6 +78,7 @@
 //! let table = CostTable::new();
 //! let asset = Asset { triangles: 10_000, id: 1 };
 //! let mut policy = AdaptivePolicy::shared(&[Build::cpu(Builder::LBVH)], &table, asset);
+//! policy.sah_bound = f64::INFINITY; // this example is about the rent, not the guard
 //! policy.built(Builder::LBVH, 10_000, 0.004, 55.0); // a 10k-triangle build took 4 ms; SAH cost 55
 //! for _ in 0..3 {
 //!     policy.queried(20_000.0, 55.0, 0.010); // 20k rays took 10 ms, three times
@@ -98,5 +105,5 @@ pub mod rank;
 pub use build::{Build, Device};
 pub use costs::{Asset, CostTable};
 pub use estimate::Estimate;
-pub use policy::{AdaptivePolicy, DEFAULT_SAH_BOUND, DEFAULT_Z, Prediction, Verdict};
+pub use policy::{AdaptivePolicy, DEFAULT_SAH_BOUND, DEFAULT_Z, Prediction, TreeCost, Verdict};
 pub use rank::Candidate;

@@ -4,7 +4,7 @@
 use super::costs::{Asset, CostTable, Tables};
 use super::rank::{Candidate, choose, pays};
 use super::{Build, Estimate};
-use crate::bvh::Builder;
+use crate::bvh::{Builder, Bvh};
 use crate::characterize::SceneProfile;
 
 /// The SAH bound by default: no tree answers queries with an SAH cost above 1.5 × a fresh binned-SAH
@@ -13,6 +13,36 @@ pub const DEFAULT_SAH_BOUND: f64 = 1.5;
 
 /// Standard deviations of margin by default (about 98% one-sided confidence for normal errors).
 pub const DEFAULT_Z: f64 = 2.0;
+
+/// What the planner is told about a tree: its SAH cost and, where known, its root box's half area (the
+/// scene's extent, which tells the guard how fast the scene spreads out). An `f64` converts to a cost with
+/// the area unknown.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TreeCost {
+    /// [`Bvh::sah_cost`].
+    pub sah: f64,
+    /// Half the surface area of the root box, if known.
+    pub root_area: Option<f64>,
+}
+
+impl TreeCost {
+    /// The cost of `bvh`: one pass over its nodes.
+    pub fn of(bvh: &Bvh) -> TreeCost {
+        TreeCost {
+            sah: bvh.sah_cost(),
+            root_area: Some(bvh.bounds().half_area_f64()),
+        }
+    }
+}
+
+impl From<f64> for TreeCost {
+    fn from(sah: f64) -> TreeCost {
+        TreeCost {
+            sah,
+            root_area: None,
+        }
+    }
+}
 
 /// What [`AdaptivePolicy::after_refit`] decided, and on which ground.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -79,11 +109,11 @@ pub struct AdaptivePolicy {
     rays: Estimate,
     /// Frames between rebuilds.
     interval: Estimate,
-    /// Per-frame change of `ln` of the fresh tree's cost (how the scene's own cost drifts).
-    drift: Estimate,
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
     reference: f64,
     triangles: usize,
+    /// The root's half area at the last rebuild, if told.
+    area_built: Option<f64>,
     current: Option<Build>,
     rent: f64,
     frames: u32,
@@ -125,9 +155,9 @@ impl AdaptivePolicy {
             clustered: false,
             rays: Estimate::default(),
             interval: Estimate::default(),
-            drift: Estimate::default(),
             reference: 0.0,
             triangles: asset.triangles,
+            area_built: None,
             current: None,
             rent: 0.0,
             frames: 0,
@@ -155,7 +185,8 @@ impl AdaptivePolicy {
     /// unless another is cheaper beyond the noise; or a build not measured yet when trying it pays.
     pub fn next_build(&self) -> Build {
         let t = self.costs.lock();
-        self.view(&t).plan(true).0
+        // A mesh's first build is no rebuild that trying a build could ride on.
+        self.view(&t).plan(self.current.is_some()).0
     }
 
     /// Records a rebuild: its build, triangle count, measured seconds and the new tree's SAH cost.
@@ -165,9 +196,14 @@ impl AdaptivePolicy {
         build: impl Into<Build>,
         triangles: usize,
         seconds: f64,
-        sah_cost: f64,
+        cost: impl Into<TreeCost>,
     ) {
         let build = build.into();
+        let TreeCost {
+            sah: sah_cost,
+            root_area,
+        } = cost.into();
+        self.area_built = root_area.filter(|a| a.is_finite() && *a > 0.0);
         self.triangles = triangles;
         if seconds.is_finite() && seconds >= 0.0 {
             self.costs.learn_time(build, triangles, seconds);
@@ -193,18 +229,21 @@ impl AdaptivePolicy {
     /// Re-anchors the reference to a fresh tree of `build` at `sah_cost` and learns the build's quality
     /// where this asset had not measured it.
     fn anchor(&mut self, build: Build, sah_cost: f64) {
-        let known = self
-            .costs
-            .lock()
-            .quality(&self.asset, build)
-            .and_then(Estimate::mean);
+        let (known, drift) = {
+            let t = self.costs.lock();
+            let drift = t.drift.get(&self.asset).and_then(Estimate::mean);
+            (
+                t.quality(&self.asset, build).and_then(Estimate::mean),
+                drift,
+            )
+        };
         let old = self.reference;
         match known {
             Some(rel) if rel > 0.0 => self.reference = sah_cost / rel,
             _ => {
                 // Unmeasured: compare with where the reference has drifted to, or start the unit here.
                 let now = if old > 0.0 {
-                    old * (self.drift.mean().unwrap_or(0.0) * self.frames as f64).exp()
+                    old * (drift.unwrap_or(0.0) * self.frames as f64).exp()
                 } else {
                     sah_cost
                 };
@@ -213,8 +252,8 @@ impl AdaptivePolicy {
             }
         }
         if old > 0.0 && self.frames > 0 {
-            self.drift
-                .add((self.reference / old).ln() / self.frames as f64);
+            self.costs
+                .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
         }
     }
 
@@ -230,10 +269,21 @@ impl AdaptivePolicy {
         }
     }
 
-    /// After a refit to SAH cost `sah_cost`, with `rays` rays expected this frame: true to rebuild now
+    /// After a refit to `cost` (an SAH cost, or a [`TreeCost`] with the root's area), with `rays` rays
+    /// expected this frame: true to rebuild now
     /// (with [`next_build`](Self::next_build)), before this frame's queries; the grounds are in
     /// [`prediction`](Self::prediction).
-    pub fn after_refit(&mut self, sah_cost: f64, rays: f64) -> bool {
+    pub fn after_refit(&mut self, cost: impl Into<TreeCost>, rays: f64) -> bool {
+        let TreeCost {
+            sah: sah_cost,
+            root_area,
+        } = cost.into();
+        // A scene that spread out since the rebuild may have a cheaper fresh tree: as the scene's
+        // extent grows by a factor, every box but the root's can shrink relative to it by as much.
+        let spread_out = match (self.area_built, root_area) {
+            (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0),
+            _ => 1.0,
+        };
         self.frames += 1;
         self.age = self.age.saturating_add(1);
         let t = self.costs.lock();
@@ -252,15 +302,14 @@ impl AdaptivePolicy {
         let mut rent = self.rent;
         let mut ratio = self.last_ratio;
         if self.reference > 0.0 {
-            let drift = v.guard_drift(self.frames);
             if let Some(sah) = v.fresh_sah_relative() {
-                p.fresh_sah = self.reference * sah * drift;
+                p.fresh_sah = self.reference * sah * v.guard_drift(self.frames).min(spread_out);
                 ratio = sah_cost / p.fresh_sah;
             }
             let (rate, rate_spread) = v.rate();
             let fresh = v
                 .relative(build)
-                .map_or(0.0, |r| self.reference * r.0 * drift);
+                .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
             rent += rate * rays.max(0.0) * (sah_cost - fresh).max(0.0);
             p.rent_s = rent;
             let rent_spread = if rate > 0.0 {
@@ -271,7 +320,7 @@ impl AdaptivePolicy {
             p.margin_s = self.z * rebuild_spread.hypot(rent_spread);
             // The ratio extrapolated one frame at this frame's rise.
             let next = ratio + (ratio - self.last_ratio).max(0.0);
-            p.verdict = if p.fresh_sah > 0.0 && next > self.sah_bound {
+            p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
                 Verdict::Guard
             } else if rent > 0.0 && pays(rent, rebuild_s, p.margin_s / self.z, self.z) {
                 Verdict::Rent
@@ -359,28 +408,55 @@ impl View<'_> {
     /// The relative SAH cost of a fresh binned-SAH tree on this asset: measured when any mesh of the
     /// asset built one, else the lowest that the measured builds' priors imply.
     fn fresh_sah_relative(&self) -> Option<f64> {
+        self.fresh_sah().map(|f| f.0)
+    }
+
+    /// [`fresh_sah_relative`](Self::fresh_sah_relative), and whether it was measured (else it rests on
+    /// the priors).
+    fn fresh_sah(&self) -> Option<(f64, bool)> {
         let list = self.t.quality.get(&self.p.asset)?;
         let c = self.p.clustered;
         let sah = list
             .iter()
             .filter(|(b, _)| matches!(b.builder, Builder::Sah { .. }))
-            .find_map(|(_, e)| e.mean());
+            .find_map(|(_, e)| Some((e.mean()?, true)));
         sah.or_else(|| {
             list.iter()
-                .filter_map(|(b, e)| Some(e.mean()? / b.prior_quality(c)))
-                .min_by(f64::total_cmp)
+                .filter_map(|(b, e)| Some((e.mean()? / b.prior_quality(c), false)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
         })
     }
 
-    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
-    /// at the learned drift less `z` spreads (1 when it can only have risen: a rise only makes the guard
-    /// earlier).
-    fn guard_drift(&self, frames: u32) -> f64 {
-        let d = &self.p.drift;
-        match d.mean() {
-            Some(m) => ((m - self.p.z * d.spread()).min(0.0) * frames as f64).exp(),
-            None => 1.0,
+    /// The ratio at which the guard rebuilds: the bound; or while the fresh binned-SAH cost rests on the
+    /// priors and a binned-SAH build is offered, the bound over one prior spread (1.5 / 1.25 = 1.2), so
+    /// that the prior's error cannot carry the tree past the bound before that rebuild measures a
+    /// binned-SAH tree. Without a binned-SAH build to measure with, the bound rests on the priors.
+    fn guard_at(&self) -> f64 {
+        let sah_offered = (self.p.builds.iter()).any(|b| matches!(b.builder, Builder::Sah { .. }));
+        match self.fresh_sah() {
+            Some((_, false)) if sah_offered => self.p.sah_bound / (1.0 + PRIOR_SPREAD),
+            _ => self.p.sah_bound,
         }
+    }
+
+    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
+    /// at the asset's learned drift less `z` spreads (1 before any was learned, and capped at 1: a rise
+    /// only makes the guard earlier).
+    fn guard_drift(&self, frames: u32) -> f64 {
+        let low = self
+            .t
+            .drift
+            .get(&self.p.asset)
+            .and_then(|d| Some(d.mean()? - self.p.z * d.spread()))
+            .unwrap_or(0.0);
+        (low.min(0.0) * frames as f64).exp()
+    }
+
+    /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last
+    /// rebuild, at the asset's mean drift (1 before any was learned): what the rent is charged against.
+    fn mean_drift(&self, frames: u32) -> f64 {
+        let mean = self.t.drift.get(&self.p.asset).and_then(Estimate::mean);
+        (mean.unwrap_or(0.0) * frames as f64).exp()
     }
 
     /// Query seconds per ray per unit of SAH cost, and the spread of that mean (0 before any query was
@@ -408,10 +484,10 @@ impl View<'_> {
     }
 
     /// Whether a fresh tree of `b` leaves room under the bound: its ratio to a fresh SAH tree at most
-    /// three quarters of the way from 1 to the bound (else the guard would rebuild at once, every frame).
+    /// 90% of the way from 1 to the bound (else the guard would rebuild it at once, every frame).
     fn within_bound(&self, b: Build) -> bool {
         match (self.relative(b), self.fresh_sah_relative()) {
-            (Some((rel, ..)), Some(sah)) => rel / sah <= 1.0 + 0.75 * (self.p.sah_bound - 1.0),
+            (Some((rel, ..)), Some(sah)) => rel / sah <= 1.0 + 0.9 * (self.p.sah_bound - 1.0),
             _ => true,
         }
     }
@@ -456,7 +532,8 @@ impl View<'_> {
 
     /// An unmeasured build worth trying instead of `chosen`: a binned-SAH build at the first rebuild due
     /// (it measures the bound's reference once per asset), or any build whose expected saving per frame
-    /// (from the priors) times the horizon exceeds what trying it costs. The horizon is the frames seen so
+    /// (from the priors, optimistic by one spread: what is unknown may be better than assumed) times the
+    /// horizon exceeds what trying it costs. The horizon is the frames seen so
     /// far: a scene that has run for `n` frames is expected to run about `n` more.
     fn worth_trying(&self, chosen: Build, rebuilding: bool) -> Option<Build> {
         let sah_measured = self.t.quality.get(&self.p.asset).is_some_and(|l| {
@@ -475,7 +552,7 @@ impl View<'_> {
             }
             let cost =
                 self.time(b).map_or(0.0, |t| t.0) - if rebuilding { chosen_time } else { 0.0 };
-            (chosen_c.cost_s - c.cost_s) * horizon > cost.max(0.0)
+            (chosen_c.cost_s - (c.cost_s - c.spread_s)) * horizon > cost.max(0.0)
         })
     }
 }
@@ -524,10 +601,13 @@ mod tests {
 
     /// Against a measured binned-SAH tree of cost 10, the guard rebuilds when the ratio extrapolated one
     /// frame at its last rise passes 1.5: 1.2 (+0.2), 1.34 (+0.14), 1.4 (+0.06), then 1.46 (+0.06 = 1.52:
-    /// rebuilt, one frame before the tree itself would cross).
+    /// rebuilt, one frame before the tree itself would cross). A first interval with the fresh cost
+    /// unchanged teaches the asset a drift of 0 (before it, the guard assumes a prior drift).
     #[test]
     fn the_guard_acts_before_the_bound() {
         let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+        p.built(Builder::SAH, 1000, 1.0, 10.0);
+        assert!(!p.after_refit(10.0, 0.0));
         p.built(Builder::SAH, 1000, 1.0, 10.0);
         for sah in [12.0, 13.4, 14.0] {
             assert!(!p.after_refit(sah, 0.0), "{:?}", p.prediction());
@@ -563,8 +643,8 @@ mod tests {
             let mut p = AdaptivePolicy::with_builds(&[Build::cpu(Builder::LBVH), Build::GPU_LBVH]);
             assert_eq!(
                 p.next_build(),
-                Build::GPU_LBVH,
-                "the prior: a GPU build is faster"
+                Build::cpu(Builder::LBVH),
+                "equal priors: the first offered"
             );
             p.built(Builder::LBVH, 1000, cpu_s, 20.0);
             p.built(Build::GPU_LBVH, 1000, gpu_s, 20.0);
