@@ -33,12 +33,13 @@
 //! - **Explore**: a build nobody measured on this asset is tried when its expected saving per frame (from
 //!   the priors: [`Build::prior_quality`], which the characteriser's profile sharpens through
 //!   [`AdaptivePolicy::set_profile`], and [`Build::prior_time`]; optimistic by one standard deviation, as
-//!   what is unknown may be better than assumed) times the horizon exceeds what trying it
-//!   costs (its whole time on a frame that would have refitted, its extra time over the chosen build's when
-//!   a rebuild is due). The horizon is the frames seen so far (a scene that ran `n` frames is expected to
-//!   run about `n` more), so short scenes explore little and long ones what can repay itself. One
-//!   exception: the first rebuild due on an asset with no binned-SAH tree measured builds one, because the
-//!   bound is stated against it. The first build of an asset nobody measured is the one of least
+//!   what is unknown may be better than assumed) times the horizon exceeds what trying it costs (its whole
+//!   time on a frame that would have refitted, its extra time over the chosen build's when a rebuild is
+//!   due). The horizon is the frames seen so far (a scene that ran `n` frames is expected to run about `n`
+//!   more), so short scenes explore little and long ones what can repay itself. One exception: the first
+//!   rebuild due on an asset with no binned-SAH tree measured builds one, because the bound is stated
+//!   against it. A build tried is measured against the reference carried forward by the guard's
+//!   (conservative) factor, so an error in it errs towards an earlier guard. The first build of an asset nobody measured is the one of least
 //!   predicted time.
 //! - **Guard (the SAH bound)**: the bound ([`AdaptivePolicy::sah_bound`], 1.5) is on the quantity the
 //!   report measures: the tree's SAH cost over a fresh *binned-SAH* tree's of the same frame. The fresh
@@ -46,7 +47,9 @@
 //!   binned-SAH cost), carried forward at the lower of two factors: the asset's learned drift less `z`
 //!   spreads, and the root area then over the root area now ([`TreeCost`]: as a scene spreads out, every
 //!   box but the root can shrink relative to it by that much, so an explosion's fresh cost is assumed to
-//!   fall as fast as its extent grows). A fresh cost that falls makes the guard earlier, never later. The ratio is extrapolated one
+//!   fall as fast as its extent grows) — the latter no lower than `1 / (1 + |C_now / C_built − 1|)`, since
+//!   a motion that kept the refitted tree's cost (uniform scaling, rigid motion) kept the fresh tree's
+//!   too. A fresh cost that falls makes the guard earlier, never later. The ratio is extrapolated one
 //!   frame at this frame's rise, and the mesh is rebuilt *before* the next frame would pass the bound
 //!   (while the fresh binned-SAH cost rests on the priors, before it would pass the bound over one prior
 //!   spread, 1.2, and that rebuild measures a binned-SAH tree, where one is offered; where none is, the

@@ -112,8 +112,11 @@ pub struct AdaptivePolicy {
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
     reference: f64,
     triangles: usize,
-    /// The root's half area at the last rebuild, if told.
+    /// The root's half area at the last rebuild, if told, and the tree's SAH cost then.
     area_built: Option<f64>,
+    sah_built: f64,
+    /// The factor the guard last carried the fresh cost forward by (learned drift or spread).
+    guard_factor: f64,
     current: Option<Build>,
     rent: f64,
     frames: u32,
@@ -158,6 +161,8 @@ impl AdaptivePolicy {
             reference: 0.0,
             triangles: asset.triangles,
             area_built: None,
+            sah_built: 0.0,
+            guard_factor: 1.0,
             current: None,
             rent: 0.0,
             frames: 0,
@@ -172,7 +177,11 @@ impl AdaptivePolicy {
     /// Takes the characteriser's profile as the prior of builds not measured yet: on a non-uniform
     /// (clustered) mesh LBVH's trees are expected worse, which makes trying a better builder pay sooner.
     pub fn set_profile(&mut self, profile: &SceneProfile) {
-        self.clustered = !profile.uniform;
+        if self.clustered == profile.uniform {
+            self.clustered = !profile.uniform;
+            // The guard's estimate changed basis: no rise is read from the change.
+            self.last_ratio = f64::NAN;
+        }
     }
 
     /// The table this policy learns into.
@@ -210,6 +219,7 @@ impl AdaptivePolicy {
         }
         if sah_cost.is_finite() && sah_cost > 0.0 {
             self.anchor(build, sah_cost);
+            self.sah_built = sah_cost;
         }
         if self.frames > 0 {
             self.interval.add(self.frames as f64);
@@ -222,6 +232,7 @@ impl AdaptivePolicy {
         };
         drop(t);
         self.current = Some(build);
+        self.guard_factor = 1.0;
         self.rent = 0.0;
         self.frames = 0;
     }
@@ -229,31 +240,30 @@ impl AdaptivePolicy {
     /// Re-anchors the reference to a fresh tree of `build` at `sah_cost` and learns the build's quality
     /// where this asset had not measured it.
     fn anchor(&mut self, build: Build, sah_cost: f64) {
-        let (known, drift) = {
-            let t = self.costs.lock();
-            let drift = t.drift.get(&self.asset).and_then(Estimate::mean);
-            (
-                t.quality(&self.asset, build).and_then(Estimate::mean),
-                drift,
-            )
-        };
+        let known = (self.costs.lock())
+            .quality(&self.asset, build)
+            .and_then(Estimate::mean);
         let old = self.reference;
         match known {
-            Some(rel) if rel > 0.0 => self.reference = sah_cost / rel,
+            Some(rel) if rel > 0.0 => {
+                self.reference = sah_cost / rel;
+                if old > 0.0 && self.frames > 0 {
+                    self.costs
+                        .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
+                }
+            }
             _ => {
-                // Unmeasured: compare with where the reference has drifted to, or start the unit here.
+                // Unmeasured: compare with where the guard assumed the reference had fallen to (an error
+                // then makes this build look worse and the guard earlier, never later), or start the
+                // unit here. No drift is learned from an assumption.
                 let now = if old > 0.0 {
-                    old * (drift.unwrap_or(0.0) * self.frames as f64).exp()
+                    old * self.guard_factor
                 } else {
                     sah_cost
                 };
                 self.costs.learn_quality(self.asset, build, sah_cost / now);
                 self.reference = now;
             }
-        }
-        if old > 0.0 && self.frames > 0 {
-            self.costs
-                .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
         }
     }
 
@@ -279,9 +289,12 @@ impl AdaptivePolicy {
             root_area,
         } = cost.into();
         // A scene that spread out since the rebuild may have a cheaper fresh tree: as the scene's
-        // extent grows by a factor, every box but the root's can shrink relative to it by as much.
+        // extent grows by a factor, every box but the root's can shrink relative to it by as much. But a
+        // motion that kept the refitted tree's cost (a uniform scaling, a rigid motion) kept the
+        // fresh tree's too: the fall is assumed no larger than the refitted cost's relative change.
+        let moved = 1.0 / (1.0 + (sah_cost / self.sah_built.max(f64::MIN_POSITIVE) - 1.0).abs());
         let spread_out = match (self.area_built, root_area) {
-            (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0),
+            (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0).max(moved),
             _ => 1.0,
         };
         self.frames += 1;
@@ -301,9 +314,11 @@ impl AdaptivePolicy {
         };
         let mut rent = self.rent;
         let mut ratio = self.last_ratio;
+        let mut guard_factor = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
-                p.fresh_sah = self.reference * sah * v.guard_drift(self.frames).min(spread_out);
+                guard_factor = v.guard_drift(self.frames).min(spread_out);
+                p.fresh_sah = self.reference * sah * guard_factor;
                 ratio = sah_cost / p.fresh_sah;
             }
             let (rate, rate_spread) = v.rate();
@@ -336,6 +351,7 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        self.guard_factor = guard_factor;
         self.rent = rent;
         self.last_ratio = ratio;
         self.last = p;
@@ -367,6 +383,11 @@ struct View<'a> {
 
 /// Relative spread of a prediction made from a prior rather than a measurement.
 const PRIOR_SPREAD: f64 = 0.25;
+
+/// The least spread of the per-frame drift of `ln` of a fresh tree's cost the guard assumes: 0.1% a
+/// frame, so a fresh cost predicted `k` frames ahead carries at least `z · 0.1% · k` of margin (the
+/// report's rigid bodies drift about that much around a mean of 0).
+const MIN_DRIFT_SPREAD: f64 = 0.001;
 
 impl View<'_> {
     /// Predicted seconds of `b` at this mesh's size, and their standard deviation: measured, or scaled by
@@ -440,15 +461,11 @@ impl View<'_> {
     }
 
     /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
-    /// at the asset's learned drift less `z` spreads (1 before any was learned, and capped at 1: a rise
-    /// only makes the guard earlier).
+    /// at the asset's learned drift less `z` spreads, the spread at least [`MIN_DRIFT_SPREAD`] (capped at
+    /// 1: a rise only makes the guard earlier).
     fn guard_drift(&self, frames: u32) -> f64 {
-        let low = self
-            .t
-            .drift
-            .get(&self.p.asset)
-            .and_then(|d| Some(d.mean()? - self.p.z * d.spread()))
-            .unwrap_or(0.0);
+        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
+        let low = d.mean().unwrap_or(0.0) - self.p.z * d.spread().max(MIN_DRIFT_SPREAD);
         (low.min(0.0) * frames as f64).exp()
     }
 
@@ -533,8 +550,8 @@ impl View<'_> {
     /// An unmeasured build worth trying instead of `chosen`: a binned-SAH build at the first rebuild due
     /// (it measures the bound's reference once per asset), or any build whose expected saving per frame
     /// (from the priors, optimistic by one spread: what is unknown may be better than assumed) times the
-    /// horizon exceeds what trying it costs. The horizon is the frames seen so
-    /// far: a scene that has run for `n` frames is expected to run about `n` more.
+    /// horizon exceeds what trying it costs. The horizon is the frames seen so far: a scene that has run
+    /// for `n` frames is expected to run about `n` more.
     fn worth_trying(&self, chosen: Build, rebuilding: bool) -> Option<Build> {
         let sah_measured = self.t.quality.get(&self.p.asset).is_some_and(|l| {
             l.iter()
@@ -615,7 +632,12 @@ mod tests {
         assert!(p.after_refit(14.6, 0.0));
         let why = p.prediction();
         assert_eq!((why.verdict, why.rent_s), (Verdict::Guard, 0.0));
-        assert_eq!((why.sah, why.fresh_sah), (14.6, 10.0));
+        // The fresh cost carried 4 frames at the least drift spread: 10 · exp(−2 · 0.001 · 4).
+        assert_eq!(why.sah, 14.6);
+        assert!(
+            (why.fresh_sah - 10.0 * (-0.008f64).exp()).abs() < 1e-9,
+            "{why:?}"
+        );
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
