@@ -48,7 +48,7 @@ impl Estimate {
     /// The standard deviation of the mean itself: [`spread`](Self::spread) over the square root of the
     /// samples it rests on (at most `(2 − w) / w` = 9 once old samples are forgotten at weight `w` = 0.2).
     pub fn mean_spread(&self) -> f64 {
-        let effective = (self.n as f64).min((2.0 - LEARN) / LEARN).max(1.0);
+        let effective = (self.n as f64).clamp(1.0, (2.0 - LEARN) / LEARN);
         self.spread() / effective.sqrt()
     }
 
