@@ -9,6 +9,8 @@ mod grid_rows;
 mod harness;
 #[path = "../examples/report/output.rs"]
 mod output;
+#[path = "../examples/report/planner.rs"]
+mod planner;
 #[path = "../examples/report/plots.rs"]
 mod plots;
 #[path = "../examples/report/scale.rs"]

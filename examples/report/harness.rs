@@ -5,7 +5,7 @@
 use super::grid_rows::{self, StructureStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
-use kinetrace::adaptive::{AdaptivePolicy, Build, Device};
+use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, TreeCost};
 use kinetrace::bvh::{BuildOptions, Builder, Hit, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
@@ -117,6 +117,8 @@ pub struct Settings {
     pub frames: u32,
     pub rays: usize,
     pub checked_rays: usize,
+    /// Runs of every scene; the report takes each strategy's median run (by total time).
+    pub runs: u32,
 }
 
 impl Settings {
@@ -136,6 +138,7 @@ impl Settings {
         frames: 24,
         rays: 512,
         checked_rays: 8,
+        runs: 1,
     };
 }
 
@@ -282,6 +285,17 @@ impl Rebuilder {
     }
 }
 
+/// The planner of an adaptive strategy for `mesh`, learning into `costs`: CPU LBVH, hybrid and SAH, and
+/// with `gpu` GPU LBVH second, as the plugin offers it.
+pub fn adaptive_policy(strategy: Strategy, costs: &CostTable, mesh: &Mesh) -> AdaptivePolicy {
+    let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
+    let builds = match strategy {
+        Strategy::Adaptive { gpu: true } => vec![cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]],
+        _ => cpu.to_vec(),
+    };
+    AdaptivePolicy::shared(&builds, costs, Asset::of_indices(mesh.indices()))
+}
+
 /// Runs `strategies` on `scene` (GPU ones on `gpu`); returns a record list per strategy, in their order.
 pub fn run_scene(
     scene: &Scene,
@@ -321,20 +335,13 @@ pub fn run_strategy(
     if let Strategy::Structure(s) = strategy {
         return grid_rows::run(s, frames, settings);
     }
-    let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
-    let mut adaptive = match strategy {
-        // The GPU build second, as the plugin offers it: cheapest first, the best tree left last.
-        Strategy::Adaptive { gpu: true } => {
-            AdaptivePolicy::with_builds(&[cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]])
-        }
-        _ => AdaptivePolicy::with_builds(&cpu),
-    };
+    let (mesh0, ..) = &frames[0];
+    let mut adaptive = adaptive_policy(strategy, &CostTable::new(), mesh0);
     let first = match strategy {
         Strategy::Rebuild(b) => b,
         Strategy::Adaptive { .. } => adaptive.next_build(),
         _ => Build::cpu(Builder::LBVH),
     };
-    let (mesh0, ..) = &frames[0];
     let mut builder = Rebuilder::new(gpu, mesh0);
     let start = Instant::now();
     let mut bvh = builder.build(mesh0, first);
@@ -342,7 +349,7 @@ pub fn run_strategy(
         first,
         mesh0.triangle_count(),
         start.elapsed().as_secs_f64(),
-        bvh.bvh().sah_cost(),
+        TreeCost::of(bvh.bvh()),
     );
     let mut since = 0u32;
     let mut records = Vec::with_capacity(frames.len());
@@ -381,11 +388,11 @@ pub fn run_strategy(
                 Strategy::Structure(_) => unreachable!("run by grid_rows"),
                 Strategy::Adaptive { .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
-                    if adaptive.after_refit(bvh.bvh().sah_cost(), settings.rays as f64) {
-                        let b = adaptive.next_build();
+                    if adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64) {
+                        let b = adaptive.prediction().build;
                         let t = Instant::now();
                         bvh = builder.build(mesh, b);
-                        let cost = bvh.bvh().sah_cost();
+                        let cost = TreeCost::of(bvh.bvh());
                         adaptive.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
                         true
                     } else {

@@ -7,12 +7,14 @@
 //! ```text
 //! cargo run --release --example report            # 300 frames, ~20k triangles per scene
 //! cargo run --release --example report -- --quick # 24 frames, ~3k triangles (what the smoke test runs)
-//! options: --frames N --triangles N --rays N --out DIR --assets DIR
+//! options: --frames N --triangles N --rays N --runs N --out DIR --assets DIR
+//! (--runs N: every scene N times, each strategy's median run reported; 1 by default)
 //! ```
 
 mod grid_rows;
 mod harness;
 mod output;
+mod planner;
 mod plots;
 mod scale;
 mod scenes;
@@ -26,6 +28,7 @@ fn main() {
         frames: 300,
         rays: 4096,
         checked_rays: 16,
+        runs: 1,
     };
     let mut out = PathBuf::from("target/report");
     let mut assets = PathBuf::from("../shared/assets");
@@ -41,7 +44,13 @@ fn main() {
                 .unwrap_or_else(|_| fail(&format!("{a} needs {what}")))
         };
         match a.as_str() {
-            "--quick" => settings = Settings::QUICK,
+            "--quick" => {
+                settings = Settings {
+                    runs: settings.runs,
+                    ..Settings::QUICK
+                }
+            }
+            "--runs" => settings.runs = number("a run count").max(1) as u32,
             "--frames" => settings.frames = number("a frame count") as u32,
             "--triangles" => settings.triangles = number("a triangle count"),
             "--rays" => settings.rays = number("a ray count"),

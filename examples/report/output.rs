@@ -4,6 +4,7 @@
 //! `SCENE-frames.png` (per-frame curves of time and error); the figures are drawn in [`super::plots`].
 
 use super::harness::{FrameRecord, Settings, Strategy, find_gpu, run_scene};
+use super::planner;
 use super::plots;
 use super::scenes::Scene;
 use std::fmt::Write as _;
@@ -87,8 +88,17 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         "scene,strategy,frame,update_ms,query_ms,rebuilt,sah_ratio,steps_ratio,mismatches\n",
     );
     let (mut rows, mut files) = (Vec::new(), Vec::new());
+    let mut cold = Vec::new();
     for scene in &scenes {
-        let per_strategy = run_scene(scene, settings, &strategies, gpu.as_ref());
+        let runs = (0..settings.runs.max(1))
+            .map(|_| run_scene(scene, settings, &strategies, gpu.as_ref()))
+            .collect();
+        let per_strategy = planner::median_run(runs);
+        cold.push(planner::ColdStart::of(
+            scene.name,
+            &strategies,
+            &per_strategy,
+        ));
         let first = rows.len();
         for (s, recs) in strategies.iter().zip(&per_strategy) {
             for r in recs {
@@ -115,12 +125,18 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         plots::per_frame(&png, scene.name, &names, &looks, &per_strategy)?;
         files.push(png);
     }
+    let crowds = [true, false].map(|shared| planner::instance_crowd(settings, 256, shared));
+    let planner_sections =
+        planner::cold_start_table(&cold) + &planner::instance_crowd_table(&crowds);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);
     for (name, text) in [
         ("frames.csv", csv),
-        ("summary.md", summary(&rows, settings, &skipped)),
+        (
+            "summary.md",
+            summary(&rows, settings, &skipped, &planner_sections),
+        ),
     ] {
         let path = out.join(name);
         std::fs::write(&path, text)?;
@@ -134,15 +150,21 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
     })
 }
 
-fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
+/// The summary: the table, the goal, `sections` (the planner's), the figures.
+fn summary(rows: &[Row], settings: &Settings, skipped: &[String], sections: &str) -> String {
     let mut s = format!(
-        "# kinetrace error-versus-run-time report\n\n{} frames, about {} triangles per scene, {} primary \
+        "# kinetrace error-versus-run-time report\n\nPer strategy and scene, the median of {} run(s) by \
+         total time. {} frames, about {} triangles per scene, {} primary \
          rays per frame plus a shadow ray per hit; {} rays per frame checked against brute force. Times are \
          mean milliseconds per frame on this machine (queries on one CPU thread; CPU builds on all threads; \
          `-gpu` builds on the GPU, read back for the CPU's queries, their update time including the round \
          trip); error is the tree's SAH cost and \
          traversal steps per ray over a fresh binned-SAH build of the same frame.\n\n",
-        settings.frames, settings.triangles, settings.rays, settings.checked_rays
+        settings.runs.max(1),
+        settings.frames,
+        settings.triangles,
+        settings.rays,
+        settings.checked_rays
     );
     for line in skipped {
         let _ = writeln!(s, "- {line}");
@@ -168,10 +190,16 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
         );
     }
     s.push_str(
-        "\n## Goal: adaptive within 5% of the best fixed strategy, ≥ 10% faster than lauterbach-0.4 on three \
-         scenes, SAH ratio never above 1.5\n\n| scene | best fixed | adaptive / best | adaptive / \
-         lauterbach-0.4 | adaptive SAH max | within 5% |\n|---|---|---|---|---|---|\n",
+        "\n## Goal: adaptive within 5% of the best fixed strategy (15% in a run of the --quick size or \
+         shorter), ≥ 10% faster than lauterbach-0.4 on four scenes, SAH ratio never above 1.5\n\n| scene | \
+         best fixed | adaptive / best | adaptive / lauterbach-0.4 | adaptive SAH max | within |\n\
+         |---|---|---|---|---|---|\n",
     );
+    let band = if settings.frames <= Settings::QUICK.frames {
+        1.15
+    } else {
+        1.05
+    };
     let mut beats = 0;
     let mut all_within = true;
     let mut error_ok = true;
@@ -189,23 +217,25 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String]) -> String {
         let vs_best = ad.total_ms / best.total_ms;
         let vs_la = ad.total_ms / la.total_ms;
         beats += (vs_la <= 0.9) as usize;
-        all_within &= vs_best <= 1.05;
+        all_within &= vs_best <= band;
         error_ok &= ad.sah_max <= 1.5;
         let _ = writeln!(
             s,
             "| {scene} | {} | {vs_best:.3} | {vs_la:.3} | {:.3} | {} |",
             best.strategy,
             ad.sah_max,
-            if vs_best <= 1.05 { "yes" } else { "NO" }
+            if vs_best <= band { "yes" } else { "NO" }
         );
     }
-    let met = all_within && beats >= 3 && error_ok;
+    let met = all_within && beats >= 4 && error_ok;
     let _ = writeln!(
         s,
-        "\nGoal {}: within 5% on every scene: {all_within}; scenes where adaptive beats lauterbach-0.4 by \
-         10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.",
+        "\nGoal {}: within {:.0}% on every scene: {all_within}; scenes where adaptive beats lauterbach-0.4 \
+         by 10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.",
         if met { "MET" } else { "NOT MET" },
+        100.0 * (band - 1.0),
     );
+    s.push_str(sections);
     s.push_str(&figures(rows));
     s
 }

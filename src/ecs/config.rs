@@ -103,9 +103,11 @@ pub enum RebuildPolicy {
         /// Degradation above which the mesh is rebuilt.
         threshold: f32,
     },
-    /// The learned cost model of [`AdaptivePolicy`](crate::adaptive::AdaptivePolicy), one per mesh: it
-    /// rebuilds once the extra query time a degraded tree has cost exceeds a rebuild's measured time, and
-    /// picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
+    /// The planner of [`AdaptivePolicy`](crate::adaptive::AdaptivePolicy), one per mesh, all learning into
+    /// one shared cost table (so the second entity spawned from the same [`Mesh`](crate::Mesh) explores
+    /// nothing): it rebuilds once the extra query time a degraded tree has cost exceeds a rebuild's
+    /// measured time by the noise margin, or before its SAH cost would pass 1.5 × a fresh binned-SAH
+    /// tree's, and picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
     /// ([`TraceMode::GpuWhenAvailable`] or [`TraceMode::GpuRequired`] found an adapter) — whose rebuild
     /// plus queries it predicts cheapest. Its predictions are in [`MeshStats::prediction`](super::MeshStats).
     ///
@@ -116,10 +118,12 @@ pub enum RebuildPolicy {
     /// under-charged, one that none aims at over-charged); counting real per-mesh traversal work would
     /// cost every query. Immediate queries ([`SpatialRays`](super::SpatialRays)) are not timed, so a scene
     /// queried only through them is treated as ray-free: it rebuilds only on the cost guard
-    /// ([`AdaptivePolicy::max_cost_rise`](crate::adaptive::AdaptivePolicy::max_cost_rise), 1.4).
+    /// ([`AdaptivePolicy::sah_bound`](crate::adaptive::AdaptivePolicy::sah_bound): 1.5 × a fresh binned-SAH
+    /// tree's SAH cost).
     Adaptive {
-        /// The CPU builders to choose among (e.g. LBVH, hybrids with several `k`, binned SAH); each is tried
-        /// once per mesh.
+        /// The CPU builders to choose among (e.g. LBVH, hybrids with several `k`, binned SAH); one not
+        /// measured on the mesh's asset is tried when its expected gain repays it (see
+        /// [`adaptive`](crate::adaptive)).
         builders: &'static [Builder],
     },
     /// Your function.

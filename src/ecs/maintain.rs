@@ -5,7 +5,7 @@ use super::config::lauterbach;
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
-use crate::adaptive::{AdaptivePolicy, Build, Device, Prediction};
+use crate::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, Prediction, TreeCost};
 use crate::bvh::{BuildOptions, MeshBvh};
 use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
 use crate::{Error, Mesh};
@@ -74,6 +74,7 @@ pub(crate) fn maintain_system(
     gpu: Option<Res<GpuQueries>>,
     mut fallbacks: Local<Fallbacks>,
     structures: Query<&TraceStructure>,
+    costs: Local<CostTable>,
 ) {
     let start = Instant::now();
     for e in removed.read() {
@@ -84,6 +85,7 @@ pub(crate) fn maintain_system(
         config: &config,
         gpu: gpu.as_deref(),
         fallbacks: &mut fallbacks,
+        costs: &costs,
     };
     for data in changed
         .iter()
@@ -118,6 +120,8 @@ pub(crate) fn maintain_system(
                         degradation: d,
                         rays_last_frame: stats.rays_last_frame,
                         gpu: rebuilder.gpu.is_some(),
+                        costs: &costs,
+                        asset: asset_of(&mesh.0),
                     });
                     (decision, prediction) = match asked {
                         Some(asked) => {
@@ -229,6 +233,8 @@ struct Rebuilder<'a> {
     /// The world's GPU, when a GPU mode found one.
     gpu: Option<&'a GpuQueries>,
     fallbacks: &'a mut Fallbacks,
+    /// The costs every mesh's adaptive policy learns into and from.
+    costs: &'a CostTable,
 }
 
 impl Rebuilder<'_> {
@@ -258,7 +264,12 @@ impl Rebuilder<'_> {
         if let RebuildPolicy::Adaptive { builders } = self.config.policy
             && kept.adaptive.is_none()
         {
-            kept.adaptive = Some(adaptive_policy(builders, self.gpu.is_some()));
+            kept.adaptive = Some(adaptive_policy(
+                builders,
+                self.gpu.is_some(),
+                self.costs,
+                asset_of(&mesh.0),
+            ));
         }
         let build =
             asked.unwrap_or_else(
@@ -277,7 +288,15 @@ impl Rebuilder<'_> {
         let mut inst = Instance::new(bvh, topology_id(&mesh.0), kept);
         if let Some(policy) = inst.kept.adaptive.as_mut() {
             inst.sah = inst.bvh.bvh().sah_cost();
-            policy.built(build, triangles, seconds, inst.sah);
+            policy.built(
+                build,
+                triangles,
+                seconds,
+                TreeCost {
+                    sah: inst.sah,
+                    root_area: Some(inst.bvh.bvh().bounds().half_area_f64()),
+                },
+            );
         }
         inst.layers = layers.0;
         inst.set_transform(transform.0);
@@ -347,28 +366,44 @@ impl Rebuilder<'_> {
     }
 }
 
-/// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists — second,
-/// so that the builds are tried cheapest first and the tree left after trying them all is the last
-/// builder's (usually the best).
-fn adaptive_policy(builders: &[crate::bvh::Builder], gpu: bool) -> AdaptivePolicy {
+/// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists (second,
+/// after the cheapest CPU build), learning into the world's shared `costs` under the mesh's `asset`.
+fn adaptive_policy(
+    builders: &[crate::bvh::Builder],
+    gpu: bool,
+    costs: &CostTable,
+    asset: Asset,
+) -> AdaptivePolicy {
     let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
     if gpu {
         builds.insert(builds.len().min(1), Build::GPU_LBVH);
     }
-    AdaptivePolicy::with_builds(&builds)
+    AdaptivePolicy::shared(&builds, costs, asset)
+}
+
+/// A mesh's asset for the shared costs: its index buffer, which every entity spawned from the same
+/// [`Mesh`] shares (a different buffer of the same triangles counts as another asset and is measured
+/// again).
+fn asset_of(mesh: &Mesh) -> Asset {
+    Asset {
+        triangles: mesh.triangle_count(),
+        id: topology_id(mesh) as u64,
+    }
 }
 
 /// What a policy is asked about a refitted mesh.
-struct Asked {
+struct Asked<'a> {
     policy: RebuildPolicy,
     hint: MotionHint,
     triangles: usize,
     degradation: f32,
     rays_last_frame: usize,
     gpu: bool,
+    costs: &'a CostTable,
+    asset: Asset,
 }
 
-impl Asked {
+impl Asked<'_> {
     /// The policy's decision for the refitted `inst`, with the adaptive policy's grounds.
     fn decide(&self, inst: &mut Instance) -> (Decision, Option<Prediction>) {
         let d = self.degradation;
@@ -393,11 +428,15 @@ impl Asked {
                     let policy = inst
                         .kept
                         .adaptive
-                        .insert(adaptive_policy(builders, self.gpu));
+                        .insert(adaptive_policy(builders, self.gpu, self.costs, self.asset));
                     return (Decision::Rebuild(policy.next_build()), None);
                 };
-                inst.sah = inst.bvh.bvh().sah_cost();
-                let rebuild = policy.after_refit(inst.sah, inst.rays);
+                if let Some(profile) = inst.profile.as_deref() {
+                    policy.set_profile(profile);
+                }
+                let cost = TreeCost::of(inst.bvh.bvh());
+                inst.sah = cost.sah;
+                let rebuild = policy.after_refit(cost, inst.rays);
                 let why = policy.prediction();
                 let decision = if rebuild {
                     Decision::Rebuild(why.build)

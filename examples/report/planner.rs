@@ -1,0 +1,228 @@
+//! The planner's sections of the report: the goal over the median of several runs, the cold start (the
+//! first 30 frames of every scene) and a crowd of 256 instances of one character, whose planners share
+//! one cost table (against one table per instance).
+
+use super::harness::{FrameRecord, Settings, Strategy};
+use glam::{Mat4, Vec3};
+use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, TreeCost};
+use kinetrace::anim::{humanoid, skin_positions};
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::scenes::SceneRng;
+use kinetrace::{Mesh, MeshBvh, Ray};
+use std::fmt::Write as _;
+use std::time::Instant;
+
+fn total_s(records: &[FrameRecord]) -> f64 {
+    records.iter().map(|r| r.update_s + r.query_s).sum()
+}
+
+/// Per strategy, the run (of `runs`, each a record list per strategy) whose total time is the median:
+/// the one the report's rows, plots and goal are taken from. The lower median for an even count.
+pub fn median_run(mut runs: Vec<Vec<Vec<FrameRecord>>>) -> Vec<Vec<FrameRecord>> {
+    let strategies = runs.first().map_or(0, Vec::len);
+    (0..strategies)
+        .map(|s| {
+            let mut order: Vec<usize> = (0..runs.len()).collect();
+            order.sort_by(|&a, &b| total_s(&runs[a][s]).total_cmp(&total_s(&runs[b][s])));
+            let median = order[(order.len() - 1) / 2];
+            std::mem::take(&mut runs[median][s])
+        })
+        .collect()
+}
+
+/// Frames of the cold-start table.
+const COLD_FRAMES: usize = 30;
+
+/// One scene's first frames: mean milliseconds per frame of the adaptive strategy, of the fastest fixed
+/// strategy over the same frames, and of lauterbach-0.4, with the adaptive strategy's rebuilds.
+pub struct ColdStart {
+    scene: &'static str,
+    adaptive_ms: f64,
+    best: (String, f64),
+    lauterbach_ms: f64,
+    rebuilds: usize,
+}
+
+impl ColdStart {
+    pub fn of(
+        scene: &'static str,
+        strategies: &[Strategy],
+        records: &[Vec<FrameRecord>],
+    ) -> ColdStart {
+        let ms = |r: &[FrameRecord]| {
+            let first = &r[..r.len().min(COLD_FRAMES)];
+            1e3 * total_s(first) / first.len().max(1) as f64
+        };
+        let find = |name: &str| strategies.iter().position(|s| s.name() == name);
+        let best = strategies
+            .iter()
+            .zip(records)
+            .filter(|(s, _)| s.is_fixed())
+            .map(|(s, r)| (s.name(), ms(r)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or_default();
+        let adaptive = find("adaptive")
+            .map(|i| &records[i][..])
+            .unwrap_or_default();
+        ColdStart {
+            scene,
+            adaptive_ms: ms(adaptive),
+            best,
+            lauterbach_ms: find("lauterbach-0.4").map_or(f64::NAN, |i| ms(&records[i])),
+            rebuilds: adaptive
+                .iter()
+                .take(COLD_FRAMES)
+                .filter(|r| r.rebuilt)
+                .count(),
+        }
+    }
+}
+
+/// The cold-start section of the summary.
+pub fn cold_start_table(rows: &[ColdStart]) -> String {
+    let mut s = format!(
+        "\n## Cold start: the first {COLD_FRAMES} frames\n\nMean ms per frame over the first {COLD_FRAMES} \
+         frames (the first build excluded, as in the table above), where exploration costs most.\n\n\
+         | scene | adaptive ms | best fixed (first frames) | ms | adaptive / best | lauterbach-0.4 ms | \
+         adaptive rebuilds |\n|---|---|---|---|---|---|---|\n"
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {:.3} | {} | {:.3} | {:.3} | {:.3} | {} |",
+            r.scene,
+            r.adaptive_ms,
+            r.best.0,
+            r.best.1,
+            r.adaptive_ms / r.best.1,
+            r.lauterbach_ms,
+            r.rebuilds
+        );
+    }
+    s
+}
+
+/// A crowd of instances of one character, each with its own tree and planner.
+pub struct InstanceCrowd {
+    pub instances: usize,
+    pub shared: bool,
+    /// Milliseconds of the first frame (every tree built) and the median of the later half's frames.
+    pub first_ms: f64,
+    pub steady_ms: f64,
+    /// Rebuilds with a build the instance's table had not measured on the asset (first builds excluded).
+    pub explorations: usize,
+    /// Rebuilds per build, first builds included.
+    pub builds: Vec<(Build, usize)>,
+}
+
+/// Runs `instances` instances of one ~500-triangle character for `settings.frames` frames (at least 8),
+/// each animated at its own phase, refitted or rebuilt as its planner says and queried by its share of
+/// `settings.rays` (at least 2 rays each). With `shared`, every planner learns into one cost table;
+/// otherwise each has its own. Skinning is not timed; maintenance and queries are.
+pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> InstanceCrowd {
+    let asset = humanoid(500);
+    let indices: std::sync::Arc<[u32]> = asset.mesh.indices().into();
+    let key = Asset::of_indices(&indices);
+    let builds = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
+    let table = CostTable::new();
+    let mut policies: Vec<AdaptivePolicy> = (0..instances)
+        .map(|_| {
+            let own = CostTable::new();
+            AdaptivePolicy::shared(&builds, if shared { &table } else { &own }, key)
+        })
+        .collect();
+    let mut trees: Vec<Option<MeshBvh>> = (0..instances).map(|_| None).collect();
+    let rays_each = (settings.rays / instances.max(1)).max(2);
+    let (mut pose, clip) = (asset.skeleton.rest_pose(), &asset.clips[0]);
+    let mut mats = vec![Mat4::IDENTITY; asset.skeleton.joints.len()];
+    let rest = asset.mesh.positions();
+    let mut crowd = InstanceCrowd {
+        instances,
+        shared,
+        first_ms: 0.0,
+        steady_ms: 0.0,
+        explorations: 0,
+        builds: Vec::new(),
+    };
+    let mut frame_ms = Vec::new();
+    for f in 0..settings.frames.max(8) {
+        let t = f as f32 / 60.0;
+        let meshes: Vec<Mesh> = (0..instances)
+            .map(|i| {
+                clip.sample(t + 0.37 * i as f32, &mut pose);
+                asset.skeleton.skin_matrices(&pose, &mut mats);
+                let mut skinned = vec![Vec3::ZERO; rest.len()];
+                skin_positions(rest, &asset.weights, &mats, &mut skinned).expect("valid asset");
+                Mesh::new(skinned, indices.clone()).expect("finite")
+            })
+            .collect();
+        let start = Instant::now();
+        for ((mesh, tree), policy) in meshes.iter().zip(&mut trees).zip(&mut policies) {
+            let build = match tree {
+                None => Some(policy.next_build()),
+                Some(bvh) => {
+                    bvh.refit(mesh.positions()).expect("same topology");
+                    policy
+                        .after_refit(TreeCost::of(bvh.bvh()), rays_each as f64)
+                        .then(|| policy.prediction().build)
+                }
+            };
+            if let Some(b) = build {
+                let first = tree.is_none();
+                crowd.explorations += (!first && !policy.costs().measured(&key, b)) as usize;
+                match crowd.builds.iter_mut().find(|c| c.0 == b) {
+                    Some(c) => c.1 += 1,
+                    None => crowd.builds.push((b, 1)),
+                }
+                let t = Instant::now();
+                let bvh = MeshBvh::build(mesh, &BuildOptions::new(b.builder)).expect("valid");
+                let cost = TreeCost::of(bvh.bvh());
+                policy.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
+                *tree = Some(bvh);
+            }
+            let bvh = tree.as_ref().expect("built");
+            let bounds = bvh.bvh().bounds();
+            let mut r = SceneRng::new(f as u64);
+            let q = Instant::now();
+            for _ in 0..rays_each {
+                let from = bounds.center() + r.direction() * bounds.extent().length();
+                let to = bounds.min + (bounds.max - bounds.min) * r.vec3(0.0, 1.0);
+                std::hint::black_box(bvh.closest_hit(&Ray::new(from, to - from)));
+            }
+            let sah = bvh.bvh().sah_cost();
+            policy.queried(rays_each as f64, sah, q.elapsed().as_secs_f64());
+        }
+        frame_ms.push(1e3 * start.elapsed().as_secs_f64());
+    }
+    crowd.first_ms = frame_ms[0];
+    let mut later = frame_ms[frame_ms.len() / 2..].to_vec();
+    later.sort_by(f64::total_cmp);
+    crowd.steady_ms = later[later.len() / 2];
+    crowd
+}
+
+/// The instance-crowd section of the summary.
+pub fn instance_crowd_table(rows: &[InstanceCrowd]) -> String {
+    let mut s = String::from(
+        "\n## A crowd of instances of one character\n\nEvery instance has its own tree and planner; the \
+         first frame builds every tree, a steady frame is the median of the later half. Goal: the first \
+         frame costs at most twice a steady frame, and with a shared table no instance but the first \
+         explores.\n\n| instances | cost table | first frame ms | steady frame ms | first / steady | \
+         explorations | builds |\n|---|---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let builds: Vec<String> = r.builds.iter().map(|(b, n)| format!("{b} {n}")).collect();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} |",
+            r.instances,
+            if r.shared { "shared" } else { "per instance" },
+            r.first_ms,
+            r.steady_ms,
+            r.first_ms / r.steady_ms,
+            r.explorations,
+            builds.join(", ")
+        );
+    }
+    s
+}

@@ -1,0 +1,698 @@
+//! The planner of one mesh's tree: per frame keep the refitted tree, rebuild it, or try a build not
+//! measured yet (see the [module docs](super) for the rules).
+
+use super::costs::{Asset, CostTable, Tables};
+use super::rank::{Candidate, choose, pays};
+use super::{Build, Estimate};
+use crate::bvh::{Builder, Bvh};
+use crate::characterize::SceneProfile;
+
+/// The SAH bound by default: no tree answers queries with an SAH cost above 1.5 × a fresh binned-SAH
+/// tree's.
+pub const DEFAULT_SAH_BOUND: f64 = 1.5;
+
+/// Standard deviations of margin by default (about 98% one-sided confidence for normal errors).
+pub const DEFAULT_Z: f64 = 2.0;
+
+/// What the planner is told about a tree: its SAH cost and, where known, its root box's half area (the
+/// scene's extent, which tells the guard how fast the scene spreads out). An `f64` converts to a cost with
+/// the area unknown.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TreeCost {
+    /// [`Bvh::sah_cost`].
+    pub sah: f64,
+    /// Half the surface area of the root box, if known.
+    pub root_area: Option<f64>,
+}
+
+impl TreeCost {
+    /// The cost of `bvh`: one pass over its nodes.
+    pub fn of(bvh: &Bvh) -> TreeCost {
+        TreeCost {
+            sah: bvh.sah_cost(),
+            root_area: Some(bvh.bounds().half_area_f64()),
+        }
+    }
+}
+
+impl From<f64> for TreeCost {
+    fn from(sah: f64) -> TreeCost {
+        TreeCost {
+            sah,
+            root_area: None,
+        }
+    }
+}
+
+/// What [`AdaptivePolicy::after_refit`] decided, and on which ground.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Verdict {
+    /// Keep the refitted tree: the rent paid so far does not exceed the rebuild's predicted cost by the
+    /// margin (or nothing was built yet to compare with).
+    #[default]
+    Keep,
+    /// Rebuild to measure a build not tried yet: its expected gain over the horizon exceeds its cost.
+    Explore,
+    /// Rebuild: the SAH ratio against a fresh binned-SAH tree, extrapolated one frame, would pass
+    /// [`AdaptivePolicy::sah_bound`].
+    Guard,
+    /// Rebuild: the extra query time paid since the last rebuild exceeds the rebuild's predicted time by
+    /// the margin.
+    Rent,
+}
+
+/// The numbers behind the last decision of [`AdaptivePolicy::after_refit`]: what users see in
+/// [`TraceStats`](crate::ecs::TraceStats) to learn why a mesh was or was not rebuilt.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Prediction {
+    /// The decision.
+    pub verdict: Verdict,
+    /// The build a rebuild uses now.
+    pub build: Build,
+    /// Its predicted seconds (0 before any build was measured).
+    pub rebuild_s: f64,
+    /// Extra query seconds the refitted tree has cost since the last rebuild, this frame included.
+    pub rent_s: f64,
+    /// The margin the rent must exceed the rebuild by: `z` standard deviations of their difference.
+    pub margin_s: f64,
+    /// The refitted tree's SAH cost.
+    pub sah: f64,
+    /// The predicted SAH cost of a fresh binned-SAH tree of this frame, the quantity the bound is stated
+    /// in (0 while unknown).
+    pub fresh_sah: f64,
+}
+
+impl Default for Prediction {
+    fn default() -> Self {
+        Self {
+            verdict: Verdict::Keep,
+            build: Build::cpu(Builder::LBVH),
+            rebuild_s: 0.0,
+            rent_s: 0.0,
+            margin_s: 0.0,
+            sah: 0.0,
+            fresh_sah: 0.0,
+        }
+    }
+}
+
+/// The planner of one mesh (see the module docs). Keep one per mesh, made with [`shared`](Self::shared)
+/// so that meshes learn from each other; it allocates only when made and for builds or assets the shared
+/// table has not seen.
+#[derive(Clone, Debug)]
+pub struct AdaptivePolicy {
+    builds: Vec<Build>,
+    costs: CostTable,
+    asset: Asset,
+    clustered: bool,
+    /// Rays per frame at this mesh.
+    rays: Estimate,
+    /// Frames between rebuilds.
+    interval: Estimate,
+    /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
+    reference: f64,
+    triangles: usize,
+    /// The root's half area at the last rebuild, if told, and the tree's SAH cost then.
+    area_built: Option<f64>,
+    sah_built: f64,
+    /// The factor the guard last carried the fresh cost forward by (learned drift or spread).
+    guard_factor: f64,
+    current: Option<Build>,
+    rent: f64,
+    frames: u32,
+    age: u32,
+    last_ratio: f64,
+    last: Prediction,
+    /// The bound on the SAH ratio against a fresh binned-SAH tree ([`DEFAULT_SAH_BOUND`]).
+    pub sah_bound: f64,
+    /// Standard deviations of margin for every "act now?" decision and every change of build
+    /// ([`DEFAULT_Z`]).
+    pub z: f64,
+}
+
+impl AdaptivePolicy {
+    /// A policy choosing among `builders` on the CPU (an empty slice means LBVH), with a table of its own.
+    pub fn new(builders: &[Builder]) -> Self {
+        let builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
+        Self::with_builds(&builds)
+    }
+
+    /// A policy choosing among `builds` (an empty slice means CPU LBVH), with a table of its own, e.g.
+    /// the CPU builders plus [`Build::GPU_LBVH`] where a GPU exists.
+    pub fn with_builds(builds: &[Build]) -> Self {
+        Self::shared(builds, &CostTable::new(), Asset::default())
+    }
+
+    /// A policy choosing among `builds` (an empty slice means CPU LBVH) for a mesh of `asset`, learning
+    /// into and from `costs`: what any mesh of the table measured predicts this one's build times, and
+    /// what a mesh of the same asset measured predicts its trees, so it explores only what nobody tried.
+    pub fn shared(builds: &[Build], costs: &CostTable, asset: Asset) -> Self {
+        let mut builds = builds.to_vec();
+        if builds.is_empty() {
+            builds.push(Build::cpu(Builder::LBVH));
+        }
+        Self {
+            builds,
+            costs: costs.clone(),
+            asset,
+            clustered: false,
+            rays: Estimate::default(),
+            interval: Estimate::default(),
+            reference: 0.0,
+            triangles: asset.triangles,
+            area_built: None,
+            sah_built: 0.0,
+            guard_factor: 1.0,
+            current: None,
+            rent: 0.0,
+            frames: 0,
+            age: 0,
+            last_ratio: 1.0,
+            last: Prediction::default(),
+            sah_bound: DEFAULT_SAH_BOUND,
+            z: DEFAULT_Z,
+        }
+    }
+
+    /// Takes the characteriser's profile as the prior of builds not measured yet: on a non-uniform
+    /// (clustered) mesh LBVH's trees are expected worse, which makes trying a better builder pay sooner.
+    pub fn set_profile(&mut self, profile: &SceneProfile) {
+        if self.clustered == profile.uniform {
+            self.clustered = !profile.uniform;
+            // The guard's estimate changed basis: no rise is read from the change.
+            self.last_ratio = f64::NAN;
+        }
+    }
+
+    /// The table this policy learns into.
+    pub fn costs(&self) -> &CostTable {
+        &self.costs
+    }
+
+    /// The build to use for the next rebuild: before anything is known the build of least prior time
+    /// (the first offered among equals); then the cheapest predicted over a rebuild interval, kept
+    /// unless another is cheaper beyond the noise; or a build not measured yet when trying it pays.
+    pub fn next_build(&self) -> Build {
+        let t = self.costs.lock();
+        // A mesh's first build is no rebuild that trying a build could ride on.
+        self.view(&t).plan(self.current.is_some()).0
+    }
+
+    /// Records a rebuild: its build, triangle count, measured seconds and the new tree's SAH cost.
+    /// A non-finite or negative cost or time is not learned from (the rebuild still resets the rent).
+    pub fn built(
+        &mut self,
+        build: impl Into<Build>,
+        triangles: usize,
+        seconds: f64,
+        cost: impl Into<TreeCost>,
+    ) {
+        let build = build.into();
+        let TreeCost {
+            sah: sah_cost,
+            root_area,
+        } = cost.into();
+        self.area_built = root_area.filter(|a| a.is_finite() && *a > 0.0);
+        self.triangles = triangles;
+        if seconds.is_finite() && seconds >= 0.0 {
+            self.costs.learn_time(build, triangles, seconds);
+        }
+        if sah_cost.is_finite() && sah_cost > 0.0 {
+            self.anchor(build, sah_cost);
+            self.sah_built = sah_cost;
+        }
+        if self.frames > 0 {
+            self.interval.add(self.frames as f64);
+        }
+        let t = self.costs.lock();
+        let v = self.view(&t);
+        self.last_ratio = match (v.relative(build), v.fresh_sah_relative()) {
+            (Some((rel, ..)), Some(sah)) => rel / sah,
+            _ => 1.0,
+        };
+        drop(t);
+        self.current = Some(build);
+        self.guard_factor = 1.0;
+        self.rent = 0.0;
+        self.frames = 0;
+    }
+
+    /// Re-anchors the reference to a fresh tree of `build` at `sah_cost` and learns the build's quality
+    /// where this asset had not measured it.
+    fn anchor(&mut self, build: Build, sah_cost: f64) {
+        let known = (self.costs.lock())
+            .quality(&self.asset, build)
+            .and_then(Estimate::mean);
+        let old = self.reference;
+        match known {
+            Some(rel) if rel > 0.0 => {
+                self.reference = sah_cost / rel;
+                if old > 0.0 && self.frames > 0 {
+                    self.costs
+                        .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
+                }
+            }
+            _ => {
+                // Unmeasured: compare with where the guard assumed the reference had fallen to (an error
+                // then makes this build look worse and the guard earlier, never later), or start the
+                // unit here. No drift is learned from an assumption.
+                let now = if old > 0.0 {
+                    old * self.guard_factor
+                } else {
+                    sah_cost
+                };
+                self.costs.learn_quality(self.asset, build, sah_cost / now);
+                self.reference = now;
+            }
+        }
+    }
+
+    /// Records a frame's queries: rays cast (fractional where a caller apportions a batch over meshes), the
+    /// tree's SAH cost and the measured seconds.
+    pub fn queried(&mut self, rays: f64, sah_cost: f64, seconds: f64) {
+        if rays > 0.0 && sah_cost > 0.0 && seconds.is_finite() && seconds >= 0.0 {
+            self.costs
+                .lock()
+                .query_rate
+                .add(seconds / (rays * sah_cost));
+            self.rays.add(rays);
+        }
+    }
+
+    /// After a refit to `cost` (an SAH cost, or a [`TreeCost`] with the root's area), with `rays` rays
+    /// expected this frame: true to rebuild now
+    /// (with [`next_build`](Self::next_build)), before this frame's queries; the grounds are in
+    /// [`prediction`](Self::prediction).
+    pub fn after_refit(&mut self, cost: impl Into<TreeCost>, rays: f64) -> bool {
+        let TreeCost {
+            sah: sah_cost,
+            root_area,
+        } = cost.into();
+        // A scene that spread out since the rebuild may have a cheaper fresh tree: as the scene's
+        // extent grows by a factor, every box but the root's can shrink relative to it by as much. But a
+        // motion that kept the refitted tree's cost (a uniform scaling, a rigid motion) kept the
+        // fresh tree's too: the fall is assumed no larger than the refitted cost's relative change.
+        let moved = 1.0 / (1.0 + (sah_cost / self.sah_built.max(f64::MIN_POSITIVE) - 1.0).abs());
+        let spread_out = match (self.area_built, root_area) {
+            (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0).max(moved),
+            _ => 1.0,
+        };
+        self.frames += 1;
+        self.age = self.age.saturating_add(1);
+        let t = self.costs.lock();
+        let v = self.view(&t);
+        let (build, _) = v.plan(true);
+        let (rebuild_s, rebuild_spread) = v.time(build).unwrap_or((0.0, 0.0));
+        let mut p = Prediction {
+            verdict: Verdict::Keep,
+            build,
+            rebuild_s,
+            rent_s: self.rent,
+            margin_s: 0.0,
+            sah: sah_cost,
+            fresh_sah: 0.0,
+        };
+        let mut rent = self.rent;
+        let mut ratio = self.last_ratio;
+        let mut guard_factor = 1.0;
+        if self.reference > 0.0 {
+            if let Some(sah) = v.fresh_sah_relative() {
+                guard_factor = v.guard_drift(self.frames).min(spread_out);
+                p.fresh_sah = self.reference * sah * guard_factor;
+                ratio = sah_cost / p.fresh_sah;
+            }
+            let (rate, rate_spread) = v.rate();
+            let fresh = v
+                .relative(build)
+                .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
+            rent += rate * rays.max(0.0) * (sah_cost - fresh).max(0.0);
+            p.rent_s = rent;
+            let rent_spread = if rate > 0.0 {
+                rent * rate_spread / rate
+            } else {
+                0.0
+            };
+            p.margin_s = self.z * rebuild_spread.hypot(rent_spread);
+            // The ratio extrapolated one frame at this frame's rise.
+            let next = ratio + (ratio - self.last_ratio).max(0.0);
+            p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
+                Verdict::Guard
+            } else if rent > 0.0 && pays(rent, rebuild_s, p.margin_s / self.z, self.z) {
+                Verdict::Rent
+            } else {
+                match v.plan(false) {
+                    (b, true) => {
+                        p.build = b;
+                        p.rebuild_s = v.time(b).map_or(0.0, |t| t.0);
+                        Verdict::Explore
+                    }
+                    _ => Verdict::Keep,
+                }
+            };
+        }
+        drop(t);
+        self.guard_factor = guard_factor;
+        self.rent = rent;
+        self.last_ratio = ratio;
+        self.last = p;
+        p.verdict != Verdict::Keep
+    }
+
+    /// Why the last [`after_refit`](Self::after_refit) decided as it did (the default before any).
+    pub fn prediction(&self) -> Prediction {
+        self.last
+    }
+
+    /// Predicted seconds of a rebuild with `build` at this mesh's size (0 before any build time was
+    /// measured in the table).
+    pub fn predicted_rebuild(&self, build: impl Into<Build>) -> f64 {
+        let t = self.costs.lock();
+        self.view(&t).time(build.into()).map_or(0.0, |t| t.0)
+    }
+
+    fn view<'a>(&'a self, tables: &'a Tables) -> View<'a> {
+        View { t: tables, p: self }
+    }
+}
+
+/// The policy's predictions, read from the table under one lock.
+struct View<'a> {
+    t: &'a Tables,
+    p: &'a AdaptivePolicy,
+}
+
+/// Relative spread of a prediction made from a prior rather than a measurement.
+const PRIOR_SPREAD: f64 = 0.25;
+
+/// The least spread of the per-frame drift of `ln` of a fresh tree's cost the guard assumes: 0.1% a
+/// frame, so a fresh cost predicted `k` frames ahead carries at least `z · 0.1% · k` of margin (the
+/// report's rigid bodies drift about that much around a mean of 0).
+const MIN_DRIFT_SPREAD: f64 = 0.001;
+
+impl View<'_> {
+    /// Predicted seconds of `b` at this mesh's size, and their standard deviation: measured, or scaled by
+    /// the prior time ratio from another measured build.
+    fn time(&self, b: Build) -> Option<(f64, f64)> {
+        let unit = super::costs::size_unit(self.p.triangles);
+        if let Some(e) = self.t.time(b)
+            && let Some(m) = e.mean()
+        {
+            return Some((m * unit, e.spread() * unit));
+        }
+        let (m, k) = self
+            .t
+            .time
+            .iter()
+            .find_map(|(m, e)| Some((*m, e.mean()?)))?;
+        let s = k * unit * b.prior_time() / m.prior_time();
+        Some((s, PRIOR_SPREAD * s))
+    }
+
+    /// The relative SAH cost of `b`'s trees on this asset, its spread, and whether it was measured.
+    fn relative(&self, b: Build) -> Option<(f64, f64, bool)> {
+        if let Some(e) = self.t.quality(&self.p.asset, b)
+            && let Some(m) = e.mean()
+        {
+            return Some((m, e.spread(), true));
+        }
+        let c = self.p.clustered;
+        let (m, rel) = self
+            .t
+            .quality
+            .get(&self.p.asset)?
+            .iter()
+            .find_map(|(m, e)| Some((*m, e.mean()?)))?;
+        let r = rel * b.prior_quality(c) / m.prior_quality(c);
+        Some((r, PRIOR_SPREAD * r, false))
+    }
+
+    /// The relative SAH cost of a fresh binned-SAH tree on this asset: measured when any mesh of the
+    /// asset built one, else the lowest that the measured builds' priors imply.
+    fn fresh_sah_relative(&self) -> Option<f64> {
+        self.fresh_sah().map(|f| f.0)
+    }
+
+    /// [`fresh_sah_relative`](Self::fresh_sah_relative), and whether it was measured (else it rests on
+    /// the priors).
+    fn fresh_sah(&self) -> Option<(f64, bool)> {
+        let list = self.t.quality.get(&self.p.asset)?;
+        let c = self.p.clustered;
+        let sah = list
+            .iter()
+            .filter(|(b, _)| matches!(b.builder, Builder::Sah { .. }))
+            .find_map(|(_, e)| Some((e.mean()?, true)));
+        sah.or_else(|| {
+            list.iter()
+                .filter_map(|(b, e)| Some((e.mean()? / b.prior_quality(c), false)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+        })
+    }
+
+    /// The ratio at which the guard rebuilds: the bound; or while the fresh binned-SAH cost rests on the
+    /// priors and a binned-SAH build is offered, the bound over one prior spread (1.5 / 1.25 = 1.2), so
+    /// that the prior's error cannot carry the tree past the bound before that rebuild measures a
+    /// binned-SAH tree. Without a binned-SAH build to measure with, the bound rests on the priors.
+    fn guard_at(&self) -> f64 {
+        let sah_offered = (self.p.builds.iter()).any(|b| matches!(b.builder, Builder::Sah { .. }));
+        match self.fresh_sah() {
+            Some((_, false)) if sah_offered => self.p.sah_bound / (1.0 + PRIOR_SPREAD),
+            _ => self.p.sah_bound,
+        }
+    }
+
+    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
+    /// at the asset's learned drift less `z` spreads, the spread at least [`MIN_DRIFT_SPREAD`] (capped at
+    /// 1: a rise only makes the guard earlier).
+    fn guard_drift(&self, frames: u32) -> f64 {
+        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
+        let low = d.mean().unwrap_or(0.0) - self.p.z * d.spread().max(MIN_DRIFT_SPREAD);
+        (low.min(0.0) * frames as f64).exp()
+    }
+
+    /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last
+    /// rebuild, at the asset's mean drift (1 before any was learned): what the rent is charged against.
+    fn mean_drift(&self, frames: u32) -> f64 {
+        let mean = self.t.drift.get(&self.p.asset).and_then(Estimate::mean);
+        (mean.unwrap_or(0.0) * frames as f64).exp()
+    }
+
+    /// Query seconds per ray per unit of SAH cost, and the spread of that mean (0 before any query was
+    /// measured): a rent sums many frames, so what is uncertain is the rate, not one frame's noise.
+    fn rate(&self) -> (f64, f64) {
+        let e = &self.t.query_rate;
+        (e.mean().unwrap_or(0.0), e.mean_spread())
+    }
+
+    /// `b` as a candidate: its rebuild spread over the interval between rebuilds plus the queries of a
+    /// frame on its fresh tree.
+    fn candidate(&self, b: Build) -> Option<(Candidate<Build>, bool)> {
+        let (time, time_spread) = self.time(b).unwrap_or((0.0, 0.0));
+        let (rel, rel_spread, measured) = self.relative(b)?;
+        let interval = self.p.interval.mean().unwrap_or(1.0).max(1.0);
+        let per_rel = self.rate().0 * self.p.rays.mean().unwrap_or(0.0) * self.p.reference;
+        Some((
+            Candidate {
+                option: b,
+                cost_s: time / interval + per_rel * rel,
+                spread_s: (time_spread / interval).hypot(per_rel * rel_spread),
+            },
+            measured,
+        ))
+    }
+
+    /// Whether a fresh tree of `b` leaves room under the bound: its ratio to a fresh SAH tree at most
+    /// 90% of the way from 1 to the bound (else the guard would rebuild it at once, every frame).
+    fn within_bound(&self, b: Build) -> bool {
+        match (self.relative(b), self.fresh_sah_relative()) {
+            (Some((rel, ..)), Some(sah)) => rel / sah <= 1.0 + 0.9 * (self.p.sah_bound - 1.0),
+            _ => true,
+        }
+    }
+
+    /// The build to use, and whether it is an exploration. `rebuilding`: a rebuild is due anyway, so
+    /// trying a build costs only its extra time over the chosen one's; otherwise its whole time.
+    fn plan(&self, rebuilding: bool) -> (Build, bool) {
+        let builds = &self.p.builds;
+        let measured = builds
+            .iter()
+            .filter_map(|&b| self.candidate(b))
+            .filter(|(c, m)| *m && self.within_bound(c.option))
+            .map(|(c, _)| c);
+        let Some(chosen) = choose(measured, self.p.current, self.p.z) else {
+            // Nothing measured on this asset within the bound: the best tree measured, else the
+            // cheapest by the priors.
+            let best_tree = builds
+                .iter()
+                .filter_map(|&b| Some((b, self.relative(b).filter(|r| r.2)?.0)))
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            return match best_tree {
+                Some((b, _)) => (b, false),
+                None => (self.cheapest_prior(), false),
+            };
+        };
+        if let Some(b) = self.worth_trying(chosen, rebuilding) {
+            return (b, true);
+        }
+        (chosen, false)
+    }
+
+    /// The build of least predicted (or prior) time: the first choice on an asset nobody measured.
+    fn cheapest_prior(&self) -> Build {
+        let time = |b: &Build| self.time(*b).map_or(b.prior_time(), |t| t.0);
+        *self
+            .p
+            .builds
+            .iter()
+            .min_by(|a, b| time(a).total_cmp(&time(b)))
+            .expect("a policy has at least one build")
+    }
+
+    /// An unmeasured build worth trying instead of `chosen`: a binned-SAH build at the first rebuild due
+    /// (it measures the bound's reference once per asset), or any build whose expected saving per frame
+    /// (from the priors, optimistic by one spread: what is unknown may be better than assumed) times the
+    /// horizon exceeds what trying it costs. The horizon is the frames seen so far: a scene that has run
+    /// for `n` frames is expected to run about `n` more.
+    fn worth_trying(&self, chosen: Build, rebuilding: bool) -> Option<Build> {
+        let sah_measured = self.t.quality.get(&self.p.asset).is_some_and(|l| {
+            l.iter()
+                .any(|(b, _)| matches!(b.builder, Builder::Sah { .. }))
+        });
+        let chosen_c = self.candidate(chosen)?.0;
+        let horizon = self.p.age as f64;
+        let chosen_time = self.time(chosen).map_or(0.0, |t| t.0);
+        self.p.builds.iter().copied().find(|&b| {
+            let Some((c, false)) = self.candidate(b) else {
+                return false;
+            };
+            if rebuilding && !sah_measured && matches!(b.builder, Builder::Sah { .. }) {
+                return true;
+            }
+            let cost =
+                self.time(b).map_or(0.0, |t| t.0) - if rebuilding { chosen_time } else { 0.0 };
+            (chosen_c.cost_s - (c.cost_s - c.spread_s)) * horizon > cost.max(0.0)
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::adaptive::Device;
+
+    /// 1 ms per rebuild, 1 ns per ray per unit of cost, the cost rising by 1 per frame: the rent after
+    /// k frames is 1e-6 · k(k+1)/2 s, and must pass 1 ms by 2 × 0.25 ms (one build measured): first at
+    /// k(k+1) > 3000, k = 55.
+    fn rent_frame(p: &mut AdaptivePolicy) -> u32 {
+        p.sah_bound = f64::INFINITY;
+        (1..1000)
+            .find(|&k| p.after_refit(10.0 + k as f64, 1000.0))
+            .unwrap()
+    }
+
+    fn measured() -> AdaptivePolicy {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH]);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        for _ in 0..3 {
+            p.queried(1000.0, 10.0, 1e-5);
+        }
+        p
+    }
+
+    #[test]
+    fn rebuilds_when_the_rent_passes_the_rebuild_by_the_margin() {
+        let mut p = measured();
+        assert_eq!(rent_frame(&mut p), 55);
+        let why = p.prediction();
+        assert_eq!(why.verdict, Verdict::Rent);
+        assert!((why.margin_s - 0.5e-3).abs() < 1e-12, "{why:?}");
+    }
+
+    #[test]
+    fn non_finite_measurements_are_not_learned() {
+        let mut p = measured();
+        p.built(Builder::LBVH, 1000, f64::NAN, f64::INFINITY);
+        p.queried(1000.0, f64::NAN, f64::NAN);
+        assert!((p.predicted_rebuild(Builder::LBVH) - 1e-3).abs() < 1e-12);
+        assert_eq!(rent_frame(&mut p), 55);
+    }
+
+    /// Against a measured binned-SAH tree of cost 10, the guard rebuilds when the ratio extrapolated one
+    /// frame at its last rise passes 1.5: 1.2 (+0.2), 1.34 (+0.14), 1.4 (+0.06), then 1.46 (+0.06 = 1.52:
+    /// rebuilt, one frame before the tree itself would cross). A first interval with the fresh cost
+    /// unchanged teaches the asset a drift of 0 (before it, the guard assumes a prior drift).
+    #[test]
+    fn the_guard_acts_before_the_bound() {
+        let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+        p.built(Builder::SAH, 1000, 1.0, 10.0);
+        assert!(!p.after_refit(10.0, 0.0));
+        p.built(Builder::SAH, 1000, 1.0, 10.0);
+        for sah in [12.0, 13.4, 14.0] {
+            assert!(!p.after_refit(sah, 0.0), "{:?}", p.prediction());
+        }
+        assert!(p.after_refit(14.6, 0.0));
+        let why = p.prediction();
+        assert_eq!((why.verdict, why.rent_s), (Verdict::Guard, 0.0));
+        // The fresh cost carried 4 frames at the least drift spread: 10 · exp(−2 · 0.001 · 4).
+        assert_eq!(why.sah, 14.6);
+        assert!(
+            (why.fresh_sah - 10.0 * (-0.008f64).exp()).abs() < 1e-9,
+            "{why:?}"
+        );
+    }
+
+    /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
+    /// SAH pays off once 1e-8 · rays > 0.099 s, i.e. above 9.9 million rays per frame.
+    fn choice(rays: f64) -> Build {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        p.sah_bound = f64::INFINITY;
+        p.built(Builder::LBVH, 1000, 1e-3, 20.0);
+        p.built(Builder::SAH, 1000, 0.1, 10.0);
+        p.queried(rays, 10.0, 1e-8 * rays);
+        p.next_build()
+    }
+
+    #[test]
+    fn the_builder_follows_the_ray_load() {
+        assert_eq!(choice(1e6), Build::cpu(Builder::LBVH));
+        assert_eq!(choice(1e8), Build::cpu(Builder::SAH));
+    }
+
+    /// The same builder on two devices: each device's time is learned apart, and the cheaper one wins
+    /// whichever it is.
+    #[test]
+    fn the_device_is_the_cheaper_one() {
+        for (cpu_s, gpu_s, expect) in [(1e-3, 4e-3, Device::Cpu), (4e-3, 1e-3, Device::Gpu)] {
+            let mut p = AdaptivePolicy::with_builds(&[Build::cpu(Builder::LBVH), Build::GPU_LBVH]);
+            assert_eq!(
+                p.next_build(),
+                Build::cpu(Builder::LBVH),
+                "equal priors: the first offered"
+            );
+            p.built(Builder::LBVH, 1000, cpu_s, 20.0);
+            p.built(Build::GPU_LBVH, 1000, gpu_s, 20.0);
+            assert_eq!(p.next_build().device, expect);
+            assert_eq!(p.predicted_rebuild(Build::GPU_LBVH), gpu_s);
+        }
+    }
+
+    /// Given only CPU builds, no history of measurements makes the policy choose a GPU build.
+    #[test]
+    fn no_gpu_build_unless_given_one() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
+        let mut cost = 10.0;
+        for frame in 0..200 {
+            let next = p.next_build();
+            assert_eq!(next.device, Device::Cpu);
+            if frame == 0 || p.after_refit(cost, 1e4) {
+                let b = p.prediction().build;
+                // The GPU-like timing of a build that was never offered is learned but never chosen.
+                p.built(Build::GPU_LBVH, 1000, 1e-9, 5.0);
+                p.built(b, 1000, 1e-3 * (1 + frame % 3) as f64, 10.0);
+                cost = 10.0;
+            }
+            p.queried(1e4, cost, 1e-3);
+            cost += 1.0;
+            assert_eq!(p.prediction().build.device, Device::Cpu);
+        }
+    }
+}
