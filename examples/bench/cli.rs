@@ -3,7 +3,9 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 6] = ["cpu", "gpu", "ecs", "skinning", "collide", "grid"];
+const SUITES: [&str; 7] = [
+    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "shadows",
+];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
 pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
@@ -34,6 +36,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "skinning" => crate::skinning::run(&mut rec),
             "collide" => crate::collide::run(&mut rec),
             "grid" => crate::grid::run(&mut rec),
+            "shadows" => crate::shadows::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

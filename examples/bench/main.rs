@@ -7,7 +7,8 @@
 //! `gpu` (LBVH build, refit and ray queries on the wgpu back end), `ecs` (the plugin's frame cost and
 //! overhead), `skinning` (skinning throughput and crowd frame times), `collide` (collision queries on
 //! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
-//! single-ray and packet queries).
+//! single-ray and packet queries), `shadows` (selective ray-traced hard shadows on the crowd against the
+//! shadow map alone and a shadow ray per pixel).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -17,6 +18,9 @@
 mod cli;
 mod collide;
 mod cpu;
+#[path = "../crowd.rs"]
+#[allow(dead_code)]
+mod crowd;
 mod ecs;
 mod gpu;
 mod grid;
@@ -26,6 +30,7 @@ mod record;
 #[path = "../report/scenes.rs"]
 #[allow(dead_code)]
 mod report_scenes;
+mod shadows;
 mod skinning;
 
 fn main() -> std::process::ExitCode {

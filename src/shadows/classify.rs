@@ -45,12 +45,15 @@ fn tolerances(map: &ShadowMap, cos: f32, bias_texels: f32) -> Tolerances {
 /// The shadow map's depth under a point and `Δ`, the largest depth difference to its eight neighbours
 /// (infinite next to an empty texel or outside the map); `None` when the point falls outside the map.
 fn sample(map: &ShadowMap, x: f32, y: f32) -> Option<(f32, f32)> {
-    let res = map.resolution() as isize;
-    let (i, j) = (x.floor() as isize, y.floor() as isize);
-    if !(1..res - 1).contains(&i) || !(1..res - 1).contains(&j) {
+    let res = map.resolution();
+    // Truncation is the floor here: anything below 1 (NaN included) is off the map's interior.
+    if !(x >= 1.0 && y >= 1.0) {
         return None;
     }
-    let (i, j) = (i as usize, j as usize);
+    let (i, j) = (x as usize, y as usize);
+    if i >= res - 1 || j >= res - 1 {
+        return None;
+    }
     let s = map.depth(i, j);
     let mut delta = 0f32;
     for (di, dj) in [
@@ -84,8 +87,7 @@ pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f
 }
 
 /// The selective classification of the receiver at `p` (`cos = n·L > 0`): where the map's neighbourhood
-/// is smooth (`Δ ≤ edge`) the map decides, except for receivers just behind the surface the map saw
-/// (contact shadows, closer than `edge` beyond the bias), which are marked; at a depth discontinuity the
+/// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the
 /// receiver is marked when its depth span within one texel, `[d̂, d]`, overlaps the occluders' span
 /// `[s − Δ, s + Δ]`, else the map decides. Off the map or over an empty texel (geometry too thin for the
 /// map): marked.
@@ -99,8 +101,6 @@ pub(super) fn selective(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f32, ed
     if delta <= edge {
         if d <= s + tol.bias {
             Class::Lit
-        } else if d <= s + tol.bias + edge {
-            Class::Marked
         } else {
             Class::Shadowed
         }

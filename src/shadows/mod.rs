@@ -5,21 +5,24 @@
 //! world space and a shadow-ray query (`occluded(from, to)`, e.g. `TraceWorld::occluded` or
 //! [`MeshBvh::any_hit`](crate::MeshBvh::any_hit)), and writes a visibility per pixel:
 //!
-//! 1. the shadow map: the triangles rasterised orthographically along the light ([`ShadowMap`]);
+//! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
+//!    pixels' surfaces ([`ShadowMap`]);
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
-//!    compared with the occluders' (`[s − Δ, s + Δ]`); such pixels, and receivers just behind a surface
-//!    (contact shadows), are *potentially incorrect* and marked;
+//!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
+//!    incorrect* and marked;
 //! 3. compaction of the marked pixels into a dense list;
 //! 4. one shadow ray per marked pixel, in parallel;
 //! 5. the composite: the map's verdict where it was trusted, the ray's where not.
 //!
 //! [`ShadowMode`] switches between the shadow map alone, the selective pipeline and a shadow ray for every
-//! pixel (the reference the selective image is measured against). Use the selective mode when shadow rays
-//! are the expensive part and the map's resolution keeps the marked fraction small: its cost is the map
-//! (O(triangles + texels)), O(pixels) classification, and rays for the marked pixels only — a few percent
-//! of them on the crowd (see the `shadows` bench suite). A warm pass (same sizes) allocates nothing of its
-//! own. Directional lights only; surfaces facing away from the light are in shadow without a ray. Not
+//! pixel (the reference the selective image is measured against). Its cost is the map (O(bands ·
+//! triangles + texels)), O(pixels) classification, and rays for the marked pixels only (2–7% of them on
+//! the crowd). On the CPU the map and the classification cost about as much as shadow rays that mostly
+//! escape to the sky, so on the crowd the selective pass is *not* faster than a ray per pixel (see the
+//! `shadows` bench suite in docs/BENCHMARKS.md): use it where shadow rays are expensive (dense occluders,
+//! many triangles over the receivers) or where the map is rendered anyway; use the shadow map alone where
+//! aliased edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from the light are in shadow without a ray. Not
 //! covered: soft shadows of area lights, point lights, and conservative rasterisation of thin triangles
 //! (triangles edge-on to the light cover no texel; receivers over empty texels are marked instead).
 
@@ -178,8 +181,14 @@ impl HardShadows {
         let n = gbuffer.width * gbuffer.height;
         let t0 = Instant::now();
         if settings.mode != ShadowMode::RayTraced {
+            let receivers = gbuffer
+                .positions
+                .iter()
+                .zip(&gbuffer.normals)
+                .filter(|(_, n)| n.dot(towards) > 0.0)
+                .map(|(p, _)| p);
             self.map
-                .render(triangles, towards, settings.map_resolution, par);
+                .render(triangles, receivers, towards, settings.map_resolution, par);
         }
         let t1 = Instant::now();
         let map = &self.map;

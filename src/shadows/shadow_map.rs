@@ -33,11 +33,15 @@ pub struct ShadowMap {
 
 impl ShadowMap {
     /// Renders `triangles` (world space) as seen from a light in direction `towards` (unit, pointing from the
-    /// scene to the light) into a `res × res` map covering their bounds across the light, plus a margin of
-    /// one texel so every receiver on a triangle has its eight neighbours. Empty input gives an empty map.
-    pub(super) fn render(
+    /// scene to the light) into a `res × res` map that covers the `receivers` across the light, plus a
+    /// margin of one texel so every receiver has its eight neighbours. A directional light's occluder of a
+    /// receiver lies on the receiver's line towards the light, so it projects onto the same spot: fitting
+    /// the map to the receivers (the pixels the camera sees) rather than the scene loses no shadow and
+    /// spends every texel where it is looked at. No receivers or no triangles give an empty map.
+    pub(super) fn render<'a>(
         &mut self,
         triangles: &[[Vec3; 3]],
+        receivers: impl Iterator<Item = &'a Vec3>,
         towards: Vec3,
         res: usize,
         parallel: bool,
@@ -45,17 +49,20 @@ impl ShadowMap {
         self.towards = towards;
         self.u = towards.any_orthonormal_vector();
         self.v = towards.cross(self.u);
-        let (mut lo, mut hi, mut top) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN), f32::MIN);
-        for p in triangles.iter().flatten() {
+        let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
+        for p in receivers {
             let q = Vec2::new(p.dot(self.u), p.dot(self.v));
             lo = lo.min(q);
             hi = hi.max(q);
-            top = top.max(p.dot(towards));
+        }
+        let mut top = f32::MIN;
+        for [a, b, c] in triangles {
+            top = top.max(a.dot(towards).max(b.dot(towards)).max(c.dot(towards)));
         }
         self.res = res;
         self.depth.clear();
         self.depth.resize(res * res, f32::INFINITY);
-        if triangles.is_empty() {
+        if triangles.is_empty() || lo.x > hi.x {
             (self.corner, self.top, self.texel) = (Vec2::ZERO, 0.0, 1.0);
             return;
         }
@@ -105,35 +112,60 @@ impl ShadowMap {
 }
 
 /// Writes the nearest depth of triangle `t` (map coordinates) into the texels of rows `row0..` whose centres
-/// it covers, edges and corners included (a centre on a shared edge belongs to both triangles). Triangles
-/// seen edge-on by the light cover nothing.
+/// it covers, edges and corners included (a centre on a shared edge belongs to both triangles). Each row's
+/// covered span is solved from the three edge functions, so the cost is the covered texels plus one step
+/// per row. Triangles seen edge-on by the light cover nothing.
 fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
     let rows = out.len() / res;
     let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    // Texel centres are at i + 0.5.
-    let first = |a: f32| (a - 0.5).ceil().max(0.0) as usize;
-    let last = |a: f32, n: usize| ((a - 0.5).floor().min(n as f32 - 1.0)).max(-1.0) as isize;
-    let (y0, y1) = (first(lo.y).max(row0), last(hi.y, row0 + rows));
-    let (x0, x1) = (first(lo.x), last(hi.x, res));
-    if (y1 as isize) < y0 as isize || x1 < x0 as isize {
+    // Most triangles miss a band: reject them with two comparisons.
+    if hi.y < row0 as f32 || lo.y > (row0 + rows) as f32 {
         return;
     }
-    let edge = |a: Vec3, b: Vec3, x: f32, y: f32| (b.x - a.x) * (y - a.y) - (b.y - a.y) * (x - a.x);
-    let area = edge(t[0], t[1], t[2].x, t[2].y);
+    // Texel centres are at i + 0.5.
+    let first = |a: f32| (a - 0.5).ceil().max(0.0) as usize;
+    let last = |a: f32, n: usize| (a - 0.5).floor().min(n as f32 - 1.0);
+    let (y0, y1) = (first(lo.y).max(row0), last(hi.y, row0 + rows));
+    let (x0, x1) = (first(lo.x), last(hi.x, res));
+    if y1 < y0 as f32 || x1 < x0 as f32 {
+        return;
+    }
+    let (y1, x1) = (y1 as usize, x1 as usize);
+    // Edge k's weight is a_k x + b_k y + c_k, normalised so the three sum to 1 (barycentrics).
+    let area = (t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[1].y - t[0].y) * (t[2].x - t[0].x);
     if area == 0.0 || !area.is_finite() {
         return;
     }
-    for y in y0..=y1 as usize {
+    let coef = |a: Vec3, b: Vec3| {
+        let (ea, eb) = ((a.y - b.y) / area, (b.x - a.x) / area);
+        (ea, eb, -(ea * a.x + eb * a.y))
+    };
+    let e = [coef(t[1], t[2]), coef(t[2], t[0]), coef(t[0], t[1])];
+    for y in y0..=y1 {
         let cy = y as f32 + 0.5;
+        // The span of centres where all three weights are ≥ 0.
+        let (mut from, mut to) = (x0 as f32, x1 as f32);
+        for &(a, b, c) in &e {
+            let r = b * cy + c; // weight = a·(x + 0.5) + r ≥ 0
+            // One centre of slack each way: the exact test below decides.
+            if a > 0.0 {
+                from = from.max((-r / a - 0.5).ceil() - 1.0);
+            } else if a < 0.0 {
+                to = to.min((-r / a - 0.5).floor() + 1.0);
+            } else if r < 0.0 {
+                to = -1.0;
+            }
+        }
+        if to < from {
+            continue;
+        }
         let row = &mut out[(y - row0) * res..(y - row0 + 1) * res];
-        for (x, d) in row.iter_mut().enumerate().take(x1 as usize + 1).skip(x0) {
+        for x in from as usize..=to as usize {
             let cx = x as f32 + 0.5;
-            // Barycentric weights, positive inside whichever way the triangle winds.
-            let w0 = edge(t[1], t[2], cx, cy) / area;
-            let w1 = edge(t[2], t[0], cx, cy) / area;
-            let w2 = edge(t[0], t[1], cx, cy) / area;
-            if w0 >= 0.0 && w1 >= 0.0 && w2 >= 0.0 {
-                *d = d.min(w0 * t[0].z + w1 * t[1].z + w2 * t[2].z);
+            let w = e.map(|(a, b, c)| a * cx + b * cy + c);
+            if w[0] >= 0.0 && w[1] >= 0.0 && w[2] >= 0.0 {
+                let d = &mut row[x];
+                *d = d.min(w[0] * t[0].z + w[1] * t[1].z + w[2] * t[2].z);
             }
         }
     }
