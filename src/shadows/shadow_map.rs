@@ -160,11 +160,11 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
             continue;
         }
         let row = &mut out[(y - row0) * res..(y - row0 + 1) * res];
-        for x in from as usize..=to as usize {
-            let cx = x as f32 + 0.5;
+        let from = from as usize;
+        for (x, d) in row[from..=to as usize].iter_mut().enumerate() {
+            let cx = (from + x) as f32 + 0.5;
             let w = e.map(|(a, b, c)| a * cx + b * cy + c);
             if w[0] >= 0.0 && w[1] >= 0.0 && w[2] >= 0.0 {
-                let d = &mut row[x];
                 *d = d.min(w[0] * t[0].z + w[1] * t[1].z + w[2] * t[2].z);
             }
         }
