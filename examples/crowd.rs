@@ -4,6 +4,7 @@
 //! ```text
 //! cargo run --release --example crowd -- [--characters 64] [--triangles 10000] [--frames 600]
 //!                                         [--cpu] [--png-every 120] [--out target/crowd]
+//!                                         [--shadows map|selective|traced]
 //! ```
 //! Gameplay each frame: every character checks line of sight (shadow rays, batched) to its two nearest
 //! neighbours and probes the ground under it (immediate ray); a turret sweeps the crowd and reports which
@@ -11,13 +12,15 @@
 //! (their skinned meshes touch), a gameplay system reads the `CollisionStarted` message and the contacts
 //! (triangles, point, depth). Once per simulated second a table line shows the frame time by
 //! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
-//! shadows from the sun, the turret's hits marked red. Batched queries run on the GPU when one is found
+//! shadows from the sun (`--shadows`: shadow map alone, selective ray-traced — the default — or a shadow
+//! ray per pixel, see `kinetrace::shadows`), the turret's hits marked red. Batched queries run on the GPU when one is found
 //! (`--cpu` keeps them on the CPU).
 
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec2, Vec3};
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
+use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
 use kinetrace::{Mesh, Ray};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -42,6 +45,8 @@ pub struct Options {
     pub width: u32,
     /// Image size.
     pub height: u32,
+    /// How the images' shadows are computed.
+    pub shadows: ShadowMode,
 }
 
 impl Default for Options {
@@ -55,6 +60,7 @@ impl Default for Options {
             out: PathBuf::from("target/crowd"),
             width: 480,
             height: 270,
+            shadows: ShadowMode::Selective,
         }
     }
 }
@@ -106,6 +112,7 @@ impl Walker {
 struct Crowd {
     summary: Summary,
     turret_marks: Vec<Vec3>,
+    shadows: ShadowMode,
 }
 
 /// Moves every walker: forward along its heading, turning gently, pushed apart from near neighbours and
@@ -328,6 +335,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
     world.insert_resource(Crowd {
         summary: Summary::default(),
         turret_marks: Vec::new(),
+        shadows: opt.shadows,
     });
     schedule.add_systems((
         walk.before(TraceSystems::TopLevel),
@@ -455,28 +463,19 @@ pub enum View {
     Boxes,
 }
 
-/// The normal turned toward the ray's origin.
-fn facing(normal: Vec3, dir: Vec3) -> Vec3 {
-    if normal.dot(dir) > 0.0 {
-        -normal
-    } else {
-        normal
-    }
+/// The direction towards the sun.
+pub fn sun() -> Vec3 {
+    Vec3::new(0.4, 1.0, -0.3).normalize()
 }
 
-/// Ray traces the world from `camera`: primary and shadow rays as packets of 8×8 pixels
-/// ([`TraceWorld::cast_packet`], [`TraceWorld::occluded_packet`]).
-pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> image::RgbImage {
-    let tw = world.resource::<TraceWorld>();
-    let marks = &world.resource::<Crowd>().turret_marks;
-    let sun = Vec3::new(0.4, 1.0, -0.3).normalize();
+/// The camera's primary ray through the centre of pixel `(x, y)` of a `w`×`h` image.
+fn pixel_ray(w: u32, h: u32, camera: &Camera) -> impl Fn(u32, u32) -> Ray {
     let eye = camera.eye;
     let fwd = (camera.target - eye).normalize();
     let right = fwd.cross(Vec3::Y).normalize();
     let up = right.cross(fwd);
     let aspect = w as f32 / h as f32;
-    let all = QueryFilter::default();
-    let pixel_ray = |x: u32, y: u32| {
+    move |x, y| {
         let (u, v) = (
             (x as f32 + 0.5) / w as f32 - 0.5,
             0.5 - (y as f32 + 0.5) / h as f32,
@@ -485,60 +484,132 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
             eye,
             (fwd + right * u * aspect * 0.9 + up * v * 0.9).normalize(),
         )
-    };
-    // Primary rays in 8×8 tiles and the shadow rays of their hits toward the sun, traced as packets;
-    // the heatmap counts the work of single rays instead.
-    let (mut hits, mut lit) = (vec![None; (w * h) as usize], vec![false; (w * h) as usize]);
-    if view != View::Heatmap {
-        let (mut tile, mut idx, mut segments) = (Vec::new(), Vec::new(), Vec::new());
-        for ty in (0..h).step_by(8) {
-            for tx in (0..w).step_by(8) {
-                tile.clear();
-                idx.clear();
-                for y in ty..(ty + 8).min(h) {
-                    for x in tx..(tx + 8).min(w) {
-                        tile.push(pixel_ray(x, y));
-                        idx.push((y * w + x) as usize);
-                    }
+    }
+}
+
+/// The primary hit of every pixel, traced as packets of 8×8 pixels ([`TraceWorld::cast_packet`]), and
+/// the G-buffer of those hits (normals turned towards the camera) that the shadow pass reads.
+pub fn primary_hits(
+    world: &World,
+    w: u32,
+    h: u32,
+    camera: &Camera,
+) -> (Vec<Option<RayHit>>, GBuffer) {
+    let tw = world.resource::<TraceWorld>();
+    let all = QueryFilter::default();
+    let ray_at = pixel_ray(w, h, camera);
+    let mut g = GBuffer::new(w as usize, h as usize);
+    let mut hits = vec![None; (w * h) as usize];
+    let (mut tile, mut idx, mut out) = (Vec::new(), Vec::new(), Vec::new());
+    for ty in (0..h).step_by(8) {
+        for tx in (0..w).step_by(8) {
+            tile.clear();
+            idx.clear();
+            for y in ty..(ty + 8).min(h) {
+                for x in tx..(tx + 8).min(w) {
+                    tile.push(ray_at(x, y));
+                    idx.push((y * w + x) as usize);
                 }
-                let mut out = vec![None; tile.len()];
-                tw.cast_packet(&tile, 200.0, &all, &mut out);
-                segments.clear();
-                for ((r, &i), hit) in tile.iter().zip(&idx).zip(out) {
-                    if let Some(hit) = hit {
-                        let n = facing(hit.normal, r.dir());
-                        segments.push((i, (hit.point + n * 1e-3, hit.point + sun * 100.0)));
-                    }
-                    hits[i] = hit;
+            }
+            out.clear();
+            out.resize(tile.len(), None);
+            tw.cast_packet(&tile, 200.0, &all, &mut out);
+            for ((ray, &i), hit) in tile.iter().zip(&idx).zip(&out) {
+                if let Some(hit) = hit {
+                    let n = if hit.normal.dot(ray.dir()) > 0.0 {
+                        -hit.normal
+                    } else {
+                        hit.normal
+                    };
+                    g.set(i, hit.point, n);
                 }
-                let (pixels, segs): (Vec<usize>, Vec<_>) = segments.iter().copied().unzip();
-                let mut occluded = vec![false; segs.len()];
-                tw.occluded_packet(&segs, &all, &mut occluded);
-                for (i, o) in pixels.into_iter().zip(occluded) {
-                    lit[i] = !o;
-                }
+                hits[i] = *hit;
             }
         }
     }
+    (hits, g)
+}
+
+/// The traversal work (inner nodes visited plus triangles tested) of every pixel's primary ray, traced
+/// one by one: what the heatmap view shows.
+fn primary_work(world: &World, w: u32, h: u32, camera: &Camera) -> Vec<u32> {
+    let tw = world.resource::<TraceWorld>();
+    let all = QueryFilter::default();
+    let ray_at = pixel_ray(w, h, camera);
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let mut work = kinetrace::bvh::TraversalStats::default();
+            tw.cast_ray_counted(&ray_at(x, y), 200.0, &all, &mut work);
+            (work.inner_visits + work.prim_tests) as u32
+        })
+        .collect()
+}
+
+/// Sun visibility per pixel of `g` (1 lit, 0 shadowed), computed as `settings.mode` says, with the
+/// shadow-ray queries of the world's trees.
+pub fn sun_visibility<'a>(
+    world: &World,
+    g: &GBuffer,
+    settings: &ShadowSettings,
+    pass: &'a mut HardShadows,
+    triangles: &mut Vec<[Vec3; 3]>,
+) -> kinetrace::Result<&'a [f32]> {
+    let tw = world.resource::<TraceWorld>();
+    let all = QueryFilter::default();
+    tw.world_triangles(&all, triangles);
+    pass.run(settings, triangles, g, |from, to| {
+        tw.occluded(from, to, &all)
+    })
+}
+
+/// Ray traces the world from `camera`: primary rays as packets of 8×8 pixels, sun shadows as the
+/// crowd's shadow mode says (selective by default).
+pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> image::RgbImage {
+    let tw = world.resource::<TraceWorld>();
+    let marks = &world.resource::<Crowd>().turret_marks;
+    let sun = sun();
+    let eye = camera.eye;
+    let fwd = (camera.target - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let aspect = w as f32 / h as f32;
+    let (hits, g) = primary_hits(world, w, h, camera);
+    let work = match view {
+        View::Heatmap => primary_work(world, w, h, camera),
+        _ => vec![0; hits.len()],
+    };
+    let settings = ShadowSettings {
+        mode: world.resource::<Crowd>().shadows,
+        towards_light: sun,
+        ..Default::default()
+    };
+    let mut pass = HardShadows::new();
+    let visibility = match view {
+        View::Heatmap => vec![1.0; hits.len()],
+        _ => sun_visibility(world, &g, &settings, &mut pass, &mut Vec::new())
+            .expect("valid settings")
+            .to_vec(),
+    };
     let mut img = image::RgbImage::new(w, h);
-    for (x, y, px) in img.enumerate_pixels_mut() {
-        let v = 0.5 - (y as f32 + 0.5) / h as f32;
-        let ray = pixel_ray(x, y);
-        let i = (y * w + x) as usize;
-        let mut work = kinetrace::bvh::TraversalStats::default();
+    for ((((px, hit), cost), vis), i) in img
+        .pixels_mut()
+        .zip(hits)
+        .zip(work)
+        .zip(visibility)
+        .zip(0..)
+    {
+        let v = 0.5 - ((i / w) as f32 + 0.5) / h as f32;
         if view == View::Heatmap {
-            tw.cast_ray_counted(&ray, 200.0, &all, &mut work);
-            let cost = (work.inner_visits + work.prim_tests) as f32;
-            let k = (cost / 150.0).min(1.0);
+            let k = (cost as f32 / 150.0).min(1.0);
             let c = Vec3::new(0.1, 0.2, 0.9).lerp(Vec3::new(1.0, 0.15, 0.05), k);
             *px = image::Rgb(c.to_array().map(|x| (x * 255.0) as u8));
             continue;
         }
-        let c = match hits[i] {
+        let c = match hit {
             None => Vec3::new(0.55, 0.7, 0.9) * (0.8 + 0.2 * v),
             Some(hit) => {
-                let n = facing(hit.normal, ray.dir());
-                let lit = lit[i];
+                let n = g.normals[i as usize];
                 let albedo = if hit.point.y.abs() < 1e-3 && hit.normal.y.abs() > 0.99 {
                     let check = ((hit.point.x.floor() + hit.point.z.floor()) as i32 & 1) as f32;
                     Vec3::splat(0.55 + 0.1 * check)
@@ -554,7 +625,7 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
                 if near_mark {
                     Vec3::new(1.0, 0.1, 0.1)
                 } else {
-                    albedo * (0.25 + if lit { 0.75 * n.dot(sun).max(0.0) } else { 0.0 })
+                    albedo * (0.25 + vis * 0.75 * n.dot(sun).max(0.0))
                 }
             }
         };
@@ -640,13 +711,24 @@ fn main() {
             "--frames" => opt.frames = num("frames"),
             "--png-every" => opt.png_every = num("frames between images"),
             "--cpu" => opt.gpu = false,
+            "--shadows" => {
+                opt.shadows = match args.next().as_deref() {
+                    Some("map") => ShadowMode::ShadowMap,
+                    Some("selective") => ShadowMode::Selective,
+                    Some("traced") => ShadowMode::RayTraced,
+                    _ => {
+                        eprintln!("--shadows needs map, selective or traced");
+                        std::process::exit(2)
+                    }
+                }
+            }
             "--gpu" => opt.gpu = true,
             "--out" => {
                 opt.out = PathBuf::from(args.next().unwrap_or_else(|| "target/crowd".into()))
             }
             _ => {
                 eprintln!(
-                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR]"
+                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR] [--shadows map|selective|traced]"
                 );
                 std::process::exit(2);
             }

@@ -78,6 +78,9 @@ pub enum Error {
     /// A build option is out of its range.
     #[error("invalid build option: {0}")]
     InvalidOption(String),
+    /// A shadow pass was given unusable settings or a G-buffer of the wrong size.
+    #[error("invalid shadow pass input: {0}")]
+    InvalidShadowInput(String),
 }
 
 /// `Result` with the crate's [`Error`].

@@ -69,6 +69,7 @@ mod parallel;
 pub mod queries;
 pub mod raysort;
 pub mod scenes;
+pub mod shadows;
 
 pub use bvh::{Hit, MeshBvh};
 pub use error::{Error, Result};

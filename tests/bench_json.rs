@@ -10,6 +10,9 @@ mod cli;
 mod collide;
 #[path = "../examples/bench/cpu.rs"]
 mod cpu;
+#[path = "../examples/crowd.rs"]
+#[allow(dead_code)]
+mod crowd;
 #[path = "../examples/bench/ecs.rs"]
 mod ecs;
 #[path = "../examples/bench/gpu.rs"]
@@ -29,6 +32,8 @@ mod record;
 #[path = "../examples/report/scenes.rs"]
 #[allow(dead_code)]
 mod report_scenes;
+#[path = "../examples/bench/shadows.rs"]
+mod shadows;
 #[path = "../examples/bench/skinning.rs"]
 mod skinning;
 
@@ -134,4 +139,9 @@ fn queries_suite_json_parses() {
 #[test]
 fn raysort_suite_json_parses() {
     check("raysort", false);
+}
+
+#[test]
+fn shadows_suite_json_parses() {
+    check("shadows", false);
 }

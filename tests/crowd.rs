@@ -16,6 +16,7 @@ fn crowd_runs_120_frames_and_writes_pngs() {
         out: out.clone(),
         width: 96,
         height: 54,
+        ..Default::default()
     };
     let s = crowd::run(&opt).expect("the demo runs");
     assert_eq!(s.pngs.len(), 2);

@@ -3,8 +3,8 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 8] = [
-    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort",
+const SUITES: [&str; 9] = [
+    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort", "shadows",
 ];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
@@ -38,6 +38,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "grid" => crate::grid::run(&mut rec),
             "queries" => crate::queries::run(&mut rec),
             "raysort" => crate::raysort::run(&mut rec),
+            "shadows" => crate::shadows::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

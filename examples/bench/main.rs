@@ -9,7 +9,8 @@
 //! animated characters and cloth, against parry3d), `grid` (per-frame uniform grid vs LBVH: build rate,
 //! single-ray and packet queries), `queries` (sphere and capsule casts, closest points, containment and
 //! sphere overlaps on a deforming mesh, refit included, against parry3d),
-//! `raysort` (secondary rays: BVH, sorted BVH, CRSH and RAH).
+//! `raysort` (secondary rays: BVH, sorted BVH, CRSH and RAH), `shadows` (selective ray-traced hard shadows
+//! on the crowd against the shadow map alone and a shadow ray per pixel).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -19,6 +20,9 @@
 mod cli;
 mod collide;
 mod cpu;
+#[path = "../crowd.rs"]
+#[allow(dead_code)]
+mod crowd;
 mod ecs;
 mod gpu;
 mod grid;
@@ -30,6 +34,7 @@ mod record;
 #[path = "../report/scenes.rs"]
 #[allow(dead_code)]
 mod report_scenes;
+mod shadows;
 mod skinning;
 
 fn main() -> std::process::ExitCode {

@@ -387,6 +387,25 @@ impl TraceWorld {
         hit
     }
 
+    /// Every triangle of the accepted entities in world space, entity by entity in top-level order, into
+    /// `out` (cleared first): what a rasteriser needs, e.g. the shadow map of
+    /// [`HardShadows`](crate::shadows::HardShadows). O(triangles); no allocation once `out` is large enough.
+    pub fn world_triangles(&self, filter: &QueryFilter, out: &mut Vec<[Vec3; 3]>) {
+        out.clear();
+        for e in &self.tlas_entities {
+            let inst = &self.instances[e];
+            if filter.accepts(*e, inst.layers) {
+                let t = inst.transform;
+                out.extend(
+                    inst.bvh
+                        .slot_triangles()
+                        .iter()
+                        .map(|tri| tri.map(|p| t.transform_point3(p))),
+                );
+            }
+        }
+    }
+
     /// Every hit along the ray on accepted entities, nearest first, into `out` (cleared first). Always
     /// through the meshes' BVHs, also for meshes whose closest hits a grid answers.
     pub fn ray_hits(&self, ray: &Ray, filter: &QueryFilter, out: &mut Vec<RayHit>) {

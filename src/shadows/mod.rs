@@ -1,0 +1,303 @@
+//! Selective ray-traced hard shadows (thesis §6.3): a shadow map from the light decides most pixels, and
+//! shadow rays only the pixels it may get wrong.
+//!
+//! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles in
+//! world space and a shadow-ray query (`occluded(from, to)`, e.g. `TraceWorld::occluded` or
+//! [`MeshBvh::any_hit`](crate::MeshBvh::any_hit)), and writes a visibility per pixel:
+//!
+//! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
+//!    pixels' surfaces ([`ShadowMap`]);
+//! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
+//!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
+//!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
+//!    incorrect* and marked;
+//! 3. compaction of the marked pixels into a dense list;
+//! 4. one shadow ray per marked pixel, in parallel;
+//! 5. the composite: the map's verdict where it was trusted, the ray's where not.
+//!
+//! [`ShadowMode`] switches between the shadow map alone, the selective pipeline and a shadow ray for every
+//! pixel (the reference the selective image is measured against). Its cost is the map (O(bands ·
+//! triangles + texels)), O(pixels) classification, and rays for the marked pixels only (2–7% of them on
+//! the crowd). On the CPU the map and the classification cost about as much as shadow rays that mostly
+//! escape to the sky, so on the crowd the selective pass is *not* faster than a ray per pixel (see the
+//! `shadows` bench suite in docs/BENCHMARKS.md): use it where shadow rays are expensive (dense occluders,
+//! many triangles over the receivers) or where the map is rendered anyway; use the shadow map alone where
+//! aliased edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from the light are in shadow without a ray. Not
+//! covered: soft shadows of area lights, point lights, and conservative rasterisation of thin triangles
+//! (triangles edge-on to the light cover no texel; receivers over empty texels are marked instead).
+
+mod classify;
+mod shadow_map;
+
+pub use shadow_map::ShadowMap;
+
+use crate::{Error, Result, parallel};
+use classify::Class;
+use glam::Vec3;
+use std::time::{Duration, Instant};
+
+/// Which pixels get shadow rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ShadowMode {
+    /// None: the shadow map decides every pixel (fast, aliased at shadow edges).
+    ShadowMap,
+    /// Only the pixels the shadow map may get wrong (thesis §6.3).
+    #[default]
+    Selective,
+    /// Every pixel facing the light: exact, the reference.
+    RayTraced,
+}
+
+/// How a [`HardShadows`] pass runs.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowSettings {
+    /// Which pixels get shadow rays.
+    pub mode: ShadowMode,
+    /// Direction from the scene towards the (directional) light; any non-zero length.
+    pub towards_light: Vec3,
+    /// Shadow-map texels per side (≥ 4).
+    pub map_resolution: usize,
+    /// Constant depth bias in texels, added to the slope-scaled bias.
+    pub bias_texels: f32,
+    /// Depth difference, in texels, above which the eight-neighbourhood is a shadow edge (`Δ` threshold).
+    pub edge_texels: f32,
+    /// Shadow rays start this far off the surface along its normal (world units).
+    pub normal_offset: f32,
+    /// Shadow rays end this far towards the light (world units): beyond the scene.
+    pub ray_length: f32,
+    /// Run the map, classification and rays on all threads (feature `parallel`).
+    pub parallel: bool,
+}
+
+impl Default for ShadowSettings {
+    fn default() -> Self {
+        Self {
+            mode: ShadowMode::Selective,
+            towards_light: Vec3::Y,
+            map_resolution: 1024,
+            bias_texels: 1.0,
+            edge_texels: 1.5,
+            normal_offset: 1e-3,
+            ray_length: 100.0,
+            parallel: true,
+        }
+    }
+}
+
+/// The camera's primary hits, one per pixel, row by row: what a renderer has before shading.
+#[derive(Clone, Debug, Default)]
+pub struct GBuffer {
+    /// Image width in pixels.
+    pub width: usize,
+    /// Image height in pixels.
+    pub height: usize,
+    /// The hit point under each pixel (world space).
+    pub positions: Vec<Vec3>,
+    /// The unit surface normal there, facing the camera; `Vec3::ZERO` where the pixel shows no surface.
+    pub normals: Vec<Vec3>,
+}
+
+impl GBuffer {
+    /// A `width × height` buffer with no surface anywhere (fill it with [`set`](Self::set)).
+    pub fn new(width: usize, height: usize) -> Self {
+        let mut g = Self::default();
+        g.resize(width, height);
+        g
+    }
+
+    /// Resizes to `width × height` and clears every pixel to "no surface" (no allocation when not larger).
+    pub fn resize(&mut self, width: usize, height: usize) {
+        (self.width, self.height) = (width, height);
+        self.positions.clear();
+        self.positions.resize(width * height, Vec3::ZERO);
+        self.normals.clear();
+        self.normals.resize(width * height, Vec3::ZERO);
+    }
+
+    /// Records the surface under pixel `i` (row-major index).
+    pub fn set(&mut self, i: usize, position: Vec3, normal: Vec3) {
+        self.positions[i] = position;
+        self.normals[i] = normal;
+    }
+}
+
+/// What the last pass did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ShadowStats {
+    /// Pixels in the image.
+    pub pixels: usize,
+    /// Pixels showing a surface that faces the light (the ones a shadow could fall on).
+    pub facing: usize,
+    /// Pixels that got a shadow ray (the marked, potentially incorrect pixels in selective mode).
+    pub rays: usize,
+    /// Time rendering the shadow map.
+    pub map_time: Duration,
+    /// Time classifying and compacting.
+    pub classify_time: Duration,
+    /// Time tracing shadow rays and compositing.
+    pub trace_time: Duration,
+}
+
+impl ShadowStats {
+    /// Fraction of all pixels that got a shadow ray (the thesis's "% of pixels ray traced").
+    pub fn ray_fraction(&self) -> f64 {
+        self.rays as f64 / self.pixels.max(1) as f64
+    }
+}
+
+/// One hard-shadow pass, kept between frames so a warm pass does not allocate (see the module docs).
+#[derive(Clone, Debug, Default)]
+pub struct HardShadows {
+    map: ShadowMap,
+    class: Vec<Class>,
+    /// Indices of the pixels that get a shadow ray (dense), and whether each ray was blocked.
+    marked: Vec<u32>,
+    blocked: Vec<bool>,
+    visibility: Vec<f32>,
+    stats: ShadowStats,
+}
+
+impl HardShadows {
+    /// An empty pass; buffers grow on the first [`run`](Self::run).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Computes the visibility of the light at every pixel of `gbuffer`; `triangles` are every occluder in
+    /// world space (used for the shadow map; the ray-traced mode does not read them) and `occluded(from,
+    /// to)` says whether anything lies on a segment. Returns the visibility (also in
+    /// [`visibility`](Self::visibility)). Errors: a zero or non-finite light direction, a map resolution
+    /// below 4 or above 16384, negative or non-finite tolerances, or a G-buffer whose arrays do not hold
+    /// `width × height` pixels.
+    pub fn run(
+        &mut self,
+        settings: &ShadowSettings,
+        triangles: &[[Vec3; 3]],
+        gbuffer: &GBuffer,
+        occluded: impl Fn(Vec3, Vec3) -> bool + Sync,
+    ) -> Result<&[f32]> {
+        let towards = validate(settings, gbuffer)?;
+        let par = settings.parallel;
+        let n = gbuffer.width * gbuffer.height;
+        let t0 = Instant::now();
+        if settings.mode != ShadowMode::RayTraced {
+            let receivers = gbuffer
+                .positions
+                .iter()
+                .zip(&gbuffer.normals)
+                .filter(|(_, n)| n.dot(towards) > 0.0)
+                .map(|(p, _)| p);
+            self.map
+                .render(triangles, receivers, towards, settings.map_resolution, par);
+        }
+        let t1 = Instant::now();
+        let map = &self.map;
+        let s = settings;
+        self.class.resize(n, Class::Empty);
+        parallel::fill(par, &mut self.class, 4096, |i| {
+            let nrm = gbuffer.normals[i];
+            if nrm == Vec3::ZERO {
+                return Class::Empty;
+            }
+            let cos = nrm.dot(towards);
+            if cos <= 0.0 {
+                return Class::FacingAway;
+            }
+            let p = gbuffer.positions[i];
+            match s.mode {
+                ShadowMode::RayTraced => Class::Marked,
+                ShadowMode::ShadowMap => classify::shadow_map_only(map, p, cos, s.bias_texels),
+                ShadowMode::Selective => {
+                    let edge = s.edge_texels * map.texel_size();
+                    classify::selective(map, p, cos, s.bias_texels, edge)
+                }
+            }
+        });
+        self.marked.clear();
+        self.marked
+            .extend((0..n as u32).filter(|&i| self.class[i as usize] == Class::Marked));
+        let t2 = Instant::now();
+        self.blocked.resize(self.marked.len(), false);
+        let marked = &self.marked;
+        parallel::fill(par, &mut self.blocked, 256, |k| {
+            let i = marked[k] as usize;
+            let from = gbuffer.positions[i] + gbuffer.normals[i] * s.normal_offset;
+            occluded(from, from + towards * s.ray_length)
+        });
+        self.visibility.clear();
+        self.visibility.extend(self.class.iter().map(|c| match c {
+            Class::Empty | Class::Lit => 1.0,
+            Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
+        }));
+        for (&i, &b) in self.marked.iter().zip(&self.blocked) {
+            self.visibility[i as usize] = if b { 0.0 } else { 1.0 };
+        }
+        self.stats = ShadowStats {
+            pixels: n,
+            facing: self
+                .class
+                .iter()
+                .filter(|c| !matches!(c, Class::Empty | Class::FacingAway))
+                .count(),
+            rays: self.marked.len(),
+            map_time: t1 - t0,
+            classify_time: t2 - t1,
+            trace_time: t2.elapsed(),
+        };
+        Ok(&self.visibility)
+    }
+
+    /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
+    /// light); 1 where there is no surface.
+    pub fn visibility(&self) -> &[f32] {
+        &self.visibility
+    }
+
+    /// Indices of the pixels the last pass sent shadow rays for, ascending.
+    pub fn marked(&self) -> &[u32] {
+        &self.marked
+    }
+
+    /// What the last pass did.
+    pub fn stats(&self) -> ShadowStats {
+        self.stats
+    }
+
+    /// The last shadow map (empty after a ray-traced pass).
+    pub fn shadow_map(&self) -> &ShadowMap {
+        &self.map
+    }
+}
+
+/// Checks the settings and the G-buffer; returns the unit light direction.
+fn validate(s: &ShadowSettings, g: &GBuffer) -> Result<Vec3> {
+    let bad = |m: String| Err(Error::InvalidShadowInput(m));
+    let towards = s.towards_light.normalize_or_zero();
+    if towards == Vec3::ZERO || !towards.is_finite() {
+        return bad(format!("light direction {:?}", s.towards_light));
+    }
+    if !(4..=16384).contains(&s.map_resolution) {
+        return bad(format!("map resolution {} (4 to 16384)", s.map_resolution));
+    }
+    for (what, x) in [
+        ("bias_texels", s.bias_texels),
+        ("edge_texels", s.edge_texels),
+        ("normal_offset", s.normal_offset),
+        ("ray_length", s.ray_length),
+    ] {
+        if !(x.is_finite() && x >= 0.0) {
+            return bad(format!("{what} = {x}"));
+        }
+    }
+    let n = g.width * g.height;
+    if g.positions.len() != n || g.normals.len() != n || n > u32::MAX as usize {
+        return bad(format!(
+            "G-buffer of {}×{} holds {} positions and {} normals",
+            g.width,
+            g.height,
+            g.positions.len(),
+            g.normals.len()
+        ));
+    }
+    Ok(towards)
+}

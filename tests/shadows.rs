@@ -1,0 +1,217 @@
+//! Selective ray-traced hard shadows (`kinetrace::shadows`) against independent answers: an analytic
+//! shadow of a square, brute-force occlusion over every triangle (the exact ray oracle) for the fully
+//! ray-traced image, and the fully ray-traced image for the selective one on crowd frames.
+
+#[allow(dead_code)]
+#[path = "../examples/crowd.rs"]
+mod crowd;
+
+mod common;
+
+use common::RayOracle;
+use glam::Vec3;
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::ecs::TraceWorld;
+use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::{Error, Mesh, MeshBvh, Ray};
+
+fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
+    ShadowSettings {
+        mode,
+        towards_light,
+        parallel: false,
+        ..Default::default()
+    }
+}
+
+/// A unit square at height 1 over a 6 × 6 ground, the light straight above: the ground is in shadow exactly
+/// where `|x| < 0.5` and `|z| < 0.5`. Receivers sit on a grid whose lines avoid the square's edges.
+#[test]
+fn square_casts_its_analytic_shadow() {
+    let square = [
+        Vec3::new(-0.5, 1.0, -0.5),
+        Vec3::new(0.5, 1.0, -0.5),
+        Vec3::new(0.5, 1.0, 0.5),
+        Vec3::new(-0.5, 1.0, 0.5),
+    ];
+    let ground = square.map(|p| Vec3::new(p.x * 6.0, 0.0, p.z * 6.0));
+    let pos: Vec<Vec3> = square.into_iter().chain(ground).collect();
+    let mesh = Mesh::new(pos, vec![0, 2, 1, 0, 3, 2, 4, 6, 5, 4, 7, 6]).unwrap();
+    let tris: Vec<[Vec3; 3]> = (0..4).map(|i| mesh.triangle(i)).collect();
+    let bvh = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).unwrap();
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let n = 97; // receivers at -2.4 + 0.05·k: never on |x| = 0.5
+    let mut g = GBuffer::new(n, n);
+    for j in 0..n {
+        for i in 0..n {
+            let p = Vec3::new(
+                -2.4 + 0.05 * i as f32 + 0.0125,
+                0.0,
+                -2.4 + 0.05 * j as f32 + 0.0125,
+            );
+            g.set(j * n + i, p, Vec3::Y);
+        }
+    }
+    let inside = |p: Vec3| p.x.abs() < 0.5 && p.z.abs() < 0.5;
+    let mut pass = HardShadows::new();
+    for mode in [
+        ShadowMode::RayTraced,
+        ShadowMode::Selective,
+        ShadowMode::ShadowMap,
+    ] {
+        let mut s = settings(mode, Vec3::Y);
+        s.map_resolution = 64;
+        let vis = pass.run(&s, &tris, &g, occluded).unwrap().to_vec();
+        let texel = pass.shadow_map().texel_size();
+        for (k, p) in g.positions.iter().enumerate() {
+            let want = if inside(*p) { 0.0 } else { 1.0 };
+            // The shadow map alone may be wrong only within a texel's diagonal of the shadow's edge.
+            let near_edge = (p.x.abs() - 0.5).abs().min((p.z.abs() - 0.5).abs()) < texel * 1.5;
+            if mode != ShadowMode::ShadowMap || !near_edge {
+                assert_eq!(vis[k], want, "{mode:?} at {p}");
+            }
+        }
+        let stats = pass.stats();
+        match mode {
+            ShadowMode::RayTraced => assert_eq!(stats.rays, n * n),
+            ShadowMode::ShadowMap => assert_eq!(stats.rays, 0),
+            ShadowMode::Selective => {
+                assert!(stats.rays > 0 && stats.rays < n * n / 4, "{stats:?}")
+            }
+        }
+    }
+}
+
+/// The crowd demo's world after `frames` frames (small: 12 characters of 1500 triangles).
+fn crowd_world(frames: usize) -> bevy_ecs::world::World {
+    let opt = crowd::Options {
+        characters: 12,
+        triangles: 1_500,
+        gpu: false,
+        ..Default::default()
+    };
+    let (mut world, mut schedule) = crowd::setup(&opt).expect("the crowd sets up");
+    for _ in 0..frames {
+        crowd::step(&mut world, &mut schedule);
+    }
+    world
+}
+
+/// Visibility of every pixel of a crowd frame under `mode`, and the pass's statistics.
+fn crowd_shadows(
+    world: &bevy_ecs::world::World,
+    g: &GBuffer,
+    mode: ShadowMode,
+) -> (Vec<f32>, kinetrace::shadows::ShadowStats) {
+    let mut pass = HardShadows::new();
+    let vis = crowd::sun_visibility(
+        world,
+        g,
+        &settings(mode, crowd::sun()),
+        &mut pass,
+        &mut Vec::new(),
+    )
+    .unwrap()
+    .to_vec();
+    (vis, pass.stats())
+}
+
+/// On fixed crowd frames the selective image differs from the fully ray-traced one in at most 0.1% of the
+/// pixels; the shadow map alone is measured beside it, and the marked fraction is reported.
+#[test]
+fn selective_matches_ray_traced_on_crowd_frames() {
+    for frames in [1, 60, 150] {
+        let world = crowd_world(frames);
+        let (w, h) = (320, 180);
+        let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
+        let (traced, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
+        let (selective, stats) = crowd_shadows(&world, &g, ShadowMode::Selective);
+        let (map, _) = crowd_shadows(&world, &g, ShadowMode::ShadowMap);
+        let differ = |a: &[f32]| a.iter().zip(&traced).filter(|(x, y)| x != y).count();
+        let (sel_diff, map_diff) = (differ(&selective), differ(&map));
+        let shadowed = traced.iter().filter(|v| **v == 0.0).count();
+        println!(
+            "frame {frames}: {:.2}% of pixels marked ({} rays), selective differs in {sel_diff} pixels, \
+             the shadow map alone in {map_diff}, of {} ({shadowed} in shadow)",
+            100.0 * stats.ray_fraction(),
+            stats.rays,
+            w * h
+        );
+        assert!(
+            sel_diff * 1000 <= (w * h) as usize,
+            "frame {frames}: selective differs from ray traced in {sel_diff} pixels"
+        );
+        assert!(stats.rays > 0 && sel_diff <= map_diff);
+        assert!(shadowed > 0, "the frame has shadows to get right");
+    }
+}
+
+/// Every pixel of the fully ray-traced image that faces the sun is lit exactly when the brute-force oracle
+/// finds no triangle on its shadow ray (exact arithmetic over every triangle of the scene).
+#[test]
+fn ray_traced_equals_brute_force_occlusion() {
+    let world = crowd_world(40);
+    let (w, h) = (128, 72);
+    let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
+    let (vis, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
+    let mut tris = Vec::new();
+    world
+        .resource::<TraceWorld>()
+        .world_triangles(&Default::default(), &mut tris);
+    let s = settings(ShadowMode::RayTraced, crowd::sun());
+    let sun = crowd::sun();
+    let (mut checked, mut blocked) = (0, 0);
+    for (i, (&p, &n)) in g.positions.iter().zip(&g.normals).enumerate() {
+        if n == Vec3::ZERO {
+            assert_eq!(vis[i], 1.0, "no surface: nothing to shadow");
+        } else if n.dot(sun) <= 0.0 {
+            assert_eq!(vis[i], 0.0, "facing away from the sun");
+        } else {
+            let from = p + n * s.normal_offset;
+            let ray = Ray::segment(from, from + sun * s.ray_length);
+            RayOracle::new(&ray, tris.iter().copied())
+                .check_any(vis[i] == 0.0, &format!("pixel {i}"));
+            checked += 1;
+            blocked += (vis[i] == 0.0) as usize;
+        }
+    }
+    assert!(
+        checked > 2000 && blocked >= 10,
+        "{checked} checked, {blocked} in shadow"
+    );
+}
+
+#[test]
+fn bad_input_is_an_error() {
+    let g = GBuffer::new(4, 4);
+    let never = |_: Vec3, _: Vec3| false;
+    let mut pass = HardShadows::new();
+    for s in [
+        settings(ShadowMode::Selective, Vec3::ZERO),
+        settings(ShadowMode::Selective, Vec3::NAN),
+        ShadowSettings {
+            map_resolution: 2,
+            ..Default::default()
+        },
+        ShadowSettings {
+            bias_texels: -1.0,
+            ..Default::default()
+        },
+    ] {
+        assert!(matches!(
+            pass.run(&s, &[], &g, never),
+            Err(Error::InvalidShadowInput(_))
+        ));
+    }
+    let mut short = GBuffer::new(4, 4);
+    short.normals.pop();
+    assert!(matches!(
+        pass.run(&ShadowSettings::default(), &[], &short, never),
+        Err(Error::InvalidShadowInput(_))
+    ));
+    assert_eq!(
+        pass.run(&ShadowSettings::default(), &[], &g, never)
+            .unwrap(),
+        &[1.0; 16]
+    );
+}
