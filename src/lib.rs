@@ -68,6 +68,7 @@ mod mesh;
 mod parallel;
 pub mod queries;
 pub mod scenes;
+pub mod sound;
 
 pub use bvh::{Hit, MeshBvh};
 pub use error::{Error, Result};
