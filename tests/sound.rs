@@ -330,40 +330,21 @@ fn bad_input_is_an_error() {
     let scene = SoundScene::new(&bvh, &mats, vec![wall_material(0); 6]).unwrap();
     let ok = Vec3::ONE;
     assert!(propagate(&scene, Vec3::NAN, ok, &config(true)).is_err());
-    assert!(
-        propagate(
-            &scene,
-            ok,
-            ok,
-            &SoundConfig {
-                sampling: 6,
-                ..config(true)
-            }
-        )
-        .is_err()
-    );
-    assert!(
-        propagate(
-            &scene,
-            ok,
-            ok,
-            &SoundConfig {
-                primary: 0,
-                ..config(true)
-            }
-        )
-        .is_err()
-    );
-    assert!(
-        propagate(
-            &scene,
-            ok,
-            ok,
-            &SoundConfig {
-                speed_of_sound: 0.0,
-                ..config(true)
-            }
-        )
-        .is_err()
-    );
+    let bad_configs = [
+        SoundConfig {
+            sampling: 6,
+            ..config(true)
+        },
+        SoundConfig {
+            primary: 0,
+            ..config(true)
+        },
+        SoundConfig {
+            speed_of_sound: 0.0,
+            ..config(true)
+        },
+    ];
+    for bad in bad_configs {
+        assert!(propagate(&scene, ok, ok, &bad).is_err(), "{bad:?}");
+    }
 }
