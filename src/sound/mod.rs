@@ -3,13 +3,13 @@
 //! so moving and deforming meshes occlude and reflect once their tree is refitted.
 //!
 //! How it works: frusta with four corner rays cover every direction around the source (each cube face split
-//! into [`SoundConfig::primary`]² frusta). Each frustum is traced through the tree ([`trace`]) with
+//! into [`SoundConfig::primary`]² frusta). Each frustum is traced through the tree (`trace.rs`) with
 //! frustum–box culling and culling beyond the farthest nearest hit; Plücker tests of its corner rays decide
 //! per triangle whether it misses, covers the whole frustum, or needs the `n × n` centre sample rays
 //! ([`SoundConfig::sampling`]), which are built only then. The sub-frusta hitting one surface are merged
 //! along an implicit quadtree and reflected into the next order's frusta, up to
 //! [`SoundConfig::max_order`]. Every frustum that contains the listener gives a candidate path, validated
-//! with one exact ray per leg ([`paths`]).
+//! with one exact ray per leg (`paths.rs`).
 //!
 //! When to use it: interactive acoustics of a scene with up to a few hundred thousand triangles. Cost: the
 //! number of frusta grows with the reflection order and (about logarithmically, thanks to merging) with
