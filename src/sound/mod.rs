@@ -18,8 +18,9 @@
 //!
 //! Measured (`examples/sound`, 2-core dev VM shared with other builds, release): a 10 × 8 × 3.5 m room with
 //! 16 walking characters (19,212 triangles), order 3, refit + surfaces + propagation per update: about
-//! 114k frusta and 0.65–0.95 s at the defaults (4² primary frusta per cube face, 8² samples); 10k frusta
-//! and 0.3 s at 4² samples; 1.6k frusta and 0.14 s at 2² samples. The 50 ms target is not met:
+//! 114k frusta and 0.4–0.95 s at the defaults (4² primary frusta per cube face, 8² samples); 10k frusta
+//! and 0.12–0.3 s at 4² samples; 1.6k frusta and 0.07–0.14 s at 2² samples (the spread is the machine's
+//! load). The 50 ms target is not met:
 //! every character triangle is its own surface, so sub-frusta hitting characters do not merge.
 //!
 //! Limits (thesis §6.1.7): discrete sampling misses a path when one of its reflection points lies closer
