@@ -70,6 +70,7 @@ pub mod queries;
 pub mod raysort;
 pub mod scenes;
 pub mod shadows;
+pub mod sound;
 
 pub use bvh::{Hit, MeshBvh};
 pub use error::{Error, Result};

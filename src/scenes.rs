@@ -199,6 +199,31 @@ pub fn folded_sheet(n: u32, phase: f32) -> Mesh {
     Mesh::new(pos, idx).expect("finite by construction")
 }
 
+/// A closed axis-aligned box from `min` to `max`, two triangles per face, normals outward: the shoebox room
+/// of acoustics tests and a simple occluder. 12 triangles.
+pub fn shoebox(min: Vec3, max: Vec3) -> Mesh {
+    let corner = |k: u32| {
+        Vec3::select(
+            glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),
+            max,
+            min,
+        )
+    };
+    let quads = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let idx: Vec<u32> = quads
+        .iter()
+        .flat_map(|[a, b, c, d]| [*a, *b, *c, *a, *c, *d])
+        .collect();
+    Mesh::new((0..8).map(corner).collect::<Vec<_>>(), idx).expect("finite corners")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,0 +1,160 @@
+//! The four-sided frustum (thesis §6.1.2): an apex and four corner rays, optionally cut by a near plane
+//! (the reflector a reflected frustum starts on), with the geometric tests tracing needs.
+
+use super::material::BANDS;
+use crate::geometry::Aabb;
+use glam::Vec3;
+
+/// A plane `n · x = c`; the positive side is `n · x > c`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Plane {
+    pub n: Vec3,
+    pub c: f32,
+}
+
+impl Plane {
+    pub fn signed(&self, p: Vec3) -> f32 {
+        self.n.dot(p) - self.c
+    }
+}
+
+/// A frustum with its propagation history.
+///
+/// Corner directions are in the bilinear order `(0,0), (1,0), (1,1), (0,1)` of the frustum's parameter
+/// square: the direction at `(u, v)` is the bilinear blend of the four (not normalised). Directions are
+/// never normalised, so sub-frusta sharing a boundary compute it from identical numbers.
+#[derive(Clone, Debug)]
+pub(crate) struct Frustum {
+    pub apex: Vec3,
+    pub dirs: [Vec3; 4],
+    /// Only points on the positive side are inside (the reflector's side the sound travels into).
+    pub near: Option<Plane>,
+    /// Surfaces reflected from so far, first reflection first.
+    pub chain: Vec<u32>,
+    /// Energy kept per band by the reflections so far.
+    pub gain: [f32; BANDS],
+}
+
+/// The bilinear blend of four corner values at `(u, v)`.
+#[inline]
+pub(crate) fn bilerp<T>(c: [T; 4], u: f32, v: f32) -> T
+where
+    T: Copy + std::ops::Mul<f32, Output = T> + std::ops::Add<Output = T>,
+{
+    (c[0] * (1.0 - u) + c[1] * u) * (1.0 - v) + (c[3] * (1.0 - u) + c[2] * u) * v
+}
+
+impl Frustum {
+    /// Frusta covering every direction around `source`: each cube face split into `m × m` cells.
+    pub fn around(source: Vec3, m: usize) -> Vec<Frustum> {
+        let mut out = Vec::with_capacity(6 * m * m);
+        let g = |i: usize| -1.0 + 2.0 * i as f32 / m as f32;
+        for axis in 0..3 {
+            for sign in [1.0f32, -1.0] {
+                let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+                let at = |i: usize, j: usize| {
+                    let mut p = Vec3::ZERO;
+                    p[axis] = sign;
+                    p[b] = g(i);
+                    p[c] = g(j);
+                    p
+                };
+                for j in 0..m {
+                    for i in 0..m {
+                        out.push(Frustum {
+                            apex: source,
+                            dirs: [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)],
+                            near: None,
+                            chain: Vec::new(),
+                            gain: [1.0; BANDS],
+                        });
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Direction at `(u, v)` of the parameter square.
+    #[inline]
+    pub fn dir_at(&self, u: f32, v: f32) -> Vec3 {
+        bilerp(self.dirs, u, v)
+    }
+
+    /// Inward normals of the four side planes through the apex (side `i` joins corners `i` and `i + 1`).
+    pub fn side_normals(&self) -> [Vec3; 4] {
+        let centre = self.dir_at(0.5, 0.5);
+        std::array::from_fn(|i| {
+            let n = self.dirs[i].cross(self.dirs[(i + 1) % 4]);
+            if n.dot(centre) < 0.0 { -n } else { n }
+        })
+    }
+
+    /// True when `p` lies inside the four side planes and beyond the near plane. Half-open: the `v = 0` and
+    /// `u = 0` sides count as inside, the other two not, so neighbouring sub-frusta never both claim a point.
+    pub fn contains(&self, p: Vec3) -> bool {
+        let d = p - self.apex;
+        let s = self.side_normals().map(|n| n.dot(d));
+        s[0] >= 0.0
+            && s[3] >= 0.0
+            && s[1] > 0.0
+            && s[2] > 0.0
+            && self.near.is_none_or(|pl| pl.signed(p) > 0.0)
+    }
+
+    /// Conservative frustum–box test: false only when the box lies wholly outside one side plane or wholly
+    /// behind the near plane.
+    pub fn may_overlap(&self, sides: &[Vec3; 4], b: &Aabb) -> bool {
+        let far_corner = |n: Vec3| Vec3::select(n.cmpge(Vec3::ZERO), b.max, b.min);
+        sides
+            .iter()
+            .all(|&n| n.dot(far_corner(n) - self.apex) >= 0.0)
+            && self
+                .near
+                .is_none_or(|pl| pl.signed(far_corner(pl.n)) >= 0.0)
+    }
+
+    /// The sub-frustum over the parameter rectangle `[u0, u1] × [v0, v1]`, reflected in `plane` (unit
+    /// normal) of surface `surface`, its gain multiplied by `reflectance`.
+    pub fn reflected(
+        &self,
+        (u0, v0, u1, v1): (f32, f32, f32, f32),
+        plane: Plane,
+        surface: u32,
+        reflectance: &[f32; BANDS],
+    ) -> Frustum {
+        let mirror = |d: Vec3| d - 2.0 * d.dot(plane.n) * plane.n;
+        let side = plane.signed(self.apex);
+        let near = if side >= 0.0 {
+            plane
+        } else {
+            Plane {
+                n: -plane.n,
+                c: -plane.c,
+            }
+        };
+        let mut chain = self.chain.clone();
+        chain.push(surface);
+        let mut gain = self.gain;
+        for (g, r) in gain.iter_mut().zip(reflectance) {
+            *g *= r;
+        }
+        Frustum {
+            apex: self.apex - 2.0 * side * plane.n,
+            dirs: [
+                mirror(self.dir_at(u0, v0)),
+                mirror(self.dir_at(u1, v0)),
+                mirror(self.dir_at(u1, v1)),
+                mirror(self.dir_at(u0, v1)),
+            ],
+            near: Some(near),
+            chain,
+            gain,
+        }
+    }
+}
+
+/// Distance from `p` to the nearest point of `b` (0 inside).
+pub(crate) fn box_distance(p: Vec3, b: &Aabb) -> f32 {
+    (b.min - p).max(p - b.max).max(Vec3::ZERO).length()
+}
