@@ -1,6 +1,7 @@
 //! The per-frame systems of the plugin.
 
 use super::*;
+use crate::bvh::MAX_PACKET;
 use crate::{Error, parallel};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -208,12 +209,21 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
 }
 
 /// Runs `answer(range, is_packet, out[range])` for every queued packet and every run of up to 64 single
-/// requests between them, on all threads.
+/// requests between them, on all threads. Allocates two short lists (the units and their output parts)
+/// when packets are queued, nothing otherwise.
 fn answer_units<T: Send>(
     out: &mut [T],
     packets: &[std::ops::Range<usize>],
     answer: impl Fn(std::ops::Range<usize>, bool, &mut [T]) + Sync + Send,
 ) {
+    if packets.is_empty() {
+        // Single requests only: runs of MAX_PACKET, with no per-frame allocation.
+        let len = out.len();
+        return parallel::fill_chunks(true, out, MAX_PACKET, |c, part| {
+            let start = c * MAX_PACKET;
+            answer(start..(start + MAX_PACKET).min(len), false, part)
+        });
+    }
     let units = super::world_packets::packet_units(out.len(), packets);
     let mut parts = Vec::with_capacity(units.len());
     let mut rest = out;
