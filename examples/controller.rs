@@ -55,32 +55,6 @@ fn cloth_mesh() -> Mesh {
     Mesh::new(cloth(0.0), idx).expect("finite")
 }
 
-/// An axis-aligned box mesh (the platform).
-fn cuboid(half: Vec3) -> Mesh {
-    let p: Vec<Vec3> = (0..8)
-        .map(|i| {
-            half * Vec3::new(
-                [-1.0, 1.0][i & 1],
-                [-1.0, 1.0][(i >> 1) & 1],
-                [-1.0, 1.0][i >> 2],
-            )
-        })
-        .collect();
-    let faces = [
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-    ];
-    let idx = faces
-        .iter()
-        .flat_map(|f| [f[0], f[1], f[2], f[0], f[2], f[3]])
-        .collect::<Vec<u32>>();
-    Mesh::new(p, idx).expect("finite")
-}
-
 #[derive(Resource, Default)]
 struct Character {
     /// Centre of the feet sphere.
@@ -209,8 +183,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let e = world
         .spawn((TraceMesh(sheet.clone()), VertexPositions(cloth(0.0))))
         .id();
+    let platform = Vec3::new(1.5, 0.15, 1.5);
     world.spawn((
-        TraceMesh(cuboid(Vec3::new(1.5, 0.15, 1.5))),
+        TraceMesh(kinetrace::scenes::shoebox(-platform, platform)),
         MotionHint::Rigid,
         TraceTransform(Affine3A::from_translation(Vec3::new(0.0, 0.15, 6.0))),
     ));
