@@ -33,8 +33,20 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static A: Counting = Counting;
 
+/// Held by every test for its whole run: the tests of this file run one at a time. Work a thread hands to
+/// rayon's global pool goes through a shared queue whose blocks are allocated by whichever thread's push
+/// crosses a block boundary; with another test pushing at the same time, that thread can be a test's frame
+/// thread at any frame (an allocation by the test harness, not by the code under test).
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Takes [`ONE_AT_A_TIME`] (a test that failed while holding it does not poison the others).
+fn alone() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 #[test]
 fn refit_and_single_ray_queries_do_not_allocate() {
+    let _alone = alone();
     // The counter sees this thread's allocations.
     let before = allocations();
     std::hint::black_box(vec![1u8; 64]);
@@ -109,6 +121,7 @@ fn deforming_sphere_app(
 /// deforming one's grid rebuilt in place every frame, closest and any hits through it).
 #[test]
 fn refit_only_ecs_frames_do_not_allocate() {
+    let _alone = alone();
     use bevy_ecs::prelude::*;
     use kinetrace::ecs::*;
     let never = RebuildPolicy::Lauterbach {
@@ -182,6 +195,7 @@ fn refit_only_ecs_frames_do_not_allocate() {
 
 #[test]
 fn warm_collision_queries_do_not_allocate() {
+    let _alone = alone();
     use glam::Affine3A;
     use kinetrace::collide::{PairFront, PairQuery, Placed};
     let a = MeshBvh::build(&icosphere(3), &BuildOptions::default()).unwrap();
@@ -224,6 +238,7 @@ fn warm_collision_queries_do_not_allocate() {
 #[cfg(feature = "parallel")]
 #[test]
 fn warm_shape_query_batches_do_not_allocate() {
+    let _alone = alone();
     use glam::{Affine3A, Mat3, Quat};
     use kinetrace::ecs::*;
     use kinetrace::queries::Shape;
