@@ -201,7 +201,14 @@ pub fn folded_sheet(n: u32, phase: f32) -> Mesh {
 
 /// A closed axis-aligned box from `min` to `max`, two triangles per face, normals outward: the shoebox room
 /// of acoustics tests and a simple occluder. 12 triangles.
+///
+/// # Panics
+/// When a corner is not finite (the scenes here are fixed test and demo geometry).
 pub fn shoebox(min: Vec3, max: Vec3) -> Mesh {
+    assert!(
+        min.is_finite() && max.is_finite(),
+        "shoebox corners must be finite: {min} {max}"
+    );
     let corner = |k: u32| {
         Vec3::select(
             glam::BVec3::new(k & 1 != 0, k & 2 != 0, k & 4 != 0),

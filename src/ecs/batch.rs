@@ -86,7 +86,7 @@ impl RayQueue {
     pub fn cast_packet(&mut self, first_tag: u64, rays: &[Ray], filter: QueryFilter) {
         let start = self.rays.len();
         for (i, &ray) in rays.iter().enumerate() {
-            self.cast(first_tag + i as u64, ray, filter.clone());
+            self.cast(first_tag.wrapping_add(i as u64), ray, filter.clone());
         }
         push_packets(&mut self.ray_packets, start, self.rays.len());
     }
@@ -98,7 +98,7 @@ impl RayQueue {
     pub fn shadow_packet(&mut self, first_tag: u64, from: &[Vec3], to: Vec3, filter: QueryFilter) {
         let start = self.shadows.len();
         for (i, &p) in from.iter().enumerate() {
-            self.shadow(first_tag + i as u64, p, to, filter.clone());
+            self.shadow(first_tag.wrapping_add(i as u64), p, to, filter.clone());
         }
         push_packets(&mut self.shadow_packets, start, self.shadows.len());
     }

@@ -107,7 +107,8 @@ pub enum RebuildPolicy {
     /// one shared cost table (so the second entity spawned from the same [`Mesh`](crate::Mesh) explores
     /// nothing): it rebuilds once the extra query time a degraded tree has cost exceeds a rebuild's
     /// measured time by the noise margin, or before its SAH cost would pass 1.5 × a fresh binned-SAH
-    /// tree's, and picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
+    /// tree's (best effort: the guard assumes a build's quality relative to binned SAH is stable for an
+    /// asset; see [`adaptive`](crate::adaptive) for the known gap), and picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
     /// ([`TraceMode::GpuWhenAvailable`] or [`TraceMode::GpuRequired`] found an adapter) — whose rebuild
     /// plus queries it predicts cheapest. Its predictions are in [`MeshStats::prediction`](super::MeshStats).
     ///
@@ -157,12 +158,15 @@ impl Default for RebuildPolicy {
 /// | [`Auto`](Self::Auto) | [`Grid`](Self::Grid)'s or [`Bvh`](Self::Bvh)'s, plus an O(1) decision | let the characteriser's profile choose ([`choose_structure`](crate::grid::choose_structure)) |
 ///
 /// A mesh kept as a grid keeps its BVH too, refitted every frame but never rebuilt by the policy: the
-/// queries the grid does not answer read it — [`ray_hits`](super::TraceWorld::ray_hits), collisions, and
-/// batches answered on the GPU — as does the entity's world box. Under [`Auto`](Self::Auto) the ECS
-/// decides from the profile alone (no per-mesh query times are measured yet); the decision and its reason
-/// are in [`TraceStats::structures`](super::TraceStats). A change of structure takes effect the next
-/// time the mesh is maintained: at once for a changed [`TraceStructure`], at the mesh's next deformation
-/// for a changed [`TraceConfig::structure`].
+/// queries the grid does not answer read it — [`ray_hits`](super::TraceWorld::ray_hits), collisions, the
+/// shape queries (casts, closest points, overlaps, containment), `world_triangles` and batches answered on
+/// the GPU — as does the entity's world box; on exploding geometry those queries slow down as the
+/// never-rebuilt BVH degrades. Under [`Auto`](Self::Auto) the ECS decides from the profile alone (no
+/// per-mesh query times are measured yet); the decision and its reason are in
+/// [`TraceStats::structures`](super::TraceStats). A change of structure takes effect the next time the mesh
+/// is maintained: at once for a changed [`TraceStructure`], at the mesh's next deformation for a changed
+/// [`TraceConfig::structure`] — so a static mesh under [`Auto`](Self::Auto) keeps the BVH it was first built
+/// with (its profile arrives a frame later).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 pub enum Structure {
     /// A BVH, refitted and rebuilt by the [`RebuildPolicy`] (the default).

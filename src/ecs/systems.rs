@@ -2,8 +2,9 @@
 
 use super::*;
 use crate::bvh::MAX_PACKET;
-use crate::{Error, parallel};
+use crate::{Error, Ray, parallel};
 use bevy_ecs::prelude::*;
+use glam::Vec3;
 use std::time::Instant;
 
 /// Starts the frame's statistics.
@@ -103,6 +104,7 @@ type Placement<'a> = (
     &'a QueryLayers,
     Ref<'a, TraceMesh>,
     Option<Ref<'a, VertexPositions>>,
+    Option<Ref<'a, TraceStructure>>,
 );
 
 /// [`TraceSystems::TopLevel`]: moved or re-layered entities update their world boxes, then the TLAS follows
@@ -117,7 +119,7 @@ pub(crate) fn top_level_system(
     mut errors: MessageWriter<TraceErrorMessage>,
 ) {
     let t = Instant::now();
-    for (e, transform, layers, mesh, positions) in &moved {
+    for (e, transform, layers, mesh, positions, structure) in &moved {
         let checked = checked_transform(transform);
         let Some(inst) = world.instances.get_mut(&e) else {
             continue;
@@ -144,7 +146,9 @@ pub(crate) fn top_level_system(
                     inst.set_transform(tr);
                     // Maintain listed every mesh whose geometry changed (refitted, rebuilt or failed);
                     // the meshes it rebuilt already have this transform.
-                    let maintained = mesh.is_changed() || positions.is_some_and(|p| p.is_changed());
+                    let maintained = mesh.is_changed()
+                        || positions.is_some_and(|p| p.is_changed())
+                        || structure.is_some_and(|s| s.is_changed());
                     if !maintained {
                         stats.moved += 1;
                         stats.meshes.push(MeshStats {
@@ -174,11 +178,16 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
     answer_units(&mut out.hits, &queue.ray_packets, |range, packet, out| {
         let rays = &rays[range];
         if packet {
-            let world_rays: Vec<_> = rays.iter().map(|r| r.ray).collect();
-            let mut hits = vec![None; rays.len()];
-            world.cast_packet(&world_rays, f32::INFINITY, &rays[0].filter, &mut hits);
+            // A queued packet holds at most MAX_PACKET requests (RayQueue::cast_packet cuts them).
+            let mut world_rays = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+            for (w, r) in world_rays.iter_mut().zip(rays) {
+                *w = r.ray;
+            }
+            let mut hits = [None; MAX_PACKET];
+            let (world_rays, hits) = (&world_rays[..rays.len()], &mut hits[..rays.len()]);
+            world.cast_packet(world_rays, f32::INFINITY, &rays[0].filter, hits);
             for ((o, r), h) in out.iter_mut().zip(rays).zip(hits) {
-                *o = (r.tag, h);
+                *o = (r.tag, *h);
             }
         } else {
             for (o, r) in out.iter_mut().zip(rays) {
@@ -193,11 +202,16 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
         |range, packet, out| {
             let shadows = &shadows[range];
             if packet {
-                let segments: Vec<_> = shadows.iter().map(|s| (s.from, s.to)).collect();
-                let mut occluded = vec![false; shadows.len()];
-                world.occluded_packet(&segments, &shadows[0].filter, &mut occluded);
+                let mut segments = [(Vec3::ZERO, Vec3::ZERO); MAX_PACKET];
+                for (g, s) in segments.iter_mut().zip(shadows) {
+                    *g = (s.from, s.to);
+                }
+                let mut occluded = [false; MAX_PACKET];
+                let n = shadows.len();
+                let (segments, occluded) = (&segments[..n], &mut occluded[..n]);
+                world.occluded_packet(segments, &shadows[0].filter, occluded);
                 for ((o, s), b) in out.iter_mut().zip(shadows).zip(occluded) {
-                    *o = (s.tag, b);
+                    *o = (s.tag, *b);
                 }
             } else {
                 for (o, s) in out.iter_mut().zip(shadows) {
@@ -210,7 +224,8 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
 
 /// Runs `answer(range, is_packet, out[range])` for every queued packet and every run of up to 64 single
 /// requests between them, on all threads. Allocates two short lists (the units and their output parts)
-/// when packets are queued, nothing otherwise.
+/// when packets are queued, nothing otherwise; each packet's top-level walk fills a scratch list of the
+/// entities it reaches (one allocation per packet).
 fn answer_units<T: Send>(
     out: &mut [T],
     packets: &[std::ops::Range<usize>],

@@ -281,7 +281,8 @@ impl TraceWorld {
     /// The time is apportioned by expected traversal work: the top level's, its SAH cost `C_tlas` (every
     /// ray enters it), and each mesh's, `p_i · C_i` with `p_i` the mesh's world-box area over the scene
     /// box's (the chance that a ray through the scene reaches it) and `C_i` its SAH cost; each mesh is told
-    /// it received `rays · p_i` rays, the top level all of them. The shares add up to the measured time;
+    /// it received `rays · p_i` rays, the top level all of them (meshes kept as grids take no share: their
+    /// time is not BVH time). The shares add up to the measured time;
     /// how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
     /// no allocation.
     pub(crate) fn attribute_queries(&mut self, rays: usize, seconds: f64) {
@@ -293,17 +294,24 @@ impl TraceWorld {
                 1.0
             }
         };
+        // A mesh kept as a grid is answered by its grid: its BVH's SAH cost says nothing of its query time,
+        // and its time must not teach the planner's shared BVH rates. It gets no share of the work.
+        let bvh_sah = |i: &Instance| match i.structure {
+            StructureKind::Bvh => i.sah,
+            StructureKind::Grid => 0.0,
+        };
         let work = self.top.sah
             + self
                 .instances
                 .values()
-                .map(|i| share(i) * i.sah)
+                .map(|i| share(i) * bvh_sah(i))
                 .sum::<f64>();
         self.attribute_top_level(rays, seconds, work);
         for inst in self.instances.values_mut() {
             let p = share(inst);
             inst.rays = rays as f64 * p;
             if let Some(policy) = inst.kept.adaptive.as_mut()
+                && inst.structure == StructureKind::Bvh
                 && work > 0.0
             {
                 policy.queried(inst.rays, inst.sah, seconds * p * inst.sah / work);

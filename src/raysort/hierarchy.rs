@@ -59,6 +59,9 @@ impl RayHierarchy {
     }
 
     /// The nodes of level `k` (1 = just above the rays, [`depth`](Self::depth) = the top).
+    ///
+    /// # Panics
+    /// When `k` is outside `1..=depth()`, like slice indexing.
     pub fn level(&self, k: usize) -> &[RayNode] {
         &self.levels[k - 1]
     }
@@ -66,7 +69,9 @@ impl RayHierarchy {
 
 /// `Error::InvalidOption` unless `s >= 2`, `D >= 1` and `s^D <= 2^24`.
 fn check_shape(branching: usize, depth: usize) -> Result<()> {
-    let rays_per_top = (branching as u64).checked_pow(depth as u32);
+    let rays_per_top = u32::try_from(depth)
+        .ok()
+        .and_then(|d| (branching as u64).checked_pow(d));
     if branching < 2 || depth < 1 || rays_per_top.is_none_or(|n| n > 1 << 24) {
         return Err(Error::InvalidOption(format!(
             "ray hierarchy branching {branching}, depth {depth}: need s >= 2, D >= 1, s^D <= 2^24"

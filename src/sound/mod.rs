@@ -65,7 +65,8 @@ use trace::{Traced, merge};
 /// Settings of [`propagate`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SoundConfig {
-    /// Frusta per cube-face side around the source (`6 · primary²` primary frusta). Default 4.
+    /// Frusta per cube-face side around the source (`6 · primary²` primary frusta), 1 to [`MAX_PRIMARY`].
+    /// Default 4.
     pub primary: usize,
     /// Sub-frusta per frustum side, a power of two (the thesis tested 4 to 32). Default 8.
     pub sampling: usize,
@@ -98,6 +99,10 @@ pub struct Propagation {
     pub frusta: u64,
 }
 
+/// The most frusta per cube-face side [`SoundConfig::primary`] may ask for (6 · 256² = 393k primary
+/// frusta, far past real-time budgets).
+pub const MAX_PRIMARY: usize = 256;
+
 /// Specular paths from `source` to `listener` up to `config.max_order` reflections.
 ///
 /// Errors: [`Error::InvalidOption`] for a non-finite source or listener, `primary == 0`, a `sampling` that
@@ -113,9 +118,12 @@ pub fn propagate(
             "source {source} and listener {listener} must be finite"
         )));
     }
-    if config.primary == 0 || !config.sampling.is_power_of_two() || config.sampling > 256 {
+    if !(1..=MAX_PRIMARY).contains(&config.primary)
+        || !config.sampling.is_power_of_two()
+        || config.sampling > 256
+    {
         return Err(Error::InvalidOption(format!(
-            "sound needs primary >= 1 and sampling a power of two up to 256, got {} and {}",
+            "sound needs primary in 1..={MAX_PRIMARY} and sampling a power of two up to 256, got {} and {}",
             config.primary, config.sampling
         )));
     }
