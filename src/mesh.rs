@@ -25,7 +25,13 @@ use std::sync::Arc;
 pub struct Mesh {
     positions: Arc<[Vec3]>,
     indices: Arc<[u32]>,
+    /// Identity of the topology: fresh for every [`Mesh::new`], kept by clones and
+    /// [`Mesh::with_positions`].
+    topology: u64,
 }
+
+/// Source of [`Mesh::topology`] identities (never reused, unlike an index buffer's address).
+static NEXT_TOPOLOGY: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl Mesh {
     /// Checks and wraps `positions` and `indices` (three per triangle, counter-clockwise is not required).
@@ -37,7 +43,12 @@ impl Mesh {
         let indices = indices.into();
         check_positions(&positions)?;
         check_indices(&indices, positions.len())?;
-        Ok(Self { positions, indices })
+        let topology = NEXT_TOPOLOGY.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        Ok(Self {
+            positions,
+            indices,
+            topology,
+        })
     }
 
     /// Vertex positions.
@@ -48,6 +59,12 @@ impl Mesh {
     /// Triangle indices, three per triangle.
     pub fn indices(&self) -> &[u32] {
         &self.indices
+    }
+
+    /// Identity of this mesh's topology: the same for clones and [`with_positions`](Self::with_positions)
+    /// copies, different for every mesh made by [`Mesh::new`] (ids are never reused).
+    pub(crate) fn topology(&self) -> u64 {
+        self.topology
     }
 
     /// The shared index buffer.
@@ -79,6 +96,7 @@ impl Mesh {
         Ok(Self {
             positions,
             indices: self.indices.clone(),
+            topology: self.topology,
         })
     }
 
@@ -134,5 +152,28 @@ fn check_indices(indices: &[u32], vertex_count: usize) -> Result<()> {
             vertex_count,
         }),
         None => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Topology identities follow the mesh, not the buffer's address: clones and re-positioned copies share
+    /// one, and a mesh made after another was freed — which may reuse its allocation — never takes its id.
+    #[test]
+    fn topology_ids_are_shared_by_copies_and_never_reused() {
+        let tri = || Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], vec![0, 1, 2]).unwrap();
+        let a = tri();
+        let moved = a.with_positions(vec![Vec3::Z, Vec3::X, Vec3::Y]).unwrap();
+        assert_eq!(a.clone().topology(), a.topology());
+        assert_eq!(moved.topology(), a.topology());
+        let mut seen = vec![a.topology()];
+        drop((a, moved));
+        for _ in 0..8 {
+            let b = tri();
+            assert!(!seen.contains(&b.topology()));
+            seen.push(b.topology());
+        }
     }
 }

@@ -249,8 +249,8 @@ impl Job {
 
 /// A continuous collider's motion.
 struct Swept {
-    /// The swept tree, and the index buffer it was built for.
-    mesh: Option<(SweptMesh, usize)>,
+    /// The swept tree, and the topology it was built for.
+    mesh: Option<(SweptMesh, u64)>,
     /// World positions at the end of the last frame, and this frame's.
     prev: Vec<Vec3>,
     curr: Vec<Vec3>,

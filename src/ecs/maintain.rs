@@ -381,13 +381,12 @@ fn adaptive_policy(
     AdaptivePolicy::shared(&builds, costs, asset)
 }
 
-/// A mesh's asset for the shared costs: its index buffer, which every entity spawned from the same
-/// [`Mesh`] shares (a different buffer of the same triangles counts as another asset and is measured
-/// again).
+/// A mesh's asset for the shared costs: its topology, which every entity spawned from the same [`Mesh`]
+/// shares (another [`Mesh::new`] of the same triangles counts as another asset and is measured again).
 fn asset_of(mesh: &Mesh) -> Asset {
     Asset {
         triangles: mesh.triangle_count(),
-        id: topology_id(mesh) as u64,
+        id: topology_id(mesh),
     }
 }
 

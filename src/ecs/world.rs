@@ -16,8 +16,9 @@ use std::sync::Arc;
 /// One traceable entity's state.
 pub(crate) struct Instance {
     pub bvh: MeshBvh,
-    /// Identity of the index buffer the tree was built for: a different one means a topology change.
-    pub topology: usize,
+    /// Identity of the topology the tree was built for ([`topology_id`]): a different one means a topology
+    /// change.
+    pub topology: u64,
     pub transform: Affine3A,
     pub inverse: Affine3A,
     /// Inverse transpose of the linear part, for normals.
@@ -77,7 +78,7 @@ impl Instance {
     }
 
     /// The entity's state around a freshly built tree for the index buffer `topology`.
-    pub fn new(bvh: MeshBvh, topology: usize, kept: Kept) -> Instance {
+    pub fn new(bvh: MeshBvh, topology: u64, kept: Kept) -> Instance {
         let mut inst = Instance {
             bvh,
             topology,
@@ -191,9 +192,10 @@ impl Instance {
     }
 }
 
-/// A stable identity for a mesh's index buffer (its address; meshes share indices through `Arc`).
-pub(crate) fn topology_id(mesh: &Mesh) -> usize {
-    mesh.indices().as_ptr() as usize
+/// A stable identity for a mesh's topology, shared by the clones of one [`Mesh`] (never reused, unlike
+/// the index buffer's address, which a later mesh may get once the first is freed).
+pub(crate) fn topology_id(mesh: &Mesh) -> u64 {
+    mesh.topology()
 }
 
 /// Every traceable entity's tree and the top-level tree over them: what queries read. Maintained by the
