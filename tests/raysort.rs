@@ -377,6 +377,11 @@ fn bad_options_are_errors() {
             branching: 64,
             depth: 5,
         },
+        // A depth past u32 must not wrap into a small exponent.
+        Strategy::Crsh {
+            branching: 2,
+            depth: (1usize << 32) + 1,
+        },
     ] {
         assert!(
             matches!(

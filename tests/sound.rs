@@ -339,6 +339,15 @@ fn bad_input_is_an_error() {
             primary: 0,
             ..config(true)
         },
+        // Past the bound: 6 · primary² frusta would overflow a capacity instead of failing cleanly.
+        SoundConfig {
+            primary: kinetrace::sound::MAX_PRIMARY + 1,
+            ..config(true)
+        },
+        SoundConfig {
+            primary: usize::MAX,
+            ..config(true)
+        },
         SoundConfig {
             speed_of_sound: 0.0,
             ..config(true)
