@@ -52,11 +52,13 @@ fn packets(tiles: &[Range<usize>], size: usize) -> Vec<Range<usize>> {
 
 /// Camera rays over the mesh in `tile`×`tile` tiles, tile after tile.
 fn tiled_camera(b: &Aabb, side: usize, tile: usize) -> Vec<Ray> {
-    let (c, size) = (b.center(), b.extent().length());
-    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
+    let crate::rays::Orbit {
+        eye,
+        fwd,
+        right,
+        up,
+        ..
+    } = crate::rays::Orbit::around(*b, Vec3::new(0.55, 0.45, 0.7), 1.1);
     let mut rays = Vec::with_capacity(side * side);
     for ty in (0..side).step_by(tile) {
         for tx in (0..side).step_by(tile) {

@@ -4,18 +4,56 @@ use glam::Vec3;
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, Ray};
 
+/// A pinhole camera outside a mesh, looking at the centre of its box from direction `from`, at `distance`
+/// box diagonals: the box, its centre and diagonal, and the camera's eye and unit axes.
+pub struct Orbit {
+    pub bounds: Aabb,
+    pub centre: Vec3,
+    pub size: f32,
+    pub eye: Vec3,
+    pub fwd: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+}
+
+impl Orbit {
+    pub fn of(mesh: &Mesh, from: Vec3, distance: f32) -> Orbit {
+        let bounds = mesh
+            .triangle_bounds()
+            .iter()
+            .fold(Aabb::EMPTY, |a, t| a.union(t));
+        Orbit::around(bounds, from, distance)
+    }
+
+    /// The same camera around a box.
+    pub fn around(bounds: Aabb, from: Vec3, distance: f32) -> Orbit {
+        let (centre, size) = (bounds.center(), bounds.extent().length());
+        let eye = centre + from.normalize() * size * distance;
+        let fwd = (centre - eye).normalize();
+        let right = fwd.cross(Vec3::Y).normalize();
+        Orbit {
+            bounds,
+            centre,
+            size,
+            eye,
+            fwd,
+            right,
+            up: right.cross(fwd),
+        }
+    }
+}
+
 /// About `n` camera rays (row-major, a pinhole camera looking at the mesh from outside) and as many random
 /// rays (origins uniform in the mesh's box, uniform directions); unit directions, unbounded.
 pub fn camera_and_random(mesh: &Mesh, n: usize) -> [(&'static str, Vec<Ray>); 2] {
-    let b = mesh
-        .triangle_bounds()
-        .iter()
-        .fold(Aabb::EMPTY, |a, t| a.union(t));
-    let (c, size) = (b.center(), b.extent().length());
-    let eye = c + Vec3::new(0.55, 0.45, 0.7).normalize() * size * 1.1;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
+    let Orbit {
+        bounds: b,
+        eye,
+        fwd,
+        right,
+        up,
+        ..
+    } = Orbit::of(mesh, Vec3::new(0.55, 0.45, 0.7), 1.1);
     let side = (n as f64).sqrt() as usize;
     let camera = (0..side * side)
         .map(|i| {

@@ -9,7 +9,7 @@ use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::raysort::{KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays};
 use kinetrace::scenes::SceneRng;
-use kinetrace::{Aabb, Mesh, Ray};
+use kinetrace::{Mesh, Ray};
 use std::path::Path;
 
 const SUITE: &str = "raysort";
@@ -101,15 +101,15 @@ fn secondary_rays(
     scene: &RayScene,
     side: usize,
 ) -> [(&'static str, Vec<SecondaryRay>); 3] {
-    let b = mesh
-        .triangle_bounds()
-        .iter()
-        .fold(Aabb::EMPTY, |a, t| a.union(t));
-    let (c, size) = (b.center(), b.extent().length());
-    let eye = c + Vec3::new(0.3, 0.5, 0.8).normalize() * size * 0.9;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
+    let crate::rays::Orbit {
+        centre: c,
+        size,
+        eye,
+        fwd,
+        right,
+        up,
+        ..
+    } = crate::rays::Orbit::of(mesh, Vec3::new(0.3, 0.5, 0.8), 0.9);
     let lights = [
         c + Vec3::new(0.2, 1.0, 0.3) * size,
         c + Vec3::new(-0.8, 0.6, 0.1) * size,
