@@ -355,15 +355,45 @@ impl GpuMeshBvh {
                 self.coded = true;
             }
             BuildPhase::Tree => {
-                self.height = MAX_DEPTH as u32;
                 run(&mut pass, "karras", self.tris);
                 run(&mut pass, "walk_up", self.node_count());
-                self.record_schedule(ctx, &mut pass);
-                self.record_levels(ctx, &mut pass, SLOT_BUILD);
-                self.built = true;
+                self.record_boxes(ctx, &mut pass, true);
             }
         }
     }
+
+    /// The buffers another GPU builder writes before [`record_boxes`](Self::record_boxes): positions and
+    /// indices (read), nodes (topology), depths, slot triangles and slot ids.
+    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 6] {
+        [
+            &self.positions,
+            &self._indices,
+            &self.nodes,
+            &self.depths,
+            &self.slot_tris,
+            &self.vals,
+        ]
+    }
+
+    /// Records the second half of every GPU build once a builder has written each node's `index` (leaves
+    /// of one triangle), its depth, and the slots' triangles and ids: the level schedule, then boxes and
+    /// build-time SA ratios bottom-up. Marks the tree built; `coded` says whether this build sorted the
+    /// current positions' Morton codes (for [`record_histogram`](Self::record_histogram)).
+    pub(crate) fn record_boxes(
+        &mut self,
+        ctx: &GpuContext,
+        pass: &mut wgpu::ComputePass<'_>,
+        coded: bool,
+    ) {
+        self.coded &= coded;
+        self.height = MAX_DEPTH as u32;
+        self.record_schedule(ctx, pass);
+        self.record_levels(ctx, pass, SLOT_BUILD);
+        self.built = true;
+    }
+
+    /// Dispatches recorded by [`record_boxes`](Self::record_boxes).
+    pub(crate) const BOXES_DISPATCHES: u32 = 4 + LEVELS as u32;
 
     /// Buckets the nodes by depth (once per topology).
     fn record_schedule(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {

@@ -112,6 +112,7 @@ pub(crate) struct Kernels {
     pub skin: Module,
     pub histogram: Module,
     pub collide: Module,
+    pub sah: Module,
 }
 
 impl Kernels {
@@ -198,6 +199,29 @@ impl Kernels {
                     Read, Read, Read, Write, Write, Write, Write, Uniform, Uniform,
                 ],
                 &["pairs_init", "pairs_args", "pairs_round"],
+            ),
+            sah: Module::new(
+                device,
+                "sah",
+                shader!("sah_build.wgsl"),
+                &[
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
+                    Write, Write, Uniform,
+                ],
+                &[
+                    "sah_frame",
+                    "sah_prims",
+                    "sah_args",
+                    "sah_small_args",
+                    "sah_bounds",
+                    "sah_bin",
+                    "sah_split",
+                    "sah_flag",
+                    "sah_scatter",
+                    "sah_copy",
+                    "sah_small",
+                    "sah_finish",
+                ],
             ),
         }
     }

@@ -27,10 +27,12 @@
 //! ```
 
 mod buffers;
+mod build_sah;
 mod bvh;
 mod collide;
 mod context;
 mod kernels;
+mod scan;
 pub(crate) mod scene;
 mod skin;
 mod sort;
@@ -38,6 +40,7 @@ mod trace;
 mod tree;
 
 pub use buffers::Readback;
+pub use build_sah::{GpuBuildCounts, GpuSahBuilder, GpuSahOptions, SMALL_SPLIT_MAX};
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};
 pub use context::GpuContext;

@@ -3,6 +3,7 @@
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
+use super::scan::Scan;
 
 /// Sorts pairs held in two buffers in place, using a second pair of buffers and a histogram as scratch.
 /// Cost per 4-bit pass: three dispatch groups over the keys (count, a scan of 16 counts per 256 keys,
@@ -14,8 +15,8 @@ pub(crate) struct RadixSort {
     _params: ParamSlots,
     /// [0]: A → B, [1]: B → A.
     sort_groups: [wgpu::BindGroup; 2],
-    /// Scan levels: (bind group, element count), bottom (the histogram) first.
-    scan_levels: Vec<(wgpu::BindGroup, u32)>,
+    /// The scan of the digit histogram.
+    scan: Scan,
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -26,20 +27,12 @@ impl RadixSort {
         let keys2 = GpuBuffer::storage(ctx, "sort keys scratch", n as u64 * 4);
         let vals2 = GpuBuffer::storage(ctx, "sort vals scratch", n as u64 * 4);
         let passes = bits.div_ceil(4);
-        // Histogram and scan levels: 16 counts per block, then one total per 256 of the level below.
-        let mut sizes = vec![16 * blocks];
-        while *sizes.last().unwrap() > 1 {
-            sizes.push(sizes.last().unwrap().div_ceil(256));
-        }
-        let level_bufs: Vec<GpuBuffer> = sizes
-            .iter()
-            .map(|&s| GpuBuffer::storage(ctx, "sort scan level", s as u64 * 4))
-            .collect();
-        let mut slots: Vec<[u32; 4]> = (0..passes).map(|p| [n, 4 * p, blocks, 0]).collect();
-        slots.extend(sizes.iter().map(|&s| [s, 0, 0, 0]));
+        // The histogram: 16 counts per block.
+        let hist = GpuBuffer::storage(ctx, "sort histogram", 16 * blocks as u64 * 4);
+        let scan = Scan::new(ctx, &hist, 16 * blocks);
+        let slots: Vec<[u32; 4]> = (0..passes).map(|p| [n, 4 * p, blocks, 0]).collect();
         let params = ParamSlots::new(ctx, &slots);
         let k = &ctx.kernels;
-        let hist = &level_bufs[0];
         let sort_groups = [
             bind_group(
                 ctx,
@@ -66,36 +59,21 @@ impl RadixSort {
                 ],
             ),
         ];
-        let scan_levels = (0..sizes.len() - 1)
-            .map(|l| {
-                let g = bind_group(
-                    ctx,
-                    &k.scan.layout,
-                    &[
-                        level_bufs[l].binding(),
-                        level_bufs[l + 1].binding(),
-                        params.binding(),
-                    ],
-                );
-                (g, sizes[l])
-            })
-            .collect();
-        let mut scratch = level_bufs;
-        scratch.extend([keys2, vals2]);
+        let scratch = vec![hist, keys2, vals2];
         Self {
             n,
             bits,
             blocks,
             _params: params,
             sort_groups,
-            scan_levels,
+            scan,
             _scratch: scratch,
         }
     }
 
     /// Scratch memory held, in bytes.
     pub fn memory_bytes(&self) -> u64 {
-        self._scratch.iter().map(|b| b.buffer().size()).sum()
+        self._scratch.iter().map(|b| b.buffer().size()).sum::<u64>() + self.scan.memory_bytes()
     }
 
     /// Records the sort. An even number of passes leaves the result in the original buffers; an odd one
@@ -115,28 +93,9 @@ impl RadixSort {
             pass.set_pipeline(k.sort.pipeline("count"));
             pass.set_bind_group(0, g, &[slot]);
             pass.dispatch_workgroups(x, y, 1);
-            self.record_scan(ctx, pass);
+            self.scan.record(ctx, pass, None);
             pass.set_pipeline(k.sort.pipeline("scatter"));
             pass.set_bind_group(0, g, &[slot]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-    }
-
-    /// Exclusive scan of the histogram, level by level up, then offsets added back down.
-    fn record_scan(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
-        let k = &ctx.kernels;
-        let real = self.bits.div_ceil(4) as usize;
-        let slot = |l: usize| ParamSlots::offset(real + l);
-        for (l, (g, size)) in self.scan_levels.iter().enumerate() {
-            let (x, y) = groups(*size, 256);
-            pass.set_pipeline(k.scan.pipeline("scan_blocks"));
-            pass.set_bind_group(0, g, &[slot(l)]);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        for (l, (g, size)) in self.scan_levels.iter().enumerate().rev().skip(1) {
-            let (x, y) = groups(*size, 256);
-            pass.set_pipeline(k.scan.pipeline("add_offsets"));
-            pass.set_bind_group(0, g, &[slot(l)]);
             pass.dispatch_workgroups(x, y, 1);
         }
     }
