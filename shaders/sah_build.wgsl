@@ -20,7 +20,8 @@
 // writes the leaves' triangles. Minima are stored as 0xffff - q under atomicMax, so zero is the identity of
 // every accumulator and buffers are cleared by zeroing.
 
-struct SahParams { tris: u32, level: u32, small: u32, cap: u32 }
+// mode: bit 0 small-split kernel on, bits 8.. the LBVH levels of a hybrid build (0: pure SAH).
+struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
@@ -44,7 +45,9 @@ struct SahParams { tris: u32, level: u32, small: u32, cap: u32 }
 // Indirect arguments (3 words each): 0 primitive passes, 1 split pass, 2.. 5 scan levels, 6 small subtrees.
 // Bound only by the argument kernels; the others see a stand-in.
 @group(0) @binding(12) var<storage, read_write> args: array<u32>;
-@group(0) @binding(13) var<uniform> params: SahParams;
+// Morton codes in slot order, sorted by the LBVH sort (hybrid builds only).
+@group(0) @binding(13) var<storage, read> keys: array<u32>;
+@group(0) @binding(14) var<uniform> params: SahParams;
 
 const BINS: u32 = 16u;
 const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
@@ -64,6 +67,32 @@ const ARG_PRIMS: u32 = 0u;
 const ARG_SPLIT: u32 = 1u;
 const ARG_SCAN: u32 = 2u;
 const ARG_SMALL: u32 = 6u;
+
+fn small_on() -> bool { return (params.mode & 1u) != 0u; }
+
+// Whether nodes at `depth` are split as LBVH splits them (hybrid builds, the top levels).
+fn radix_level(depth: u32) -> bool { return depth < (params.mode >> 8u); }
+
+// LBVH's split of the Morton-sorted slots first .. first + m (Karras 2012): where the highest bit that
+// differs between the first and the last code turns on; equal codes are extended by their slot index.
+// Returns the left count.
+fn radix_cut(first: u32, m: u32) -> u32 {
+    let last = first + m - 1u;
+    let x = keys[first] ^ keys[last];
+    if x == 0u {
+        let b = 31u - countLeadingZeros(first ^ last);
+        return ((last >> b) << b) - first;
+    }
+    let b = 31u - countLeadingZeros(x);
+    var lo = first;
+    var hi = last;
+    // The first slot whose code has bit b set: keys[lo] has it clear, keys[hi] set.
+    while hi - lo > 1u {
+        let mid = (lo + hi) / 2u;
+        if ((keys[mid] >> b) & 1u) == 1u { hi = mid; } else { lo = mid; }
+    }
+    return hi - first;
+}
 
 fn vertex(i: u32) -> vec3<f32> {
     return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
@@ -175,8 +204,9 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     prims[5u * i + 3u] = quantise(qlo.z) | (quantise(qhi.x) << 16u);
     prims[5u * i + 4u] = quantise(qhi.y) | (quantise(qhi.z) << 16u);
     // The root is queued as level 0's entry 0 unless it is a leaf or a small subtree.
-    let small_root = params.small != 0u && n <= SMALL;
-    slots[i] = i;
+    let small_root = small_on() && n <= SMALL;
+    // A hybrid build starts from the LBVH sort's order.
+    slots[i] = select(i, vals[i], radix_level(0u));
     slots[2u * n + i] = select(0u, NONE, n == 1u || small_root);
     if i == 0u {
         if n == 1u {
@@ -249,7 +279,7 @@ fn entry_of(s: u32) -> u32 { return slots[2u * params.tris + s]; }
 @compute @workgroup_size(256)
 fn sah_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if s >= params.tris { return; }
+    if s >= params.tris || radix_level(params.level) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
     let q = centroid_q(slots[s]);
@@ -274,7 +304,7 @@ fn node_frame(e: u32) -> array<vec3<u32>, 2> {
 @compute @workgroup_size(256)
 fn sah_bin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if s >= params.tris { return; }
+    if s >= params.tris || radix_level(params.level) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
     let t = slots[s];
@@ -380,10 +410,14 @@ fn best_candidate(lid: u32) {
 }
 
 // The split of a node of m primitives at `depth` from the winner: (code, N_L) with code = axis | cut << 2,
-// or MEDIAN for a cut of the slot order in halves (no cut between centroids, or past BALANCED).
+// or MEDIAN for a cut of the slot order: LBVH's in a hybrid's top levels (slots first ..), else in halves
+// (no cut between centroids, or past BALANCED).
 const MEDIAN: u32 = 0x100u;
 
-fn choose(m: u32, depth: u32) -> vec2<u32> {
+fn choose(first: u32, m: u32, depth: u32) -> vec2<u32> {
+    if radix_level(depth) {
+        return vec2<u32>(MEDIAN, radix_cut(first, m));
+    }
     let w = wkey[0];
     if w.x == NONE || depth >= BALANCED {
         return vec2<u32>(MEDIAN, m / 2u);
@@ -409,7 +443,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
         depths[c.z] = depth;
         return NONE;
     }
-    if params.small != 0u && c.y <= SMALL {
+    if small_on() && c.y <= SMALL {
         let k = atomicAdd(&state[SMALL_COUNT], 1u);
         queues[4u * params.cap + 2u * k] = c;
         queues[4u * params.cap + 2u * k + 1u] = vec4<u32>(depth, 0u, 0u, 0u);
@@ -435,7 +469,7 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     if lid.x == 0u {
         let ent = queues[in_base() + e];
         let f = node_frame(e);
-        let ch = choose(ent.y, params.level);
+        let ch = choose(ent.x, ent.y, params.level);
         let axis = ch.x & 3u;
         nodes[ent.z] = inner_node(ent.w);
         depths[ent.z] = params.level;
@@ -573,7 +607,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         workgroupBarrier();
         best_candidate(t);
         if t == 0u {
-            let ch = choose(nd.y, wnode_depth);
+            let ch = choose(first + nd.x, nd.y, wnode_depth);
             let axis = ch.x & 3u;
             wsplit = vec4<u32>(ch.x, ch.y, lo[axis], hi[axis]);
         }
@@ -582,7 +616,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         // Stable partition of the node's ids: rank among the same side by counting the invocations below.
         var left = false;
         if mine { left = goes_left(sp.x, sp.y, t, q, sp.z, sp.w); }
-        wnext[min(t, 31u)] = select(0u, 1u, left && mine);
+        if t < SMALL { wnext[t] = select(0u, 1u, left); }
         workgroupBarrier();
         var before = 0u;
         for (var j = 0u; j < min(t, nd.y); j++) { before += wnext[j]; }

@@ -8,7 +8,8 @@ mod common;
 use common::*;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, Bvh, LEAF_BIT};
-use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions};
+use kinetrace::geometry::morton30;
+use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS};
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 
 const SIZES: [usize; 9] = [0, 1, 2, 3, 31, 32, 33, 1023, 1025];
@@ -75,8 +76,28 @@ fn half_area(lo: [u32; 3], hi: [u32; 3]) -> u64 {
 
 /// Builds the subtree of `ids` (slots `first..`) at node `pos` with descendants from `desc`: writes node
 /// indices (leaves of one triangle) and reorders `ids`.
+/// In a hybrid's top levels, nodes are split as LBVH splits them: `codes` (sorted, in slot order).
+struct Hybrid<'a> {
+    codes: &'a [u32],
+    levels: u32,
+}
+
+/// Karras's split of sorted slots `first..first + m`: the left count.
+fn radix_cut(codes: &[u32], first: u32, m: u32) -> u32 {
+    let (lo, hi) = (first as usize, (first + m - 1) as usize);
+    let x = codes[lo] ^ codes[hi];
+    if x == 0 {
+        let b = 31 - ((lo ^ hi) as u32).leading_zeros();
+        return ((hi >> b << b) - lo) as u32;
+    }
+    let b = 31 - x.leading_zeros();
+    (codes[lo..=hi].iter().position(|c| c >> b & 1 == 1).unwrap()) as u32
+}
+
+#[allow(clippy::too_many_arguments)]
 fn reference_node(
     p: &Prims,
+    hybrid: &Hybrid,
     ids: &mut [u32],
     first: u32,
     pos: u32,
@@ -88,6 +109,24 @@ fn reference_node(
     if m == 1 {
         index[pos as usize] = LEAF_BIT | 1 << 27 | first;
         return;
+    }
+    let recurse = |ids: &mut [u32], nl: u32, index: &mut [u32]| {
+        index[pos as usize] = desc;
+        let (li, ri) = ids.split_at_mut(nl as usize);
+        reference_node(p, hybrid, li, first, desc, desc + 2, depth + 1, index);
+        reference_node(
+            p,
+            hybrid,
+            ri,
+            first + nl,
+            desc + 1,
+            desc + 2 * nl,
+            depth + 1,
+            index,
+        );
+    };
+    if depth < hybrid.levels {
+        return recurse(ids, radix_cut(hybrid.codes, first, m), index);
     }
     let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
     for &t in ids.iter() {
@@ -147,31 +186,46 @@ fn reference_node(
     for (slot, (t, _)) in ids.iter_mut().zip(l.into_iter().chain(r)) {
         *slot = t;
     }
-    index[pos as usize] = desc;
-    let (li, ri) = ids.split_at_mut(nl as usize);
-    reference_node(p, li, first, desc, desc + 2, depth + 1, index);
-    reference_node(p, ri, first + nl, desc + 1, desc + 2 * nl, depth + 1, index);
+    recurse(ids, nl, index);
 }
 
-/// The reference tree: node indices and the triangle of every slot.
-fn reference(m: &Mesh) -> (Vec<u32>, Vec<u32>) {
+/// The reference tree with `lbvh_levels` LBVH levels on top: node indices and the triangle of every slot.
+fn reference(m: &Mesh, lbvh_levels: u32) -> (Vec<u32>, Vec<u32>) {
     let n = m.triangle_count();
     if n == 0 {
         return (Vec::new(), Vec::new());
     }
     let p = quantised(m);
-    let mut ids: Vec<u32> = (0..n as u32).collect();
+    // 30-bit Morton codes of the triangle-box centres in their bounds, stably sorted (ties by id).
+    let centres: Vec<Vec3> = m.triangle_bounds().iter().map(|b| b.center()).collect();
+    let cb = centres
+        .iter()
+        .fold(Aabb::EMPTY, |b, &c| b.union(&Aabb::new(c, c)));
+    let mut keyed: Vec<(u32, u32)> = (0..n as u32)
+        .map(|i| (morton30(centres[i as usize], &cb), i))
+        .collect();
+    keyed.sort_by_key(|&(k, _)| k);
+    let codes: Vec<u32> = keyed.iter().map(|k| k.0).collect();
+    let mut ids: Vec<u32> = if lbvh_levels > 0 {
+        keyed.iter().map(|k| k.1).collect()
+    } else {
+        (0..n as u32).collect()
+    };
+    let hybrid = Hybrid {
+        codes: &codes,
+        levels: lbvh_levels,
+    };
     let mut index = vec![0u32; 2 * n - 1];
-    reference_node(&p, &mut ids, 0, 0, 1, 0, &mut index);
+    reference_node(&p, &hybrid, &mut ids, 0, 0, 1, 0, &mut index);
     (index, ids)
 }
 
 // ---- helpers ----
 
 /// A GPU SAH build read back for CPU queries, its builder (for the counts), and its tree.
-fn build(g: &GpuContext, m: &Mesh, small_split: bool) -> (MeshBvh, GpuSahBuilder, Bvh) {
+fn build(g: &GpuContext, m: &Mesh, options: GpuSahOptions) -> (MeshBvh, GpuSahBuilder, Bvh) {
     let mut bvh = GpuMeshBvh::new(g, m).unwrap();
-    let sah = GpuSahBuilder::new(g, &bvh, GpuSahOptions { small_split }).unwrap();
+    let sah = GpuSahBuilder::new(g, &bvh, options).unwrap();
     let mesh_bvh = sah.build_for_cpu(g, &mut bvh, m).unwrap();
     let tree = mesh_bvh.bvh().clone();
     (mesh_bvh, sah, tree)
@@ -196,12 +250,12 @@ fn height(t: &Bvh) -> u32 {
 
 /// The tree validates, equals the reference node for node (topology, slot order, and boxes recomputed
 /// from the triangles), and a closest-hit query through it agrees with brute force.
-fn check(g: &GpuContext, m: &Mesh, rays: &[Ray], what: &str) -> Bvh {
-    let (mesh_bvh, sah, tree) = build(g, m, true);
+fn check(g: &GpuContext, m: &Mesh, options: GpuSahOptions, rays: &[Ray], what: &str) -> Bvh {
+    let (mesh_bvh, sah, tree) = build(g, m, options);
     let bounds = m.triangle_bounds();
     tree.validate(Some(&bounds))
         .unwrap_or_else(|e| panic!("{what}: {e}"));
-    let (index, ids) = reference(m);
+    let (index, ids) = reference(m, options.lbvh_levels);
     let got: Vec<u32> = tree.nodes().iter().map(|n| n.index).collect();
     let diff = got.iter().zip(&index).position(|(a, b)| a != b);
     assert_eq!(diff, None, "{what}: first differing node");
@@ -256,8 +310,10 @@ fn gpu_sah_equals_the_reference_at_every_size() {
     for n in SIZES.into_iter().chain([LARGE]) {
         let m = soup(n as u64 + 11, n);
         let rays = random_rays(&m, n as u64, if n > 5000 { 64 } else { 200 });
-        let tree = check(&g, &m, &rays, &format!("soup of {n}"));
-        assert_eq!(tree.nodes().len(), (2 * n).saturating_sub(1));
+        for opt in [GpuSahOptions::SAH, GpuSahOptions::hybrid(HYBRID_LEVELS)] {
+            let tree = check(&g, &m, opt, &rays, &format!("soup of {n}, {opt:?}"));
+            assert_eq!(tree.nodes().len(), (2 * n).saturating_sub(1));
+        }
     }
 }
 
@@ -266,21 +322,32 @@ fn gpu_sah_equals_the_reference_at_every_size() {
 fn gpu_sah_equals_the_reference_at_a_million() {
     let Some(g) = gpu_or_skip() else { return };
     let m = soup(3, HUGE);
-    check(&g, &m, &random_rays(&m, 3, 32), "soup of 2^20 + 7");
+    check(
+        &g,
+        &m,
+        GpuSahOptions::SAH,
+        &random_rays(&m, 3, 32),
+        "soup of 2^20 + 7",
+    );
 }
 
 #[test]
 fn gpu_sah_on_extreme_scenes() {
     let Some(g) = gpu_or_skip() else { return };
     let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(500)).unwrap();
-    check(
-        &g,
-        &same,
-        &random_rays(&same, 1, 100),
-        "identical triangles",
-    );
+    let both = [
+        GpuSahOptions::SAH,
+        GpuSahOptions::hybrid(HYBRID_LEVELS),
+        GpuSahOptions::hybrid(2),
+    ];
+    let check_all = |m: &Mesh, rays: &[Ray], what: &str| {
+        for opt in both {
+            check(&g, m, opt, rays, &format!("{what}, {opt:?}"));
+        }
+    };
+    check_all(&same, &random_rays(&same, 1, 100), "identical triangles");
     let far = map_mesh(&icosphere(2), |p| p * 1e3 + Vec3::new(1e7, -1e7, 5e6));
-    check(&g, &far, &random_rays(&far, 2, 200), "1e7 offset");
+    check_all(&far, &random_rays(&far, 2, 200), "1e7 offset");
     let tiny = map_mesh(&icosphere(2), |p| p * 1e-6 + Vec3::splat(0.25));
     let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
     let mut pos = tiny.positions().to_vec();
@@ -295,11 +362,11 @@ fn gpu_sah_on_extreme_scenes() {
             Vec3::new((i as f32).sin(), (i as f32).cos(), -3.0),
         )
     }));
-    check(&g, &teapot, &rays, "teapot in a stadium");
+    check_all(&teapot, &rays, "teapot in a stadium");
     let flat = kinetrace::scenes::folded_sheet(24, 0.0);
-    check(&g, &flat, &random_rays(&flat, 4, 200), "folded sheet");
+    check_all(&flat, &random_rays(&flat, 4, 200), "folded sheet");
     let cube = map_mesh(&cube_sphere(1), |p| p.signum());
-    check(&g, &cube, &random_rays(&cube, 5, 200), "axis-aligned cube");
+    check_all(&cube, &random_rays(&cube, 5, 200), "axis-aligned cube");
 }
 
 #[test]
@@ -307,8 +374,8 @@ fn small_split_kernel_makes_the_same_tree() {
     let Some(g) = gpu_or_skip() else { return };
     for n in [2, 31, 32, 33, 1025, 5000] {
         let m = soup(n as u64 * 3, n);
-        let (_, on_b, on) = build(&g, &m, true);
-        let (_, off_b, off) = build(&g, &m, false);
+        let (_, on_b, on) = build(&g, &m, GpuSahOptions::SAH);
+        let (_, off_b, off) = build(&g, &m, GpuSahOptions::SAH.small_split(false));
         assert_eq!(on.nodes(), off.nodes(), "n = {n}");
         assert_eq!(on.prim_indices(), off.prim_indices(), "n = {n}");
         let (c_on, c_off) = (
@@ -328,7 +395,7 @@ fn dispatches_grow_with_depth_not_size() {
     let mut last = None;
     for n in [1025usize, 4096, 16384, 65536] {
         let m = soup(n as u64, n);
-        let (_, sah, tree) = build(&g, &m, true);
+        let (_, sah, tree) = build(&g, &m, GpuSahOptions::SAH);
         let c = sah.read_counts(&g).unwrap();
         assert_eq!(c.submissions, 1);
         // A fixed number of recorded dispatches for sizes with the same number of scan levels…
@@ -353,10 +420,15 @@ fn gpu_sah_cost_against_cpu_binned_sah() {
         ("sphere", kinetrace::scenes::icosphere(5)),
         ("torus", kinetrace::scenes::bumpy_torus(20_000)),
     ] {
-        let (_, _, tree) = build(&g, &m, true);
+        let (_, _, tree) = build(&g, &m, GpuSahOptions::SAH);
         let cpu = Bvh::build(&m.triangle_bounds(), &BuildOptions::new(Builder::SAH)).unwrap();
         let ratio = tree.sah_cost() / cpu.sah_cost();
-        eprintln!("{name}: GPU binned SAH cost / CPU binned SAH cost = {ratio:.3}");
+        let (_, _, hybrid) = build(&g, &m, GpuSahOptions::hybrid(HYBRID_LEVELS));
+        let hybrid_ratio = hybrid.sah_cost() / cpu.sah_cost();
+        eprintln!(
+            "{name}: SAH cost / CPU binned SAH: GPU SAH {ratio:.3}, GPU hybrid {hybrid_ratio:.3}"
+        );
+        assert!(hybrid_ratio <= 1.15, "{name}: hybrid {hybrid_ratio}");
         // Issue 14's target is 1.10 (the thesis's 91–101% of full SAH); measured 1.00–1.10 here, the
         // bumpy torus just above (1.104: the CPU sweeps nodes of up to 16 triangles exactly, this builder
         // bins every node). Asserted: no worse than the hybrid's band.

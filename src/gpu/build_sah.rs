@@ -42,15 +42,47 @@ const ARG_SMALL: u64 = 72;
 /// Options of [`GpuSahBuilder`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct GpuSahOptions {
+    /// Levels split as LBVH splits them before binned SAH takes over (thesis §5.3, the GPU hybrid): 0 for
+    /// pure binned SAH, [`HYBRID_LEVELS`] by default for a hybrid. The top levels then cost one Morton sort
+    /// and a binary search per node instead of binning passes; lower it for clustered scenes (a teapot in
+    /// a stadium), where the Morton grid's top splits are poor.
+    pub lbvh_levels: u32,
     /// Finish subtrees of at most [`SMALL_SPLIT_MAX`] triangles in one workgroup each (default on). Off,
     /// they go through the level queues like larger nodes: the same tree, more dispatched levels, and bins
     /// for up to `n / 2` nodes per level instead of `n / 33` (much more memory). For measuring the kernel.
     pub small_split: bool,
 }
 
+/// The thesis's LBVH levels for the hybrid.
+pub const HYBRID_LEVELS: u32 = 6;
+
+impl GpuSahOptions {
+    /// Pure binned SAH with the small-split kernel.
+    pub const SAH: GpuSahOptions = GpuSahOptions {
+        lbvh_levels: 0,
+        small_split: true,
+    };
+
+    /// The hybrid: `lbvh_levels` LBVH levels, binned SAH below, the small-split kernel on.
+    pub const fn hybrid(lbvh_levels: u32) -> GpuSahOptions {
+        GpuSahOptions {
+            lbvh_levels,
+            small_split: true,
+        }
+    }
+
+    /// The same with the small-split kernel on or off.
+    pub const fn small_split(self, on: bool) -> GpuSahOptions {
+        GpuSahOptions {
+            small_split: on,
+            ..self
+        }
+    }
+}
+
 impl Default for GpuSahOptions {
     fn default() -> Self {
-        Self { small_split: true }
+        Self::SAH
     }
 }
 
@@ -88,6 +120,8 @@ pub struct GpuSahBuilder {
     /// Binds a stand-in where the arguments are (for the indirectly dispatched kernels).
     work_group: wgpu::BindGroup,
     scan: Scan,
+    /// Dispatches of the mesh's LBVH sort phase (hybrid builds record it first).
+    sort_phase: u32,
     scratch: Vec<GpuBuffer>,
 }
 
@@ -121,11 +155,11 @@ impl GpuSahBuilder {
             STORAGE | wgpu::BufferUsages::INDIRECT,
         );
         let stand_in = GpuBuffer::storage(ctx, "sah stand-in", 16);
-        let small = u32::from(options.small_split);
+        let mode = u32::from(options.small_split) | options.lbvh_levels.min(LEVELS as u32) << 8;
         let slots_params: Vec<[u32; 4]> =
-            (0..=LEVELS).map(|l| [tris, l as u32, small, cap]).collect();
+            (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
         let params = ParamSlots::new(ctx, &slots_params);
-        let [positions, indices, nodes, depths, slot_tris, vals] = bvh.build_targets();
+        let [positions, indices, nodes, depths, slot_tris, vals, keys] = bvh.build_targets();
         let group = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -144,6 +178,7 @@ impl GpuSahBuilder {
                     slot_tris.binding(),
                     vals.binding(),
                     a.binding(),
+                    keys.binding(),
                     params.binding(),
                 ],
             )
@@ -161,6 +196,7 @@ impl GpuSahBuilder {
             args_group,
             work_group,
             scan,
+            sort_phase: bvh.sort_phase_dispatches(),
             scratch: vec![prims, slots, flags, queues, stand_in],
         })
     }
@@ -195,7 +231,19 @@ impl GpuSahBuilder {
         if self.tris == 0 {
             return 0;
         }
-        2 + LEVELS as u32 * self.level_dispatches() + 3 + GpuMeshBvh::BOXES_DISPATCHES
+        2 + LEVELS as u32 * self.level_dispatches()
+            + 3
+            + GpuMeshBvh::BOXES_DISPATCHES
+            + self.sort_dispatches()
+    }
+
+    /// Dispatches of a hybrid's Morton codes and sort (none for pure SAH).
+    fn sort_dispatches(&self) -> u32 {
+        if self.options.lbvh_levels == 0 || self.tris == 0 {
+            0
+        } else {
+            self.sort_phase
+        }
     }
 
     /// Records a full rebuild of `bvh` (the tree this builder was made for: its buffers are bound) from its current positions into
@@ -208,6 +256,10 @@ impl GpuSahBuilder {
     ) {
         if self.tris == 0 {
             return;
+        }
+        let hybrid = self.options.lbvh_levels > 0;
+        if hybrid {
+            bvh.record_build_phase(ctx, encoder, super::BuildPhase::Sort);
         }
         encoder.clear_buffer(self.state.buffer(), 0, None);
         encoder.clear_buffer(self.bins.buffer(), 0, None);
@@ -248,7 +300,7 @@ impl GpuSahBuilder {
         single(&mut pass, "sah_small_args", LEVELS);
         indirect(&mut pass, "sah_small", LEVELS, ARG_SMALL);
         direct(&mut pass, "sah_finish", LEVELS);
-        bvh.record_boxes(ctx, &mut pass, false);
+        bvh.record_boxes(ctx, &mut pass, hybrid);
     }
 
     /// Reads the queue counts of the last build back (blocking) and counts its dispatches.
@@ -261,8 +313,9 @@ impl GpuSahBuilder {
         let fixed = if self.tris == 0 {
             0
         } else {
-            // Frame, primitives, the argument kernel of every level, small arguments, small, finish, boxes.
-            2 + LEVELS as u32 + 3 + GpuMeshBvh::BOXES_DISPATCHES
+            // Frame, primitives, the argument kernel of every level, small arguments, small, finish, boxes,
+            // and a hybrid's Morton sort.
+            2 + LEVELS as u32 + 3 + GpuMeshBvh::BOXES_DISPATCHES + self.sort_dispatches()
         };
         Ok(GpuBuildCounts {
             dispatches_recorded: self.dispatches_recorded(),

@@ -41,6 +41,8 @@ pub struct GpuMeshBvh {
     nodes: GpuBuffer,
     slot_tris: GpuBuffer,
     vals: GpuBuffer,
+    /// Morton codes, sorted with `vals` by an LBVH sort.
+    keys: GpuBuffer,
     level_args: GpuBuffer,
     depths: GpuBuffer,
     sums: GpuBuffer,
@@ -186,6 +188,7 @@ impl GpuMeshBvh {
             nodes,
             slot_tris,
             vals,
+            keys,
             level_args,
             depths,
             sums,
@@ -202,7 +205,7 @@ impl GpuMeshBvh {
             refittable: true,
             height: MAX_DEPTH as u32,
             _scratch: vec![
-                centroids, partials, keys, children, parents, first, order, terms, levels, stand_in,
+                centroids, partials, children, parents, first, order, terms, levels, stand_in,
             ],
         })
     }
@@ -251,6 +254,7 @@ impl GpuMeshBvh {
             &self.nodes,
             &self.slot_tris,
             &self.vals,
+            &self.keys,
             &self.level_args,
             &self.depths,
             &self.sums,
@@ -363,8 +367,9 @@ impl GpuMeshBvh {
     }
 
     /// The buffers another GPU builder writes before [`record_boxes`](Self::record_boxes): positions and
-    /// indices (read), nodes (topology), depths, slot triangles and slot ids.
-    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 6] {
+    /// indices (read), nodes (topology), depths, slot triangles, slot ids, and the Morton codes the LBVH
+    /// sort ([`BuildPhase::Sort`]) leaves sorted beside the ids.
+    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 7] {
         [
             &self.positions,
             &self._indices,
@@ -372,6 +377,7 @@ impl GpuMeshBvh {
             &self.depths,
             &self.slot_tris,
             &self.vals,
+            &self.keys,
         ]
     }
 
@@ -390,6 +396,11 @@ impl GpuMeshBvh {
         self.record_schedule(ctx, pass);
         self.record_levels(ctx, pass, SLOT_BUILD);
         self.built = true;
+    }
+
+    /// Dispatches recorded by the [`BuildPhase::Sort`] phase.
+    pub(crate) fn sort_phase_dispatches(&self) -> u32 {
+        3 + self.sort.dispatches()
     }
 
     /// Dispatches recorded by [`record_boxes`](Self::record_boxes).

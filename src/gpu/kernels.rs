@@ -206,7 +206,7 @@ impl Kernels {
                 shader!("sah_build.wgsl"),
                 &[
                     Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Write, Uniform,
+                    Write, Write, Read, Uniform,
                 ],
                 &[
                     "sah_frame",

@@ -40,7 +40,7 @@ mod trace;
 mod tree;
 
 pub use buffers::Readback;
-pub use build_sah::{GpuBuildCounts, GpuSahBuilder, GpuSahOptions, SMALL_SPLIT_MAX};
+pub use build_sah::{GpuBuildCounts, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS, SMALL_SPLIT_MAX};
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};
 pub use context::GpuContext;

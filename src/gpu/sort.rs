@@ -76,6 +76,14 @@ impl RadixSort {
         self._scratch.iter().map(|b| b.buffer().size()).sum::<u64>() + self.scan.memory_bytes()
     }
 
+    /// Dispatches [`record`](Self::record) makes.
+    pub fn dispatches(&self) -> u32 {
+        if self.n < 2 || self.bits == 0 {
+            return 0;
+        }
+        self.bits.div_ceil(4).next_multiple_of(2) * (2 + self.scan.dispatches())
+    }
+
     /// Records the sort. An even number of passes leaves the result in the original buffers; an odd one
     /// in the scratch pair, so passes are always made even (a pass over zero bits is a stable no-op copy).
     pub fn record(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
