@@ -253,6 +253,19 @@ fn always_gpu_sah(_: &PolicyInput<'_>) -> Decision {
     })
 }
 
+#[cfg(feature = "gpu")]
+fn always_gpu_hybrid(_: &PolicyInput<'_>) -> Decision {
+    Decision::Rebuild(Build::gpu_hybrid(6))
+}
+
+#[cfg(feature = "gpu")]
+fn always_gpu_sah8(_: &PolicyInput<'_>) -> Decision {
+    Decision::Rebuild(Build {
+        builder: Builder::Sah { bins: 8 },
+        device: Device::Gpu,
+    })
+}
+
 #[test]
 fn without_a_gpu_every_build_runs_on_the_cpu() {
     let stats = run(RebuildPolicy::ADAPTIVE, TraceMode::Cpu, 30);
@@ -301,10 +314,13 @@ fn with_a_gpu_the_adaptive_policy_tries_it_and_answers_stay_exact() {
     let (f, build, reason) = built[1];
     assert_eq!((build, reason), (Build::GPU_LBVH, RebuildReason::Policy));
     assert_ne!(stats[f].prediction.map(|p| p.verdict), Some(Verdict::Keep));
-    // A policy may ask for the GPU every time; a GPU build of anything but LBVH runs on the CPU.
+    // A policy may ask for the GPU every time: LBVH, 16-bin SAH and the hybrid run there, other GPU
+    // builds (here 8-bin SAH) on the CPU.
     for (policy, expect) in [
         (always_gpu_lbvh as Policy, Build::GPU_LBVH),
-        (always_gpu_sah, Build::cpu(Builder::SAH)),
+        (always_gpu_sah, Build::GPU_SAH),
+        (always_gpu_hybrid, Build::gpu_hybrid(6)),
+        (always_gpu_sah8, Build::cpu(Builder::Sah { bins: 8 })),
     ] {
         let stats = run(RebuildPolicy::Custom(policy), TraceMode::GpuRequired, 6);
         for (f, build, reason) in rebuilds(&stats).skip(1) {

@@ -10,8 +10,9 @@ pub enum Device {
     /// On the CPU (all threads with the `parallel` feature).
     #[default]
     Cpu,
-    /// On the GPU (feature `gpu`), which builds LBVH over 30-bit codes only ([`Build::GPU_LBVH`]); the
-    /// tree is read back so that CPU queries can use it.
+    /// On the GPU (feature `gpu`), which builds LBVH over 30-bit codes ([`Build::GPU_LBVH`]), 16-bin SAH
+    /// ([`Build::GPU_SAH`]) and their hybrid ([`Build::gpu_hybrid`]); the tree is read back so that CPU
+    /// queries can use it.
     Gpu,
 }
 
@@ -33,11 +34,26 @@ impl Build {
         }
     }
 
-    /// LBVH over 30-bit codes on the GPU: the one build the GPU back end has.
+    /// LBVH over 30-bit codes on the GPU: the fastest GPU build.
     pub const GPU_LBVH: Build = Build {
         builder: Builder::LBVH,
         device: Device::Gpu,
     };
+
+    /// 16-bin SAH on the GPU with work queues (`gpu::GpuSahBuilder`): CPU binned-SAH quality (within
+    /// about 10%), a GPU build's time.
+    pub const GPU_SAH: Build = Build {
+        builder: Builder::SAH,
+        device: Device::Gpu,
+    };
+
+    /// The GPU hybrid: `k` LBVH levels, 16-bin SAH below (fewer LBVH levels on clustered meshes).
+    pub const fn gpu_hybrid(k: u32) -> Build {
+        Build {
+            builder: Builder::hybrid(k),
+            device: Device::Gpu,
+        }
+    }
 
     /// The prior of the planner, before this build was measured on a mesh: the SAH cost of its trees over
     /// a binned-SAH tree's on the same triangles. LBVH's Morton codes waste levels on clustered triangles

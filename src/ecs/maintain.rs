@@ -52,7 +52,7 @@ impl Fallbacks {
     fn not_lbvh(&mut self, build: Build) {
         if !std::mem::replace(&mut self.not_lbvh, true) {
             log::warn!(
-                "kinetrace: the GPU builds only LBVH over 30-bit codes; GPU rebuilds with {} run on the CPU",
+                "kinetrace: the GPU builds LBVH over 30-bit codes, 16-bin SAH and their hybrid only; GPU rebuilds with {} run on the CPU",
                 build.builder.name()
             );
         }
@@ -251,6 +251,12 @@ impl Rebuilder<'_> {
     ) -> Result<Build, Error> {
         let (e, mesh, _, hint, transform, layers) = data;
         let current = current_mesh(mesh, positions, transform)?;
+        // The characteriser's verdict on the old tree's mesh lowers a GPU hybrid's LBVH levels.
+        let clustered = world
+            .instances
+            .get(&e)
+            .and_then(|i| i.profile.as_deref())
+            .is_some_and(|p| !p.uniform);
         // What the old tree leaves to the new one: the learned model always, GPU buffers if still the size.
         let mut kept = world
             .instances
@@ -260,6 +266,7 @@ impl Rebuilder<'_> {
         #[cfg(feature = "gpu")]
         if reason == RebuildReason::Topology {
             kept.gpu = None;
+            kept.gpu_sah = None;
         }
         if let RebuildPolicy::Adaptive { builders } = self.config.policy
             && kept.adaptive.is_none()
@@ -279,7 +286,7 @@ impl Rebuilder<'_> {
                     (_, None) => Build::cpu(self.config.builder),
                 },
             );
-        let (bvh, build, seconds) = self.build_tree(&current, build, &mut kept)?;
+        let (bvh, build, seconds) = self.build_tree(&current, build, clustered, &mut kept)?;
         let triangles = current.triangle_count();
         log::debug!(
             "kinetrace: rebuilt {e} with {build} ({reason:?}), {triangles} triangles in {:.3} ms",
@@ -313,10 +320,11 @@ impl Rebuilder<'_> {
         &mut self,
         current: &Mesh,
         build: Build,
+        clustered: bool,
         kept: &mut Kept,
     ) -> Result<(MeshBvh, Build, f64), Error> {
         if build.device == Device::Gpu
-            && let Some(done) = self.on_gpu(current, build, kept)
+            && let Some(done) = self.on_gpu(current, build, clustered, kept)
         {
             return Ok(done);
         }
@@ -325,22 +333,29 @@ impl Rebuilder<'_> {
         Ok((bvh, Build::cpu(build.builder), t.elapsed().as_secs_f64()))
     }
 
-    /// LBVH on the GPU, read back for CPU queries; `None` (said once in the log) where it cannot run. The
-    /// mesh's GPU buffers are made at its first GPU build.
+    /// LBVH, binned SAH or the hybrid on the GPU ([`Build::GPU_LBVH`], [`Build::GPU_SAH`],
+    /// [`Build::gpu_hybrid`]), read back for CPU queries; `None` (said once in the log) where it cannot
+    /// run. A clustered mesh's hybrid gets fewer LBVH levels ([`crate::gpu::hybrid_levels`]). The mesh's
+    /// GPU buffers (and a SAH builder's scratch) are made at its first GPU build of that kind.
     #[cfg(feature = "gpu")]
     fn on_gpu(
         &mut self,
         current: &Mesh,
         build: Build,
+        clustered: bool,
         kept: &mut Kept,
     ) -> Option<(MeshBvh, Build, f64)> {
         let Some(gpu) = self.gpu else {
             self.fallbacks.no_gpu();
             return None;
         };
-        if build != Build::GPU_LBVH {
+        let Some(sah) = crate::gpu::GpuSahOptions::for_builder(build.builder, clustered) else {
             self.fallbacks.not_lbvh(build);
             return None;
+        };
+        if kept.gpu.is_none() {
+            // A SAH builder's scratch is bound to the tree buffers it was made with.
+            kept.gpu_sah = None;
         }
         let ctx = gpu.context();
         let mut run = || -> crate::Result<(MeshBvh, Build, f64)> {
@@ -348,8 +363,17 @@ impl Rebuilder<'_> {
                 Some(tree) => tree,
                 empty => empty.insert(crate::gpu::GpuMeshBvh::new(ctx, current)?),
             };
+            let Some(options) = sah else {
+                let t = Instant::now();
+                let bvh = tree.build_for_cpu(ctx, current)?;
+                return Ok((bvh, build, t.elapsed().as_secs_f64()));
+            };
+            let builder = match &mut kept.gpu_sah {
+                Some(b) if b.options() == options => b,
+                slot => slot.insert(crate::gpu::GpuSahBuilder::new(ctx, tree, options)?),
+            };
             let t = Instant::now();
-            let bvh = tree.build_for_cpu(ctx, current)?;
+            let bvh = builder.build_for_cpu(ctx, tree, current)?;
             Ok((bvh, build, t.elapsed().as_secs_f64()))
         };
         run()
@@ -367,7 +391,7 @@ impl Rebuilder<'_> {
 }
 
 /// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists (second,
-/// after the cheapest CPU build), learning into the world's shared `costs` under the mesh's `asset`.
+/// after the cheapest CPU build) and the GPU twins of the SAH and hybrid builders among them (last), learning into the world's shared `costs` under the mesh's `asset`.
 fn adaptive_policy(
     builders: &[crate::bvh::Builder],
     gpu: bool,
@@ -377,6 +401,22 @@ fn adaptive_policy(
     let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
     if gpu {
         builds.insert(builds.len().min(1), Build::GPU_LBVH);
+        // The GPU twins of the configured SAH and hybrid builders the GPU runs, last.
+        #[cfg(feature = "gpu")]
+        builds.extend(
+            builders
+                .iter()
+                .filter(|&&b| {
+                    matches!(
+                        crate::gpu::GpuSahOptions::for_builder(b, false),
+                        Some(Some(_))
+                    )
+                })
+                .map(|&builder| Build {
+                    builder,
+                    device: Device::Gpu,
+                }),
+        );
     }
     AdaptivePolicy::shared(&builds, costs, asset)
 }

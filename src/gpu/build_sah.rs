@@ -22,7 +22,7 @@
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group, groups};
 use super::scan::Scan;
 use super::{GpuContext, GpuMeshBvh};
-use crate::bvh::MeshBvh;
+use crate::bvh::{Builder, MeshBvh, MortonBits};
 use crate::{Error, Mesh, Result};
 
 /// Tree levels the queue loop records (no leaf is deeper than [`crate::bvh::MAX_DEPTH`] - 1).
@@ -79,6 +79,46 @@ impl GpuSahOptions {
         }
     }
 }
+
+/// LBVH levels of a GPU hybrid on a clustered mesh (the characteriser's non-uniform profile): Morton
+/// splits waste levels on a teapot in a stadium, so binned SAH takes over after at most this many. Our
+/// rule; the report's clustered scenes back it.
+pub const CLUSTERED_HYBRID_LEVELS: u32 = 2;
+
+/// A hybrid's LBVH levels: `k`, lowered to [`CLUSTERED_HYBRID_LEVELS`] on clustered meshes.
+pub fn hybrid_levels(k: u32, clustered: bool) -> u32 {
+    if clustered {
+        k.min(CLUSTERED_HYBRID_LEVELS)
+    } else {
+        k
+    }
+}
+
+impl GpuSahOptions {
+    /// How the GPU runs `builder`: `Some(None)` for LBVH over 30-bit codes ([`GpuMeshBvh::record_build`]),
+    /// `Some(Some(options))` for 16-bin SAH or a 16-bin hybrid over 30-bit codes (its levels through
+    /// [`hybrid_levels`]), `None` for what the GPU does not build (other bin counts, 63-bit codes, median).
+    pub fn for_builder(builder: Builder, clustered: bool) -> Option<Option<GpuSahOptions>> {
+        match builder {
+            Builder::Lbvh {
+                morton: MortonBits::Bits30,
+            } => Some(None),
+            Builder::Sah { bins: GPU_BINS } => Some(Some(GpuSahOptions::SAH)),
+            Builder::Hybrid {
+                lbvh_levels,
+                bins: GPU_BINS,
+                morton: MortonBits::Bits30,
+            } => Some(Some(GpuSahOptions::hybrid(hybrid_levels(
+                lbvh_levels,
+                clustered,
+            )))),
+            _ => None,
+        }
+    }
+}
+
+/// Bins per axis of the GPU builder (those of [`Builder::SAH`]).
+pub const GPU_BINS: u32 = 16;
 
 impl Default for GpuSahOptions {
     fn default() -> Self {
