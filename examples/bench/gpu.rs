@@ -1,4 +1,5 @@
-//! Suite `gpu`: LBVH build, refit, and closest/any-hit throughput on the GPU, for 100k, 1M and 4M
+//! Suite `gpu`: LBVH build (and the work-queue SAH and hybrid builds, [`crate::gpu_sah`]), refit, and
+//! closest/any-hit throughput on the GPU, for 100k, 1M and 4M
 //! triangles (quick: 100k), with 1M coherent and 1M random rays (quick: 64k). Wall-clock per submitted
 //! phase, waited for: on a real GPU this includes submission latency, so small sizes understate throughput.
 
@@ -103,6 +104,7 @@ fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count
         bvh.memory_bytes() as f64 / n,
         "bytes/tri",
     );
+    crate::gpu_sah::rows(rec, ctx, name, mesh);
 
     let [(_, camera), (_, random)] = crate::rays::camera_and_random(mesh, ray_count);
     let mut gr = GpuRays::new(ctx);
