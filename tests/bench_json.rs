@@ -17,6 +17,8 @@ mod crowd;
 mod ecs;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
+#[path = "../examples/bench/gpu_sah.rs"]
+mod gpu_sah;
 #[path = "../examples/bench/grid.rs"]
 mod grid;
 #[path = "../examples/bench/peers.rs"]

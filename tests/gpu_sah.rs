@@ -23,7 +23,7 @@ const BINS: u32 = 16;
 const BALANCED: u32 = 36;
 
 fn pow2_scale(e: f32) -> f32 {
-    if !(e > 0.0) {
+    if e.is_nan() || e <= 0.0 {
         return 0.0;
     }
     let ex = ((e.to_bits() >> 23) & 0xff) as i32 - 127;
@@ -32,7 +32,7 @@ fn pow2_scale(e: f32) -> f32 {
 }
 
 fn quantise(x: f32) -> u32 {
-    x.max(0.0).min(65535.0) as u32
+    x.clamp(0.0, 65535.0) as u32
 }
 
 struct Prims {
@@ -180,9 +180,12 @@ fn reference_node(
         }
         _ => ((0..m).map(|i| i < m / 2).collect(), m / 2),
     };
-    let (l, r): (Vec<(u32, bool)>, Vec<(u32, bool)>) =
-        ids.iter().copied().zip(left).partition(|x| x.1);
-    for (slot, (t, _)) in ids.iter_mut().zip(l.into_iter().chain(r)) {
+    // Stable partition: the left side's triangles first, each side in slot order.
+    let (mut l, mut r) = (Vec::new(), Vec::new());
+    for (&t, &goes_left) in ids.iter().zip(&left) {
+        if goes_left { l.push(t) } else { r.push(t) }
+    }
+    for (slot, t) in ids.iter_mut().zip(l.into_iter().chain(r)) {
         *slot = t;
     }
     recurse(ids, nl, index);
