@@ -437,3 +437,37 @@ fn gpu_sah_cost_against_cpu_binned_sah() {
         assert!(ratio <= 1.15, "{name}: {ratio}");
     }
 }
+
+#[test]
+fn gpu_sah_trees_are_traced_and_refitted_on_the_gpu() {
+    let Some(g) = gpu_or_skip() else { return };
+    let m = kinetrace::scenes::bumpy_torus(3000);
+    let moved = map_mesh(&m, |p| p * 1.5 + Vec3::new(0.3 * p.y, 0.0, 0.1));
+    for opt in [GpuSahOptions::SAH, GpuSahOptions::hybrid(HYBRID_LEVELS)] {
+        let mut bvh = GpuMeshBvh::new(&g, &m).unwrap();
+        let sah = GpuSahBuilder::new(&g, &bvh, opt).unwrap();
+        sah.build_for_cpu(&g, &mut bvh, &m).unwrap();
+        let mut gr = kinetrace::gpu::GpuRays::new(&g);
+        // Traced on the GPU as built, then after a GPU refit to moved vertices.
+        for mesh in [&m, &moved] {
+            if std::ptr::eq(mesh, &moved) {
+                bvh.upload_positions(&g, moved.positions()).unwrap();
+                let mut enc = g.encoder();
+                bvh.record_refit(&g, &mut enc).unwrap();
+                g.submit(enc);
+            }
+            let rays = random_rays(mesh, 21, 300);
+            let hits = gr
+                .run(&g, &bvh, &rays, kinetrace::gpu::Query::Closest)
+                .unwrap();
+            for (ray, h) in rays.iter().zip(&hits) {
+                assert_brute_hit(
+                    mesh,
+                    ray,
+                    h.primitive().map(|p| (p, h.t)),
+                    &format!("{opt:?}"),
+                );
+            }
+        }
+    }
+}
