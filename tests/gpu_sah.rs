@@ -9,7 +9,9 @@ use common::*;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, Bvh, LEAF_BIT};
 use kinetrace::geometry::morton30;
-use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS};
+use kinetrace::gpu::{
+    CLUSTERED_HYBRID_LEVELS, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
+};
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 
 const SIZES: [usize; 9] = [0, 1, 2, 3, 31, 32, 33, 1023, 1025];
@@ -304,6 +306,18 @@ fn random_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
         .collect()
 }
 
+/// A 1e-6 icosphere of subdivision `subdiv` (the teapot) inside a 1e4 box (the stadium): the clustered
+/// scene of the thesis.
+fn teapot_in_stadium(subdiv: u32) -> Mesh {
+    let tiny = map_mesh(&icosphere(subdiv), |p| p * 1e-6 + Vec3::splat(0.25));
+    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
+    let mut pos = tiny.positions().to_vec();
+    let mut idx = tiny.indices().to_vec();
+    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
+    pos.extend_from_slice(stadium.positions());
+    Mesh::new(pos, idx).unwrap()
+}
+
 // ---- tests ----
 
 #[test]
@@ -350,13 +364,7 @@ fn gpu_sah_on_extreme_scenes() {
     check_all(&same, &random_rays(&same, 1, 100), "identical triangles");
     let far = map_mesh(&icosphere(2), |p| p * 1e3 + Vec3::new(1e7, -1e7, 5e6));
     check_all(&far, &random_rays(&far, 2, 200), "1e7 offset");
-    let tiny = map_mesh(&icosphere(2), |p| p * 1e-6 + Vec3::splat(0.25));
-    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
-    let mut pos = tiny.positions().to_vec();
-    let mut idx = tiny.indices().to_vec();
-    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
-    pos.extend_from_slice(stadium.positions());
-    let teapot = Mesh::new(pos, idx).unwrap();
+    let teapot = teapot_in_stadium(2);
     let mut rays = random_rays(&teapot, 3, 100);
     rays.extend((0..100).map(|i| {
         Ray::new(
@@ -470,4 +478,22 @@ fn gpu_sah_trees_are_traced_and_refitted_on_the_gpu() {
             }
         }
     }
+}
+
+#[test]
+fn clustered_meshes_get_fewer_lbvh_levels() {
+    // The planner's mapping: a clustered mesh's hybrid keeps at most CLUSTERED_HYBRID_LEVELS LBVH levels.
+    let hybrid6 = Builder::hybrid(6);
+    assert_eq!(
+        GpuSahOptions::for_builder(hybrid6, false),
+        Some(Some(GpuSahOptions::hybrid(6)))
+    );
+    assert_eq!(
+        GpuSahOptions::for_builder(hybrid6, true),
+        Some(Some(GpuSahOptions::hybrid(CLUSTERED_HYBRID_LEVELS)))
+    );
+    assert_eq!(
+        GpuSahOptions::for_builder(Builder::Sah { bins: 8 }, false),
+        None
+    );
 }

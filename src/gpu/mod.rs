@@ -1,4 +1,4 @@
-//! The GPU back end on wgpu: LBVH rebuild, refit with the degradation metric, closest-hit and any-hit ray
+//! The GPU back end on wgpu: LBVH rebuild, binned SAH and hybrid rebuilds ([`GpuSahBuilder`]), refit with the degradation metric, closest-hit and any-hit ray
 //! queries, linear-blend skinning, and the broad phase of collision queries (the overlapping leaf pairs
 //! of two trees, [`GpuPairs`]), as WGSL compute kernels in `shaders/` driven by thin Rust here.
 //!
@@ -40,7 +40,10 @@ mod trace;
 mod tree;
 
 pub use buffers::Readback;
-pub use build_sah::{GpuBuildCounts, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS, SMALL_SPLIT_MAX};
+pub use build_sah::{
+    CLUSTERED_HYBRID_LEVELS, GPU_BINS, GpuBuildCounts, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
+    SMALL_SPLIT_MAX, hybrid_levels,
+};
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};
 pub use context::GpuContext;
