@@ -29,6 +29,8 @@ use crate::{Error, Mesh, Result};
 
 /// Tree levels the queue loop records (no leaf is deeper than [`crate::bvh::MAX_DEPTH`] - 1).
 const LEVELS: usize = crate::bvh::MAX_DEPTH;
+/// From this depth on the shader halves nodes in slot order (as the CPU builders' balanced depth).
+const BALANCED: u32 = 36;
 /// Subtrees of at most this many triangles go to the small-split kernel.
 pub const SMALL_SPLIT_MAX: u32 = 32;
 /// Words of the bins of one queue entry: 3 axes × 16 bins × (count, 3 minima, 3 maxima).
@@ -133,7 +135,8 @@ impl Default for GpuSahOptions {
 /// Counts of one GPU SAH build, for the bench and the planner.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct GpuBuildCounts {
-    /// Compute dispatches recorded (fixed per mesh size: [`LEVELS`] rounds, most of them empty).
+    /// Compute dispatches recorded: fixed per mesh size and options (a round per level that can hold a
+    /// queued node, most of them empty).
     pub dispatches_recorded: u32,
     /// Dispatches that had work: those of the levels whose queue was not empty, plus the fixed ones.
     pub dispatches_run: u32,
@@ -265,6 +268,20 @@ impl GpuSahBuilder {
         (LEVELS as u64 + 1) * 256
     }
 
+    /// Queue levels recorded: enough for every node of two or more triangles. Below depth 36 (the shader's
+    /// BALANCED) nodes are halved, so none of them is deeper than `36 + ⌈log2 n⌉`; LBVH levels past 36 can
+    /// reach 63. None when the small-split kernel takes the whole mesh.
+    fn rounds(&self) -> usize {
+        let n = self.tris;
+        if n < 2 || (self.options.small_split && n <= SMALL_SPLIT_MAX) {
+            return 0;
+        }
+        if self.options.lbvh_levels > BALANCED {
+            return LEVELS;
+        }
+        LEVELS.min((BALANCED + 32 - (n - 1).leading_zeros()) as usize)
+    }
+
     /// Dispatches one level of the queue loop records.
     fn level_dispatches(&self) -> u32 {
         7 + self.scan.dispatches()
@@ -275,7 +292,7 @@ impl GpuSahBuilder {
         if self.tris == 0 {
             return 0;
         }
-        2 + LEVELS as u32 * self.level_dispatches()
+        2 + self.rounds() as u32 * self.level_dispatches()
             + 3
             + GpuMeshBvh::BOXES_DISPATCHES
             + self.sort_dispatches()
@@ -331,7 +348,7 @@ impl GpuSahBuilder {
         };
         direct(&mut pass, "sah_frame", 0);
         direct(&mut pass, "sah_prims", 0);
-        for l in 0..LEVELS {
+        for l in 0..self.rounds() {
             single(&mut pass, "sah_args", l);
             indirect(&mut pass, "sah_bounds", l, 0);
             indirect(&mut pass, "sah_bin", l, 0);
@@ -359,7 +376,7 @@ impl GpuSahBuilder {
         } else {
             // Frame, primitives, the argument kernel of every level, small arguments, small, finish, boxes,
             // and a hybrid's Morton sort.
-            2 + LEVELS as u32 + 3 + GpuMeshBvh::BOXES_DISPATCHES + self.sort_dispatches()
+            2 + self.rounds() as u32 + 3 + GpuMeshBvh::BOXES_DISPATCHES + self.sort_dispatches()
         };
         Ok(GpuBuildCounts {
             dispatches_recorded: self.dispatches_recorded(),
