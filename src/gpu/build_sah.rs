@@ -151,8 +151,8 @@ pub struct GpuBuildCounts {
 /// Builds a [`GpuMeshBvh`]'s tree with binned SAH on the GPU. Make one per mesh size (buffers are sized for
 /// its triangle count) and record builds with [`record`](Self::record).
 ///
-/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]): quantised primitives 20 B,
-/// slot order and queue links with scratch copies 16 B, flags 4 B per triangle; bins of 1 344 B per
+/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]): quantised primitives 20 B per
+/// triangle (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of 1 368 B per
 /// queued node (`n / 33` of them with the small-split kernel, `n / 2` without), queues 16 B per small
 /// subtree (`n / 2`). See [`memory_bytes`](Self::memory_bytes).
 pub struct GpuSahBuilder {
@@ -190,8 +190,8 @@ impl GpuSahBuilder {
         };
         let cap = (n / per + 1) as u32;
         let prims = GpuBuffer::storage(ctx, "sah primitives", n * 20);
-        let slots = GpuBuffer::storage(ctx, "sah slots", n * 16);
-        let flags = GpuBuffer::storage(ctx, "sah flags", n * 4);
+        // Slot order and links (16 B) and flags (4 B per triangle) live in the tree's LBVH scratch.
+        let [slots, flags] = bvh.lbvh_scratch();
         let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n) * 16);
         let bins = GpuBuffer::storage(ctx, "sah bins", cap as u64 * (ENTRY_BIN_WORDS + 6) * 4);
         let state = GpuBuffer::storage(ctx, "sah state", STATE_WORDS * 4);
@@ -232,7 +232,7 @@ impl GpuSahBuilder {
         };
         let args_group = group(&args);
         let work_group = group(&stand_in);
-        let scan = Scan::new(ctx, &flags, tris);
+        let scan = Scan::new(ctx, flags, tris);
         Ok(Self {
             tris,
             options,
@@ -244,7 +244,7 @@ impl GpuSahBuilder {
             work_group,
             scan,
             sort_phase: bvh.sort_phase_dispatches(),
-            scratch: vec![prims, slots, flags, queues, stand_in],
+            scratch: vec![prims, queues, stand_in],
         })
     }
 

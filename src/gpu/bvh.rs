@@ -64,6 +64,9 @@ pub struct GpuMeshBvh {
     refittable: bool,
     /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
     height: u32,
+    /// LBVH scratch (centroids 16 B and radix-tree range starts 4 B per triangle) that the SAH builder
+    /// reuses for its slot order and partition flags: no build needs both at once.
+    aliased: [GpuBuffer; 2],
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -204,9 +207,8 @@ impl GpuMeshBvh {
             coded: false,
             refittable: true,
             height: MAX_DEPTH as u32,
-            _scratch: vec![
-                centroids, partials, children, parents, first, order, terms, levels, stand_in,
-            ],
+            aliased: [centroids, first],
+            _scratch: vec![partials, children, parents, order, terms, levels, stand_in],
         })
     }
 
@@ -261,7 +263,13 @@ impl GpuMeshBvh {
             &self.histogram,
         ];
         own.iter()
-            .chain(self._scratch.iter().collect::<Vec<_>>().iter())
+            .chain(
+                self.aliased
+                    .iter()
+                    .chain(&self._scratch)
+                    .collect::<Vec<_>>()
+                    .iter(),
+            )
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.sort.memory_bytes()
@@ -396,6 +404,12 @@ impl GpuMeshBvh {
         self.record_schedule(ctx, pass);
         self.record_levels(ctx, pass, SLOT_BUILD);
         self.built = true;
+    }
+
+    /// LBVH scratch free between builds, for another builder's scratch: 16 and 4 bytes per triangle
+    /// (at least 256 bytes each). An LBVH build overwrites them.
+    pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 2] {
+        [&self.aliased[0], &self.aliased[1]]
     }
 
     /// Dispatches recorded by the [`BuildPhase::Sort`] phase.
