@@ -2,7 +2,7 @@
 
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::WideBvh;
-use super::{BuildOptions, Bvh, refit::refit_nodes};
+use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_nodes};
 use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
@@ -231,6 +231,52 @@ impl MeshBvh {
             w.refit(&self.bvh.nodes);
         }
         degradation
+    }
+
+    /// Refits to new vertex positions as [`refit`](Self::refit) does, then rebuilds the subtrees that
+    /// degraded past `options` (see [`partial`](super::partial)); returns the refit's degradation metric
+    /// (before the rebuilds) and what was rebuilt.
+    ///
+    /// Cost: a refit, a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when
+    /// anything was rebuilt, a new collapse of the wide tree (O(n), the price of a derived tree). The tree
+    /// gets a new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    ///
+    /// Errors: those of [`refit`](Self::refit) and [`Error::InvalidOption`] (checked first: the tree is
+    /// unchanged then).
+    pub fn refit_partial(
+        &mut self,
+        positions: &[Vec3],
+        options: &PartialOptions,
+    ) -> Result<(f32, PartialRebuild)> {
+        options.check()?;
+        let degradation = self.refit(positions)?;
+        let indices = &self.indices;
+        let tri = |p: u32| {
+            let p = p as usize * 3;
+            [indices[p], indices[p + 1], indices[p + 2]]
+        };
+        let done = self.bvh.rebuild_degraded_by(options, |p| {
+            let [a, b, c] = tri(p).map(|i| positions[i as usize]);
+            Aabb::from_triangle(a, b, c)
+        })?;
+        if done.subtrees == 0 {
+            return Ok((degradation, done));
+        }
+        let prims = self.bvh.prim_indices();
+        for range in &done.slots {
+            for s in range.clone() {
+                let p = prims[s];
+                let t = tri(p);
+                self.slot_of[p as usize] = s as u32;
+                self.slot_indices[s] = t;
+                self.tris[s] = query_corners(t.map(|i| positions[i as usize]));
+            }
+        }
+        if self.wide.is_some() {
+            self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
+        }
+        self.topology = next_topology_id();
+        Ok((degradation, done))
     }
 
     /// A number that changes with every build and stays through refits (clones keep it): two trees with
