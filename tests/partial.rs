@@ -139,7 +139,12 @@ fn check_partial(m: &Mesh, pos: &[Vec3], options: &PartialOptions, what: &str) -
     let mut refit = built.clone();
     refit.refit(pos).unwrap();
     let mut part = built.clone();
+    let predicted = refit.bvh().degraded_primitives(options).unwrap();
     let (degradation, done) = part.refit_partial(pos, options).unwrap();
+    assert_eq!(
+        predicted, done.primitives,
+        "{what}: dry run and rebuild disagree"
+    );
     assert_eq!(
         degradation,
         refit.bvh().degradation(),
@@ -338,4 +343,50 @@ fn box_trees_rebuild_in_place_and_bad_input_is_an_error() {
         Err(Error::InvalidOption(_))
     ));
     assert_eq!(mesh_tree.bvh(), &kept);
+}
+
+/// The planner's third update: when the rent makes a rebuild due, a partial rebuild offered is taken when
+/// its predicted time beats the full rebuild's by the margin. Numbers as in the `adaptive` module example:
+/// a 10k-triangle LBVH build measured at 4 ms, so binned SAH is predicted at 5 × 4 ms by the prior time
+/// ratio, and a partial rebuild of `k` triangles at 20 ms · k·log2 k / (10k·log2 10k), spread 25%.
+#[test]
+fn the_planner_takes_a_partial_rebuild_when_it_is_cheaper_beyond_the_margin() {
+    use kinetrace::adaptive::{AdaptivePolicy, Verdict};
+    let run = |k: usize| {
+        let mut policy = AdaptivePolicy::new(&[Builder::LBVH]);
+        policy.sah_bound = f64::INFINITY;
+        policy.built(Builder::LBVH, 10_000, 0.004, 55.0);
+        for _ in 0..3 {
+            policy.queried(20_000.0, 55.0, 0.010);
+        }
+        let frame = (1..20)
+            .find(|_| {
+                policy.offer_partial(k);
+                policy.after_refit(60.0, 20_000.0)
+            })
+            .unwrap();
+        (frame, policy)
+    };
+    let unit = |n: f64| n * n.log2();
+    // 500 triangles: 0.67 ms ± 0.17 against 4 ms ± 1: cheaper by more than two spreads of the difference.
+    let (frame, mut policy) = run(500);
+    let why = policy.prediction();
+    assert_eq!((frame, why.verdict), (7, Verdict::Partial));
+    let expect = 0.020 * unit(500.0) / unit(10_000.0);
+    assert!(
+        (why.rebuild_s - expect).abs() <= 1e-12 * expect,
+        "{} vs {expect}",
+        why.rebuild_s
+    );
+    // After the partial rebuild the rent starts again from nothing.
+    policy.partially_rebuilt(500, 0.0007, 56.0);
+    policy.offer_partial(500);
+    assert!(!policy.after_refit(56.0, 20_000.0));
+    assert_eq!(policy.prediction().verdict, Verdict::Keep);
+    // 2000 triangles: 3.3 ms against 4 ms, within the margin: the full rebuild stays.
+    let (frame, policy) = run(2000);
+    assert_eq!((frame, policy.prediction().verdict), (7, Verdict::Rent));
+    // Nothing offered: a full rebuild.
+    let (_, policy) = run(0);
+    assert_eq!(policy.prediction().verdict, Verdict::Rent);
 }
