@@ -234,12 +234,8 @@ impl MeshBvh {
     }
 
     /// Refits to new vertex positions as [`refit`](Self::refit) does, then rebuilds the subtrees that
-    /// degraded past `options` (see [`partial`](super::partial)); returns the refit's degradation metric
-    /// (before the rebuilds) and what was rebuilt.
-    ///
-    /// Cost: a refit, a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when
-    /// anything was rebuilt, a new collapse of the wide tree (O(n), the price of a derived tree). The tree
-    /// gets a new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    /// degraded past `options` ([`rebuild_degraded`](Self::rebuild_degraded)); returns the refit's
+    /// degradation metric (before the rebuilds) and what was rebuilt.
     ///
     /// Errors: those of [`refit`](Self::refit) and [`Error::InvalidOption`] (checked first: the tree is
     /// unchanged then).
@@ -250,6 +246,34 @@ impl MeshBvh {
     ) -> Result<(f32, PartialRebuild)> {
         options.check()?;
         let degradation = self.refit(positions)?;
+        Ok((degradation, self.rebuild_degraded(positions, options)?))
+    }
+
+    /// Rebuilds the subtrees that degraded past `options` (see [`partial`](super::partial)), after a
+    /// [`refit`](Self::refit) to these `positions` — the planner's [`Verdict::Partial`] once it has seen
+    /// the refitted tree's cost.
+    ///
+    /// Cost: a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when anything
+    /// was rebuilt, a new collapse of the wide tree (O(n), the price of a derived tree). The tree gets a
+    /// new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    ///
+    /// Errors: [`Error::InvalidOption`], [`Error::VertexCountMismatch`], [`Error::NonFiniteVertex`]; the
+    /// tree is unchanged then.
+    ///
+    /// [`Verdict::Partial`]: crate::adaptive::Verdict::Partial
+    pub fn rebuild_degraded(
+        &mut self,
+        positions: &[Vec3],
+        options: &PartialOptions,
+    ) -> Result<PartialRebuild> {
+        options.check()?;
+        if positions.len() != self.vertex_count {
+            return Err(Error::VertexCountMismatch {
+                expected: self.vertex_count,
+                got: positions.len(),
+            });
+        }
+        check_positions(positions)?;
         let indices = &self.indices;
         let tri = |p: u32| {
             let p = p as usize * 3;
@@ -260,7 +284,7 @@ impl MeshBvh {
             Aabb::from_triangle(a, b, c)
         })?;
         if done.subtrees == 0 {
-            return Ok((degradation, done));
+            return Ok(done);
         }
         let prims = self.bvh.prim_indices();
         for range in &done.slots {
@@ -276,7 +300,7 @@ impl MeshBvh {
             self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
         }
         self.topology = next_topology_id();
-        Ok((degradation, done))
+        Ok(done)
     }
 
     /// A number that changes with every build and stays through refits (clones keep it): two trees with
