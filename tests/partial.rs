@@ -6,29 +6,8 @@ mod common;
 use common::*;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, Bvh, PartialOptions, PartialRebuild};
-use kinetrace::{Aabb, Error, Mesh, MeshBvh, Ray};
+use kinetrace::{Error, Mesh, MeshBvh};
 use rand::Rng;
-
-/// Rays aimed at random triangles from around the scene, and random rays from inside its box.
-fn rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
-    let mut r = rng(seed);
-    let b = m
-        .triangle_bounds()
-        .iter()
-        .fold(Aabb::EMPTY, |a, t| a.union(t));
-    let (lo, hi) = (b.min - b.extent(), b.max + b.extent());
-    (0..n)
-        .map(|i| {
-            let o = lo + (hi - lo) * Vec3::new(r.random(), r.random(), r.random());
-            if i % 2 == 0 {
-                let [a, bb, c] = m.triangle(r.random_range(0..m.triangle_count()));
-                Ray::new(o, (a + bb + c) / 3.0 - o)
-            } else {
-                Ray::new(o, rand_dir(&mut r))
-            }
-        })
-        .collect()
-}
 
 /// The soup explosion: the triangles whose centroid lies in the corner cube `[0, cut)³` fly apart (each
 /// along its own random direction, up to `reach`), the rest stay. Returns the new positions and which
@@ -63,10 +42,6 @@ fn torn_cloth(n: u32, phase: f32, reach: f32, seed: u64) -> Vec<Vec3> {
             if p.x < 0.25 && p.y < 0.5 { p + d } else { p }
         })
         .collect()
-}
-
-fn soup(seed: u64, n: usize) -> Mesh {
-    kinetrace::scenes::soup(seed, n)
 }
 
 fn folded_sheet(n: u32, phase: f32) -> Mesh {
@@ -174,7 +149,7 @@ fn check_partial(m: &Mesh, pos: &[Vec3], options: &PartialOptions, what: &str) -
     }
     let mut binary = part.clone();
     binary.set_wide(false);
-    for (i, ray) in rays(&moved, 7, 400).iter().enumerate() {
+    for (i, ray) in scene_rays(&moved, 7, 400).iter().enumerate() {
         let oracle = RayOracle::of_mesh(&moved, ray);
         for (tree, name) in [(&part, "wide"), (&binary, "binary")] {
             let got = tree.closest_hit(ray).map(|h| (h.primitive, h.t));
