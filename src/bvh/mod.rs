@@ -12,6 +12,9 @@
 //! | [`Builder::Hybrid`] | LBVH + SAH below `k` levels | close to SAH | frequent rebuilds of uneven meshes |
 //! | [`Builder::Sah`] | highest | best | static meshes, rare rebuilds |
 //!
+//! Between a refit and a rebuild, [`Bvh::rebuild_degraded`] (and [`MeshBvh::refit_partial`]) rebuilds only
+//! the subtrees whose degradation crossed a threshold, in place (see [`PartialOptions`]).
+//!
 //! Primitives are *indexed*, not moved: leaves refer to a range of slots in [`Bvh::prim_indices`], which maps
 //! slots to the caller's primitive ids. Output is deterministic: the same input and options give the same
 //! bytes, whatever the number of threads.

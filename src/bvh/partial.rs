@@ -174,18 +174,7 @@ impl Bvh {
         prim_bounds: &[Aabb],
         options: &PartialOptions,
     ) -> Result<PartialRebuild> {
-        if prim_bounds.len() != self.prims.len() {
-            return Err(Error::VertexCountMismatch {
-                expected: self.prims.len(),
-                got: prim_bounds.len(),
-            });
-        }
-        if let Some(primitive) = prim_bounds
-            .iter()
-            .position(|b| b.is_empty() || !b.min.is_finite() || !b.max.is_finite())
-        {
-            return Err(Error::NonFiniteBounds { primitive });
-        }
+        self.check_bounds(prim_bounds)?;
         self.rebuild_degraded_by(options, |p| prim_bounds[p as usize])
     }
 

@@ -169,11 +169,8 @@ impl CompactWideBvh {
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        if self.nodes.is_empty() {
-            return;
-        }
-        walk(ray, counter, leaf, |i, lanes, tmax| {
-            let node = self.nodes[i].dequantise();
+        walk(&self.nodes, ray, counter, leaf, |c, lanes, tmax| {
+            let node = c.dequantise();
             let (mask, near) = hit4(&node, lanes, tmax);
             (mask, near, node.child)
         });
