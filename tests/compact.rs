@@ -32,6 +32,20 @@ fn assert_conservative(tree: &MeshBvh, what: &str) {
                     q.contains_box(&f),
                     "{what}: node {i} lane {lane}: {q:?} does not hold {f:?}"
                 );
+                // And no looser than the encoding needs: each plane within one step of 2^exp plus the
+                // rounding of the addition (one ulp where the plane lies).
+                for a in 0..3 {
+                    let step = 2f32.powi(i32::from(c.exp[a]));
+                    for (got, want) in [(f.min[a], q.min[a]), (q.max[a], f.max[a])] {
+                        let gap = got - want;
+                        let ulp = got.abs().max(want.abs());
+                        let ulp = ulp.next_up() - ulp;
+                        assert!(
+                            gap <= step + ulp,
+                            "{what}: node {i} lane {lane} axis {a}: {gap} past the plane, step {step}"
+                        );
+                    }
+                }
             }
         }
     }

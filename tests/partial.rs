@@ -284,6 +284,28 @@ fn box_trees_rebuild_in_place_and_bad_input_is_an_error() {
     assert_untouched(&refit, &part, &done, "LBVH boxes");
     assert!(part.sah_cost() <= refit.sah_cost());
 
+    // Leaves of four: a subtree whose rebuild comes out with another leaf count is skipped, the rest
+    // rebuilt; the tree stays valid and untouched outside either way.
+    let built4 = Bvh::build(
+        &m.triangle_bounds(),
+        &BuildOptions::new(Builder::SAH).max_leaf_size(4),
+    )
+    .unwrap();
+    let mut refit4 = built4.clone();
+    refit4.refit(&moved).unwrap();
+    let mut part4 = refit4.clone();
+    let options4 = PartialOptions {
+        max_leaf_size: 4,
+        ..PartialOptions::default()
+    };
+    let done4 = part4.rebuild_degraded(&moved, &options4).unwrap();
+    assert!(
+        done4.subtrees + done4.skipped > 0,
+        "leaves of four: nothing selected"
+    );
+    part4.validate(Some(&moved)).unwrap();
+    assert_untouched(&refit4, &part4, &done4, "leaves of four");
+
     let before = part.clone();
     let bad_bins = PartialOptions {
         bins: 1,
