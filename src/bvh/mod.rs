@@ -27,7 +27,7 @@ mod layout;
 mod mesh_bvh;
 mod node;
 mod packet;
-mod partial;
+pub mod partial;
 pub mod quality;
 pub(crate) mod radix_sort;
 mod refit;

@@ -10,10 +10,11 @@
 //! inner nodes` over its inner nodes (so the root's is [`Bvh::degradation`]). Walking down from the root,
 //! the highest subtrees whose degradation exceeds [`PartialOptions::threshold`] and that hold at least
 //! [`PartialOptions::min_primitives`] primitives are rebuilt; nothing below a rebuilt node is looked at.
-//! One exception keeps the work where the damage is: a degraded node with exactly one degraded child is
-//! passed over for that child, since rebuilding it would also redo the healthy sibling (the few node
-//! ratios between them stay as refitted — a full rebuild repairs those). So a torn part's subtree is
-//! rebuilt, not the root above it whose mean it drags over the threshold.
+//! One exception keeps the work where the damage is: a degraded subtree whose root's own split is still
+//! good (its ratio rose by no more than the threshold) and whose degraded children are big enough to be
+//! rebuilt on their own is passed over for its children, since rebuilding it would redo healthy work around the damage (the few node ratios
+//! above the rebuilt subtrees stay as refitted — a full rebuild repairs those). So a torn part's
+//! subtrees are rebuilt, not the root above them whose mean they drag over the threshold.
 //!
 //! In place: a subtree's descendants occupy one contiguous block of the node array and its primitives one
 //! contiguous run of slots, so the rebuilt subtree is written back into the same node block and the same
@@ -210,11 +211,18 @@ impl Bvh {
             if s.inner == 0 {
                 continue;
             }
-            let c = self.nodes[i].left();
-            let (l, r) = (crosses(c), crosses(c + 1));
-            if crosses(i) && l == r && s.prims as usize >= options.min_primitives.max(2) {
-                out.push((i, depth, s));
-                continue;
+            let n = &self.nodes[i];
+            let c = n.left();
+            if crosses(i) && s.prims as usize >= options.min_primitives.max(2) {
+                let (lb, rb) = (self.nodes[c].aabb(), self.nodes[c + 1].aabb());
+                let own = f64::from(sa_ratio(&n.aabb(), &lb, &rb) - n.sa_ratio);
+                let min = options.min_primitives.max(2);
+                let small = |k: usize| crosses(k) && (info[k].prims as usize) < min;
+                let any = crosses(c) || crosses(c + 1);
+                if own > threshold || !any || small(c) || small(c + 1) {
+                    out.push((i, depth, s));
+                    continue;
+                }
             }
             stack.push((c + 1, depth + 1));
             stack.push((c, depth + 1));
