@@ -205,18 +205,19 @@ impl Bvh {
             let s = &info[i];
             s.inner > 0 && s.degradation / f64::from(s.inner) > threshold
         };
+        let min = options.min_primitives.max(2);
         let mut stack = vec![(0usize, 0usize)];
         while let Some((i, depth)) = stack.pop() {
             let s = info[i];
-            if s.inner == 0 {
+            // Nothing at or below a subtree too small to rebuild can be selected.
+            if s.inner == 0 || (s.prims as usize) < min {
                 continue;
             }
             let n = &self.nodes[i];
             let c = n.left();
-            if crosses(i) && s.prims as usize >= options.min_primitives.max(2) {
+            if crosses(i) {
                 let (lb, rb) = (self.nodes[c].aabb(), self.nodes[c + 1].aabb());
                 let own = f64::from(sa_ratio(&n.aabb(), &lb, &rb) - n.sa_ratio);
-                let min = options.min_primitives.max(2);
                 let small = |k: usize| crosses(k) && (info[k].prims as usize) < min;
                 let any = crosses(c) || crosses(c + 1);
                 if own > threshold || !any || small(c) || small(c + 1) {
