@@ -433,6 +433,7 @@ impl Script {
                     Verdict::Guard => 1,
                     Verdict::Rent => 2,
                     Verdict::Keep => unreachable!("a rebuild is not kept"),
+                    Verdict::Partial => unreachable!("no partial rebuild is offered"),
                 };
                 counted.verdicts[slot] += 1;
                 if p.costs().measured(&asset, build) {

@@ -6,10 +6,10 @@ use crate::record::{Records, best_of};
 use glam::Vec3;
 use kinetrace::bvh::wide::WideBvh;
 use kinetrace::bvh::wide::simd::{self, RayLanes};
-use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::bvh::{BuildOptions, Builder, PartialOptions};
 use kinetrace::geometry::TriangleRay;
 use kinetrace::scenes::{bumpy_torus, soup};
-use kinetrace::{Hit, Mesh, MeshBvh, Ray};
+use kinetrace::{Aabb, Hit, Mesh, MeshBvh, Ray};
 
 const SUITE: &str = "cpu";
 /// The bvh crate's traversal has no ray interval to shrink: it gets a subset of the rays.
@@ -144,9 +144,13 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             "Mtris/s",
         );
     }
+    partial_rows(rec, name, mesh);
     let wide = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
     let binary = MeshBvh::build(mesh, &BuildOptions::default().wide(false)).unwrap();
     kernel_rows(rec, name, &wide);
+    let mut compact = wide.clone();
+    compact.set_compact(true);
+    compact_rows(rec, name, &wide, &compact);
 
     // Peers on the same triangles.
     let ray_count = if rec.quick { 1 << 16 } else { 1 << 18 };
@@ -214,7 +218,11 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
     for (set, (kind, brays)) in sets.iter().enumerate() {
         let rays = to_rays(brays);
         let m = rays.len() as f64;
-        for (tree, bvh) in [("sah", &binary), ("sah wide4", &wide)] {
+        for (tree, bvh) in [
+            ("sah", &binary),
+            ("sah wide4", &wide),
+            ("sah compact4", &compact),
+        ] {
             let (tc, hits) = one_thread(|| {
                 best_of(reps, || {
                     rays.iter().map(|r| bvh.closest_hit(r)).collect::<Vec<_>>()
@@ -291,6 +299,155 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             }
         }
     }
+}
+
+/// Partial rebuilds, one thread, on a pose where the triangles within a sixteenth of the box's diagonal
+/// of one triangle's centroid fly apart (up to a tenth of the diagonal) and the rest stays: the time of
+/// [`MeshBvh::refit_partial`] against a refit alone and a full binned-SAH rebuild of the same pose, the
+/// triangles it rebuilt, and the SAH cost it reaches against both. Only the calls are timed (each starts
+/// from its own clone of the built tree).
+fn partial_rows(rec: &mut Records, name: &str, mesh: &Mesh) {
+    let reps = rec.reps();
+    let n = mesh.triangle_count() as f64;
+    let centroid = |t: usize| mesh.triangle(t).into_iter().sum::<Vec3>() / 3.0;
+    let diagonal = mesh
+        .triangle_bounds()
+        .iter()
+        .fold(Aabb::EMPTY, |a, t| a.union(t))
+        .extent()
+        .length();
+    let (centre, radius, reach) = (
+        centroid(mesh.triangle_count() / 3),
+        diagonal / 16.0,
+        diagonal / 10.0,
+    );
+    let mut pos = mesh.positions().to_vec();
+    for (t, tri) in mesh.indices().chunks_exact(3).enumerate() {
+        if centroid(t).distance(centre) < radius {
+            // A fixed pseudo-random direction per triangle (no RNG needed for a benchmark pose).
+            let h = (t as f32 * 12.9898).sin() * 43758.547;
+            let d = Vec3::new(h.fract(), (h * 1.7).fract(), (h * 2.3).fract()) * 2.0 - Vec3::ONE;
+            for &i in tri {
+                pos[i as usize] += d * reach;
+            }
+        }
+    }
+    let built = MeshBvh::build(mesh, &BuildOptions::default()).unwrap();
+    let options = PartialOptions::default();
+    // Best of `reps` over `f` applied to a fresh clone of the built tree, the clone not timed: seconds,
+    // the tree and what `f` returned.
+    let timed = |f: &(dyn Fn(&mut MeshBvh) -> usize + Sync)| {
+        one_thread(|| {
+            let mut best = (f64::INFINITY, built.clone(), 0);
+            for _ in 0..reps.max(1) {
+                let mut t = built.clone();
+                let start = std::time::Instant::now();
+                let r = f(&mut t);
+                let s = start.elapsed().as_secs_f64();
+                if s < best.0 {
+                    best = (s, t, r);
+                }
+            }
+            best
+        })
+    };
+    let (t_partial, part, rebuilt) =
+        timed(&|t| t.refit_partial(&pos, &options).unwrap().1.primitives);
+    let (t_refit, refit, _) = timed(&|t| {
+        t.refit(&pos).unwrap();
+        0
+    });
+    let moved = mesh.with_positions(pos.clone()).unwrap();
+    let (t_full, fresh) = one_thread(|| {
+        best_of(reps, || {
+            MeshBvh::build(&moved, &BuildOptions::default()).unwrap()
+        })
+    });
+    let subject = "kinetrace partial rebuild (local explosion)";
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "refit + partial 1 thread",
+        n / t_partial / 1e6,
+        "Mtris/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "refit alone 1 thread",
+        n / t_refit / 1e6,
+        "Mtris/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "full sah rebuild 1 thread",
+        n / t_full / 1e6,
+        "Mtris/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "triangles rebuilt",
+        rebuilt as f64,
+        "tris",
+    );
+    let sah = part.bvh().sah_cost();
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "partial/full-sah time",
+        t_partial / t_full,
+        "x (lower is better)",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "partial/refit sah cost",
+        sah / refit.bvh().sah_cost(),
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "partial/full-sah sah cost",
+        sah / fresh.bvh().sah_cost(),
+        "x",
+    );
+}
+
+/// The compact (quantised) wide tree against the float one: bytes per triangle and their ratio; its
+/// query speed is in the query rows (`sah compact4`).
+fn compact_rows(rec: &mut Records, name: &str, wide: &MeshBvh, compact: &MeshBvh) {
+    let n = wide.bvh().primitive_count() as f64;
+    let wb = wide
+        .wide()
+        .expect("built with the wide tree")
+        .memory_bytes() as f64;
+    let cb = compact.compact().expect("made compact").memory_bytes() as f64;
+    rec.add(
+        SUITE,
+        name,
+        "kinetrace sah compact4",
+        "bytes per triangle",
+        cb / n,
+        "B",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "wide4/compact4 bytes",
+        wb / cb,
+        "x (ReduceM: 3-5)",
+    );
 }
 
 /// The wide query tree derived from `bvh` (built with `builder`): collapse time on one thread, its bytes

@@ -63,6 +63,12 @@
 //!   the `rigid` scene passes the bound by up to 3% (that test is ignored with this reason).
 //!   Builds whose fresh trees sit more than 90% of the way to the bound are not chosen.
 //!   With no rays, the rent stays 0 and nothing is worth exploring: only the guard rebuilds.
+//! - **Partial rebuild (a third update)**: where the caller offers one
+//!   ([`AdaptivePolicy::offer_partial`], the triangles [`crate::bvh::Bvh::degraded_primitives`] counts),
+//!   a rebuild due by the rent is ranked against it with [`rank::choose`] (the full rebuild as the option
+//!   in use, so the partial one must be cheaper beyond the margin); its time is learned per mesh, its
+//!   prior is the binned-SAH rate at the rebuilt size ([`Verdict::Partial`]). The guard always rebuilds
+//!   the whole tree.
 //!
 //! # Adding an option
 //!

@@ -59,6 +59,18 @@ pub enum Verdict {
     /// Rebuild: the extra query time paid since the last rebuild exceeds the rebuild's predicted time by
     /// the margin.
     Rent,
+    /// Rebuild only the degraded subtrees ([`Bvh::rebuild_degraded`]): a rebuild is due by the rent, and
+    /// the partial rebuild offered with [`AdaptivePolicy::offer_partial`] is predicted cheaper than the
+    /// full one by the margin ([`choose`] with the full rebuild as the option in use). Report it with
+    /// [`AdaptivePolicy::partially_rebuilt`].
+    Partial,
+}
+
+/// The update a due rebuild takes: the whole tree or its degraded subtrees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Update {
+    Full,
+    Partial,
 }
 
 /// The numbers behind the last decision of [`AdaptivePolicy::after_refit`]: what users see in
@@ -123,6 +135,10 @@ pub struct AdaptivePolicy {
     age: u32,
     last_ratio: f64,
     last: Prediction,
+    /// Triangles a partial rebuild would redo this frame, offered before [`Self::after_refit`].
+    partial: Option<usize>,
+    /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
+    partial_rate: Estimate,
     /// The bound on the SAH ratio against a fresh binned-SAH tree ([`DEFAULT_SAH_BOUND`]).
     pub sah_bound: f64,
     /// Standard deviations of margin for every "act now?" decision and every change of build
@@ -169,6 +185,8 @@ impl AdaptivePolicy {
             age: 0,
             last_ratio: 1.0,
             last: Prediction::default(),
+            partial: None,
+            partial_rate: Estimate::default(),
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
         }
@@ -338,7 +356,31 @@ impl AdaptivePolicy {
             p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
                 Verdict::Guard
             } else if rent > 0.0 && pays(rent, rebuild_s, p.margin_s / self.z, self.z) {
-                Verdict::Rent
+                match self.partial.and_then(|k| v.partial_time(k)) {
+                    Some((s, spread))
+                        if choose(
+                            [
+                                Candidate {
+                                    option: Update::Full,
+                                    cost_s: rebuild_s,
+                                    spread_s: rebuild_spread,
+                                },
+                                Candidate {
+                                    option: Update::Partial,
+                                    cost_s: s,
+                                    spread_s: spread,
+                                },
+                            ]
+                            .into_iter(),
+                            Some(Update::Full),
+                            self.z,
+                        ) == Some(Update::Partial) =>
+                    {
+                        p.rebuild_s = s;
+                        Verdict::Partial
+                    }
+                    _ => Verdict::Rent,
+                }
             } else {
                 match v.plan(false) {
                     (b, true) => {
@@ -351,11 +393,36 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        self.partial = None;
         self.guard_factor = guard_factor;
         self.rent = rent;
         self.last_ratio = ratio;
         self.last = p;
         p.verdict != Verdict::Keep
+    }
+
+    /// Offers a partial rebuild for the next [`after_refit`](Self::after_refit): it would redo `triangles`
+    /// triangles ([`Bvh::degraded_primitives`]). When a rebuild is due by the rent and the partial one is
+    /// predicted cheaper beyond the margin, the verdict is [`Verdict::Partial`]. The guard always rebuilds
+    /// the whole tree (a partial rebuild leaves the nodes above the rebuilt subtrees as refitted). Its time
+    /// is predicted from partial rebuilds measured on this mesh, else from the binned-SAH build rate at
+    /// `triangles` (what a partial rebuild mostly is), with the prior's spread.
+    pub fn offer_partial(&mut self, triangles: usize) {
+        self.partial = (triangles > 0 && triangles < self.triangles).then_some(triangles);
+    }
+
+    /// Records a partial rebuild of `triangles` triangles that took `seconds` (the whole call, refit
+    /// excluded) and left a tree of SAH cost `sah_cost`: learns its rate and restarts the rent, as a
+    /// rebuild does; the guard's reference (the last full rebuild's) is kept.
+    pub fn partially_rebuilt(&mut self, triangles: usize, seconds: f64, sah_cost: f64) {
+        if triangles > 0 && seconds.is_finite() && seconds >= 0.0 {
+            self.partial_rate
+                .add(seconds / super::costs::size_unit(triangles));
+        }
+        if sah_cost.is_finite() && sah_cost > 0.0 {
+            self.sah_built = sah_cost;
+        }
+        self.rent = 0.0;
     }
 
     /// Why the last [`after_refit`](Self::after_refit) decided as it did (the default before any).
@@ -405,6 +472,18 @@ impl View<'_> {
             .iter()
             .find_map(|(m, e)| Some((*m, e.mean()?)))?;
         let s = k * unit * b.prior_time() / m.prior_time();
+        Some((s, PRIOR_SPREAD * s))
+    }
+
+    /// Predicted seconds of a partial rebuild of `k` triangles and their spread: this mesh's measured rate,
+    /// else binned SAH's time scaled from this mesh's size to `k` (spread of a prior).
+    fn partial_time(&self, k: usize) -> Option<(f64, f64)> {
+        let unit = super::costs::size_unit(k);
+        if let Some(m) = self.p.partial_rate.mean() {
+            return Some((m * unit, self.p.partial_rate.spread() * unit));
+        }
+        let (s, _) = self.time(Build::cpu(Builder::SAH))?;
+        let s = s * unit / super::costs::size_unit(self.p.triangles);
         Some((s, PRIOR_SPREAD * s))
     }
 

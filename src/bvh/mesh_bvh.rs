@@ -2,7 +2,8 @@
 
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::WideBvh;
-use super::{BuildOptions, Bvh, refit::refit_nodes};
+use super::wide::compact::CompactWideBvh;
+use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_nodes};
 use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
@@ -70,6 +71,8 @@ pub struct MeshBvh {
     topology: u64,
     /// The 4-wide query tree collapsed from `bvh`, refitted with it; ray queries walk it when present.
     wide: Option<WideBvh>,
+    /// The quantised form of the wide tree, in its place when asked for ([`MeshBvh::set_compact`]).
+    compact: Option<CompactWideBvh>,
 }
 
 /// Source of [`MeshBvh::topology_id`]s.
@@ -152,23 +155,58 @@ impl MeshBvh {
             },
             topology: next_topology_id(),
             wide: wide.then(|| WideBvh::collapse(bvh.nodes())),
+            compact: None,
             bvh,
         }
     }
 
-    /// Derives the wide query tree (`true`, a collapse pass when there is none yet) or drops it (`false`,
-    /// queries walk the binary tree again). See [`BuildOptions::wide`].
+    /// Derives the wide query tree (`true`, a collapse pass when there is none yet) or drops it and its
+    /// compact form (`false`, queries walk the binary tree again). See [`BuildOptions::wide`].
     pub fn set_wide(&mut self, on: bool) {
         if !on {
             self.wide = None;
-        } else if self.wide.is_none() {
+            self.compact = None;
+        } else if self.wide.is_none() && self.compact.is_none() {
             self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
         }
     }
 
-    /// The wide query tree, when derived.
+    /// Replaces the wide query tree by its quantised form (`true`; see
+    /// [`compact`](super::wide::compact): about half the bytes, exact answers, slower visits) or restores
+    /// the float one (`false`). For large static meshes: while compact, a refit or partial rebuild
+    /// re-derives it (collapse and quantise, O(n)) and [`wide`](Self::wide) is `None`.
+    pub fn set_compact(&mut self, on: bool) {
+        if on && self.compact.is_none() {
+            let wide = self
+                .wide
+                .take()
+                .unwrap_or_else(|| WideBvh::collapse(self.bvh.nodes()));
+            self.compact = Some(CompactWideBvh::quantise(&wide));
+        } else if !on && self.compact.take().is_some() {
+            self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
+        }
+    }
+
+    /// The wide query tree, when derived (and not replaced by its compact form).
     pub fn wide(&self) -> Option<&WideBvh> {
         self.wide.as_ref()
+    }
+
+    /// The compact query tree, when asked for with [`set_compact`](Self::set_compact).
+    pub fn compact(&self) -> Option<&CompactWideBvh> {
+        self.compact.as_ref()
+    }
+
+    /// Re-derives the query trees after the binary tree changed its topology.
+    fn rederive(&mut self) {
+        if self.wide.is_some() {
+            self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
+        }
+        if self.compact.is_some() {
+            self.compact = Some(CompactWideBvh::quantise(&WideBvh::collapse(
+                self.bvh.nodes(),
+            )));
+        }
     }
 
     /// The traversal every ray query runs: the wide tree when there is one, else the binary tree.
@@ -179,9 +217,10 @@ impl MeshBvh {
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        match &self.wide {
-            Some(w) => w.traverse(ray, counter, leaf),
-            None => traverse(&self.bvh.nodes, ray, counter, leaf),
+        match (&self.compact, &self.wide) {
+            (Some(c), _) => c.traverse(ray, counter, leaf),
+            (None, Some(w)) => w.traverse(ray, counter, leaf),
+            (None, None) => traverse(&self.bvh.nodes, ray, counter, leaf),
         }
     }
 
@@ -225,12 +264,84 @@ impl MeshBvh {
         Ok(self.refit_wide(d))
     }
 
-    /// Copies the refitted binary boxes into the wide tree's lanes (no re-collapse); passes `degradation` on.
+    /// Copies the refitted binary boxes into the wide tree's lanes (no re-collapse), or re-derives the
+    /// compact tree; passes `degradation` on.
     fn refit_wide(&mut self, degradation: f32) -> f32 {
         if let Some(w) = &mut self.wide {
             w.refit(&self.bvh.nodes);
         }
+        if self.compact.is_some() {
+            self.rederive();
+        }
         degradation
+    }
+
+    /// Refits to new vertex positions as [`refit`](Self::refit) does, then rebuilds the subtrees that
+    /// degraded past `options` ([`rebuild_degraded`](Self::rebuild_degraded)); returns the refit's
+    /// degradation metric (before the rebuilds) and what was rebuilt.
+    ///
+    /// Errors: those of [`refit`](Self::refit) and [`Error::InvalidOption`] (checked first: the tree is
+    /// unchanged then).
+    pub fn refit_partial(
+        &mut self,
+        positions: &[Vec3],
+        options: &PartialOptions,
+    ) -> Result<(f32, PartialRebuild)> {
+        options.check()?;
+        let degradation = self.refit(positions)?;
+        Ok((degradation, self.rebuild_degraded(positions, options)?))
+    }
+
+    /// Rebuilds the subtrees that degraded past `options` (see [`partial`](super::partial)), after a
+    /// [`refit`](Self::refit) to these `positions` — the planner's [`Verdict::Partial`] once it has seen
+    /// the refitted tree's cost.
+    ///
+    /// Cost: a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when anything
+    /// was rebuilt, a new collapse of the wide tree (O(n), the price of a derived tree). The tree gets a
+    /// new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    ///
+    /// Errors: [`Error::InvalidOption`], [`Error::VertexCountMismatch`], [`Error::NonFiniteVertex`]; the
+    /// tree is unchanged then.
+    ///
+    /// [`Verdict::Partial`]: crate::adaptive::Verdict::Partial
+    pub fn rebuild_degraded(
+        &mut self,
+        positions: &[Vec3],
+        options: &PartialOptions,
+    ) -> Result<PartialRebuild> {
+        options.check()?;
+        if positions.len() != self.vertex_count {
+            return Err(Error::VertexCountMismatch {
+                expected: self.vertex_count,
+                got: positions.len(),
+            });
+        }
+        check_positions(positions)?;
+        let indices = &self.indices;
+        let tri = |p: u32| {
+            let p = p as usize * 3;
+            [indices[p], indices[p + 1], indices[p + 2]]
+        };
+        let done = self.bvh.rebuild_degraded_by(options, |p| {
+            let [a, b, c] = tri(p).map(|i| positions[i as usize]);
+            Aabb::from_triangle(a, b, c)
+        })?;
+        if done.subtrees == 0 {
+            return Ok(done);
+        }
+        let prims = self.bvh.prim_indices();
+        for range in &done.slots {
+            for s in range.clone() {
+                let p = prims[s];
+                let t = tri(p);
+                self.slot_of[p as usize] = s as u32;
+                self.slot_indices[s] = t;
+                self.tris[s] = query_corners(t.map(|i| positions[i as usize]));
+            }
+        }
+        self.rederive();
+        self.topology = next_topology_id();
+        Ok(done)
     }
 
     /// A number that changes with every build and stays through refits (clones keep it): two trees with

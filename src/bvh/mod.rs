@@ -12,6 +12,9 @@
 //! | [`Builder::Hybrid`] | LBVH + SAH below `k` levels | close to SAH | frequent rebuilds of uneven meshes |
 //! | [`Builder::Sah`] | highest | best | static meshes, rare rebuilds |
 //!
+//! Between a refit and a rebuild, [`Bvh::rebuild_degraded`] (and [`MeshBvh::refit_partial`]) rebuilds only
+//! the subtrees whose degradation crossed a threshold, in place (see [`PartialOptions`]).
+//!
 //! Primitives are *indexed*, not moved: leaves refer to a range of slots in [`Bvh::prim_indices`], which maps
 //! slots to the caller's primitive ids. Output is deterministic: the same input and options give the same
 //! bytes, whatever the number of threads.
@@ -24,6 +27,7 @@ mod layout;
 mod mesh_bvh;
 mod node;
 mod packet;
+pub mod partial;
 pub mod quality;
 pub(crate) mod radix_sort;
 mod refit;
@@ -39,6 +43,7 @@ pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub use packet::MAX_PACKET;
 pub(crate) use packet::for_each_packet;
+pub use partial::{PartialOptions, PartialRebuild};
 pub(crate) use refit::refit_nodes;
 pub use traverse::TraversalStats;
 pub(crate) use traverse::{traverse, traverse_by};

@@ -20,6 +20,16 @@ impl Bvh {
     /// Errors: [`Error::VertexCountMismatch`] when `prim_bounds` has the wrong length,
     /// [`Error::NonFiniteBounds`] for an empty or non-finite box (the tree is then unchanged).
     pub fn refit(&mut self, prim_bounds: &[Aabb]) -> Result<f32> {
+        self.check_bounds(prim_bounds)?;
+        let prims = &self.prims;
+        Ok(refit_nodes(&mut self.nodes, |slot| {
+            prim_bounds[prims[slot] as usize]
+        }))
+    }
+
+    /// [`Error::VertexCountMismatch`] unless there is one box per primitive, [`Error::NonFiniteBounds`]
+    /// for the first empty or non-finite one.
+    pub(crate) fn check_bounds(&self, prim_bounds: &[Aabb]) -> Result<()> {
         if prim_bounds.len() != self.prims.len() {
             return Err(Error::VertexCountMismatch {
                 expected: self.prims.len(),
@@ -32,10 +42,7 @@ impl Bvh {
         {
             return Err(Error::NonFiniteBounds { primitive });
         }
-        let prims = &self.prims;
-        Ok(refit_nodes(&mut self.nodes, |slot| {
-            prim_bounds[prims[slot] as usize]
-        }))
+        Ok(())
     }
 
     /// The degradation metric of the current boxes against the build-time ratios, without changing anything

@@ -39,6 +39,28 @@ pub fn rand_dir(r: &mut SmallRng) -> Vec3 {
     }
 }
 
+/// `n` rays at a scene: every other one aimed at a random triangle's centroid, the rest in random
+/// directions, all from random points of the scene's box grown by its extent on every side.
+pub fn scene_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
+    let mut r = rng(seed);
+    let b = m
+        .triangle_bounds()
+        .iter()
+        .fold(kinetrace::Aabb::EMPTY, |a, t| a.union(t));
+    let (lo, hi) = (b.min - b.extent(), b.max + b.extent());
+    (0..n)
+        .map(|i| {
+            let o = lo + (hi - lo) * Vec3::new(r.random(), r.random(), r.random());
+            if i % 2 == 0 {
+                let [a, bb, c] = m.triangle(r.random_range(0..m.triangle_count()));
+                Ray::new(o, (a + bb + c) / 3.0 - o)
+            } else {
+                Ray::new(o, rand_dir(&mut r))
+            }
+        })
+        .collect()
+}
+
 pub use kinetrace::scenes::{cube_sphere, icosphere, soup};
 
 /// Every builder (the presets and a non-default setting of each family), with one and four triangles per

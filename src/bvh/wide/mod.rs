@@ -23,8 +23,12 @@
 //! measured cost of one four-box test in triangle tests. Each wide node then takes its binary node's two
 //! children and opens the largest-area inner child until it has four.
 //!
+//! For large static meshes, [`compact`] quantises the child boxes to 8 bits per plane: about half the
+//! bytes, the same answers, slower node visits.
+//!
 //! [`MeshBvh`]: super::MeshBvh
 
+pub mod compact;
 pub mod simd;
 
 use super::node::{COUNT_SHIFT, FIRST_MASK};
@@ -186,63 +190,80 @@ impl WideBvh {
         &self,
         ray: &Ray,
         counter: &mut C,
-        mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
+        leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        if self.nodes.is_empty() {
-            return;
-        }
-        let lanes = RayLanes::new(ray);
-        let mut tmax = ray.tmax;
-        // Each level pushes at most three siblings; wide trees are no deeper than their binary tree.
-        let mut stack = [(0u32, 0f32); (WIDTH - 1) * MAX_DEPTH + 1];
-        let mut sp = 0usize;
-        let mut cur = 0u32;
-        loop {
-            if is_leaf(cur) {
-                let slots = leaf_slots(cur);
-                counter.leaf(slots.len());
-                if leaf(slots, &mut tmax) {
-                    return;
-                }
-            } else {
-                counter.inner();
-                let node = &self.nodes[cur as usize];
-                let (mut mask, near) = hit4(node, &lanes, tmax);
-                if mask != 0 {
-                    // Hit lanes sorted by entry distance (stable: lane order among equals).
-                    let mut order = [(0u32, 0f32); WIDTH];
-                    let mut k = 0;
-                    while mask != 0 {
-                        let i = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        let e = (node.child[i], near[i]);
-                        let mut j = k;
-                        while j > 0 && order[j - 1].1 > e.1 {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = e;
-                        k += 1;
-                    }
-                    for &e in order[1..k].iter().rev() {
-                        stack[sp] = e;
-                        sp += 1;
-                    }
-                    cur = order[0].0;
-                    continue;
-                }
+        walk(&self.nodes, ray, counter, leaf, |node, lanes, tmax| {
+            let (mask, near) = hit4(node, lanes, tmax);
+            (mask, near, node.child)
+        });
+    }
+}
+
+/// The ordered traversal of a wide tree whose root is `nodes[0]` (none for an empty tree), with the
+/// contract of [`WideBvh::traverse`]. `visit(node, lanes, tmax)` tests a node's four lanes: the hit mask,
+/// the entry distances and the lane payloads (the float tree tests its node, the [`compact`] one
+/// dequantises first).
+#[inline(always)]
+fn walk<N, C: Counter>(
+    nodes: &[N],
+    ray: &Ray,
+    counter: &mut C,
+    mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
+    visit: impl Fn(&N, &RayLanes, f32) -> (u32, [f32; WIDTH], [u32; WIDTH]),
+) {
+    if nodes.is_empty() {
+        return;
+    }
+    let lanes = RayLanes::new(ray);
+    let mut tmax = ray.tmax;
+    // Each level pushes at most three siblings; wide trees are no deeper than their binary tree.
+    let mut stack = [(0u32, 0f32); (WIDTH - 1) * MAX_DEPTH + 1];
+    let mut sp = 0usize;
+    let mut cur = 0u32;
+    loop {
+        if is_leaf(cur) {
+            let slots = leaf_slots(cur);
+            counter.leaf(slots.len());
+            if leaf(slots, &mut tmax) {
+                return;
             }
-            // Pop the next subtree that can still hold something within tmax.
-            loop {
-                if sp == 0 {
-                    return;
+        } else {
+            counter.inner();
+            let (mut mask, near, child) = visit(&nodes[cur as usize], &lanes, tmax);
+            if mask != 0 {
+                // Hit lanes sorted by entry distance (stable: lane order among equals).
+                let mut order = [(0u32, 0f32); WIDTH];
+                let mut k = 0;
+                while mask != 0 {
+                    let i = mask.trailing_zeros() as usize;
+                    mask &= mask - 1;
+                    let e = (child[i], near[i]);
+                    let mut j = k;
+                    while j > 0 && order[j - 1].1 > e.1 {
+                        order[j] = order[j - 1];
+                        j -= 1;
+                    }
+                    order[j] = e;
+                    k += 1;
                 }
-                sp -= 1;
-                let (node, entry) = stack[sp];
-                if entry <= tmax {
-                    cur = node;
-                    break;
+                for &e in order[1..k].iter().rev() {
+                    stack[sp] = e;
+                    sp += 1;
                 }
+                cur = order[0].0;
+                continue;
+            }
+        }
+        // Pop the next subtree that can still hold something within tmax.
+        loop {
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            let (node, entry) = stack[sp];
+            if entry <= tmax {
+                cur = node;
+                break;
             }
         }
     }
