@@ -460,13 +460,16 @@ impl View<'_> {
         }
     }
 
-    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
-    /// at the asset's learned drift less `z` spreads, the spread at least [`MIN_DRIFT_SPREAD`] (capped at
-    /// 1: a rise only makes the guard earlier).
+    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild:
+    /// at the asset's learned drift *magnitude* plus `z` spreads, the spread at least
+    /// [`MIN_DRIFT_SPREAD`]. The sign of the trend is not trusted: a scene whose fresh cost rose for a
+    /// few intervals can turn (the report's orbiting rigid bodies rise by 2% a frame, then fall by 1.7%),
+    /// and a guard that carried the rise forward would pass the bound. A rise only makes the guard
+    /// earlier, so assuming a fall as fast as any motion seen costs early rebuilds, never the bound.
     fn guard_drift(&self, frames: u32) -> f64 {
         let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        let low = d.mean().unwrap_or(0.0) - self.p.z * d.spread().max(MIN_DRIFT_SPREAD);
-        (low.min(0.0) * frames as f64).exp()
+        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * d.spread().max(MIN_DRIFT_SPREAD));
+        (low * frames as f64).exp()
     }
 
     /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last
