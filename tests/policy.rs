@@ -616,3 +616,97 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
         }
     }
 }
+
+/// A new entity of a mesh another entity already traces starts from a copy of that sibling's tree,
+/// refitted to its own pose (counted in `TraceStats::siblings`, a refit in its `MeshStats`), not from a
+/// build; its answers equal brute force's from that first frame on, and it never explores. Under a
+/// fixed policy (no planner to judge the copy) the same spawn builds from scratch.
+#[test]
+fn a_new_instance_starts_from_a_siblings_tree_and_explores_nothing() {
+    for adaptive in [true, false] {
+        let policy = if adaptive {
+            RebuildPolicy::ADAPTIVE
+        } else {
+            RebuildPolicy::Lauterbach { threshold: 0.4 }
+        };
+        let (mut world, mut schedule) = app(policy, TraceMode::Cpu);
+        let mut a = Walk::spawn(&mut world, 2000, 31, 0.01);
+        let mut r = rng(32);
+        for _ in 0..10 {
+            a.advance(&mut world);
+            frame(&mut world, &mut schedule, &a, &mut r, 256, 2);
+        }
+        // The second entity: the same mesh, in another pose (its own walk, moved off the first's).
+        let mesh = world.get::<TraceMesh>(a.entity).unwrap().0.clone();
+        let mut walk = rng(33);
+        let pose: Vec<Vec3> = (mesh.positions().iter())
+            .map(|p| *p + Vec3::X * 0.5 + rand_vec(&mut walk, -0.05, 0.05))
+            .collect();
+        let entity = world
+            .spawn((TraceMesh(mesh.clone()), VertexPositions(pose)))
+            .id();
+        let mut b = Walk {
+            entity,
+            rng: walk,
+            step: 0.01,
+        };
+        let first = frame(&mut world, &mut schedule, &b, &mut r, 256, 64);
+        let siblings = world.resource::<TraceStats>().siblings;
+        if !adaptive {
+            assert_eq!(siblings, 0);
+            assert!(matches!(
+                first.action,
+                MeshAction::Rebuild {
+                    reason: RebuildReason::New,
+                    ..
+                }
+            ));
+            continue;
+        }
+        assert_eq!(siblings, 1);
+        assert!(
+            first.action == MeshAction::Refit
+                || matches!(
+                    first.action,
+                    MeshAction::Rebuild {
+                        reason: RebuildReason::Policy,
+                        ..
+                    }
+                ),
+            "a copy refitted (and judged): {first:?}"
+        );
+        for _ in 0..30 {
+            a.advance(&mut world);
+            b.advance(&mut world);
+            let m = frame(&mut world, &mut schedule, &b, &mut r, 256, 8);
+            assert_ne!(m.prediction.map(|p| p.verdict), Some(Verdict::Explore));
+            assert_eq!(world.resource::<TraceStats>().siblings, 0);
+        }
+    }
+}
+
+/// Forgetting an asset (what the plugin does once its last mesh is gone) drops what was measured on it
+/// and nothing else: a later mesh of it explores again, one of another asset still does not.
+#[test]
+fn a_forgotten_asset_is_measured_again() {
+    let table = CostTable::new();
+    let kept = Asset {
+        triangles: TRIANGLES,
+        id: 1,
+    };
+    let gone = Asset { id: 2, ..kept };
+    for asset in [kept, gone] {
+        let mut p = AdaptivePolicy::shared(&OFFERED, &table, asset);
+        script(1e6, 0.1, 5).run(&mut p, asset, 300);
+        assert!(OFFERED.iter().any(|&b| table.measured(&asset, b)));
+    }
+    table.retain_assets(|a| *a != gone);
+    assert!(OFFERED.iter().all(|&b| !table.measured(&gone, b)));
+    let mut again = AdaptivePolicy::shared(&OFFERED, &table, gone);
+    assert!(script(1e6, 0.1, 6).run(&mut again, gone, 300).explorations >= 1);
+    let mut twin = AdaptivePolicy::shared(&OFFERED, &table, kept);
+    assert_eq!(
+        script(1e6, 0.1, 7).run(&mut twin, kept, 300).explorations,
+        0
+    );
+}

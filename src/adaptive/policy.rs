@@ -174,6 +174,24 @@ impl AdaptivePolicy {
         }
     }
 
+    /// The policy of another mesh of the same asset whose tree starts as a copy of this mesh's, refitted
+    /// to its own pose, instead of a build of its own (a crowd's instances: a refit is O(n), a build
+    /// O(n log n)). It shares the table and takes over what this mesh knows of the copied tree — the
+    /// build that made it, the fresh cost then, the frames since — so the first
+    /// [`after_refit`](Self::after_refit) judges the copy like any refitted tree: the guard rebuilds it
+    /// at once if its cost would pass the bound, the rent when the copy costs more queries than a build.
+    /// Nothing is explored for it that the asset measured. Cost: one clone of the small policy (its
+    /// list of builds).
+    pub fn sibling(&self) -> AdaptivePolicy {
+        AdaptivePolicy {
+            rent: 0.0,
+            // No rise is read from a ratio measured on another mesh.
+            last_ratio: f64::NAN,
+            last: Prediction::default(),
+            ..self.clone()
+        }
+    }
+
     /// Takes the characteriser's profile as the prior of builds not measured yet: on a non-uniform
     /// (clustered) mesh LBVH's trees are expected worse, which makes trying a better builder pay sooner.
     pub fn set_profile(&mut self, profile: &SceneProfile) {

@@ -77,7 +77,12 @@ pub(crate) fn maintain_system(
     costs: Local<CostTable>,
 ) {
     let start = Instant::now();
+    // Topologies whose mesh went away this frame: the planner forgets them once no mesh has them.
+    let mut gone: Vec<u64> = Vec::new();
     for e in removed.read() {
+        if let Some(topology) = world.instances.get(&e).map(|i| i.topology) {
+            gone.push(topology);
+        }
         world.remove(e);
     }
     let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
@@ -101,6 +106,15 @@ pub(crate) fn maintain_system(
         let mut prediction = None;
         let mut decision = None;
         let wanted = structures.get(e).map_or(config.structure, |s| s.0);
+        if !world.contains(e) && hint != Some(&MotionHint::Static) {
+            match start_from_sibling(&mut world, &config, data) {
+                Ok(started) => stats.siblings += started as usize,
+                Err(err) => {
+                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                    continue;
+                }
+            }
+        }
         let (structure, why) = structure_for(wanted, world.instances.get(&e));
         if let Some(inst) = world
             .instances
@@ -140,7 +154,10 @@ pub(crate) fn maintain_system(
         let rebuild = match decision {
             Some(Decision::Keep) => None,
             Some(Decision::Rebuild(build)) => Some((Some(build), RebuildReason::Policy)),
-            None if world.contains(e) => Some((None, RebuildReason::Topology)),
+            None if world.contains(e) => {
+                gone.extend(world.instances.get(&e).map(|i| i.topology));
+                Some((None, RebuildReason::Topology))
+            }
             None => Some((None, RebuildReason::New)),
         };
         let action = match rebuild {
@@ -182,7 +199,56 @@ pub(crate) fn maintain_system(
             prediction,
         });
     }
+    forget_orphans(&world, &costs, gone);
     stats.maintain_time = start.elapsed();
+}
+
+/// Prunes the shared cost table of the assets among `gone` that no mesh has any more. O(gone · meshes),
+/// only in frames where meshes were removed or changed topology.
+fn forget_orphans(world: &TraceWorld, costs: &CostTable, mut gone: Vec<u64>) {
+    gone.retain(|t| !world.instances.values().any(|i| i.topology == *t));
+    if !gone.is_empty() {
+        costs.retain_assets(|a| !gone.contains(&a.id));
+    }
+}
+
+/// Under [`RebuildPolicy::Adaptive`], gives a new entity a copy of the tree of another entity of the same
+/// mesh (a sibling: same topology, a tree and a planner of its own) with the sibling's planner
+/// ([`AdaptivePolicy::sibling`]), so that the refit that follows judges the copy like any refitted tree
+/// instead of building from scratch: a crowd of one character pays one build and then a copy and a refit
+/// per instance (O(n) each instead of O(n log n)), and explores nothing the first instance measured.
+/// True if it did; errors only for an unusable transform.
+fn start_from_sibling(
+    world: &mut TraceWorld,
+    config: &TraceConfig,
+    data: MeshData,
+) -> Result<bool, Error> {
+    let (e, mesh, _, _, transform, layers) = data;
+    if !matches!(config.policy, RebuildPolicy::Adaptive { .. }) {
+        return Ok(false);
+    }
+    let topology = topology_id(&mesh.0);
+    let Some((bvh, policy)) = world.instances.values().find_map(|i| {
+        let policy = i
+            .kept
+            .adaptive
+            .as_ref()
+            .filter(|_| i.topology == topology)?;
+        Some((i.bvh.clone(), policy.sibling()))
+    }) else {
+        return Ok(false);
+    };
+    checked_transform(transform)?;
+    let kept = Kept {
+        adaptive: Some(policy),
+        ..Kept::default()
+    };
+    let mut inst = Instance::new(bvh, topology, kept);
+    inst.layers = layers.0;
+    inst.set_transform(transform.0);
+    world.instances.insert(e, inst);
+    world.membership_changed = true;
+    Ok(true)
 }
 
 /// The structure a mesh is to be kept in under `wanted`, and why; under [`Structure::Auto`] the rule of

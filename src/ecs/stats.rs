@@ -138,6 +138,9 @@ pub struct TraceStats {
     pub rebuilds: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
+    /// New meshes that started from a copy of a sibling's tree (another entity of the same mesh),
+    /// refitted, instead of a build of their own (counted in `refits` too; adaptive policy only).
+    pub siblings: usize,
     /// What was done to the top level (the tree over the entities' world boxes), its degradation and its
     /// running totals.
     pub top_level: TopLevelStats,
