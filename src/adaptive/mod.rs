@@ -105,12 +105,14 @@
 //! ```
 
 mod build;
+mod choice;
 pub mod costs;
 mod estimate;
 mod policy;
 pub mod rank;
 
 pub use build::{Build, Device};
+pub use choice::Choice;
 pub use costs::{Asset, CostTable};
 pub use estimate::Estimate;
 pub use policy::{AdaptivePolicy, DEFAULT_SAH_BOUND, DEFAULT_Z, Prediction, TreeCost, Verdict};
