@@ -25,8 +25,8 @@ const TRIES: u32 = 3;
 #[derive(Clone, Debug)]
 struct Arm<T> {
     option: T,
-    /// Prior cost per unit, relative to the other options' priors.
-    prior: f64,
+    /// Prior cost per unit and prior overhead, each relative to the other options' priors.
+    prior: (f64, f64),
     per_unit: Estimate,
     overhead: Estimate,
 }
@@ -48,16 +48,16 @@ pub struct Choice<T> {
 }
 
 impl<T: Copy + PartialEq> Choice<T> {
-    /// A choice among `options`, each with its prior cost per unit relative to the others' (our numbers,
-    /// replaced by measurements at once); the first is the one in use until something is measured.
-    /// `None` for no options.
-    pub fn new(options: &[(T, f64)]) -> Option<Self> {
+    /// A choice among `options`, each with its prior cost per unit and prior overhead relative to the
+    /// others' (our numbers, replaced by measurements at once); the first is the one in use until
+    /// something is measured. `None` for no options.
+    pub fn new(options: &[(T, f64, f64)]) -> Option<Self> {
         let current = options.first()?.0;
         Some(Choice {
             arms: (options.iter())
-                .map(|&(option, prior)| Arm {
+                .map(|&(option, per_unit, overhead)| Arm {
                     option,
-                    prior,
+                    prior: (per_unit, overhead),
                     per_unit: Estimate::default(),
                     overhead: Estimate::default(),
                 })
@@ -124,7 +124,8 @@ impl<T: Copy + PartialEq> Choice<T> {
             ));
         }
         let (from, per_unit) = (self.arms.iter()).find_map(|a| Some((a, a.per_unit.mean()?)))?;
-        let cost = per_unit * units * arm.prior / from.prior + from.overhead.mean().unwrap_or(0.0);
+        let overhead = from.overhead.mean().unwrap_or(0.0) * arm.prior.1 / from.prior.1;
+        let cost = per_unit * units * arm.prior.0 / from.prior.0 + overhead;
         Some((
             Candidate {
                 option,

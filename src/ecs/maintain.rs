@@ -5,7 +5,9 @@ use super::config::lauterbach;
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
-use crate::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, Prediction, TreeCost};
+use crate::adaptive::{
+    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost,
+};
 use crate::bvh::{BuildOptions, MeshBvh};
 use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
 use crate::{Error, Mesh};
@@ -185,6 +187,14 @@ pub(crate) fn maintain_system(
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
+        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
+            let wide = plan_wide(inst, t);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Wide(wide.current()),
+                tried: wide.explored(),
+            });
+        }
         stats.structures.push(StructureStats {
             entity: e,
             structure,
@@ -228,19 +238,16 @@ fn start_from_sibling(
         return Ok(false);
     }
     let topology = topology_id(&mesh.0);
-    let Some((bvh, policy)) = world.instances.values().find_map(|i| {
-        let policy = i
-            .kept
-            .adaptive
-            .as_ref()
-            .filter(|_| i.topology == topology)?;
-        Some((i.bvh.clone(), policy.sibling()))
+    let Some((bvh, policy, wide)) = world.instances.values().find_map(|i| {
+        let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
+        Some((i.bvh.clone(), policy.sibling(), i.kept.wide.clone()))
     }) else {
         return Ok(false);
     };
     checked_transform(transform)?;
     let kept = Kept {
         adaptive: Some(policy),
+        wide,
         ..Kept::default()
     };
     let mut inst = Instance::new(bvh, topology, kept);
@@ -249,6 +256,22 @@ fn start_from_sibling(
     world.instances.insert(e, inst);
     world.membership_changed = true;
     Ok(true)
+}
+
+/// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
+/// first call: the wide tree first, as without the planner; priors, ours: 0.7 × the binary tree's
+/// seconds per ray, and the binary tree's maintenance 0.7 × the wide one's, which has a collapse per
+/// build and a second refit pass): the option is applied (a collapse when the tree comes back) and
+/// charged this frame's maintenance of the mesh since `start`, its rays are charged by
+/// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+fn plan_wide(inst: &mut Instance, start: Instant) -> &Choice<bool> {
+    let wide = (inst.kept.wide).get_or_insert_with(|| {
+        Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
+    });
+    let on = wide.decide(inst.rays);
+    inst.bvh.set_wide(on);
+    wide.kept(on, start.elapsed().as_secs_f64());
+    wide
 }
 
 /// The structure a mesh is to be kept in under `wanted`, and why; under [`Structure::Auto`] the rule of
@@ -387,7 +410,9 @@ impl Rebuilder<'_> {
             return Ok(done);
         }
         let t = Instant::now();
-        let bvh = MeshBvh::build(current, &BuildOptions::new(build.builder))?;
+        // The wide query tree only where the mesh's planner keeps it (always without one).
+        let wide = kept.wide.as_ref().is_none_or(Choice::current);
+        let bvh = MeshBvh::build(current, &BuildOptions::new(build.builder).wide(wide))?;
         Ok((bvh, Build::cpu(build.builder), t.elapsed().as_secs_f64()))
     }
 
