@@ -70,11 +70,19 @@
 //! # Adding an option
 //!
 //! Structures (BVH or grid), updates (refit, partial or full rebuild), ray processing (packets, sorting)
-//! are choices of the same shape: give each option a predicted cost from an [`Estimate`] of what it
-//! measured (in the shared table when it generalises across meshes), turn them into [`Candidate`]s and call
-//! [`rank::choose`] with the option in use, so the same margin and hysteresis apply; decide "act now?"
-//! with [`rank::pays`]. For a new build (a wide tree, a GPU builder) it is less: add its prior to
-//! [`Build::prior_quality`] and [`Build::prior_time`] and offer it in the builds list.
+//! are choices of the same shape, and all go through [`rank::choose`] (same margin, same hysteresis):
+//! - A per-mesh choice among ways of doing the same work, each costing an overhead a frame plus seconds
+//!   per unit of work (a ray): use a [`Choice`] — give each option its priors, tell it what the option
+//!   in use cost ([`Choice::kept`] for the overhead, [`Choice::served`] for the work), ask
+//!   [`Choice::decide`] each frame, and list the pick in `TraceStats::options` as a new
+//!   `PlannedOption` variant. The wide query tree is the example (`src/ecs/maintain.rs`, `plan_wide`;
+//!   its query seconds come from `TraceWorld::attribute_queries`).
+//! - A choice with a cost model of its own: give each option a predicted cost from an [`Estimate`] of
+//!   what it measured (in the shared table when it generalises across meshes), turn them into
+//!   [`Candidate`]s and call [`rank::choose`] with the option in use; decide "act now?" with
+//!   [`rank::pays`].
+//! - A new build (a GPU builder, a partial rebuild): add its prior to [`Build::prior_quality`] and
+//!   [`Build::prior_time`] and offer it in the builds list.
 //!
 //! # Cost
 //!
