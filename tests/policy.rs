@@ -628,6 +628,23 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
     }
 }
 
+/// A world under the adaptive policy, or a fixed one (Lauterbach 0.4) to compare with, holding one
+/// walking soup of `triangles` (seeded `seed`), and the rays' generator (seeded `seed + 1`).
+fn adaptive_or_fixed(
+    adaptive: bool,
+    triangles: usize,
+    seed: u64,
+) -> (World, Schedule, Walk, SmallRng) {
+    let policy = if adaptive {
+        RebuildPolicy::ADAPTIVE
+    } else {
+        RebuildPolicy::Lauterbach { threshold: 0.4 }
+    };
+    let (mut world, schedule) = app(policy, TraceMode::Cpu);
+    let walk = Walk::spawn(&mut world, triangles, seed, 0.01);
+    (world, schedule, walk, rng(seed + 1))
+}
+
 /// A new entity of a mesh another entity already traces starts from a copy of that sibling's tree,
 /// refitted to its own pose (counted in `TraceStats::siblings`, a refit in its `MeshStats`), not from a
 /// build; its answers equal brute force's from that first frame on, and it never explores. Under a
@@ -635,14 +652,7 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
 #[test]
 fn a_new_instance_starts_from_a_siblings_tree_and_explores_nothing() {
     for adaptive in [true, false] {
-        let policy = if adaptive {
-            RebuildPolicy::ADAPTIVE
-        } else {
-            RebuildPolicy::Lauterbach { threshold: 0.4 }
-        };
-        let (mut world, mut schedule) = app(policy, TraceMode::Cpu);
-        let mut a = Walk::spawn(&mut world, 2000, 31, 0.01);
-        let mut r = rng(32);
+        let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 2000, 31);
         for _ in 0..10 {
             a.advance(&mut world);
             frame(&mut world, &mut schedule, &a, &mut r, 256, 2);
@@ -794,14 +804,7 @@ fn each_option_is_chosen_when_it_is_cheaper_beyond_the_margin_and_not_otherwise(
 #[test]
 fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
     for adaptive in [true, false] {
-        let policy = if adaptive {
-            RebuildPolicy::ADAPTIVE
-        } else {
-            RebuildPolicy::Lauterbach { threshold: 0.4 }
-        };
-        let (mut world, mut schedule) = app(policy, TraceMode::Cpu);
-        let mut a = Walk::spawn(&mut world, 1000, 71, 0.01);
-        let mut r = rng(72);
+        let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 1000, 71);
         let mut seen = Vec::new();
         for _ in 0..40 {
             a.advance(&mut world);
