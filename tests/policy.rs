@@ -17,7 +17,7 @@ use common::ecs::{agree, app_with, brute};
 use common::*;
 use glam::Vec3;
 use kinetrace::Ray;
-use kinetrace::adaptive::{AdaptivePolicy, Asset, CostTable, DEFAULT_SAH_BOUND, DEFAULT_Z};
+use kinetrace::adaptive::{AdaptivePolicy, Asset, Choice, CostTable, DEFAULT_SAH_BOUND, DEFAULT_Z};
 use kinetrace::bvh::Builder;
 use kinetrace::ecs::*;
 use rand::Rng;
@@ -596,44 +596,255 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
 }
 
 /// The SAH bound holds on every frame of every report scene: the adaptive strategy of the report's
-/// harness (CPU builders) at a small size, its tree's SAH cost over a fresh binned-SAH build of the same
+/// harness (CPU builders) at small sizes, its tree's SAH cost over a fresh binned-SAH build of the same
 /// frame (the harness builds that reference every frame, apart from the strategy) at most 1.5 on every
-/// frame, queries and rebuilds included.
+/// frame, queries and rebuilds included. The planner never sees that reference: it predicts it, and the
+/// guard assumes the fresh cost may fall as fast as any drift it has measured, either way.
 ///
-/// Known failure, kept as the acceptance check: on `rigid` the ratio passes 1.5 by up to a few percent
-/// (1.50 to 1.53 in our runs; decisions follow measured timings, so the frame varies). The
-/// guard predicts the fresh binned-SAH cost from each build's quality relative to binned SAH, learned
-/// once per asset, but over orbiting rigid bodies LBVH's ranges from 1.0 to 1.37 × binned SAH between
-/// frames, so a tree built with it can sit past the prediction (see the issue note).
+/// Known failure, kept as the acceptance check: it passes in most runs, but the planner's decisions
+/// follow measured timings, and on a loaded machine a run now and then passes 1.5 by under 3% (seen:
+/// `rigid` 1.53, `rigged_figure` 1.502). The cause, from the guard's own predictions: a tree rebuilt with
+/// LBVH or hybrid anchors the predicted fresh binned-SAH cost at that build's *mean* quality, learned
+/// once per asset, while a single LBVH tree over the rigid bodies sits anywhere from 1.0 to 1.38 × binned
+/// SAH, so the prediction can be 18% high. Rebuilding with binned SAH whenever the guard acts closed it
+/// (6 of 6 runs alone) but cost 2–5× in `--quick` report runs on `explosion` and `rigid`, whose guard
+/// acts often; learning the spread of each build's quality needs a measured reference, which only a
+/// binned-SAH build gives (see the issue note).
 #[test]
-#[ignore = "rigid passes 1.5 by a few percent: a build's quality against binned SAH varies between frames"]
+#[ignore = "passes in most runs; under load a rebuild with LBVH of worse-than-mean quality can pass 1.5 by <3%"]
 fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
-    let settings = harness::Settings {
-        triangles: 2000,
-        frames: 90,
-        rays: 512,
-        checked_rays: 4,
-        runs: 1,
-    };
-    let (scenes, skipped) = scenes::Scene::all(settings.triangles, &shared_assets_dir());
-    for s in &skipped {
-        skip(s);
-    }
-    assert!(scenes.len() >= 6);
-    let adaptive = [harness::Strategy::Adaptive { gpu: false }];
-    for scene in &scenes {
-        let records = harness::run_scene(scene, &settings, &adaptive, None);
-        for r in &records[0] {
-            assert!(
-                r.sah_ratio <= DEFAULT_SAH_BOUND,
-                "{} frame {}: SAH ratio {:.4}",
-                scene.name,
-                r.frame,
-                r.sah_ratio
-            );
-            assert_eq!(r.mismatches, 0, "{} frame {}", scene.name, r.frame);
+    for triangles in [1000, 2000, 4000] {
+        let settings = harness::Settings {
+            triangles,
+            frames: 120,
+            rays: 512,
+            checked_rays: 4,
+            runs: 1,
+        };
+        let (scenes, skipped) = scenes::Scene::all(settings.triangles, &shared_assets_dir());
+        for s in &skipped {
+            skip(s);
         }
-        let worst = records[0].iter().map(|r| r.sah_ratio).fold(0.0, f64::max);
-        eprintln!("{}: worst SAH ratio {worst:.3}", scene.name);
+        assert!(scenes.len() >= 6);
+        let adaptive = [harness::Strategy::Adaptive { gpu: false }];
+        for scene in &scenes {
+            let records = harness::run_scene(scene, &settings, &adaptive, None);
+            for r in &records[0] {
+                assert!(
+                    r.sah_ratio <= DEFAULT_SAH_BOUND,
+                    "{} at {triangles} triangles, frame {}: SAH ratio {:.4}",
+                    scene.name,
+                    r.frame,
+                    r.sah_ratio
+                );
+                assert_eq!(r.mismatches, 0, "{} frame {}", scene.name, r.frame);
+            }
+            let worst = records[0].iter().map(|r| r.sah_ratio).fold(0.0, f64::max);
+            eprintln!("{} at {triangles}: worst SAH ratio {worst:.3}", scene.name);
+        }
+    }
+}
+
+/// A world under the adaptive policy, or a fixed one (Lauterbach 0.4) to compare with, holding one
+/// walking soup of `triangles` (seeded `seed`), and the rays' generator (seeded `seed + 1`).
+fn adaptive_or_fixed(
+    adaptive: bool,
+    triangles: usize,
+    seed: u64,
+) -> (World, Schedule, Walk, SmallRng) {
+    let policy = if adaptive {
+        RebuildPolicy::ADAPTIVE
+    } else {
+        RebuildPolicy::Lauterbach { threshold: 0.4 }
+    };
+    let (mut world, schedule) = app(policy, TraceMode::Cpu);
+    let walk = Walk::spawn(&mut world, triangles, seed, 0.01);
+    (world, schedule, walk, rng(seed + 1))
+}
+
+/// A new entity of a mesh another entity already traces starts from a copy of that sibling's tree,
+/// refitted to its own pose (counted in `TraceStats::siblings`, a refit in its `MeshStats`), not from a
+/// build; its answers equal brute force's from that first frame on, and it never explores. Under a
+/// fixed policy (no planner to judge the copy) the same spawn builds from scratch.
+#[test]
+fn a_new_instance_starts_from_a_siblings_tree_and_explores_nothing() {
+    for adaptive in [true, false] {
+        let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 2000, 31);
+        for _ in 0..10 {
+            a.advance(&mut world);
+            frame(&mut world, &mut schedule, &a, &mut r, 256, 2);
+        }
+        // The second entity: the same mesh, in another pose (its own walk, moved off the first's).
+        let mesh = world.get::<TraceMesh>(a.entity).unwrap().0.clone();
+        let mut walk = rng(33);
+        let pose: Vec<Vec3> = (mesh.positions().iter())
+            .map(|p| *p + Vec3::X * 0.5 + rand_vec(&mut walk, -0.05, 0.05))
+            .collect();
+        let entity = world
+            .spawn((TraceMesh(mesh.clone()), VertexPositions(pose)))
+            .id();
+        let mut b = Walk {
+            entity,
+            rng: walk,
+            step: 0.01,
+        };
+        let first = frame(&mut world, &mut schedule, &b, &mut r, 256, 64);
+        let siblings = world.resource::<TraceStats>().siblings;
+        if !adaptive {
+            assert_eq!(siblings, 0);
+            assert!(matches!(
+                first.action,
+                MeshAction::Rebuild {
+                    reason: RebuildReason::New,
+                    ..
+                }
+            ));
+            continue;
+        }
+        assert_eq!(siblings, 1);
+        assert!(
+            first.action == MeshAction::Refit
+                || matches!(
+                    first.action,
+                    MeshAction::Rebuild {
+                        reason: RebuildReason::Policy,
+                        ..
+                    }
+                ),
+            "a copy refitted (and judged): {first:?}"
+        );
+        for _ in 0..30 {
+            a.advance(&mut world);
+            b.advance(&mut world);
+            let m = frame(&mut world, &mut schedule, &b, &mut r, 256, 8);
+            assert_ne!(m.prediction.map(|p| p.verdict), Some(Verdict::Explore));
+            assert_eq!(world.resource::<TraceStats>().siblings, 0);
+        }
+    }
+}
+
+/// Forgetting an asset (what the plugin does once its last mesh is gone) drops what was measured on it
+/// and nothing else: a later mesh of it explores again, one of another asset still does not.
+#[test]
+fn a_forgotten_asset_is_measured_again() {
+    let table = CostTable::new();
+    let kept = Asset {
+        triangles: TRIANGLES,
+        id: 1,
+    };
+    let gone = Asset { id: 2, ..kept };
+    for asset in [kept, gone] {
+        let mut p = AdaptivePolicy::shared(&OFFERED, &table, asset);
+        script(1e6, 0.1, 5).run(&mut p, asset, 300);
+        assert!(OFFERED.iter().any(|&b| table.measured(&asset, b)));
+    }
+    table.retain_assets(|a| *a != gone);
+    assert!(OFFERED.iter().all(|&b| !table.measured(&gone, b)));
+    let mut again = AdaptivePolicy::shared(&OFFERED, &table, gone);
+    assert!(script(1e6, 0.1, 6).run(&mut again, gone, 300).explorations >= 1);
+    let mut twin = AdaptivePolicy::shared(&OFFERED, &table, kept);
+    assert_eq!(
+        script(1e6, 0.1, 7).run(&mut twin, kept, 300).explorations,
+        0
+    );
+}
+
+/// A scripted per-mesh choice between two options with known costs: option `a` (in use first) and `b`,
+/// each `overhead + per_ray · rays` seconds a frame, times uniform noise of ±10% (seeded). Returns the
+/// frames on which `b` was in use on measurements (not as a try) and the tries.
+fn scripted_choice<T: Copy + PartialEq + std::fmt::Debug>(
+    [a, b]: [T; 2],
+    costs: [(f64, f64); 2],
+    rays: f64,
+    seed: u64,
+) -> (usize, usize) {
+    let mut choice = Choice::new(&[(a, 1.0, 1.0), (b, 1.0, 1.0)]).expect("two options");
+    let mut r = rng(seed);
+    let (mut on_b, mut tries) = (0, 0);
+    for _ in 0..300 {
+        let o = choice.decide(rays);
+        let (overhead, per_ray) = if o == a { costs[0] } else { costs[1] };
+        let mut jitter = || 1.0 + r.random_range(-0.1..=0.1);
+        choice.kept(o, overhead * jitter());
+        choice.served(o, rays, per_ray * rays * jitter());
+        tries += choice.explored() as usize;
+        on_b += (o == b && !choice.explored()) as usize;
+    }
+    (on_b, tries)
+}
+
+/// Every per-mesh option goes through the same rule: `b` is taken once its scripted cost is lower than
+/// `a`'s by more than the margin (and kept from then on), and is only tried, never taken, when it is
+/// lower by less than the noise allows or higher. Checked for the wide query tree (cheaper rays, an
+/// overhead that few rays do not repay), packets against single rays, and a grid against the BVH.
+/// Seeded; the margin is two standard deviations, not a proof: over 200 seeds of the 0.5% case one
+/// run in 400 did switch.
+#[test]
+fn each_option_is_chosen_when_it_is_cheaper_beyond_the_margin_and_not_otherwise() {
+    use kinetrace::grid::StructureKind;
+    // Wide tree (b = on): 30% cheaper rays for 40 µs more maintenance a frame; with 1000 rays at 1 µs
+    // it saves 300 µs, with 50 rays 15 µs (less than it costs).
+    let wide = [(10e-6, 1e-6), (50e-6, 0.7e-6)];
+    let (on, tries) = scripted_choice([false, true], wide, 1000.0, 41);
+    assert!(
+        tries <= 3 && on >= 290,
+        "many rays repay the wide tree: {on} {tries}"
+    );
+    let (on, tries) = scripted_choice([false, true], wide, 50.0, 42);
+    assert_eq!(on, 0, "few rays do not ({tries} tries)");
+    for (per_ray_b, taken) in [(0.7e-6, true), (0.995e-6, false), (1.3e-6, false)] {
+        let costs = [(0.0, 1e-6), (0.0, per_ray_b)];
+        for seed in 0..8 {
+            let (on, tries) = scripted_choice(["single", "packets"], costs, 500.0, 50 + seed);
+            let grid = scripted_choice(
+                [StructureKind::Bvh, StructureKind::Grid],
+                costs,
+                500.0,
+                60 + seed,
+            );
+            if taken {
+                assert!(
+                    tries <= 3 && on >= 290 && grid.0 >= 290,
+                    "{per_ray_b}: {on} {tries} {grid:?}"
+                );
+            } else {
+                assert_eq!((on, grid.0), (0, 0), "{per_ray_b}: {tries} tries");
+            }
+        }
+    }
+}
+
+/// Through the ECS: under the adaptive policy every maintained mesh reports the wide-tree option its
+/// planner picked (`TraceStats::options`), and answers equal brute force whichever tree answers — the
+/// binary one included, which the planner tries where the wide tree's upkeep may not pay; a fixed policy
+/// plans no options.
+#[test]
+fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
+    for adaptive in [true, false] {
+        let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 1000, 71);
+        let mut seen = Vec::new();
+        for _ in 0..40 {
+            a.advance(&mut world);
+            frame(&mut world, &mut schedule, &a, &mut r, 16, 16);
+            let options = &world.resource::<TraceStats>().options;
+            if !adaptive {
+                assert!(options.is_empty());
+                continue;
+            }
+            let [o] = options[..] else {
+                panic!("one option per maintained mesh: {options:?}")
+            };
+            assert_eq!(o.entity, a.entity);
+            let PlannedOption::Wide(on) = o.option;
+            seen.push(on);
+        }
+        if adaptive {
+            assert_eq!(seen.len(), 40);
+            assert!(seen[0], "the wide tree first, as without the planner");
+            assert!(
+                seen.contains(&false),
+                "with 16 rays a frame the binary tree is tried: {seen:?}"
+            );
+        }
     }
 }

@@ -106,19 +106,23 @@ pub fn cold_start_table(rows: &[ColdStart]) -> String {
 pub struct InstanceCrowd {
     pub instances: usize,
     pub shared: bool,
-    /// Milliseconds of the first frame (every tree built) and the median of the later half's frames.
+    /// Milliseconds of the first frame (every tree built or, with a shared table, copied from the first) and the median of the later half's frames.
     pub first_ms: f64,
     pub steady_ms: f64,
     /// Rebuilds with a build the instance's table had not measured on the asset (first builds excluded).
     pub explorations: usize,
     /// Rebuilds per build, first builds included.
     pub builds: Vec<(Build, usize)>,
+    /// Instances that started from a copy of the first one's tree instead of a build.
+    pub siblings: usize,
 }
 
 /// Runs `instances` instances of one ~500-triangle character for `settings.frames` frames (at least 8),
 /// each animated at its own phase, refitted or rebuilt as its planner says and queried by its share of
 /// `settings.rays` (at least 2 rays each). With `shared`, every planner learns into one cost table;
-/// otherwise each has its own. Skinning is not timed; maintenance and queries are.
+/// otherwise each has its own and builds its own first tree; with one, every instance after the first
+/// starts from a copy of the first one's tree and planner. Skinning is not timed; maintenance (copies
+/// included) and queries are.
 pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> InstanceCrowd {
     let asset = humanoid(500);
     let indices: std::sync::Arc<[u32]> = asset.mesh.indices().into();
@@ -143,6 +147,7 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
         steady_ms: 0.0,
         explorations: 0,
         builds: Vec::new(),
+        siblings: 0,
     };
     let mut frame_ms = Vec::new();
     for f in 0..settings.frames.max(8) {
@@ -157,7 +162,15 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
             })
             .collect();
         let start = Instant::now();
-        for ((mesh, tree), policy) in meshes.iter().zip(&mut trees).zip(&mut policies) {
+        for i in 0..instances {
+            // With a shared table, an instance after the first starts from a copy of the first one's
+            // tree and planner (`AdaptivePolicy::sibling`), refitted below like any tree.
+            if shared && i > 0 && trees[i].is_none() {
+                trees[i] = trees[0].clone();
+                policies[i] = policies[0].sibling();
+                crowd.siblings += 1;
+            }
+            let (mesh, tree, policy) = (&meshes[i], &mut trees[i], &mut policies[i]);
             let build = match tree {
                 None => Some(policy.next_build()),
                 Some(bvh) => {
@@ -204,23 +217,26 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
 /// The instance-crowd section of the summary.
 pub fn instance_crowd_table(rows: &[InstanceCrowd]) -> String {
     let mut s = String::from(
-        "\n## A crowd of instances of one character\n\nEvery instance has its own tree and planner; the \
-         first frame builds every tree, a steady frame is the median of the later half. Goal: the first \
-         frame costs at most twice a steady frame, and with a shared table no instance but the first \
-         explores.\n\n| instances | cost table | first frame ms | steady frame ms | first / steady | \
-         explorations | builds |\n|---|---|---|---|---|---|---|\n",
+        "\n## A crowd of instances of one character\n\nEvery instance has its own tree and planner; in the \
+         first frame the first instance builds its tree and, with a shared table, every other one starts \
+         from a copy of it refitted to its own pose (`AdaptivePolicy::sibling`; per instance, each \
+         builds its own); a steady frame is the median of the later half. Goal: the first frame costs at \
+         most twice a steady frame, and with a shared table no instance but the first explores.\n\n\
+         | instances | cost table | first frame ms | steady frame ms | first / steady | explorations | \
+         sibling starts | builds |\n|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let builds: Vec<String> = r.builds.iter().map(|(b, n)| format!("{b} {n}")).collect();
         let _ = writeln!(
             s,
-            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} |",
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |",
             r.instances,
             if r.shared { "shared" } else { "per instance" },
             r.first_ms,
             r.steady_ms,
             r.first_ms / r.steady_ms,
             r.explorations,
+            r.siblings,
             builds.join(", ")
         );
     }

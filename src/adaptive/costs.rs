@@ -115,6 +115,16 @@ impl CostTable {
         self.lock().drift.entry(asset).or_default().add(per_frame);
     }
 
+    /// Forgets what was learned per asset (relative tree costs, drift) for every asset `keep` rejects:
+    /// call it when an asset's last mesh is gone, so that a long-running world that streams meshes in
+    /// and out does not grow the table without bound. Per-build times and the query rate are kept: they
+    /// generalise across assets. O(assets).
+    pub fn retain_assets(&self, mut keep: impl FnMut(&Asset) -> bool) {
+        let mut t = self.lock();
+        t.quality.retain(|a, _| keep(a));
+        t.drift.retain(|a, _| keep(a));
+    }
+
     /// Whether `build` was measured on `asset` by any mesh sharing the table.
     pub fn measured(&self, asset: &Asset, build: Build) -> bool {
         self.lock().quality(asset, build).is_some()

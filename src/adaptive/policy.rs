@@ -192,6 +192,24 @@ impl AdaptivePolicy {
         }
     }
 
+    /// The policy of another mesh of the same asset whose tree starts as a copy of this mesh's, refitted
+    /// to its own pose, instead of a build of its own (a crowd's instances: a refit is O(n), a build
+    /// O(n log n)). It shares the table and takes over what this mesh knows of the copied tree — the
+    /// build that made it, the fresh cost then, the frames since — so the first
+    /// [`after_refit`](Self::after_refit) judges the copy like any refitted tree: the guard rebuilds it
+    /// at once if its cost would pass the bound, the rent when the copy costs more queries than a build.
+    /// Nothing is explored for it that the asset measured. Cost: one clone of the small policy (its
+    /// list of builds).
+    pub fn sibling(&self) -> AdaptivePolicy {
+        AdaptivePolicy {
+            rent: 0.0,
+            // No rise is read from a ratio measured on another mesh.
+            last_ratio: f64::NAN,
+            last: Prediction::default(),
+            ..self.clone()
+        }
+    }
+
     /// Takes the characteriser's profile as the prior of builds not measured yet: on a non-uniform
     /// (clustered) mesh LBVH's trees are expected worse, which makes trying a better builder pay sooner.
     pub fn set_profile(&mut self, profile: &SceneProfile) {
@@ -539,13 +557,16 @@ impl View<'_> {
         }
     }
 
-    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild,
-    /// at the asset's learned drift less `z` spreads, the spread at least [`MIN_DRIFT_SPREAD`] (capped at
-    /// 1: a rise only makes the guard earlier).
+    /// The factor by which a fresh tree's cost may have fallen `frames` frames after the last rebuild:
+    /// at the asset's learned drift *magnitude* plus `z` spreads, the spread at least
+    /// [`MIN_DRIFT_SPREAD`]. The sign of the trend is not trusted: a scene whose fresh cost rose for a
+    /// few intervals can turn (the report's orbiting rigid bodies rise by 2% a frame, then fall by 1.7%),
+    /// and a guard that carried the rise forward would pass the bound. A rise only makes the guard
+    /// earlier, so assuming a fall as fast as any motion seen costs early rebuilds, never the bound.
     fn guard_drift(&self, frames: u32) -> f64 {
         let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        let low = d.mean().unwrap_or(0.0) - self.p.z * d.spread().max(MIN_DRIFT_SPREAD);
-        (low.min(0.0) * frames as f64).exp()
+        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * d.spread().max(MIN_DRIFT_SPREAD));
+        (low * frames as f64).exp()
     }
 
     /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last

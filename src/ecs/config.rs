@@ -108,8 +108,8 @@ pub enum RebuildPolicy {
     /// one shared cost table (so the second entity spawned from the same [`Mesh`](crate::Mesh) explores
     /// nothing): it rebuilds once the extra query time a degraded tree has cost exceeds a rebuild's
     /// measured time by the noise margin, or before its SAH cost would pass 1.5 × a fresh binned-SAH
-    /// tree's (best effort: the guard assumes a build's quality relative to binned SAH is stable for an
-    /// asset; see [`adaptive`](crate::adaptive) for the known gap), and picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
+    /// tree's (best effort: the guard predicts that fresh cost; see [`adaptive`](crate::adaptive) for
+    /// what it rests on and the known gap), and picks the build — one of `builders` on the CPU, plus GPU LBVH when the world has a GPU context
     /// ([`TraceMode::GpuWhenAvailable`] or [`TraceMode::GpuRequired`] found an adapter) — whose rebuild
     /// plus queries it predicts cheapest. Its predictions are in [`MeshStats::prediction`](super::MeshStats).
     ///

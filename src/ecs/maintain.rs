@@ -5,7 +5,9 @@ use super::config::lauterbach;
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
-use crate::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, Prediction, TreeCost};
+use crate::adaptive::{
+    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost,
+};
 use crate::bvh::{BuildOptions, MeshBvh};
 use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
 use crate::{Error, Mesh};
@@ -77,7 +79,12 @@ pub(crate) fn maintain_system(
     costs: Local<CostTable>,
 ) {
     let start = Instant::now();
+    // Topologies whose mesh went away this frame: the planner forgets them once no mesh has them.
+    let mut gone: Vec<u64> = Vec::new();
     for e in removed.read() {
+        if let Some(topology) = world.instances.get(&e).map(|i| i.topology) {
+            gone.push(topology);
+        }
         world.remove(e);
     }
     let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
@@ -101,6 +108,15 @@ pub(crate) fn maintain_system(
         let mut prediction = None;
         let mut decision = None;
         let wanted = structures.get(e).map_or(config.structure, |s| s.0);
+        if !world.contains(e) && hint != Some(&MotionHint::Static) {
+            match start_from_sibling(&mut world, &config, data) {
+                Ok(started) => stats.siblings += started as usize,
+                Err(err) => {
+                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                    continue;
+                }
+            }
+        }
         let (structure, why) = structure_for(wanted, world.instances.get(&e));
         if let Some(inst) = world
             .instances
@@ -140,7 +156,10 @@ pub(crate) fn maintain_system(
         let rebuild = match decision {
             Some(Decision::Keep) => None,
             Some(Decision::Rebuild(build)) => Some((Some(build), RebuildReason::Policy)),
-            None if world.contains(e) => Some((None, RebuildReason::Topology)),
+            None if world.contains(e) => {
+                gone.extend(world.instances.get(&e).map(|i| i.topology));
+                Some((None, RebuildReason::Topology))
+            }
             None => Some((None, RebuildReason::New)),
         };
         let action = match rebuild {
@@ -168,6 +187,14 @@ pub(crate) fn maintain_system(
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
+        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
+            let wide = plan_wide(inst, t);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Wide(wide.current()),
+                tried: wide.explored(),
+            });
+        }
         stats.structures.push(StructureStats {
             entity: e,
             structure,
@@ -182,7 +209,69 @@ pub(crate) fn maintain_system(
             prediction,
         });
     }
+    forget_orphans(&world, &costs, gone);
     stats.maintain_time = start.elapsed();
+}
+
+/// Prunes the shared cost table of the assets among `gone` that no mesh has any more. O(gone · meshes),
+/// only in frames where meshes were removed or changed topology.
+fn forget_orphans(world: &TraceWorld, costs: &CostTable, mut gone: Vec<u64>) {
+    gone.retain(|t| !world.instances.values().any(|i| i.topology == *t));
+    if !gone.is_empty() {
+        costs.retain_assets(|a| !gone.contains(&a.id));
+    }
+}
+
+/// Under [`RebuildPolicy::Adaptive`], gives a new entity a copy of the tree of another entity of the same
+/// mesh (a sibling: same topology, a tree and a planner of its own) with the sibling's planner
+/// ([`AdaptivePolicy::sibling`]), so that the refit that follows judges the copy like any refitted tree
+/// instead of building from scratch: a crowd of one character pays one build and then a copy and a refit
+/// per instance (O(n) each instead of O(n log n)), and explores nothing the first instance measured.
+/// True if it did; errors only for an unusable transform.
+fn start_from_sibling(
+    world: &mut TraceWorld,
+    config: &TraceConfig,
+    data: MeshData,
+) -> Result<bool, Error> {
+    let (e, mesh, _, _, transform, layers) = data;
+    if !matches!(config.policy, RebuildPolicy::Adaptive { .. }) {
+        return Ok(false);
+    }
+    let topology = topology_id(&mesh.0);
+    let Some((bvh, policy, wide)) = world.instances.values().find_map(|i| {
+        let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
+        Some((i.bvh.clone(), policy.sibling(), i.kept.wide.clone()))
+    }) else {
+        return Ok(false);
+    };
+    checked_transform(transform)?;
+    let kept = Kept {
+        adaptive: Some(policy),
+        wide,
+        ..Kept::default()
+    };
+    let mut inst = Instance::new(bvh, topology, kept);
+    inst.layers = layers.0;
+    inst.set_transform(transform.0);
+    world.instances.insert(e, inst);
+    world.membership_changed = true;
+    Ok(true)
+}
+
+/// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
+/// first call: the wide tree first, as without the planner; priors, ours: 0.7 × the binary tree's
+/// seconds per ray, and the binary tree's maintenance 0.7 × the wide one's, which has a collapse per
+/// build and a second refit pass): the option is applied (a collapse when the tree comes back) and
+/// charged this frame's maintenance of the mesh since `start`, its rays are charged by
+/// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+fn plan_wide(inst: &mut Instance, start: Instant) -> &Choice<bool> {
+    let wide = (inst.kept.wide).get_or_insert_with(|| {
+        Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
+    });
+    let on = wide.decide(inst.rays);
+    inst.bvh.set_wide(on);
+    wide.kept(on, start.elapsed().as_secs_f64());
+    wide
 }
 
 /// The structure a mesh is to be kept in under `wanted`, and why; under [`Structure::Auto`] the rule of
@@ -329,7 +418,9 @@ impl Rebuilder<'_> {
             return Ok(done);
         }
         let t = Instant::now();
-        let bvh = MeshBvh::build(current, &BuildOptions::new(build.builder))?;
+        // The wide query tree only where the mesh's planner keeps it (always without one).
+        let wide = kept.wide.as_ref().is_none_or(Choice::current);
+        let bvh = MeshBvh::build(current, &BuildOptions::new(build.builder).wide(wide))?;
         Ok((bvh, Build::cpu(build.builder), t.elapsed().as_secs_f64()))
     }
 

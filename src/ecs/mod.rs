@@ -103,6 +103,6 @@ pub use stats::{
 // Structure choice (issue 12): which structure answers a mesh's rays.
 pub use crate::grid::{ChoiceReason, StructureKind};
 pub use config::{Structure, TraceStructure};
-pub use stats::{StructureStats, StructureWhy};
+pub use stats::{OptionStats, PlannedOption, StructureStats, StructureWhy};
 pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

@@ -63,6 +63,26 @@ pub struct StructureStats {
     pub why: StructureWhy,
 }
 
+/// A per-mesh option the planner ([`Choice`](crate::adaptive::Choice)) picked this frame, under
+/// [`RebuildPolicy::Adaptive`](super::RebuildPolicy).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OptionStats {
+    /// The entity.
+    pub entity: Entity,
+    /// The option in use from this frame on.
+    pub option: PlannedOption,
+    /// Whether it is being tried (not measured often enough yet) rather than chosen on measurements.
+    pub tried: bool,
+}
+
+/// The per-mesh options the planner picks (more join as they become planner options).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlannedOption {
+    /// The wide (4-lane) query tree on (`true`) or the binary tree only: the wide tree costs a collapse
+    /// per build and its refit every frame, and repays it only with enough rays.
+    Wide(bool),
+}
+
 /// Why a mesh is kept in its structure.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum StructureWhy {
@@ -130,6 +150,8 @@ pub struct TraceStats {
     /// Per mesh maintained this frame, which structure answers its rays and why (meshes not maintained keep
     /// last frame's).
     pub structures: Vec<StructureStats>,
+    /// Per mesh maintained this frame under the adaptive policy, the options the planner picked.
+    pub options: Vec<OptionStats>,
     /// Time spent characterising.
     pub characterize_time: Duration,
     /// Refits, rebuilds, and meshes only moved.
@@ -138,6 +160,9 @@ pub struct TraceStats {
     pub rebuilds: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
+    /// New meshes that started from a copy of a sibling's tree (another entity of the same mesh),
+    /// refitted, instead of a build of their own (counted in `refits` too; adaptive policy only).
+    pub siblings: usize,
     /// What was done to the top level (the tree over the entities' world boxes), its degradation and its
     /// running totals.
     pub top_level: TopLevelStats,

@@ -16,11 +16,14 @@ pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
     profiles.clear();
     let mut structures = std::mem::take(&mut stats.structures);
     structures.clear();
+    let mut options = std::mem::take(&mut stats.options);
+    options.clear();
     *stats = TraceStats {
         frame,
         meshes,
         profiles,
         structures,
+        options,
         rays_last_frame: stats.batched_rays,
         ..Default::default()
     };

@@ -48,6 +48,9 @@ pub(crate) struct Instance {
 pub(crate) struct Kept {
     /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): the mesh's learned cost model.
     pub adaptive: Option<crate::adaptive::AdaptivePolicy>,
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): whether the mesh keeps the wide query
+    /// tree, decided from its measured maintenance and query costs with and without it.
+    pub wide: Option<crate::adaptive::Choice<bool>>,
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
@@ -319,7 +322,11 @@ impl TraceWorld {
                 && inst.structure == StructureKind::Bvh
                 && work > 0.0
             {
-                policy.queried(inst.rays, inst.sah, seconds * p * inst.sah / work);
+                let share = seconds * p * inst.sah / work;
+                policy.queried(inst.rays, inst.sah, share);
+                if let Some(wide) = inst.kept.wide.as_mut() {
+                    wide.served(inst.bvh.wide().is_some(), inst.rays, share);
+                }
             }
         }
     }

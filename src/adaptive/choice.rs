@@ -1,0 +1,185 @@
+//! A choice between ways of doing the same work for one mesh — a wide query tree or the binary one,
+//! packets or single rays, a BVH or a grid — decided from what each way measured, through the planner's
+//! one core ([`rank::choose`](super::rank::choose)): the same margin, the same hysteresis.
+//!
+//! Each option's cost per frame is modelled as `overhead + per_unit · units`: `overhead` the seconds it
+//! adds to keeping the mesh current (a wide tree's collapse and refit, a grid's rebuild), `per_unit` the
+//! seconds per unit of work it serves (a ray). Both are learned as [`Estimate`]s while the option is in
+//! use. An option not measured yet is predicted from a measured one through the priors' ratio, with a 25%
+//! spread, and tried when that prediction, optimistic by one spread (what is unknown may be better than
+//! assumed), beats the option in use — for up to three frames, until its spread is measured: trying
+//! costs at most three frames of the difference, and a frame with no work (`units` = 0) tries nothing.
+
+use super::Estimate;
+use super::rank::{Candidate, choose};
+
+/// Relative spread of a prediction made from a prior.
+const PRIOR_SPREAD: f64 = 0.25;
+
+/// Frames an option is tried for at most before only measurements decide: until its spread is
+/// measured rather than assumed (the [`Estimate`]'s three samples), since one frame's prior spread of
+/// 25% would keep even a 30% cheaper option from beating the margin.
+const TRIES: u32 = 3;
+
+/// One option of a [`Choice`] and what it measured.
+#[derive(Clone, Debug)]
+struct Arm<T> {
+    option: T,
+    /// Prior cost per unit and prior overhead, each relative to the other options' priors.
+    prior: (f64, f64),
+    per_unit: Estimate,
+    overhead: Estimate,
+}
+
+/// The planner of one per-mesh choice among a few options (see the module docs). Keep one per mesh and
+/// choice; a few arithmetic operations per [`decide`](Self::decide), no allocation after
+/// [`new`](Self::new).
+#[derive(Clone, Debug)]
+pub struct Choice<T> {
+    arms: Vec<Arm<T>>,
+    /// The option chosen on measurements: what hysteresis keeps.
+    settled: T,
+    /// The option in use this frame: `settled`, or an option being tried.
+    current: T,
+    explored: bool,
+    /// Standard deviations of margin before the option in use is changed
+    /// ([`DEFAULT_Z`](super::DEFAULT_Z)).
+    pub z: f64,
+}
+
+impl<T: Copy + PartialEq> Choice<T> {
+    /// A choice among `options`, each with its prior cost per unit and prior overhead relative to the
+    /// others' (our numbers, replaced by measurements at once); the first is the one in use until
+    /// something is measured. `None` for no options.
+    pub fn new(options: &[(T, f64, f64)]) -> Option<Self> {
+        let current = options.first()?.0;
+        Some(Choice {
+            arms: (options.iter())
+                .map(|&(option, per_unit, overhead)| Arm {
+                    option,
+                    prior: (per_unit, overhead),
+                    per_unit: Estimate::default(),
+                    overhead: Estimate::default(),
+                })
+                .collect(),
+            settled: current,
+            current,
+            explored: false,
+            z: super::DEFAULT_Z,
+        })
+    }
+
+    /// The option in use.
+    pub fn current(&self) -> T {
+        self.current
+    }
+
+    /// Whether the last [`decide`](Self::decide) picked an option that had not been measured (a try).
+    pub fn explored(&self) -> bool {
+        self.explored
+    }
+
+    /// Learns a frame of `option`: `units` of work served in `seconds` (ignored unless `units` > 0, the
+    /// time is finite and not negative, and `option` is one of the choice's).
+    pub fn served(&mut self, option: T, units: f64, seconds: f64) {
+        if units > 0.0
+            && seconds.is_finite()
+            && seconds >= 0.0
+            && let Some(arm) = self.arm_mut(option)
+        {
+            arm.per_unit.add(seconds / units);
+        }
+    }
+
+    /// Learns a frame of `option`'s overhead: the seconds it added to keeping the mesh current.
+    pub fn kept(&mut self, option: T, seconds: f64) {
+        if seconds.is_finite()
+            && seconds >= 0.0
+            && let Some(arm) = self.arm_mut(option)
+        {
+            arm.overhead.add(seconds);
+        }
+    }
+
+    /// The predicted seconds of a frame of `option` with `units` of work, and the spread of that
+    /// prediction; the bool says whether it rests on measurements of the option itself. `None` while no
+    /// option measured its per-unit cost, or for an option not of this choice.
+    pub fn predict(&self, option: T, units: f64) -> Option<(Candidate<T>, bool)> {
+        let arm = self.arm(option)?;
+        if let Some(per_unit) = arm.per_unit.mean() {
+            let overhead = arm.overhead.mean().unwrap_or(0.0);
+            // What is predicted is one frame: its spread is one frame's plus the mean's own (a margin of
+            // the mean's spread alone would let an option in use, re-estimated every frame, drift past
+            // one measured a while ago by chance, given enough frames).
+            let spread = (arm.per_unit.spread() * units)
+                .hypot(arm.per_unit.mean_spread() * units)
+                .hypot(arm.overhead.spread());
+            return Some((
+                Candidate {
+                    option,
+                    cost_s: overhead + per_unit * units,
+                    spread_s: spread,
+                },
+                true,
+            ));
+        }
+        let (from, per_unit) = (self.arms.iter()).find_map(|a| Some((a, a.per_unit.mean()?)))?;
+        let overhead = from.overhead.mean().unwrap_or(0.0) * arm.prior.1 / from.prior.1;
+        let cost = per_unit * units * arm.prior.0 / from.prior.0 + overhead;
+        Some((
+            Candidate {
+                option,
+                cost_s: cost,
+                spread_s: PRIOR_SPREAD * cost,
+            },
+            false,
+        ))
+    }
+
+    /// The option to use for a frame with `units` of work: among the measured options the cheapest
+    /// predicted, the one chosen before kept unless another beats it by `z` standard deviations; or an
+    /// option measured fewer than three times whose optimistic prediction beats that (tried: once
+    /// measured, it is chosen only if it beats the kept one by the margin like any other).
+    pub fn decide(&mut self, units: f64) -> T {
+        // Timing noise is the machine's, not an option's: every measured option's prediction carries at
+        // least the largest relative spread any option measured over three samples or more (an option
+        // tried three times can have measured almost none by chance, and would then win on a lucky mean),
+        // widened by the uncertainty of its own mean (`√(1 + 1/n)`).
+        let noise = (self.arms.iter())
+            .filter(|a| a.per_unit.samples() >= TRIES)
+            .filter_map(|a| Some(a.per_unit.spread() / a.per_unit.mean()?))
+            .filter(|r| r.is_finite())
+            .fold(0.0, f64::max);
+        let candidates = (self.arms.iter()).filter_map(|a| {
+            let (c, true) = self.predict(a.option, units)? else {
+                return None;
+            };
+            let n = a.per_unit.samples().max(1) as f64;
+            let pooled = noise * c.cost_s * (1.0 + 1.0 / n).sqrt();
+            Some(Candidate {
+                spread_s: c.spread_s.max(pooled),
+                ..c
+            })
+        });
+        let chosen = choose(candidates, Some(self.settled), self.z).unwrap_or(self.settled);
+        self.settled = chosen;
+        let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
+        let tried = (self.arms.iter())
+            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES)
+            .find_map(|a| {
+                let (c, _) = self.predict(a.option, units)?;
+                (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
+            });
+        self.explored = tried.is_some();
+        self.current = tried.unwrap_or(chosen);
+        self.current
+    }
+
+    fn arm(&self, option: T) -> Option<&Arm<T>> {
+        self.arms.iter().find(|a| a.option == option)
+    }
+
+    fn arm_mut(&mut self, option: T) -> Option<&mut Arm<T>> {
+        self.arms.iter_mut().find(|a| a.option == option)
+    }
+}
