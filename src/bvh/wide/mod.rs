@@ -25,6 +25,7 @@
 //!
 //! [`MeshBvh`]: super::MeshBvh
 
+mod proximity;
 pub mod simd;
 
 use super::node::{COUNT_SHIFT, FIRST_MASK};
