@@ -108,6 +108,37 @@ fn leaf_slots(payload: u32) -> Range<usize> {
     first..first + ((payload >> COUNT_SHIFT) & 0xf) as usize
 }
 
+/// Sorts the lanes of `mask` (not empty) by `key` (stable: lane order among equals), pushes all but the
+/// nearest onto `stack` farthest first, and returns the nearest lane's child, to visit next.
+#[inline(always)]
+fn nearest_first(
+    node: &WideNode,
+    mut mask: u32,
+    key: &[f32; WIDTH],
+    stack: &mut [(u32, f32)],
+    sp: &mut usize,
+) -> u32 {
+    let mut order = [(0u32, 0f32); WIDTH];
+    let mut k = 0;
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let e = (node.child[i], key[i]);
+        let mut j = k;
+        while j > 0 && order[j - 1].1 > e.1 {
+            order[j] = order[j - 1];
+            j -= 1;
+        }
+        order[j] = e;
+        k += 1;
+    }
+    for &e in order[1..k].iter().rev() {
+        stack[*sp] = e;
+        *sp += 1;
+    }
+    order[0].0
+}
+
 /// A 4-wide BVH over the same slots as the binary [`Bvh`](super::Bvh) it was collapsed from. See the
 /// [module docs](self).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -208,28 +239,9 @@ impl WideBvh {
             } else {
                 counter.inner();
                 let node = &self.nodes[cur as usize];
-                let (mut mask, near) = hit4(node, &lanes, tmax);
+                let (mask, near) = hit4(node, &lanes, tmax);
                 if mask != 0 {
-                    // Hit lanes sorted by entry distance (stable: lane order among equals).
-                    let mut order = [(0u32, 0f32); WIDTH];
-                    let mut k = 0;
-                    while mask != 0 {
-                        let i = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        let e = (node.child[i], near[i]);
-                        let mut j = k;
-                        while j > 0 && order[j - 1].1 > e.1 {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = e;
-                        k += 1;
-                    }
-                    for &e in order[1..k].iter().rev() {
-                        stack[sp] = e;
-                        sp += 1;
-                    }
-                    cur = order[0].0;
+                    cur = nearest_first(node, mask, &near, &mut stack, &mut sp);
                     continue;
                 }
             }

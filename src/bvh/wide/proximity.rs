@@ -11,7 +11,7 @@
 //! [`MeshBvh::closest_point`]: crate::MeshBvh::closest_point
 //! [`MeshBvh::overlapping`]: crate::MeshBvh::overlapping
 
-use super::{EMPTY_LANE, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots};
+use super::{EMPTY_LANE, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots, nearest_first};
 use crate::bvh::MAX_DEPTH;
 use crate::geometry::Aabb;
 use glam::Vec3;
@@ -61,26 +61,7 @@ impl WideBvh {
                 let (d2, mut mask) = dist4(node, p, limit);
                 mask &= used_lanes(node);
                 if mask != 0 {
-                    // Lanes sorted by distance, nearest first (lane order among equals).
-                    let mut order = [(0u32, 0f32); WIDTH];
-                    let mut k = 0;
-                    while mask != 0 {
-                        let i = mask.trailing_zeros() as usize;
-                        mask &= mask - 1;
-                        let e = (node.child[i], d2[i]);
-                        let mut j = k;
-                        while j > 0 && order[j - 1].1 > e.1 {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = e;
-                        k += 1;
-                    }
-                    for &e in order[1..k].iter().rev() {
-                        stack[sp] = e;
-                        sp += 1;
-                    }
-                    cur = order[0].0;
+                    cur = nearest_first(node, mask, &d2, &mut stack, &mut sp);
                     continue;
                 }
             }
@@ -205,8 +186,7 @@ fn dist4_sse(node: &WideNode, p: Vec3, limit: f32) -> ([f32; WIDTH], u32) {
 fn overlap4(node: &WideNode, b: &Aabb) -> u32 {
     let r = &node.bounds;
     let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let mut mask = 0;
-    for i in 0..WIDTH {
+    (0..WIDTH).fold(0, |mask, i| {
         // `&`, not `&&`: no branches, so the four lanes compile to vector compares.
         let hit = (r[0][i] <= hi[0])
             & (r[1][i] <= hi[1])
@@ -214,9 +194,8 @@ fn overlap4(node: &WideNode, b: &Aabb) -> u32 {
             & (lo[0] <= r[3][i])
             & (lo[1] <= r[4][i])
             & (lo[2] <= r[5][i]);
-        mask |= u32::from(hit) << i;
-    }
-    mask
+        mask | (u32::from(hit) << i)
+    })
 }
 
 #[cfg(test)]
