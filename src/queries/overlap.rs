@@ -15,8 +15,9 @@ impl MeshBvh {
     /// to `f64` rounding. Zero-area triangles are absent. An invalid shape ([`Shape::is_valid`]) overlaps
     /// nothing.
     ///
-    /// Cost: a traversal of the boxes that overlap the shape's bounding box, one exact test per triangle in
-    /// them, and a sort of the result. No allocation once `out` has grown to the result's size.
+    /// Cost: a traversal of the boxes that overlap the shape's bounding box (for a sphere on the wide tree:
+    /// the boxes within its radius), four boxes per test when the mesh has a wide tree, one exact test per
+    /// triangle in them, and a sort of the result. No allocation once `out` has grown to the result's size.
     ///
     /// ```
     /// use kinetrace::{Mesh, MeshBvh, bvh::BuildOptions, queries::Shape};
