@@ -264,13 +264,18 @@ fn check_closest(m: &Mesh, bvh: &MeshBvh, p: Vec3, what: &str) {
     }
 }
 
+/// Both walks: the wide tree's (four `f32` box distances at a time, the default) and the binary tree's.
 #[test]
 fn closest_points_equal_brute_force() {
     for (name, m) in scenes() {
         for builder in [Builder::SAH, Builder::LBVH] {
-            let bvh = MeshBvh::build(&m, &BuildOptions::new(builder)).unwrap();
-            for p in points(&m, 11, 300) {
-                check_closest(&m, &bvh, p, &format!("{name} {}", builder.name()));
+            for wide in [true, false] {
+                let bvh = MeshBvh::build(&m, &BuildOptions::new(builder).wide(wide)).unwrap();
+                assert_eq!(bvh.wide().is_some(), wide);
+                for p in points(&m, 11, 300) {
+                    let what = format!("{name} {} wide {wide}", builder.name());
+                    check_closest(&m, &bvh, p, &what);
+                }
             }
         }
     }
@@ -463,10 +468,16 @@ fn containment_equals_ray_parity_on_a_closed_deformed_mesh() {
 // Overlaps
 // ---------------------------------------------------------------------------------------------------
 
+/// Both walks: the wide tree's (four `f32` box–ball distances at a time, the default) and the binary tree's
+/// (box against the ball's box).
 #[test]
 fn sphere_overlaps_equal_brute_force() {
-    for (name, m) in scenes() {
-        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+    for (name, m, wide) in scenes()
+        .into_iter()
+        .flat_map(|(n, m)| [(n, m.clone(), true), (n, m, false)])
+    {
+        let bvh = MeshBvh::build(&m, &BuildOptions::default().wide(wide)).unwrap();
+        assert_eq!(bvh.wide().is_some(), wide);
         let s = scale(&m);
         let mut r = rng(8);
         let mut out = Vec::new();
@@ -485,7 +496,11 @@ fn sphere_overlaps_equal_brute_force() {
                 (dist - radius as f64).abs() <= s * 1e-12
             };
             let strip = |v: &[u32]| v.iter().copied().filter(|i| !near(i)).collect::<Vec<_>>();
-            assert_eq!(strip(&out), strip(&want), "{name}: sphere {p:?} r {radius}");
+            assert_eq!(
+                strip(&out),
+                strip(&want),
+                "{name} wide {wide}: sphere {p:?} r {radius}"
+            );
         }
     }
 }
@@ -534,11 +549,12 @@ fn parry_overlap(shape: &Shape, t: [Vec3; 3]) -> Option<bool> {
 
 #[test]
 fn capsule_and_box_overlaps_agree_with_parry() {
-    for (name, m) in scenes()
+    for (name, m, wide) in scenes()
         .into_iter()
         .filter(|(n, _)| !n.starts_with("offset") && !n.starts_with("tiny"))
+        .flat_map(|(n, m)| [(n, m.clone(), true), (n, m, false)])
     {
-        let bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let bvh = MeshBvh::build(&m, &BuildOptions::default().wide(wide)).unwrap();
         let s = scale(&m) as f32;
         let mut r = rng(31);
         let mut out = Vec::new();

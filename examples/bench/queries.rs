@@ -1,19 +1,26 @@
 //! Suite `queries`: gameplay queries on a deforming mesh, against parry3d in the same run — sphere casts,
-//! capsule casts, closest points, containment and sphere overlaps, each frame after the mesh moved, on one
-//! thread. Both sides pay their cheapest honest update every frame: our refit, parry's
+//! capsule casts, closest points, containment and sphere, capsule and box overlaps, each frame after the
+//! mesh moved, on one thread. Both sides pay their cheapest honest update every frame: our refit, parry's
 //! `TriMesh::set_vertices` (a refit of its BVH; for containment also its pseudo-normals, which its
-//! inside test needs). Throughput counts refit + queries.
+//! inside test needs). Throughput counts refit + queries. The `ecs batch` rows ask the same closest points
+//! and sphere overlaps through a `bevy_ecs` world ([`ShapeQueue`] answered in the plugin's schedule, which
+//! also maintains the mesh from its new `VertexPositions`), against the same parry rows.
 
 use crate::cpu::one_thread;
 use crate::record::{Records, machine};
+use bevy_ecs::prelude::*;
+use glam::Quat;
 use glam::Vec3;
 use kinetrace::bvh::BuildOptions;
+use kinetrace::ecs::{
+    KinetracePlugin, Plugin, QueryFilter, ShapeQueue, ShapeResults, TraceMesh, VertexPositions,
+};
 use kinetrace::queries::Shape;
 use kinetrace::scenes::bumpy_torus;
 use kinetrace::{Mesh, MeshBvh};
 use parry3d::math::{Pose, Vector};
 use parry3d::query::{PointQuery, ShapeCastOptions, cast_shapes, intersection_test};
-use parry3d::shape::{Ball, Capsule, TriMesh, TriMeshFlags};
+use parry3d::shape::{Ball, Capsule, Cuboid, TriMesh, TriMeshFlags};
 use std::time::{Duration, Instant};
 
 const SUITE: &str = "queries";
@@ -25,14 +32,24 @@ enum Kind {
     ClosestPoint,
     Containment,
     SphereOverlap,
+    CapsuleOverlap,
+    BoxOverlap,
+    /// Closest points through the ECS batch.
+    EcsClosestPoint,
+    /// Sphere overlaps through the ECS batch.
+    EcsSphereOverlap,
 }
 
-const KINDS: [Kind; 5] = [
+const KINDS: [Kind; 9] = [
     Kind::SphereCast,
     Kind::CapsuleCast,
     Kind::ClosestPoint,
     Kind::Containment,
     Kind::SphereOverlap,
+    Kind::CapsuleOverlap,
+    Kind::BoxOverlap,
+    Kind::EcsClosestPoint,
+    Kind::EcsSphereOverlap,
 ];
 
 impl Kind {
@@ -43,6 +60,19 @@ impl Kind {
             Kind::ClosestPoint => "closest point",
             Kind::Containment => "containment",
             Kind::SphereOverlap => "sphere overlap",
+            Kind::CapsuleOverlap => "capsule overlap",
+            Kind::BoxOverlap => "box overlap",
+            Kind::EcsClosestPoint => "ecs batch closest point",
+            Kind::EcsSphereOverlap => "ecs batch sphere overlap",
+        }
+    }
+
+    /// The immediate query a batched kind asks (parry answers that one).
+    fn immediate(self) -> Kind {
+        match self {
+            Kind::EcsClosestPoint => Kind::ClosestPoint,
+            Kind::EcsSphereOverlap => Kind::SphereOverlap,
+            k => k,
         }
     }
 }
@@ -53,6 +83,27 @@ struct Query {
     p: Vec3,
     q: Vec3,
     r: f32,
+}
+
+impl Query {
+    /// The overlap shape of an overlap kind: centred on the target vertex, a capsule or box across the
+    /// direction towards it.
+    fn overlap_shape(&self, kind: Kind) -> Shape {
+        let dir = (self.q - self.p).normalize();
+        match kind {
+            Kind::CapsuleOverlap => Shape::capsule(
+                self.q,
+                self.q + dir.any_orthonormal_vector() * self.r * 3.0,
+                self.r,
+            ),
+            Kind::BoxOverlap => Shape::cuboid(
+                self.q,
+                Vec3::new(1.4, 0.6, 1.0) * self.r,
+                Quat::from_rotation_arc(Vec3::Z, dir),
+            ),
+            _ => Shape::sphere(self.q, self.r),
+        }
+    }
 }
 
 pub fn run(rec: &mut Records) {
@@ -69,11 +120,16 @@ pub fn run(rec: &mut Records) {
     for kind in KINDS {
         let count = (frames * n) as f64;
         let ours = one_thread(|| {
-            best(rec.reps(), || {
-                kinetrace_frames(kind, &rest, &poses, &queries)
+            best(rec.reps(), || match kind {
+                Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
+                    ecs_frames(kind, &rest, &poses, &queries)
+                }
+                _ => kinetrace_frames(kind, &rest, &poses, &queries),
             })
         });
-        let theirs = best(rec.reps(), || parry_frames(kind, &rest, &poses, &queries));
+        let theirs = best(rec.reps(), || {
+            parry_frames(kind.immediate(), &rest, &poses, &queries)
+        });
         let per_s = |t: Duration| count / t.as_secs_f64() / 1e3;
         rec.add(
             SUITE,
@@ -184,12 +240,66 @@ fn kinetrace_frames(
                 }
                 Kind::ClosestPoint => bvh.closest_point(q.p, f32::INFINITY).is_some() as usize,
                 Kind::Containment => bvh.contains_point(q.p) as usize,
-                Kind::SphereOverlap => {
-                    bvh.overlapping(&Shape::sphere(q.q, q.r), &mut found);
+                Kind::SphereOverlap | Kind::CapsuleOverlap | Kind::BoxOverlap => {
+                    bvh.overlapping(&q.overlap_shape(kind), &mut found);
                     found.len()
+                }
+                Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
+                    unreachable!("batched kinds run in ecs_frames")
                 }
             };
         }
+    }
+    (t.elapsed(), answers)
+}
+
+/// The batched kinds through a `bevy_ecs` world: each frame the new positions go in, the queries are
+/// queued, and the plugin's schedule maintains the mesh and answers them. The answer count as in
+/// [`kinetrace_frames`].
+fn ecs_frames(
+    kind: Kind,
+    rest: &Mesh,
+    poses: &[Vec<Vec3>],
+    queries: &[Query],
+) -> (Duration, usize) {
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    KinetracePlugin::default().build(&mut world, &mut schedule);
+    let e = world
+        .spawn((
+            TraceMesh(rest.clone()),
+            VertexPositions(rest.positions().to_vec()),
+        ))
+        .id();
+    // The first frame builds the tree, as the immediate side's build before its clock starts.
+    schedule.run(&mut world);
+    world.clear_trackers();
+    let mut answers = 0;
+    let t = Instant::now();
+    for pos in poses {
+        world
+            .get_mut::<VertexPositions>(e)
+            .expect("spawned")
+            .0
+            .copy_from_slice(pos);
+        let mut queue = world.resource_mut::<ShapeQueue>();
+        for (tag, q) in queries.iter().enumerate() {
+            let filter = QueryFilter::default();
+            match kind {
+                Kind::EcsClosestPoint => {
+                    queue.closest_point(tag as u64, q.p, f32::INFINITY, filter)
+                }
+                _ => queue.overlap(tag as u64, Shape::sphere(q.q, q.r), filter),
+            }
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let res = world.resource::<ShapeResults>();
+        answers += match kind {
+            Kind::EcsClosestPoint => res.closest.iter().filter(|c| c.1.is_some()).count(),
+            _ => res.overlaps.iter().map(|o| o.1.len()).sum(),
+        };
     }
     (t.elapsed(), answers)
 }
@@ -266,14 +376,33 @@ fn parry_frames(
                     1
                 }
                 Kind::Containment => mesh.contains_point(&Pose::IDENTITY, v(q.p)) as usize,
-                Kind::SphereOverlap => {
-                    let ball = Ball::new(q.r);
-                    let at = Pose::from_translation(v(q.q));
-                    let aabb = parry3d::bounding_volume::Aabb::new(v(q.q - q.r), v(q.q + q.r));
+                Kind::SphereOverlap | Kind::CapsuleOverlap | Kind::BoxOverlap => {
+                    let shape = q.overlap_shape(kind);
+                    let (at, parry_shape): (Pose, Box<dyn parry3d::shape::Shape>) = match shape {
+                        Shape::Sphere { center, radius } => (
+                            Pose::from_translation(v(center)),
+                            Box::new(Ball::new(radius)),
+                        ),
+                        Shape::Capsule { a, b, radius } => {
+                            (Pose::IDENTITY, Box::new(Capsule::new(v(a), v(b), radius)))
+                        }
+                        Shape::Box {
+                            center,
+                            half,
+                            rotation,
+                        } => (
+                            Pose::from_parts(
+                                v(center),
+                                parry3d::glamx::Quat::from_array(rotation.to_array()),
+                            ),
+                            Box::new(Cuboid::new(v(half))),
+                        ),
+                    };
+                    let aabb = parry_shape.compute_aabb(&at);
                     found.clear();
                     for leaf in mesh.bvh().intersect_aabb(&aabb) {
                         let tri = mesh.triangle(leaf);
-                        if intersection_test(&at, &ball, &Pose::IDENTITY, &tri)
+                        if intersection_test(&at, parry_shape.as_ref(), &Pose::IDENTITY, &tri)
                             .expect("supported")
                             .intersecting
                         {
@@ -282,6 +411,9 @@ fn parry_frames(
                     }
                     found.sort_unstable();
                     found.len()
+                }
+                Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
+                    unreachable!("parry answers the immediate kind")
                 }
             };
         }

@@ -15,8 +15,9 @@ impl MeshBvh {
     /// to `f64` rounding. Zero-area triangles are absent. An invalid shape ([`Shape::is_valid`]) overlaps
     /// nothing.
     ///
-    /// Cost: a traversal of the boxes that overlap the shape's bounding box, one exact test per triangle in
-    /// them, and a sort of the result. No allocation once `out` has grown to the result's size.
+    /// Cost: a traversal of the boxes that overlap the shape's bounding box (for a sphere on the wide tree:
+    /// the boxes within its radius), four boxes per test when the mesh has a wide tree, one exact test per
+    /// triangle in them, and a sort of the result. No allocation once `out` has grown to the result's size.
     ///
     /// ```
     /// use kinetrace::{Mesh, MeshBvh, bvh::BuildOptions, queries::Shape};
@@ -44,22 +45,34 @@ impl MeshBvh {
         let bounds = shape.bounds();
         let tris = self.slot_triangles();
         let prims = self.bvh().prim_indices();
-        traverse_by(
-            self.bvh().nodes(),
-            (),
-            &mut (),
-            |n, _| frame.node_box(n).overlaps(&bounds).then_some(()),
-            |slots, _| {
-                for (slot, t) in present(tris, slots, frame) {
-                    // The triangle's box against the shape's (conservative) box first: exact comparisons.
-                    let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-                    let reach = lo.cmple(bounds.max.as_dvec3()) & hi.cmpge(bounds.min.as_dvec3());
-                    if reach.all() && shape.overlaps_triangle(t) {
-                        found(prims[slot]);
-                    }
+        let mut visit = |slots| {
+            for (slot, t) in present(tris, slots, frame) {
+                // The triangle's box against the shape's (conservative) box first: exact comparisons.
+                let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                let reach = lo.cmple(bounds.max.as_dvec3()) & hi.cmpge(bounds.min.as_dvec3());
+                if reach.all() && shape.overlaps_triangle(t) {
+                    found(prims[slot]);
                 }
-                false
+            }
+        };
+        match (frame, self.wide()) {
+            // In the mesh's frame the wide tree's lanes are the boxes as stored: four at a time.
+            (Frame::Mesh, Some(wide)) => match *shape {
+                Shape::Sphere { center, radius } => {
+                    wide.walk_within(center, f64::from(radius).powi(2), visit)
+                }
+                _ => wide.walk_overlapping(&bounds, visit),
             },
-        );
+            _ => traverse_by(
+                self.bvh().nodes(),
+                (),
+                &mut (),
+                |n, _| frame.node_box(n).overlaps(&bounds).then_some(()),
+                |slots, _| {
+                    visit(slots);
+                    false
+                },
+            ),
+        }
     }
 }

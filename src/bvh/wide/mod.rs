@@ -29,6 +29,7 @@
 //! [`MeshBvh`]: super::MeshBvh
 
 pub mod compact;
+mod proximity;
 pub mod simd;
 
 use super::node::{COUNT_SHIFT, FIRST_MASK};
@@ -109,6 +110,37 @@ fn is_leaf(payload: u32) -> bool {
 fn leaf_slots(payload: u32) -> Range<usize> {
     let first = (payload & FIRST_MASK) as usize;
     first..first + ((payload >> COUNT_SHIFT) & 0xf) as usize
+}
+
+/// Sorts the lanes of `mask` (not empty) by `key` (stable: lane order among equals), pushes all but the
+/// nearest onto `stack` farthest first, and returns the nearest lane's child, to visit next.
+#[inline(always)]
+fn nearest_first(
+    child: &[u32; WIDTH],
+    mut mask: u32,
+    key: &[f32; WIDTH],
+    stack: &mut [(u32, f32)],
+    sp: &mut usize,
+) -> u32 {
+    let mut order = [(0u32, 0f32); WIDTH];
+    let mut k = 0;
+    while mask != 0 {
+        let i = mask.trailing_zeros() as usize;
+        mask &= mask - 1;
+        let e = (child[i], key[i]);
+        let mut j = k;
+        while j > 0 && order[j - 1].1 > e.1 {
+            order[j] = order[j - 1];
+            j -= 1;
+        }
+        order[j] = e;
+        k += 1;
+    }
+    for &e in order[1..k].iter().rev() {
+        stack[*sp] = e;
+        *sp += 1;
+    }
+    order[0].0
 }
 
 /// A 4-wide BVH over the same slots as the binary [`Bvh`](super::Bvh) it was collapsed from. See the
@@ -229,28 +261,9 @@ fn walk<N, C: Counter>(
             }
         } else {
             counter.inner();
-            let (mut mask, near, child) = visit(&nodes[cur as usize], &lanes, tmax);
+            let (mask, near, child) = visit(&nodes[cur as usize], &lanes, tmax);
             if mask != 0 {
-                // Hit lanes sorted by entry distance (stable: lane order among equals).
-                let mut order = [(0u32, 0f32); WIDTH];
-                let mut k = 0;
-                while mask != 0 {
-                    let i = mask.trailing_zeros() as usize;
-                    mask &= mask - 1;
-                    let e = (child[i], near[i]);
-                    let mut j = k;
-                    while j > 0 && order[j - 1].1 > e.1 {
-                        order[j] = order[j - 1];
-                        j -= 1;
-                    }
-                    order[j] = e;
-                    k += 1;
-                }
-                for &e in order[1..k].iter().rev() {
-                    stack[sp] = e;
-                    sp += 1;
-                }
-                cur = order[0].0;
+                cur = nearest_first(&child, mask, &near, &mut stack, &mut sp);
                 continue;
             }
         }
