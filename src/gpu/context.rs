@@ -35,37 +35,106 @@ impl std::fmt::Debug for GpuContext {
     }
 }
 
+/// Set to `1` to let `TraceMode::GpuWhenAvailable` accept a software adapter (see [`software_allowed`]).
+pub const ALLOW_SOFTWARE_ENV: &str = "KINETRACE_ALLOW_SOFTWARE_GPU";
+
+/// How a [`GpuContext`] picks its adapter and which limits it asks for.
+#[derive(Clone, Debug, Default)]
+pub struct GpuOptions {
+    /// Refuse software adapters (wgpu's [`DeviceType::Cpu`](wgpu::DeviceType::Cpu): Mesa's llvmpipe and
+    /// lavapipe, Microsoft's WARP): they run kernels on the CPU cores, typically several times slower than
+    /// the crate's CPU paths on the same cores, so "a GPU when there is one" should not mean them. Off by
+    /// default (tests and CI machines without a GPU run on lavapipe); `TraceMode::GpuWhenAvailable` sets it
+    /// unless [`software_allowed`].
+    pub hardware_only: bool,
+    /// Limits to request instead of the adapter's own; each must be within the adapter's, or creation fails
+    /// with [`Error::NoGpu`]. Small limits exercise the paths that split work over several dispatches or
+    /// refuse it with an [`Error`]; `None` (the default) asks for everything the adapter offers.
+    pub limits: Option<wgpu::Limits>,
+}
+
+/// Whether a software adapter is acceptable where a GPU is optional: when the configuration says so
+/// (`option`) or [`ALLOW_SOFTWARE_ENV`] is `1` (`env` is its value, if set).
+pub fn software_allowed(option: bool, env: Option<&str>) -> bool {
+    option || env == Some("1")
+}
+
+/// Whether an adapter may be used: any hardware adapter, a software one ([`DeviceType::Cpu`]) only when
+/// allowed.
+///
+/// [`DeviceType::Cpu`]: wgpu::DeviceType::Cpu
+pub fn adapter_accepted(info: &wgpu::AdapterInfo, allow_software: bool) -> bool {
+    info.device_type != wgpu::DeviceType::Cpu || allow_software
+}
+
+/// The adapter `WGPU_ADAPTER_NAME` / `WGPU_POWER_PREF` pick on `instance` when it is accepted, else the
+/// first accepted one the instance lists. `Ok(None)` when the instance has no adapter at all, `Err` when it
+/// has only refused (software) ones.
+async fn pick_adapter(
+    instance: &wgpu::Instance,
+    allow_software: bool,
+) -> Result<Option<wgpu::Adapter>> {
+    if let Ok(adapter) = wgpu::util::initialize_adapter_from_env_or_default(instance, None).await {
+        if adapter_accepted(&adapter.get_info(), allow_software) {
+            return Ok(Some(adapter));
+        }
+    }
+    let adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
+    if let Some(adapter) = adapters
+        .iter()
+        .find(|a| adapter_accepted(&a.get_info(), allow_software))
+    {
+        return Ok(Some(adapter.clone()));
+    }
+    match adapters.first() {
+        None => Ok(None),
+        Some(refused) => Err(Error::NoGpu(format!(
+            "only the software adapter {} was found; set {ALLOW_SOFTWARE_ENV}=1 to use it",
+            refused.get_info().name
+        ))),
+    }
+}
+
 impl GpuContext {
-    /// Finds an adapter and creates a device. [`Error::NoGpu`] when there is none: callers fall back to the
-    /// CPU path (and should say so once in their log).
+    /// Finds an adapter, software ones included, and creates a device ([`GpuOptions::default`]).
+    /// [`Error::NoGpu`] when there is none: callers fall back to the CPU path (and should say so once in
+    /// their log).
     pub fn new() -> Result<Self> {
-        pollster::block_on(Self::new_async())
+        Self::with_options(&GpuOptions::default())
     }
 
-    async fn new_async() -> Result<Self> {
+    /// [`new`](Self::new) with options: refuse software adapters, request particular limits. Logs the
+    /// adapter chosen once, at `info` level.
+    pub fn with_options(options: &GpuOptions) -> Result<Self> {
+        pollster::block_on(Self::new_async(options))
+    }
+
+    async fn new_async(options: &GpuOptions) -> Result<Self> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        // The headless Vulkan instance first; when it yields no adapter, wgpu's ordinary instance with every
+        let allow_software = !options.hardware_only;
+        // The headless Vulkan instance first; when it lists no adapter, wgpu's ordinary instance with every
         // back end the environment allows (GL, …), which may print the display warnings but finds what exists.
         let headless = match headless_vulkan(&desc) {
-            Some(instance) => wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-                .await
-                .ok(),
+            Some(instance) => pick_adapter(&instance, allow_software).await?,
             None => None,
         };
         let adapter = match headless {
             Some(adapter) => adapter,
-            None => {
-                let instance = wgpu::Instance::new(desc);
-                wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-                    .await
-                    .map_err(|e| Error::NoGpu(e.to_string()))?
-            }
+            None => pick_adapter(&wgpu::Instance::new(desc), allow_software)
+                .await?
+                .ok_or_else(|| Error::NoGpu("no GPU adapter found".into()))?,
         };
         let info = adapter.get_info();
+        log::info!(
+            "kinetrace: GPU adapter {} ({:?}, {:?})",
+            info.name,
+            info.device_type,
+            info.backend
+        );
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
-        // Ask for what the adapter can do: big meshes need big storage buffers.
-        let limits = adapter.limits();
+        // Ask for what the adapter can do (big meshes need big storage buffers) unless told otherwise.
+        let limits = options.limits.clone().unwrap_or_else(|| adapter.limits());
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("kinetrace"),
@@ -89,6 +158,11 @@ impl GpuContext {
     /// The adapter's name, e.g. "NVIDIA H100" or "llvmpipe (LLVM 15.0.6, 256 bits)".
     pub fn adapter_name(&self) -> &str {
         &self.info.name
+    }
+
+    /// Everything wgpu says about the adapter (device type, vendor, back end, driver).
+    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+        &self.info
     }
 
     /// Backend and driver, for logs.
