@@ -165,17 +165,6 @@ pub(crate) fn bind_group(
     })
 }
 
-/// Workgroup counts for `threads` invocations of `group` each, folded into y past 65535 groups (kernels
-/// recover the linear index from `num_workgroups`).
-pub(crate) fn groups(threads: u32, group: u32) -> (u32, u32) {
-    let n = threads.div_ceil(group).max(1);
-    if n <= 65535 {
-        (n, 1)
-    } else {
-        (65535, n.div_ceil(65535))
-    }
-}
-
 /// Read-back staging buffers waiting for reuse (sizes are powers of two), so that a frame's read-backs do
 /// not allocate GPU memory once the pool has warmed up.
 #[derive(Default)]
@@ -274,6 +263,9 @@ impl<T: Pod> Readback<T> {
     /// The results if the GPU has finished, without blocking.
     pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<Vec<T>>> {
         ctx.poll();
+        if let Err(e) = ctx.take_failure() {
+            return Some(Err(e));
+        }
         let done = self.state.lock().expect("readback state").take()?;
         Some(done.map_err(Error::Gpu).map(|()| self.read(ctx)))
     }

@@ -25,6 +25,8 @@ pub struct GpuContext {
     pub(crate) staging: Arc<super::buffers::StagingPool>,
     info: wgpu::AdapterInfo,
     timestamps: bool,
+    /// The first device error of a submission not yet reported by [`wait`](Self::wait) or a read-back.
+    failure: Arc<std::sync::Mutex<Option<String>>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -144,7 +146,15 @@ impl GpuContext {
             })
             .await
             .map_err(|e| Error::NoGpu(format!("{} ({:?}): {e}", info.name, info.backend)))?;
+        // Shader or pipeline errors become an Error, not a panic of wgpu's default error handler.
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let kernels = Arc::new(Kernels::new(&device));
+        if let Some(e) = scope.pop().await {
+            return Err(Error::Gpu(format!(
+                "compiling the kernels on {}: {e}",
+                info.name
+            )));
+        }
         Ok(Self {
             device,
             queue,
@@ -152,12 +162,19 @@ impl GpuContext {
             staging: Default::default(),
             info,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
+            failure: Default::default(),
         })
     }
 
     /// The adapter's name, e.g. "NVIDIA H100" or "llvmpipe (LLVM 15.0.6, 256 bits)".
     pub fn adapter_name(&self) -> &str {
         &self.info.name
+    }
+
+    /// The device's limits (what was requested: the adapter's own unless [`GpuOptions::limits`] said
+    /// otherwise).
+    pub fn limits(&self) -> wgpu::Limits {
+        self.device.limits()
     }
 
     /// Everything wgpu says about the adapter (device type, vendor, back end, driver).
@@ -178,6 +195,54 @@ impl GpuContext {
         self.timestamps
     }
 
+    /// Workgroup counts `(x, y)` for `threads` invocations of `group` each, folded into y past the device's
+    /// `max_compute_workgroups_per_dimension` (kernels recover the linear index from `num_workgroups`).
+    /// Inputs are checked against [`check_threads`](Self::check_threads) where they enter, so y is within
+    /// the limit too.
+    pub(crate) fn groups(&self, threads: u32, group: u32) -> (u32, u32) {
+        let max = self.max_groups();
+        let n = threads.div_ceil(group).max(1);
+        if n <= max {
+            (n, 1)
+        } else {
+            (max, n.div_ceil(max))
+        }
+    }
+
+    /// The device's `max_compute_workgroups_per_dimension`.
+    pub(crate) fn max_groups(&self) -> u32 {
+        self.device.limits().max_compute_workgroups_per_dimension
+    }
+
+    /// Refuses, with [`Error::Gpu`], `threads` invocations of `group` that even an (x, y) dispatch at the
+    /// device's limit per dimension cannot cover.
+    pub(crate) fn check_threads(&self, what: &str, threads: u64, group: u32) -> Result<()> {
+        let max = self.max_groups() as u64;
+        let capacity = max * max * group as u64;
+        if threads > capacity {
+            return Err(Error::Gpu(format!(
+                "{what}: {threads} invocations exceed the {capacity} this device dispatches \
+                 ({max} workgroups per dimension)"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Refuses, with [`Error::Gpu`], a storage buffer of `bytes` larger than the device's
+    /// `max_buffer_size` or `max_storage_buffer_binding_size` (buffers are bound whole).
+    pub(crate) fn check_storage(&self, what: &str, bytes: u64) -> Result<()> {
+        let limits = self.device.limits();
+        let max = limits
+            .max_buffer_size
+            .min(limits.max_storage_buffer_binding_size);
+        if bytes.max(256).next_multiple_of(256) > max {
+            return Err(Error::Gpu(format!(
+                "{what}: a {bytes}-byte storage buffer exceeds this device's limit of {max} bytes"
+            )));
+        }
+        Ok(())
+    }
+
     /// A command encoder to record a frame's GPU work into.
     pub fn encoder(&self) -> wgpu::CommandEncoder {
         self.device
@@ -186,17 +251,41 @@ impl GpuContext {
             })
     }
 
-    /// Submits recorded work; it runs asynchronously.
+    /// Submits recorded work; it runs asynchronously. The encoder is finished and submitted inside
+    /// validation and out-of-memory error scopes: a device error (a dispatch past a limit, a buffer too
+    /// large to allocate) is kept and returned as [`Error::Gpu`] by the next [`wait`](Self::wait) or
+    /// read-back instead of reaching wgpu's default handler, which panics.
     pub fn submit(&self, encoder: wgpu::CommandEncoder) -> wgpu::SubmissionIndex {
-        self.queue.submit([encoder.finish()])
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let index = self.queue.submit([encoder.finish()]);
+        // Native scopes resolve at once; block_on only unwraps the future.
+        let errors = [
+            pollster::block_on(validation.pop()),
+            pollster::block_on(memory.pop()),
+        ];
+        if let Some(e) = errors.into_iter().flatten().next() {
+            let mut failure = self.failure.lock().expect("gpu failure");
+            failure.get_or_insert_with(|| e.to_string());
+        }
+        index
     }
 
-    /// Blocks until all submitted work has finished. Surfaces device loss as [`Error::Gpu`].
+    /// The device error of an earlier submission, once: [`Error::Gpu`] when there was one.
+    pub(crate) fn take_failure(&self) -> Result<()> {
+        match self.failure.lock().expect("gpu failure").take() {
+            Some(e) => Err(Error::Gpu(e)),
+            None => Ok(()),
+        }
+    }
+
+    /// Blocks until all submitted work has finished. Surfaces device loss, and a device error of an
+    /// earlier submission, as [`Error::Gpu`].
     pub fn wait(&self) -> Result<()> {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| Error::Gpu(e.to_string()))
+            .map_err(|e| Error::Gpu(e.to_string()))?;
+        self.take_failure()
     }
 
     /// Polls without blocking, driving pending read-backs forward.

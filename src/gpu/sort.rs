@@ -2,7 +2,7 @@
 //! reduce-then-scan, 4 bits per pass, stable, no subgroup operations.
 
 use super::GpuContext;
-use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, bind_group};
 
 /// Sorts pairs held in two buffers in place, using a second pair of buffers and a histogram as scratch.
 /// Cost per 4-bit pass: three dispatch groups over the keys (count, a scan of 16 counts per 256 keys,
@@ -111,7 +111,7 @@ impl RadixSort {
             // Extra passes reuse the last real pass's parameters: a repeated stable pass is a no-op order.
             let slot = ParamSlots::offset(p.min(real - 1));
             let g = &self.sort_groups[p % 2];
-            let (x, y) = groups(self.blocks * 256, 256);
+            let (x, y) = ctx.groups(self.blocks * 256, 256);
             pass.set_pipeline(k.sort.pipeline("count"));
             pass.set_bind_group(0, g, &[slot]);
             pass.dispatch_workgroups(x, y, 1);
@@ -128,13 +128,13 @@ impl RadixSort {
         let real = self.bits.div_ceil(4) as usize;
         let slot = |l: usize| ParamSlots::offset(real + l);
         for (l, (g, size)) in self.scan_levels.iter().enumerate() {
-            let (x, y) = groups(*size, 256);
+            let (x, y) = ctx.groups(*size, 256);
             pass.set_pipeline(k.scan.pipeline("scan_blocks"));
             pass.set_bind_group(0, g, &[slot(l)]);
             pass.dispatch_workgroups(x, y, 1);
         }
         for (l, (g, size)) in self.scan_levels.iter().enumerate().rev().skip(1) {
-            let (x, y) = groups(*size, 256);
+            let (x, y) = ctx.groups(*size, 256);
             pass.set_pipeline(k.scan.pipeline("add_offsets"));
             pass.set_bind_group(0, g, &[slot(l)]);
             pass.dispatch_workgroups(x, y, 1);
