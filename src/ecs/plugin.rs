@@ -129,6 +129,8 @@ impl KinetracePlugin {
                 .run_if(super::collide::collisions_needed)
                 .in_set(TraceSystems::Queries),
         ));
+        #[cfg(feature = "gpu")]
+        schedule.add_systems(super::gpu_queries::gpu_counters_system.after(TraceSystems::Queries));
         for source in &self.transform_sources {
             source.install(schedule);
         }

@@ -75,8 +75,7 @@ impl GpuBuffer {
     /// Writes `data` at the start (queued; lands before the next submission runs).
     pub fn write<T: Pod>(&self, ctx: &GpuContext, data: &[T]) {
         if !data.is_empty() {
-            ctx.queue
-                .write_buffer(&self.buffer, 0, bytemuck::cast_slice(data));
+            ctx.write_buffer(&self.buffer, 0, bytemuck::cast_slice(data));
         }
     }
 }
@@ -118,7 +117,7 @@ impl ParamSlots {
             bytes[i * SLOT as usize..][..16].copy_from_slice(bytemuck::bytes_of(s));
         }
         if !bytes.is_empty() {
-            ctx.queue.write_buffer(&buffer, 0, &bytes);
+            ctx.write_buffer(&buffer, 0, &bytes);
         }
         Self { buffer }
     }
@@ -135,8 +134,7 @@ impl ParamSlots {
     /// Rewrites one slot; takes effect at the next submission, so every dispatch of that submission sees
     /// the new value.
     pub fn write(&self, ctx: &GpuContext, slot: usize, value: [u32; 4]) {
-        ctx.queue
-            .write_buffer(&self.buffer, slot as u64 * SLOT, bytemuck::bytes_of(&value));
+        ctx.write_buffer(&self.buffer, slot as u64 * SLOT, bytemuck::bytes_of(&value));
     }
 
     pub fn offset(slot: usize) -> u32 {
@@ -236,6 +234,7 @@ impl<T: Pod> Readback<T> {
         let len: usize = parts.iter().map(|p| p.1).sum();
         let copy: u64 = parts.iter().map(|p| bytes(p.1)).sum();
         let state = Arc::new(Mutex::new(None));
+        ctx.count_read_back(copy);
         let staging = (copy > 0).then(|| {
             let staging = ctx.staging.take(ctx, copy);
             let mut at = 0;

@@ -3,6 +3,7 @@
 use super::kernels::Kernels;
 use crate::{Error, Result};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 /// A headless wgpu device for compute work, with every kernel compiled once.
 ///
@@ -25,6 +26,8 @@ pub struct GpuContext {
     pub(crate) staging: Arc<super::buffers::StagingPool>,
     info: wgpu::AdapterInfo,
     timestamps: bool,
+    /// Running totals of uploads, read-backs, submissions and blocking waits.
+    counters: Arc<CounterCells>,
     /// The first device error of a submission not yet reported by [`wait`](Self::wait) or a read-back.
     failure: Arc<std::sync::Mutex<Option<String>>>,
 }
@@ -163,6 +166,7 @@ impl GpuContext {
             info,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
             failure: Default::default(),
+            counters: Default::default(),
         })
     }
 
@@ -259,6 +263,7 @@ impl GpuContext {
         let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let index = self.queue.submit([encoder.finish()]);
+        self.counters.submissions.fetch_add(1, Relaxed);
         // Native scopes resolve at once; block_on only unwraps the future.
         let errors = [
             pollster::block_on(validation.pop()),
@@ -269,6 +274,28 @@ impl GpuContext {
             failure.get_or_insert_with(|| e.to_string());
         }
         index
+    }
+
+    /// Running totals of the traffic through this device (shared by clones).
+    pub fn counters(&self) -> GpuCounters {
+        let c = &self.counters;
+        GpuCounters {
+            uploaded_bytes: c.uploaded.load(Relaxed),
+            read_back_bytes: c.read_back.load(Relaxed),
+            submissions: c.submissions.load(Relaxed),
+            blocking_waits: c.waits.load(Relaxed),
+        }
+    }
+
+    /// Queues a write of `data` into `buffer` at `offset`, counted as uploaded.
+    pub(crate) fn write_buffer(&self, buffer: &wgpu::Buffer, offset: u64, data: &[u8]) {
+        self.counters.uploaded.fetch_add(data.len() as u64, Relaxed);
+        self.queue.write_buffer(buffer, offset, data);
+    }
+
+    /// Counts `bytes` copied to staging for reading back.
+    pub(crate) fn count_read_back(&self, bytes: u64) {
+        self.counters.read_back.fetch_add(bytes, Relaxed);
     }
 
     /// The device error of an earlier submission, once: [`Error::Gpu`] when there was one.
@@ -282,6 +309,7 @@ impl GpuContext {
     /// Blocks until all submitted work has finished. Surfaces device loss, and a device error of an
     /// earlier submission, as [`Error::Gpu`].
     pub fn wait(&self) -> Result<()> {
+        self.counters.waits.fetch_add(1, Relaxed);
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| Error::Gpu(e.to_string()))?;
@@ -292,6 +320,42 @@ impl GpuContext {
     pub fn poll(&self) {
         let _ = self.device.poll(wgpu::PollType::Poll);
     }
+}
+
+/// Traffic between the CPU and a [`GpuContext`]: running totals from [`GpuContext::counters`], or one
+/// frame's share of them ([`since`](Self::since)) as in `TraceStats::gpu`. Counting costs an atomic add per
+/// upload, read-back, submission and wait.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpuCounters {
+    /// Bytes written to GPU buffers from the CPU (vertex data, trees, rays, parameters).
+    pub uploaded_bytes: u64,
+    /// Bytes copied to staging buffers for reading back.
+    pub read_back_bytes: u64,
+    /// Command buffers submitted.
+    pub submissions: u64,
+    /// Times the CPU blocked until the GPU finished (a [`GpuContext::wait`], a `Readback::wait` that found
+    /// its results not yet there).
+    pub blocking_waits: u64,
+}
+
+impl GpuCounters {
+    /// What happened between `earlier` and these totals.
+    pub fn since(&self, earlier: &GpuCounters) -> GpuCounters {
+        GpuCounters {
+            uploaded_bytes: self.uploaded_bytes - earlier.uploaded_bytes,
+            read_back_bytes: self.read_back_bytes - earlier.read_back_bytes,
+            submissions: self.submissions - earlier.submissions,
+            blocking_waits: self.blocking_waits - earlier.blocking_waits,
+        }
+    }
+}
+
+#[derive(Default)]
+struct CounterCells {
+    uploaded: AtomicU64,
+    read_back: AtomicU64,
+    submissions: AtomicU64,
+    waits: AtomicU64,
 }
 
 /// A Vulkan-only wgpu instance for compute.

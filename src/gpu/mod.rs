@@ -42,7 +42,9 @@ pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};
 #[cfg(feature = "testing")]
 pub use context::shared_for_tests;
-pub use context::{ALLOW_SOFTWARE_ENV, GpuContext, GpuOptions, adapter_accepted, software_allowed};
+pub use context::{
+    ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
+};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

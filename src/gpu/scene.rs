@@ -243,7 +243,7 @@ impl GpuScene {
             .ensure(ctx, n as u64 * std::mem::size_of::<SceneHit>() as u64);
         b.rays.write(ctx, &b.up_rays);
         b.filters.write(ctx, &b.up_filters);
-        ctx.queue.write_buffer(
+        ctx.write_buffer(
             b.params.buffer(),
             0,
             bytemuck::bytes_of(&[n, any as u32, tlas_len, 0]),

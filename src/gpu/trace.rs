@@ -138,7 +138,7 @@ impl GpuRays {
         self.upload.clear();
         self.upload.extend(rays.iter().map(GpuRay::new));
         self.rays.write(ctx, &self.upload);
-        ctx.queue.write_buffer(
+        ctx.write_buffer(
             self.params.buffer(),
             0,
             bytemuck::bytes_of(&[n, 0u32, 0, 0]),
