@@ -79,10 +79,10 @@ async fn pick_adapter(
     instance: &wgpu::Instance,
     allow_software: bool,
 ) -> Result<Option<wgpu::Adapter>> {
-    if let Ok(adapter) = wgpu::util::initialize_adapter_from_env_or_default(instance, None).await {
-        if adapter_accepted(&adapter.get_info(), allow_software) {
-            return Ok(Some(adapter));
-        }
+    if let Ok(adapter) = wgpu::util::initialize_adapter_from_env_or_default(instance, None).await
+        && adapter_accepted(&adapter.get_info(), allow_software)
+    {
+        return Ok(Some(adapter));
     }
     let adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
     if let Some(adapter) = adapters
