@@ -1,7 +1,8 @@
 //! Adapter choice: `GpuWhenAvailable` refuses software adapters unless allowed, `GpuRequired` takes them.
 
-use bevy_ecs::prelude::*;
-use kinetrace::ecs::{GpuQueries, KinetracePlugin, TraceConfig, TraceMode};
+mod common;
+use common::ecs::app_with;
+use kinetrace::ecs::{GpuQueries, TraceConfig, TraceMode};
 use kinetrace::gpu::{ALLOW_SOFTWARE_ENV, adapter_accepted, software_allowed};
 use wgpu::{AdapterInfo, Backend, DeviceType};
 
@@ -35,15 +36,7 @@ fn the_environment_allows_software_only_with_1() {
 
 /// Whether the plugin built with `config` created a GPU context.
 fn plugin_has_gpu(config: TraceConfig) -> bool {
-    let mut world = World::new();
-    let mut schedule = Schedule::default();
-    KinetracePlugin {
-        config,
-        ..Default::default()
-    }
-    .try_build(&mut world, &mut schedule)
-    .expect("an adapter exists");
-    world.contains_resource::<GpuQueries>()
+    app_with(config).0.contains_resource::<GpuQueries>()
 }
 
 /// On this machine's adapter (lavapipe in CI: a software one), the plugin's modes choose as documented.
