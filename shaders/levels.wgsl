@@ -6,7 +6,8 @@
 
 const MAX_DEPTH: u32 = 64u;
 
-struct LevelParams { nodes: u32, mode: u32, level: u32, _pad: u32 }
+// max_groups: the device's workgroups per dimension (level_offsets folds each level's dispatch into y past it).
+struct LevelParams { nodes: u32, mode: u32, level: u32, max_groups: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> slot_tris: array<vec4<u32>>;
@@ -49,8 +50,9 @@ fn level_offsets() {
         let c = atomicLoad(&levels[d]);
         atomicStore(&levels[OFFSET + d], sum);
         atomicStore(&levels[CURSOR + d], 0u);
-        args[3u * d] = (c + WG - 1u) / WG;
-        args[3u * d + 1u] = 1u;
+        let g = (c + WG - 1u) / WG;
+        args[3u * d] = min(g, params.max_groups);
+        args[3u * d + 1u] = (g + params.max_groups - 1u) / params.max_groups;
         args[3u * d + 2u] = 1u;
         sum += c;
     }
@@ -73,7 +75,7 @@ fn vertex(i: u32) -> vec3<f32> {
 // from their children. Build mode stores the SA ratio; refit mode writes ratio − stored ratio to `terms`.
 @compute @workgroup_size(256)
 fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let k = gid.x; // levels are dispatched indirectly with at most 65535 workgroups each
+    let k = linear_id(gid, nwg);
     let d = params.level;
     let count = atomicLoad(&levels[d]);
     if k >= count { return; }

@@ -14,11 +14,14 @@ pub enum TraceMode {
     /// CPU only; no GPU device is ever created.
     #[default]
     Cpu,
-    /// Batched queries on the GPU when an adapter exists (feature `gpu`), else on the CPU, said once in the
-    /// log.
+    /// Batched queries on the GPU when a hardware adapter exists (feature `gpu`), else on the CPU, said once
+    /// in the log. Software adapters (llvmpipe, lavapipe, WARP) are skipped — on the same cores the CPU path
+    /// is faster — unless [`TraceConfig::allow_software_gpu`] or the environment variable
+    /// `KINETRACE_ALLOW_SOFTWARE_GPU=1` allows them.
     GpuWhenAvailable,
-    /// Batched queries on the GPU; [`KinetracePlugin::try_build`](super::KinetracePlugin::try_build) fails
-    /// with [`Error::NoGpu`](crate::Error::NoGpu) without one.
+    /// Batched queries on the GPU, software adapters included (CI machines without a GPU run lavapipe);
+    /// [`KinetracePlugin::try_build`](super::KinetracePlugin::try_build) fails with
+    /// [`Error::NoGpu`](crate::Error::NoGpu) without one.
     GpuRequired,
 }
 
@@ -205,6 +208,9 @@ pub struct TraceConfig {
     pub structure: Structure,
     /// Options of the grids of meshes kept as grids.
     pub grid: GridOptions,
+    /// Let [`TraceMode::GpuWhenAvailable`] use a software adapter (false by default; read when the plugin
+    /// is built).
+    pub allow_software_gpu: bool,
 }
 
 impl Default for TraceConfig {
@@ -218,6 +224,7 @@ impl Default for TraceConfig {
             profile_refresh: 0.2,
             structure: Structure::Bvh,
             grid: GridOptions::default(),
+            allow_software_gpu: false,
         }
     }
 }

@@ -46,6 +46,8 @@ mod imp {
         pub(super) ctx: GpuContext,
         scene: GpuScene,
         pending: Option<Pending>,
+        /// The context's totals when the last frame's traffic was counted.
+        pub(super) counted: crate::gpu::GpuCounters,
     }
 
     impl GpuQueries {
@@ -56,11 +58,13 @@ mod imp {
 
         pub(crate) fn new(ctx: GpuContext) -> Self {
             let scene = GpuScene::new(&ctx);
+            let counted = ctx.counters();
             GpuQueries {
                 inner: Inner {
                     ctx,
                     scene,
                     pending: None,
+                    counted,
                 },
             }
         }
@@ -166,4 +170,17 @@ mod imp {
             Some(run())
         }
     }
+}
+
+/// After the queries: this frame's GPU traffic into [`TraceStats::gpu`](super::TraceStats) — what the
+/// context counted since the same point of the last frame (clones of one context share their totals).
+#[cfg(feature = "gpu")]
+pub(crate) fn gpu_counters_system(
+    gpu: Option<ResMut<GpuQueries>>,
+    mut stats: ResMut<super::TraceStats>,
+) {
+    let Some(mut gpu) = gpu else { return };
+    let now = gpu.inner.ctx.counters();
+    stats.gpu = now.since(&gpu.inner.counted);
+    gpu.inner.counted = now;
 }

@@ -129,6 +129,8 @@ impl KinetracePlugin {
                 .run_if(super::collide::collisions_needed)
                 .in_set(TraceSystems::Queries),
         ));
+        #[cfg(feature = "gpu")]
+        schedule.add_systems(super::gpu_queries::gpu_counters_system.after(TraceSystems::Queries));
         for source in &self.transform_sources {
             source.install(schedule);
         }
@@ -140,7 +142,7 @@ impl KinetracePlugin {
         if self.config.mode == TraceMode::Cpu {
             return Ok(());
         }
-        match crate::gpu::GpuContext::new() {
+        match crate::gpu::GpuContext::with_options(&gpu_options(&self.config)) {
             Ok(ctx) => {
                 log::info!("kinetrace: batched queries on {}", ctx.adapter_name());
                 world.insert_resource(GpuQueries::new(ctx));
@@ -168,5 +170,20 @@ impl KinetracePlugin {
             }
             TraceMode::Cpu => Ok(()),
         }
+    }
+}
+
+/// The adapter rule of the configured mode: [`TraceMode::GpuWhenAvailable`] refuses software adapters unless
+/// the configuration or `KINETRACE_ALLOW_SOFTWARE_GPU=1` allows them; [`TraceMode::GpuRequired`] takes any.
+#[cfg(feature = "gpu")]
+fn gpu_options(config: &TraceConfig) -> crate::gpu::GpuOptions {
+    use crate::gpu::{ALLOW_SOFTWARE_ENV, software_allowed};
+    let allowed = software_allowed(
+        config.allow_software_gpu,
+        std::env::var(ALLOW_SOFTWARE_ENV).ok().as_deref(),
+    );
+    crate::gpu::GpuOptions {
+        hardware_only: config.mode == TraceMode::GpuWhenAvailable && !allowed,
+        limits: None,
     }
 }

@@ -180,4 +180,8 @@ pub struct TraceStats {
     pub top_level_time: Duration,
     /// Batched queries.
     pub query_time: Duration,
+    /// This frame's GPU traffic: bytes uploaded and read back, submissions, blocking waits (all zero
+    /// without a GPU context).
+    #[cfg(feature = "gpu")]
+    pub gpu: crate::gpu::GpuCounters,
 }

@@ -75,8 +75,7 @@ impl GpuBuffer {
     /// Writes `data` at the start (queued; lands before the next submission runs).
     pub fn write<T: Pod>(&self, ctx: &GpuContext, data: &[T]) {
         if !data.is_empty() {
-            ctx.queue
-                .write_buffer(&self.buffer, 0, bytemuck::cast_slice(data));
+            ctx.write_buffer(&self.buffer, 0, bytemuck::cast_slice(data));
         }
     }
 }
@@ -118,7 +117,7 @@ impl ParamSlots {
             bytes[i * SLOT as usize..][..16].copy_from_slice(bytemuck::bytes_of(s));
         }
         if !bytes.is_empty() {
-            ctx.queue.write_buffer(&buffer, 0, &bytes);
+            ctx.write_buffer(&buffer, 0, &bytes);
         }
         Self { buffer }
     }
@@ -135,8 +134,7 @@ impl ParamSlots {
     /// Rewrites one slot; takes effect at the next submission, so every dispatch of that submission sees
     /// the new value.
     pub fn write(&self, ctx: &GpuContext, slot: usize, value: [u32; 4]) {
-        ctx.queue
-            .write_buffer(&self.buffer, slot as u64 * SLOT, bytemuck::bytes_of(&value));
+        ctx.write_buffer(&self.buffer, slot as u64 * SLOT, bytemuck::bytes_of(&value));
     }
 
     pub fn offset(slot: usize) -> u32 {
@@ -163,17 +161,6 @@ pub(crate) fn bind_group(
         layout,
         entries: &entries,
     })
-}
-
-/// Workgroup counts for `threads` invocations of `group` each, folded into y past 65535 groups (kernels
-/// recover the linear index from `num_workgroups`).
-pub(crate) fn groups(threads: u32, group: u32) -> (u32, u32) {
-    let n = threads.div_ceil(group).max(1);
-    if n <= 65535 {
-        (n, 1)
-    } else {
-        (65535, n.div_ceil(65535))
-    }
 }
 
 /// Read-back staging buffers waiting for reuse (sizes are powers of two), so that a frame's read-backs do
@@ -247,6 +234,7 @@ impl<T: Pod> Readback<T> {
         let len: usize = parts.iter().map(|p| p.1).sum();
         let copy: u64 = parts.iter().map(|p| bytes(p.1)).sum();
         let state = Arc::new(Mutex::new(None));
+        ctx.count_read_back(copy);
         let staging = (copy > 0).then(|| {
             let staging = ctx.staging.take(ctx, copy);
             let mut at = 0;
@@ -274,6 +262,9 @@ impl<T: Pod> Readback<T> {
     /// The results if the GPU has finished, without blocking.
     pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<Vec<T>>> {
         ctx.poll();
+        if let Err(e) = ctx.take_failure() {
+            return Some(Err(e));
+        }
         let done = self.state.lock().expect("readback state").take()?;
         Some(done.map_err(Error::Gpu).map(|()| self.read(ctx)))
     }

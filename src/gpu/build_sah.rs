@@ -21,7 +21,7 @@
 //! (indirect, so levels past the tree's depth cost empty dispatches only), 21 atomics per primitive for the
 //! bins and a prefix sum over all primitives; all recorded into the caller's encoder, one submission.
 
-use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
 use super::scan::Scan;
 use super::{GpuContext, GpuMeshBvh};
 use crate::bvh::{Builder, MeshBvh, MortonBits};
@@ -329,7 +329,7 @@ impl GpuSahBuilder {
             timestamp_writes: None,
         });
         let k = &ctx.kernels.sah;
-        let (x, y) = groups(self.tris, 256);
+        let (x, y) = ctx.groups(self.tris, 256);
         let direct = |pass: &mut wgpu::ComputePass<'_>, entry: &str, l: usize| {
             pass.set_pipeline(k.pipeline(entry));
             pass.set_bind_group(0, &self.work_group, &[slot(l)]);

@@ -2,7 +2,7 @@
 //! ray kernels read. The node buffer holds exactly the CPU [`Bvh`] layout.
 
 use super::GpuContext;
-use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, Readback, bind_group};
 use super::sort::RadixSort;
 use super::tree::{GpuTree, node_depths};
 use crate::bvh::{Bvh, MAX_DEPTH, MeshBvh, Node};
@@ -92,6 +92,15 @@ impl GpuMeshBvh {
         let vertices = mesh.positions().len() as u32;
         let n = tris.max(1) as u64;
         let node_count = (2 * n - 1) as u32;
+        for (what, bytes) in [
+            ("positions", vertices as u64 * 12),
+            ("indices", tris as u64 * 12),
+            ("slot triangles", n * 16),
+            ("nodes", node_count as u64 * 32),
+        ] {
+            ctx.check_storage(what, bytes)?;
+        }
+        ctx.check_threads("tree nodes", node_count as u64, 256)?;
         let positions = GpuBuffer::storage(ctx, "positions", vertices as u64 * 12);
         positions.write(ctx, mesh.positions());
         let indices = GpuBuffer::storage(ctx, "indices", tris as u64 * 12);
@@ -124,7 +133,7 @@ impl GpuMeshBvh {
         }
         let mut slots = vec![[0u32; 4]; SLOT_HISTOGRAM + 1];
         slots[SLOT_MESH] = [tris, 0, 0, 0];
-        slots[SLOT_NODES] = [node_count, 0, 0, 0];
+        slots[SLOT_NODES] = [node_count, 0, 0, ctx.max_groups()];
         for d in 0..LEVELS {
             slots[SLOT_BUILD + d] = [node_count, 0, d as u32, 0];
             slots[SLOT_REFIT + d] = [node_count, 1, d as u32, 0];
@@ -353,7 +362,7 @@ impl GpuMeshBvh {
         });
         let mesh = [ParamSlots::offset(SLOT_MESH)];
         let run = |pass: &mut wgpu::ComputePass<'_>, entry: &str, threads: u32| {
-            let (x, y) = groups(threads, 256);
+            let (x, y) = ctx.groups(threads, 256);
             pass.set_pipeline(k.lbvh.pipeline(entry));
             pass.set_bind_group(0, &self.lbvh_group, &mesh);
             pass.dispatch_workgroups(x, y, 1);
@@ -428,7 +437,7 @@ impl GpuMeshBvh {
         // level_count adds to zeroed counts; level_offsets rewrites everything else.
         pass.set_pipeline(k.levels.pipeline("level_reset"));
         pass.dispatch_workgroups(1, 1, 1);
-        let (x, y) = groups(self.node_count(), 256);
+        let (x, y) = ctx.groups(self.node_count(), 256);
         pass.set_pipeline(k.levels.pipeline("level_count"));
         pass.dispatch_workgroups(x, y, 1);
         pass.set_pipeline(k.levels.pipeline("level_offsets"));
@@ -467,7 +476,7 @@ impl GpuMeshBvh {
             timestamp_writes: None,
         });
         self.record_levels(ctx, &mut pass, SLOT_REFIT);
-        let (x, y) = groups(self.node_count(), 256);
+        let (x, y) = ctx.groups(self.node_count(), 256);
         pass.set_pipeline(k.reduce.pipeline("sum_blocks"));
         pass.set_bind_group(0, &self.reduce_group, &[ParamSlots::offset(SLOT_SUM)]);
         pass.dispatch_workgroups(x, y, 1);
@@ -530,7 +539,7 @@ impl GpuMeshBvh {
             pass.set_pipeline(k.histogram.pipeline("histogram_clear"));
             pass.dispatch_workgroups(1, 1, 1);
             if self.tris > 0 {
-                let (x, y) = groups(self.tris, 256);
+                let (x, y) = ctx.groups(self.tris, 256);
                 pass.set_pipeline(k.histogram.pipeline("histogram"));
                 pass.dispatch_workgroups(x, y, 1);
             }

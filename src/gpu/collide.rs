@@ -278,8 +278,7 @@ impl GpuPairs {
             pair_cap,
             max_groups: self.max_groups,
         };
-        ctx.queue
-            .write_buffer(self.params.buffer(), 0, bytemuck::bytes_of(&params));
+        ctx.write_buffer(self.params.buffer(), 0, bytemuck::bytes_of(&params));
         let rounds =
             (a.height.min(MAX_DEPTH as u32) + tree_b.height.min(MAX_DEPTH as u32) + 2) as usize;
         let groups = self.bind_groups(ctx, a.nodes, tree_b.nodes);

@@ -3,6 +3,7 @@
 use super::kernels::Kernels;
 use crate::{Error, Result};
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 
 /// A headless wgpu device for compute work, with every kernel compiled once.
 ///
@@ -25,6 +26,10 @@ pub struct GpuContext {
     pub(crate) staging: Arc<super::buffers::StagingPool>,
     info: wgpu::AdapterInfo,
     timestamps: bool,
+    /// Running totals of uploads, read-backs, submissions and blocking waits.
+    counters: Arc<CounterCells>,
+    /// The first device error of a submission not yet reported by [`wait`](Self::wait) or a read-back.
+    failure: Arc<std::sync::Mutex<Option<String>>>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -35,37 +40,106 @@ impl std::fmt::Debug for GpuContext {
     }
 }
 
+/// Set to `1` to let `TraceMode::GpuWhenAvailable` accept a software adapter (see [`software_allowed`]).
+pub const ALLOW_SOFTWARE_ENV: &str = "KINETRACE_ALLOW_SOFTWARE_GPU";
+
+/// How a [`GpuContext`] picks its adapter and which limits it asks for.
+#[derive(Clone, Debug, Default)]
+pub struct GpuOptions {
+    /// Refuse software adapters (wgpu's [`DeviceType::Cpu`](wgpu::DeviceType::Cpu): Mesa's llvmpipe and
+    /// lavapipe, Microsoft's WARP): they run kernels on the CPU cores, typically several times slower than
+    /// the crate's CPU paths on the same cores, so "a GPU when there is one" should not mean them. Off by
+    /// default (tests and CI machines without a GPU run on lavapipe); `TraceMode::GpuWhenAvailable` sets it
+    /// unless [`software_allowed`].
+    pub hardware_only: bool,
+    /// Limits to request instead of the adapter's own; each must be within the adapter's, or creation fails
+    /// with [`Error::NoGpu`]. Small limits exercise the paths that split work over several dispatches or
+    /// refuse it with an [`Error`]; `None` (the default) asks for everything the adapter offers.
+    pub limits: Option<wgpu::Limits>,
+}
+
+/// Whether a software adapter is acceptable where a GPU is optional: when the configuration says so
+/// (`option`) or [`ALLOW_SOFTWARE_ENV`] is `1` (`env` is its value, if set).
+pub fn software_allowed(option: bool, env: Option<&str>) -> bool {
+    option || env == Some("1")
+}
+
+/// Whether an adapter may be used: any hardware adapter, a software one ([`DeviceType::Cpu`]) only when
+/// allowed.
+///
+/// [`DeviceType::Cpu`]: wgpu::DeviceType::Cpu
+pub fn adapter_accepted(info: &wgpu::AdapterInfo, allow_software: bool) -> bool {
+    info.device_type != wgpu::DeviceType::Cpu || allow_software
+}
+
+/// The adapter `WGPU_ADAPTER_NAME` / `WGPU_POWER_PREF` pick on `instance` when it is accepted, else the
+/// first accepted one the instance lists. `Ok(None)` when the instance has no adapter at all, `Err` when it
+/// has only refused (software) ones.
+async fn pick_adapter(
+    instance: &wgpu::Instance,
+    allow_software: bool,
+) -> Result<Option<wgpu::Adapter>> {
+    if let Ok(adapter) = wgpu::util::initialize_adapter_from_env_or_default(instance, None).await
+        && adapter_accepted(&adapter.get_info(), allow_software)
+    {
+        return Ok(Some(adapter));
+    }
+    let adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
+    if let Some(adapter) = adapters
+        .iter()
+        .find(|a| adapter_accepted(&a.get_info(), allow_software))
+    {
+        return Ok(Some(adapter.clone()));
+    }
+    match adapters.first() {
+        None => Ok(None),
+        Some(refused) => Err(Error::NoGpu(format!(
+            "only the software adapter {} was found; set {ALLOW_SOFTWARE_ENV}=1 to use it",
+            refused.get_info().name
+        ))),
+    }
+}
+
 impl GpuContext {
-    /// Finds an adapter and creates a device. [`Error::NoGpu`] when there is none: callers fall back to the
-    /// CPU path (and should say so once in their log).
+    /// Finds an adapter, software ones included, and creates a device ([`GpuOptions::default`]).
+    /// [`Error::NoGpu`] when there is none: callers fall back to the CPU path (and should say so once in
+    /// their log).
     pub fn new() -> Result<Self> {
-        pollster::block_on(Self::new_async())
+        Self::with_options(&GpuOptions::default())
     }
 
-    async fn new_async() -> Result<Self> {
+    /// [`new`](Self::new) with options: refuse software adapters, request particular limits. Logs the
+    /// adapter chosen once, at `info` level.
+    pub fn with_options(options: &GpuOptions) -> Result<Self> {
+        pollster::block_on(Self::new_async(options))
+    }
+
+    async fn new_async(options: &GpuOptions) -> Result<Self> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        // The headless Vulkan instance first; when it yields no adapter, wgpu's ordinary instance with every
+        let allow_software = !options.hardware_only;
+        // The headless Vulkan instance first; when it lists no adapter, wgpu's ordinary instance with every
         // back end the environment allows (GL, …), which may print the display warnings but finds what exists.
         let headless = match headless_vulkan(&desc) {
-            Some(instance) => wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-                .await
-                .ok(),
+            Some(instance) => pick_adapter(&instance, allow_software).await?,
             None => None,
         };
         let adapter = match headless {
             Some(adapter) => adapter,
-            None => {
-                let instance = wgpu::Instance::new(desc);
-                wgpu::util::initialize_adapter_from_env_or_default(&instance, None)
-                    .await
-                    .map_err(|e| Error::NoGpu(e.to_string()))?
-            }
+            None => pick_adapter(&wgpu::Instance::new(desc), allow_software)
+                .await?
+                .ok_or_else(|| Error::NoGpu("no GPU adapter found".into()))?,
         };
         let info = adapter.get_info();
+        log::info!(
+            "kinetrace: GPU adapter {} ({:?}, {:?})",
+            info.name,
+            info.device_type,
+            info.backend
+        );
         let wanted = wgpu::Features::TIMESTAMP_QUERY;
         let features = adapter.features() & wanted;
-        // Ask for what the adapter can do: big meshes need big storage buffers.
-        let limits = adapter.limits();
+        // Ask for what the adapter can do (big meshes need big storage buffers) unless told otherwise.
+        let limits = options.limits.clone().unwrap_or_else(|| adapter.limits());
         let (device, queue) = adapter
             .request_device(&wgpu::DeviceDescriptor {
                 label: Some("kinetrace"),
@@ -75,7 +149,15 @@ impl GpuContext {
             })
             .await
             .map_err(|e| Error::NoGpu(format!("{} ({:?}): {e}", info.name, info.backend)))?;
+        // Shader or pipeline errors become an Error, not a panic of wgpu's default error handler.
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let kernels = Arc::new(Kernels::new(&device));
+        if let Some(e) = scope.pop().await {
+            return Err(Error::Gpu(format!(
+                "compiling the kernels on {}: {e}",
+                info.name
+            )));
+        }
         Ok(Self {
             device,
             queue,
@@ -83,12 +165,25 @@ impl GpuContext {
             staging: Default::default(),
             info,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
+            failure: Default::default(),
+            counters: Default::default(),
         })
     }
 
     /// The adapter's name, e.g. "NVIDIA H100" or "llvmpipe (LLVM 15.0.6, 256 bits)".
     pub fn adapter_name(&self) -> &str {
         &self.info.name
+    }
+
+    /// The device's limits (what was requested: the adapter's own unless [`GpuOptions::limits`] said
+    /// otherwise).
+    pub fn limits(&self) -> wgpu::Limits {
+        self.device.limits()
+    }
+
+    /// Everything wgpu says about the adapter (device type, vendor, back end, driver).
+    pub fn adapter_info(&self) -> &wgpu::AdapterInfo {
+        &self.info
     }
 
     /// Backend and driver, for logs.
@@ -104,6 +199,54 @@ impl GpuContext {
         self.timestamps
     }
 
+    /// Workgroup counts `(x, y)` for `threads` invocations of `group` each, folded into y past the device's
+    /// `max_compute_workgroups_per_dimension` (kernels recover the linear index from `num_workgroups`).
+    /// Inputs are checked against [`check_threads`](Self::check_threads) where they enter, so y is within
+    /// the limit too.
+    pub(crate) fn groups(&self, threads: u32, group: u32) -> (u32, u32) {
+        let max = self.max_groups();
+        let n = threads.div_ceil(group).max(1);
+        if n <= max {
+            (n, 1)
+        } else {
+            (max, n.div_ceil(max))
+        }
+    }
+
+    /// The device's `max_compute_workgroups_per_dimension`.
+    pub(crate) fn max_groups(&self) -> u32 {
+        self.device.limits().max_compute_workgroups_per_dimension
+    }
+
+    /// Refuses, with [`Error::Gpu`], `threads` invocations of `group` that even an (x, y) dispatch at the
+    /// device's limit per dimension cannot cover.
+    pub(crate) fn check_threads(&self, what: &str, threads: u64, group: u32) -> Result<()> {
+        let max = self.max_groups() as u64;
+        let capacity = max * max * group as u64;
+        if threads > capacity {
+            return Err(Error::Gpu(format!(
+                "{what}: {threads} invocations exceed the {capacity} this device dispatches \
+                 ({max} workgroups per dimension)"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Refuses, with [`Error::Gpu`], a storage buffer of `bytes` larger than the device's
+    /// `max_buffer_size` or `max_storage_buffer_binding_size` (buffers are bound whole).
+    pub(crate) fn check_storage(&self, what: &str, bytes: u64) -> Result<()> {
+        let limits = self.device.limits();
+        let max = limits
+            .max_buffer_size
+            .min(limits.max_storage_buffer_binding_size);
+        if bytes.max(256).next_multiple_of(256) > max {
+            return Err(Error::Gpu(format!(
+                "{what}: a {bytes}-byte storage buffer exceeds this device's limit of {max} bytes"
+            )));
+        }
+        Ok(())
+    }
+
     /// A command encoder to record a frame's GPU work into.
     pub fn encoder(&self) -> wgpu::CommandEncoder {
         self.device
@@ -112,23 +255,107 @@ impl GpuContext {
             })
     }
 
-    /// Submits recorded work; it runs asynchronously.
+    /// Submits recorded work; it runs asynchronously. The encoder is finished and submitted inside
+    /// validation and out-of-memory error scopes: a device error (a dispatch past a limit, a buffer too
+    /// large to allocate) is kept and returned as [`Error::Gpu`] by the next [`wait`](Self::wait) or
+    /// read-back instead of reaching wgpu's default handler, which panics.
     pub fn submit(&self, encoder: wgpu::CommandEncoder) -> wgpu::SubmissionIndex {
-        self.queue.submit([encoder.finish()])
+        let memory = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let index = self.queue.submit([encoder.finish()]);
+        self.counters.submissions.fetch_add(1, Relaxed);
+        // Native scopes resolve at once; block_on only unwraps the future.
+        let errors = [
+            pollster::block_on(validation.pop()),
+            pollster::block_on(memory.pop()),
+        ];
+        if let Some(e) = errors.into_iter().flatten().next() {
+            let mut failure = self.failure.lock().expect("gpu failure");
+            failure.get_or_insert_with(|| e.to_string());
+        }
+        index
     }
 
-    /// Blocks until all submitted work has finished. Surfaces device loss as [`Error::Gpu`].
+    /// Running totals of the traffic through this device (shared by clones).
+    pub fn counters(&self) -> GpuCounters {
+        let c = &self.counters;
+        GpuCounters {
+            uploaded_bytes: c.uploaded.load(Relaxed),
+            read_back_bytes: c.read_back.load(Relaxed),
+            submissions: c.submissions.load(Relaxed),
+            blocking_waits: c.waits.load(Relaxed),
+        }
+    }
+
+    /// Queues a write of `data` into `buffer` at `offset`, counted as uploaded.
+    pub(crate) fn write_buffer(&self, buffer: &wgpu::Buffer, offset: u64, data: &[u8]) {
+        self.counters.uploaded.fetch_add(data.len() as u64, Relaxed);
+        self.queue.write_buffer(buffer, offset, data);
+    }
+
+    /// Counts `bytes` copied to staging for reading back.
+    pub(crate) fn count_read_back(&self, bytes: u64) {
+        self.counters.read_back.fetch_add(bytes, Relaxed);
+    }
+
+    /// The device error of an earlier submission, once: [`Error::Gpu`] when there was one.
+    pub(crate) fn take_failure(&self) -> Result<()> {
+        match self.failure.lock().expect("gpu failure").take() {
+            Some(e) => Err(Error::Gpu(e)),
+            None => Ok(()),
+        }
+    }
+
+    /// Blocks until all submitted work has finished. Surfaces device loss, and a device error of an
+    /// earlier submission, as [`Error::Gpu`].
     pub fn wait(&self) -> Result<()> {
+        self.counters.waits.fetch_add(1, Relaxed);
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| Error::Gpu(e.to_string()))
+            .map_err(|e| Error::Gpu(e.to_string()))?;
+        self.take_failure()
     }
 
     /// Polls without blocking, driving pending read-backs forward.
     pub fn poll(&self) {
         let _ = self.device.poll(wgpu::PollType::Poll);
     }
+}
+
+/// Traffic between the CPU and a [`GpuContext`]: running totals from [`GpuContext::counters`], or one
+/// frame's share of them ([`since`](Self::since)) as in `TraceStats::gpu`. Counting costs an atomic add per
+/// upload, read-back, submission and wait.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpuCounters {
+    /// Bytes written to GPU buffers from the CPU (vertex data, trees, rays, parameters).
+    pub uploaded_bytes: u64,
+    /// Bytes copied to staging buffers for reading back.
+    pub read_back_bytes: u64,
+    /// Command buffers submitted.
+    pub submissions: u64,
+    /// Times the CPU blocked until the GPU finished (a [`GpuContext::wait`], a `Readback::wait` that found
+    /// its results not yet there).
+    pub blocking_waits: u64,
+}
+
+impl GpuCounters {
+    /// What happened between `earlier` and these totals.
+    pub fn since(&self, earlier: &GpuCounters) -> GpuCounters {
+        GpuCounters {
+            uploaded_bytes: self.uploaded_bytes - earlier.uploaded_bytes,
+            read_back_bytes: self.read_back_bytes - earlier.read_back_bytes,
+            submissions: self.submissions - earlier.submissions,
+            blocking_waits: self.blocking_waits - earlier.blocking_waits,
+        }
+    }
+}
+
+#[derive(Default)]
+struct CounterCells {
+    uploaded: AtomicU64,
+    read_back: AtomicU64,
+    submissions: AtomicU64,
+    waits: AtomicU64,
 }
 
 /// A Vulkan-only wgpu instance for compute.

@@ -46,9 +46,11 @@ pub use build_sah::{
 };
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};
-pub use context::GpuContext;
 #[cfg(feature = "testing")]
 pub use context::shared_for_tests;
+pub use context::{
+    ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
+};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

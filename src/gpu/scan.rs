@@ -3,7 +3,7 @@
 //! down. Used by the radix sort (digit histograms) and by the binned SAH builder (partition flags).
 
 use super::GpuContext;
-use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, bind_group};
 
 /// The levels of a scan over a fixed element count. Cost: about 1.004 passes over the data up and one down,
 /// 2 dispatches per level (one level per factor of 256 elements); scratch of 4 bytes per 256 elements.
@@ -68,7 +68,7 @@ impl Scan {
         let dispatch = |pass: &mut wgpu::ComputePass<'_>, l: usize, size: u32| match indirect {
             Some((args, at)) => pass.dispatch_workgroups_indirect(args, at + 12 * l as u64),
             None => {
-                let (x, y) = groups(size, 256);
+                let (x, y) = ctx.groups(size, 256);
                 pass.dispatch_workgroups(x, y, 1);
             }
         };

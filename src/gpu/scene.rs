@@ -3,7 +3,7 @@
 //! passes entity bits); nothing here knows where they come from.
 
 use super::GpuContext;
-use super::buffers::{GpuBuffer, Readback, bind_group, groups};
+use super::buffers::{GpuBuffer, Readback, bind_group};
 use super::trace::GpuRay;
 use crate::bvh::{Bvh, Hit, MeshBvh, Node};
 use crate::geometry::Ray;
@@ -243,7 +243,7 @@ impl GpuScene {
             .ensure(ctx, n as u64 * std::mem::size_of::<SceneHit>() as u64);
         b.rays.write(ctx, &b.up_rays);
         b.filters.write(ctx, &b.up_filters);
-        ctx.queue.write_buffer(
+        ctx.write_buffer(
             b.params.buffer(),
             0,
             bytemuck::bytes_of(&[n, any as u32, tlas_len, 0]),
@@ -275,7 +275,7 @@ impl GpuScene {
             });
             pass.set_pipeline(k.scene.pipeline("scene_trace"));
             pass.set_bind_group(0, &group, &[0]);
-            let (x, y) = groups(n, 64);
+            let (x, y) = ctx.groups(n, 64);
             pass.dispatch_workgroups(x, y, 1);
         }
         SceneReadback {

@@ -1,7 +1,7 @@
 //! Linear-blend skinning on the GPU (shaders/skin.wgsl), writing straight into a [`GpuMeshBvh`]'s
 //! positions so refit and rebuild read them with no CPU round trip.
 
-use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, bind_group};
 use super::{GpuContext, GpuMeshBvh};
 use crate::anim::SkinWeights;
 use crate::{Error, Result};
@@ -28,6 +28,8 @@ impl GpuSkin {
         target: &GpuMeshBvh,
     ) -> Result<Self> {
         skin.check(rest.len(), joints)?;
+        ctx.check_threads("skinned vertices", rest.len() as u64, 256)?;
+        ctx.check_storage("skin weights", rest.len() as u64 * 16)?;
         let vertices = rest.len() as u32;
         let rest_buf = GpuBuffer::storage(ctx, "rest positions", vertices as u64 * 12);
         rest_buf.write(ctx, rest);
@@ -81,7 +83,7 @@ impl GpuSkin {
         });
         pass.set_pipeline(ctx.kernels.skin.pipeline("skin"));
         pass.set_bind_group(0, &self.group, &[ParamSlots::offset(0)]);
-        let (x, y) = groups(self.vertices, 256);
+        let (x, y) = ctx.groups(self.vertices, 256);
         pass.dispatch_workgroups(x, y, 1);
         Ok(())
     }

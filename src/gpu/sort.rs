@@ -2,7 +2,7 @@
 //! reduce-then-scan, 4 bits per pass, stable, no subgroup operations.
 
 use super::GpuContext;
-use super::buffers::{GpuBuffer, ParamSlots, bind_group, groups};
+use super::buffers::{GpuBuffer, ParamSlots, bind_group};
 use super::scan::Scan;
 
 /// Sorts pairs held in two buffers in place, using a second pair of buffers and a histogram as scratch.
@@ -97,7 +97,7 @@ impl RadixSort {
             // Extra passes reuse the last real pass's parameters: a repeated stable pass is a no-op order.
             let slot = ParamSlots::offset(p.min(real - 1));
             let g = &self.sort_groups[p % 2];
-            let (x, y) = groups(self.blocks * 256, 256);
+            let (x, y) = ctx.groups(self.blocks * 256, 256);
             pass.set_pipeline(k.sort.pipeline("count"));
             pass.set_bind_group(0, g, &[slot]);
             pass.dispatch_workgroups(x, y, 1);

@@ -1,6 +1,6 @@
 //! Batched closest-hit and any-hit queries on the GPU (shaders/trace.wgsl).
 
-use super::buffers::{GpuBuffer, Readback, bind_group, groups};
+use super::buffers::{GpuBuffer, Readback, bind_group};
 use super::{GpuContext, GpuMeshBvh};
 use crate::Result;
 use crate::geometry::{Ray, TriangleRay};
@@ -138,7 +138,7 @@ impl GpuRays {
         self.upload.clear();
         self.upload.extend(rays.iter().map(GpuRay::new));
         self.rays.write(ctx, &self.upload);
-        ctx.queue.write_buffer(
+        ctx.write_buffer(
             self.params.buffer(),
             0,
             bytemuck::bytes_of(&[n, 0u32, 0, 0]),
@@ -170,7 +170,7 @@ impl GpuRays {
                 Query::Any => "any_hit",
             }));
             pass.set_bind_group(0, &group, &[0]);
-            let (x, y) = groups(n, 64);
+            let (x, y) = ctx.groups(n, 64);
             pass.dispatch_workgroups(x, y, 1);
         } else if n > 0 {
             // An empty mesh: every ray misses.
@@ -197,6 +197,8 @@ impl GpuRays {
         rays: &[Ray],
         query: Query,
     ) -> Result<Vec<GpuHit>> {
+        ctx.check_threads("rays", rays.len() as u64, 64)?;
+        ctx.check_storage("rays", (rays.len() * std::mem::size_of::<GpuRay>()) as u64)?;
         let mut enc = ctx.encoder();
         let r = self.record(ctx, &mut enc, bvh, rays, query);
         ctx.submit(enc);
