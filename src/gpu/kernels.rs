@@ -112,6 +112,7 @@ pub(crate) struct Kernels {
     pub skin: Module,
     pub histogram: Module,
     pub collide: Module,
+    pub ploc: Module,
 }
 
 impl Kernels {
@@ -198,6 +199,23 @@ impl Kernels {
                     Read, Read, Read, Write, Write, Write, Write, Uniform, Uniform,
                 ],
                 &["pairs_init", "pairs_args", "pairs_round"],
+            ),
+            ploc: Module::new(
+                device,
+                "ploc",
+                shader!("ploc.wgsl"),
+                &[
+                    Read, Read, Read, Write, Write, Write, Write, Write, Write, Write, Write,
+                    Uniform, Write,
+                ],
+                &[
+                    "ploc_init",
+                    "ploc_nearest",
+                    "ploc_merge",
+                    "ploc_block_scan",
+                    "ploc_compact",
+                    "ploc_advance",
+                ],
             ),
         }
     }

@@ -31,6 +31,7 @@ mod bvh;
 mod collide;
 mod context;
 mod kernels;
+mod ploc;
 pub(crate) mod scene;
 mod skin;
 mod sort;
@@ -43,6 +44,7 @@ pub use collide::{GpuPairs, PairsReadback, PairsResult};
 pub use context::GpuContext;
 #[cfg(feature = "testing")]
 pub use context::shared_for_tests;
+pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

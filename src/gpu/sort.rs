@@ -98,6 +98,15 @@ impl RadixSort {
         self._scratch.iter().map(|b| b.buffer().size()).sum()
     }
 
+    /// Dispatches [`record`](Self::record) makes: per pass a count, the scan levels up and down, a scatter.
+    pub fn dispatches(&self) -> u32 {
+        if self.n < 2 || self.bits == 0 {
+            return 0;
+        }
+        let levels = self.scan_levels.len() as u32;
+        self.bits.div_ceil(4).next_multiple_of(2) * (2 + 2 * levels - 1)
+    }
+
     /// Records the sort. An even number of passes leaves the result in the original buffers; an odd one
     /// in the scratch pair, so passes are always made even (a pass over zero bits is a stable no-op copy).
     pub fn record(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
