@@ -25,6 +25,7 @@ mod cpu;
 mod crowd;
 mod ecs;
 mod gpu;
+mod gpu_ploc;
 mod grid;
 mod peers;
 mod queries;
