@@ -17,6 +17,8 @@ mod crowd;
 mod ecs;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
+#[path = "../examples/bench/gpu_ploc.rs"]
+mod gpu_ploc;
 #[path = "../examples/bench/grid.rs"]
 mod grid;
 #[path = "../examples/bench/peers.rs"]

@@ -10,8 +10,9 @@ pub enum Device {
     /// On the CPU (all threads with the `parallel` feature).
     #[default]
     Cpu,
-    /// On the GPU (feature `gpu`), which builds LBVH over 30-bit codes only ([`Build::GPU_LBVH`]); the
-    /// tree is read back so that CPU queries can use it.
+    /// On the GPU (feature `gpu`), which builds LBVH over 30-bit codes ([`Build::GPU_LBVH`]) and PLOC
+    /// (`Builder::Ploc` of any radius, [`Build::GPU_PLOC`]); the tree is read back so that CPU queries can
+    /// use it.
     Gpu,
 }
 
@@ -36,6 +37,12 @@ impl Build {
     /// LBVH over 30-bit codes on the GPU: the one build the GPU back end has.
     pub const GPU_LBVH: Build = Build {
         builder: Builder::LBVH,
+        device: Device::Gpu,
+    };
+
+    /// PLOC with the paper's radius 16 on the GPU: the same tree as the CPU's PLOC, node for node.
+    pub const GPU_PLOC: Build = Build {
+        builder: Builder::PLOC,
         device: Device::Gpu,
     };
 

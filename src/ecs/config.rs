@@ -60,7 +60,7 @@ pub enum Decision {
     /// Keep the refitted tree.
     Keep,
     /// Rebuild it now, with this builder on this device. A GPU build of anything but
-    /// [`Build::GPU_LBVH`], or with no GPU context, runs on the CPU instead (said once in the log).
+    /// [`Build::GPU_LBVH`] or a PLOC, or with no GPU context, runs on the CPU instead (said once in the log).
     Rebuild(Build),
 }
 

@@ -52,7 +52,7 @@ impl Fallbacks {
     fn not_lbvh(&mut self, build: Build) {
         if !std::mem::replace(&mut self.not_lbvh, true) {
             log::warn!(
-                "kinetrace: the GPU builds only LBVH over 30-bit codes; GPU rebuilds with {} run on the CPU",
+                "kinetrace: the GPU builds only LBVH over 30-bit codes and PLOC; GPU rebuilds with {} run on the CPU",
                 build.builder.name()
             );
         }
@@ -260,6 +260,7 @@ impl Rebuilder<'_> {
         #[cfg(feature = "gpu")]
         if reason == RebuildReason::Topology {
             kept.gpu = None;
+            kept.gpu_ploc = None;
         }
         if let RebuildPolicy::Adaptive { builders } = self.config.policy
             && kept.adaptive.is_none()
@@ -338,18 +339,28 @@ impl Rebuilder<'_> {
             self.fallbacks.no_gpu();
             return None;
         };
-        if build != Build::GPU_LBVH {
+        if build != Build::GPU_LBVH && !matches!(build.builder, crate::bvh::Builder::Ploc { .. }) {
             self.fallbacks.not_lbvh(build);
             return None;
         }
         let ctx = gpu.context();
         let mut run = || -> crate::Result<(MeshBvh, Build, f64)> {
-            let tree = match &mut kept.gpu {
-                Some(tree) => tree,
-                empty => empty.insert(crate::gpu::GpuMeshBvh::new(ctx, current)?),
+            let (t, bvh) = match build.builder {
+                crate::bvh::Builder::Ploc { radius } => {
+                    let tree = match &mut kept.gpu_ploc {
+                        Some(tree) if tree.radius() == radius => tree,
+                        other => other.insert(crate::gpu::GpuPloc::new(ctx, current, radius)?),
+                    };
+                    (Instant::now(), tree.build_for_cpu(ctx, current)?)
+                }
+                _ => {
+                    let tree = match &mut kept.gpu {
+                        Some(tree) => tree,
+                        empty => empty.insert(crate::gpu::GpuMeshBvh::new(ctx, current)?),
+                    };
+                    (Instant::now(), tree.build_for_cpu(ctx, current)?)
+                }
             };
-            let t = Instant::now();
-            let bvh = tree.build_for_cpu(ctx, current)?;
             Ok((bvh, build, t.elapsed().as_secs_f64()))
         };
         run()
@@ -367,7 +378,7 @@ impl Rebuilder<'_> {
 }
 
 /// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists (second,
-/// after the cheapest CPU build), learning into the world's shared `costs` under the mesh's `asset`.
+/// after the cheapest CPU build) and GPU PLOC last where `builders` has a PLOC, learning into the world's shared `costs` under the mesh's `asset`.
 fn adaptive_policy(
     builders: &[crate::bvh::Builder],
     gpu: bool,
@@ -377,6 +388,16 @@ fn adaptive_policy(
     let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
     if gpu {
         builds.insert(builds.len().min(1), Build::GPU_LBVH);
+        // PLOC is offered on the GPU too where the CPU builders include it (the same tree either way).
+        let ploc = builders
+            .iter()
+            .find(|b| matches!(b, crate::bvh::Builder::Ploc { .. }));
+        if let Some(&builder) = ploc {
+            builds.push(Build {
+                builder,
+                device: Device::Gpu,
+            });
+        }
     }
     AdaptivePolicy::shared(&builds, costs, asset)
 }

@@ -51,6 +51,9 @@ pub(crate) struct Kept {
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
+    /// The mesh's GPU PLOC buffers, made at its first GPU PLOC rebuild (same topology and radius only).
+    #[cfg(feature = "gpu")]
+    pub gpu_ploc: Option<crate::gpu::GpuPloc>,
     /// The mesh's grid, made the first time it is kept as one and kept (with its buffers) from then on;
     /// queries read it only while [`Instance::structure`] is the grid.
     pub grid: Option<UniformGrid>,
