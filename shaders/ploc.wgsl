@@ -45,6 +45,18 @@ const MAX_X: u32 = 65535u;
 var<workgroup> tile: array<u32, 256>;
 var<workgroup> clusters_left: u32;
 
+// Hillis-Steele inclusive scan of `tile` (written by every invocation before the call), in place.
+fn scan_tile(lid: u32) {
+    workgroupBarrier();
+    for (var off = 1u; off < WG; off = off << 1u) {
+        var add = 0u;
+        if lid >= off { add = tile[lid - off]; }
+        workgroupBarrier();
+        tile[lid] = tile[lid] + add;
+        workgroupBarrier();
+    }
+}
+
 fn vertex(i: u32) -> vec3<f32> {
     return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
 }
@@ -146,16 +158,9 @@ fn ploc_merge(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
             next[i] = GONE;
         }
     }
-    // Hillis-Steele inclusive scan of the survivors in the workgroup (every invocation reaches the barriers).
+    // Inclusive scan of the survivors in the workgroup (every invocation reaches the barriers).
     tile[lid.x] = keep;
-    workgroupBarrier();
-    for (var off = 1u; off < WG; off = off << 1u) {
-        var add = 0u;
-        if lid.x >= off { add = tile[lid.x - off]; }
-        workgroupBarrier();
-        tile[lid.x] = tile[lid.x] + add;
-        workgroupBarrier();
-    }
+    scan_tile(lid.x);
     if i < c { offsets[i] = tile[lid.x] - keep; }
     if lid.x == WG - 1u { sums[wid.x + wid.y * nwg.x] = tile[lid.x]; }
 }
@@ -172,14 +177,7 @@ fn ploc_block_scan(@builtin(local_invocation_id) lid: vec3<u32>) {
         var v = 0u;
         if b < blocks { v = sums[b]; }
         tile[lid.x] = v;
-        workgroupBarrier();
-        for (var off = 1u; off < WG; off = off << 1u) {
-            var add = 0u;
-            if lid.x >= off { add = tile[lid.x - off]; }
-            workgroupBarrier();
-            tile[lid.x] = tile[lid.x] + add;
-            workgroupBarrier();
-        }
+        scan_tile(lid.x);
         if b < blocks { sums[b] = carry + tile[lid.x] - v; }
         carry += tile[WG - 1u];
         workgroupBarrier();
