@@ -17,6 +17,8 @@ mod crowd;
 mod ecs;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
+#[path = "../examples/bench/gpu_ploc.rs"]
+mod gpu_ploc;
 #[path = "../examples/bench/gpu_sah.rs"]
 mod gpu_sah;
 #[path = "../examples/bench/grid.rs"]

@@ -75,7 +75,7 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
     let mut lbvh_1t = 0.0;
     let mut sah_1t = 0.0;
     let mut sah_cost = 0.0;
-    for b in Builder::ALL {
+    for b in Builder::ALL.into_iter().chain([Builder::PLOC]) {
         // The binary tree alone: the wide query tree's collapse is timed on its own below.
         let opt = BuildOptions::new(b).wide(false);
         let (t1, bvh) =

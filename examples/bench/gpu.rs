@@ -106,6 +106,8 @@ fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count
     );
     crate::gpu_sah::rows(rec, ctx, name, mesh);
 
+    crate::gpu_ploc::rows(rec, ctx, name, mesh);
+
     let [(_, camera), (_, random)] = crate::rays::camera_and_random(mesh, ray_count);
     let mut gr = GpuRays::new(ctx);
     for (kind, rays) in [("coherent", &camera), ("random", &random)] {

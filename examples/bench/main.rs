@@ -25,6 +25,7 @@ mod cpu;
 mod crowd;
 mod ecs;
 mod gpu;
+mod gpu_ploc;
 mod gpu_sah;
 mod grid;
 mod peers;

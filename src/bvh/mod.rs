@@ -11,6 +11,7 @@
 //! | [`Builder::Lbvh`] | lowest overall, parallel | lowest, poor on teapot-in-stadium | rebuilding every frame |
 //! | [`Builder::Hybrid`] | LBVH + SAH below `k` levels | close to SAH | frequent rebuilds of uneven meshes |
 //! | [`Builder::Sah`] | highest | best | static meshes, rare rebuilds |
+//! | [`Builder::Ploc`] | Morton sort + ~log n clustering rounds, parallel | close to SAH | frequent rebuilds that want SAH-like trees |
 //!
 //! Between a refit and a rebuild, [`Bvh::rebuild_degraded`] (and [`MeshBvh::refit_partial`]) rebuilds only
 //! the subtrees whose degradation crossed a threshold, in place (see [`PartialOptions`]).
@@ -22,6 +23,7 @@
 mod build_hybrid;
 mod build_lbvh;
 mod build_median;
+pub(crate) mod build_ploc;
 mod build_sah;
 mod layout;
 mod mesh_bvh;
@@ -36,6 +38,7 @@ mod traverse;
 mod validate;
 pub mod wide;
 
+pub use build_ploc::{DEFAULT_PLOC_RADIUS, MAX_PLOC_RADIUS};
 pub use build_sah::MAX_BINS;
 pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
 pub(crate) use mesh_bvh::{is_collapsed, query_corners};
@@ -96,6 +99,13 @@ pub enum Builder {
         /// Morton code length of the LBVH part.
         morton: MortonBits,
     },
+    /// Parallel locally-ordered clustering (Meister and Bittner 2018): bottom-up merging of mutual nearest
+    /// neighbours along the Morton curve. One primitive per leaf before [`BuildOptions::max_leaf_size`]
+    /// collapses small subtrees.
+    Ploc {
+        /// Neighbours searched on each side, 1..=[`MAX_PLOC_RADIUS`]; 16 by default, as in the paper.
+        radius: u32,
+    },
 }
 
 impl Builder {
@@ -107,6 +117,10 @@ impl Builder {
     };
     /// Six LBVH levels over 30-bit codes, then 16-bin SAH.
     pub const HYBRID: Builder = Builder::hybrid(6);
+    /// PLOC with the paper's search radius of 16.
+    pub const PLOC: Builder = Builder::Ploc {
+        radius: DEFAULT_PLOC_RADIUS,
+    };
 
     /// [`HYBRID`](Self::HYBRID) with `lbvh_levels` LBVH levels instead of six: more levels build faster
     /// and give a worse tree. Other bins or code lengths need the variant with all three fields, as in
@@ -140,6 +154,7 @@ impl Builder {
             Builder::Sah { .. } => "sah",
             Builder::Lbvh { .. } => "lbvh",
             Builder::Hybrid { .. } => "hybrid",
+            Builder::Ploc { .. } => "ploc",
         }
     }
 }
@@ -204,6 +219,13 @@ impl BuildOptions {
             return Err(Error::InvalidOption(format!(
                 "max_leaf_size {} is outside 1..={MAX_LEAF_SIZE}",
                 self.max_leaf_size
+            )));
+        }
+        if let Builder::Ploc { radius } = self.builder
+            && !(1..=MAX_PLOC_RADIUS).contains(&radius)
+        {
+            return Err(Error::InvalidOption(format!(
+                "PLOC radius {radius} is outside 1..={MAX_PLOC_RADIUS}"
             )));
         }
         let bins = match self.builder {
@@ -296,6 +318,7 @@ impl Bvh {
                 bins,
                 morton,
             } => build_hybrid::build(&input, slot, morton, lbvh_levels as usize, bins),
+            Builder::Ploc { radius } => build_ploc::build(&input, slot, radius),
         };
         layout::compact(&mut nodes, used);
         Ok(Bvh { nodes, prims })

@@ -63,8 +63,9 @@ pub enum Decision {
     /// Keep the refitted tree.
     Keep,
     /// Rebuild it now, with this builder on this device. The GPU runs [`Build::GPU_LBVH`],
-    /// [`Build::GPU_SAH`] and [`Build::gpu_hybrid`] (16 bins, 30-bit codes); any other GPU build, or one
-    /// with no GPU context, runs on the CPU instead (said once in the log).
+    /// [`Build::GPU_SAH`], [`Build::gpu_hybrid`] (16 bins, 30-bit codes) and PLOC of any radius
+    /// ([`Build::GPU_PLOC`]); any other GPU build, or one with no GPU context, runs on the CPU instead (said
+    /// once in the log).
     Rebuild(Build),
 }
 

@@ -54,7 +54,7 @@ impl Fallbacks {
     fn not_lbvh(&mut self, build: Build) {
         if !std::mem::replace(&mut self.not_lbvh, true) {
             log::warn!(
-                "kinetrace: the GPU builds LBVH over 30-bit codes, 16-bin SAH and their hybrid only; GPU rebuilds with {} run on the CPU",
+                "kinetrace: the GPU builds LBVH over 30-bit codes, 16-bin SAH, their hybrid and PLOC only; GPU rebuilds with {} run on the CPU",
                 build.builder.name()
             );
         }
@@ -356,6 +356,7 @@ impl Rebuilder<'_> {
         if reason == RebuildReason::Topology {
             kept.gpu = None;
             kept.gpu_sah = None;
+            kept.gpu_ploc = None;
         }
         if let RebuildPolicy::Adaptive { builders } = self.config.policy
             && kept.adaptive.is_none()
@@ -440,21 +441,31 @@ impl Rebuilder<'_> {
             self.fallbacks.no_gpu();
             return None;
         };
-        let Some(sah) = crate::gpu::GpuSahOptions::for_builder(build.builder, clustered) else {
+        let sah = crate::gpu::GpuSahOptions::for_builder(build.builder, clustered);
+        if sah.is_none() && !matches!(build.builder, crate::bvh::Builder::Ploc { .. }) {
             self.fallbacks.not_lbvh(build);
             return None;
-        };
+        }
         if kept.gpu.is_none() {
             // A SAH builder's scratch is bound to the tree buffers it was made with.
             kept.gpu_sah = None;
         }
         let ctx = gpu.context();
         let mut run = || -> crate::Result<(MeshBvh, Build, f64)> {
+            if let crate::bvh::Builder::Ploc { radius } = build.builder {
+                let tree = match &mut kept.gpu_ploc {
+                    Some(tree) if tree.radius() == radius => tree,
+                    other => other.insert(crate::gpu::GpuPloc::new(ctx, current, radius)?),
+                };
+                let t = Instant::now();
+                let bvh = tree.build_for_cpu(ctx, current)?;
+                return Ok((bvh, build, t.elapsed().as_secs_f64()));
+            }
             let tree = match &mut kept.gpu {
                 Some(tree) => tree,
                 empty => empty.insert(crate::gpu::GpuMeshBvh::new(ctx, current)?),
             };
-            let Some(options) = sah else {
+            let Some(options) = sah.flatten() else {
                 let t = Instant::now();
                 let bvh = tree.build_for_cpu(ctx, current)?;
                 return Ok((bvh, build, t.elapsed().as_secs_f64()));
@@ -482,7 +493,8 @@ impl Rebuilder<'_> {
 }
 
 /// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists (second,
-/// after the cheapest CPU build) and the GPU twins of the SAH and hybrid builders among them (last), learning into the world's shared `costs` under the mesh's `asset`.
+/// after the cheapest CPU build) and the GPU twins of the SAH, hybrid and PLOC builders among them (last),
+/// learning into the world's shared `costs` under the mesh's `asset`.
 fn adaptive_policy(
     builders: &[crate::bvh::Builder],
     gpu: bool,
@@ -492,16 +504,17 @@ fn adaptive_policy(
     let mut builds: Vec<Build> = builders.iter().map(|&b| Build::cpu(b)).collect();
     if gpu {
         builds.insert(builds.len().min(1), Build::GPU_LBVH);
-        // The GPU twins of the configured SAH and hybrid builders the GPU runs, last.
+        // The GPU twins of the configured SAH, hybrid and PLOC builders the GPU runs, last.
         #[cfg(feature = "gpu")]
         builds.extend(
             builders
                 .iter()
                 .filter(|&&b| {
-                    matches!(
-                        crate::gpu::GpuSahOptions::for_builder(b, false),
-                        Some(Some(_))
-                    )
+                    matches!(b, crate::bvh::Builder::Ploc { .. })
+                        || matches!(
+                            crate::gpu::GpuSahOptions::for_builder(b, false),
+                            Some(Some(_))
+                        )
                 })
                 .map(|&builder| Build {
                     builder,

@@ -57,6 +57,9 @@ pub(crate) struct Kept {
     /// The scratch of the mesh's GPU SAH or hybrid builds over `gpu`, made at the first such build.
     #[cfg(feature = "gpu")]
     pub gpu_sah: Option<crate::gpu::GpuSahBuilder>,
+    /// The mesh's GPU PLOC buffers, made at its first GPU PLOC rebuild (same topology and radius only).
+    #[cfg(feature = "gpu")]
+    pub gpu_ploc: Option<crate::gpu::GpuPloc>,
     /// The mesh's grid, made the first time it is kept as one and kept (with its buffers) from then on;
     /// queries read it only while [`Instance::structure`] is the grid.
     pub grid: Option<UniformGrid>,

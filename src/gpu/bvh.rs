@@ -316,6 +316,29 @@ impl GpuMeshBvh {
         }
     }
 
+    /// Bindings for the PLOC builder, which clusters after this builder's Morton sort: positions, indices,
+    /// and the triangle ids in Morton order (after [`BuildPhase::Sort`]).
+    pub(crate) fn positions_binding(&self) -> wgpu::BindingResource<'_> {
+        self.positions.binding()
+    }
+
+    pub(crate) fn indices_binding(&self) -> wgpu::BindingResource<'_> {
+        self._indices.binding()
+    }
+
+    pub(crate) fn sorted_ids_binding(&self) -> wgpu::BindingResource<'_> {
+        self.vals.binding()
+    }
+
+    /// Records the read-back of the triangle ids in Morton order.
+    pub(crate) fn record_sorted_ids(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+    ) -> Readback<u32> {
+        Readback::record(ctx, encoder, self.vals.buffer(), self.tris as usize)
+    }
+
     /// Per slot: the triangle's three vertex indices and its id.
     pub(crate) fn slot_tris(&self) -> &wgpu::Buffer {
         self.slot_tris.buffer()

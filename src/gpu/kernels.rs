@@ -113,6 +113,7 @@ pub(crate) struct Kernels {
     pub histogram: Module,
     pub collide: Module,
     pub sah: Module,
+    pub ploc: Module,
 }
 
 impl Kernels {
@@ -221,6 +222,23 @@ impl Kernels {
                     "sah_copy",
                     "sah_small",
                     "sah_finish",
+                ],
+            ),
+            ploc: Module::new(
+                device,
+                "ploc",
+                shader!("ploc.wgsl"),
+                &[
+                    Read, Read, Read, Write, Write, Write, Write, Write, Write, Write, Write,
+                    Uniform, Write,
+                ],
+                &[
+                    "ploc_init",
+                    "ploc_nearest",
+                    "ploc_merge",
+                    "ploc_block_scan",
+                    "ploc_compact",
+                    "ploc_advance",
                 ],
             ),
         }

@@ -32,6 +32,7 @@ mod bvh;
 mod collide;
 mod context;
 mod kernels;
+mod ploc;
 mod scan;
 pub(crate) mod scene;
 mod skin;
@@ -51,6 +52,7 @@ pub use context::shared_for_tests;
 pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
+pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

@@ -78,6 +78,8 @@ pub fn all_build_options() -> Vec<BuildOptions> {
             bins: 8,
             morton: MortonBits::Bits63,
         },
+        Builder::PLOC,
+        Builder::Ploc { radius: 1 },
     ]) {
         for leaf in [1, 4] {
             v.push(BuildOptions::new(b).max_leaf_size(leaf));
