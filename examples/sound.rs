@@ -1,16 +1,19 @@
-//! Sound propagation in a room with 16 walking characters: per update the characters move, their tree is
-//! refitted, and the specular paths up to order 3 from one source to one listener are traced. Prints the
+//! Sound propagation in a room with 16 walking characters, through the ECS: per frame the characters'
+//! entities move, the plugin updates the top level, and its sound system traces the specular paths up to
+//! order 3 from the [`SoundSource`] to the [`Listener`] into [`SoundPaths`]. Prints the
 //! paths and the time per update, and writes the per-band impulse response as a PNG.
 //!
 //! `cargo run --release --example sound -- [--frames N] [--sampling N] [--primary M] [--out PATH]`
 //! (defaults: 10 frames, [`SoundConfig::default`]'s sampling and primary frusta, `sound_ir.png`).
 
-use glam::Vec3;
-use kinetrace::bvh::BuildOptions;
-use kinetrace::sound::{
-    AcousticMaterial, BAND_HZ, BANDS, SoundConfig, SoundPath, SoundScene, propagate,
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Quat, Vec3};
+use kinetrace::ecs::{
+    AcousticSurface, KinetracePlugin, Listener, SoundPaths, SoundSettings, SoundSource, TraceMesh,
+    TraceTransform,
 };
-use kinetrace::{Mesh, MeshBvh, scenes};
+use kinetrace::scenes;
+use kinetrace::sound::{AcousticMaterial, BAND_HZ, BANDS, SoundConfig, SoundPath};
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 use std::time::Instant;
@@ -18,20 +21,12 @@ use std::time::Instant;
 const ROOM: Vec3 = Vec3::new(10.0, 8.0, 3.5);
 const CHARACTERS: usize = 16;
 
-/// The room (material 0, plaster) and the characters (material 1, clothing) at time `t` seconds.
-fn scene_at(t: f32, body: &Mesh) -> Vec<Vec3> {
-    let mut pos = scenes::shoebox(Vec3::ZERO, ROOM).positions().to_vec();
-    for k in 0..CHARACTERS {
-        let phase = k as f32 * 0.7;
-        let home = Vec3::new(1.5 + (k % 4) as f32 * 2.3, 1.3 + (k / 4) as f32 * 1.8, 0.9);
-        let at = home + 0.6 * Vec3::new((t + phase).cos(), (1.3 * t + phase).sin(), 0.0);
-        pos.extend(
-            body.positions()
-                .iter()
-                .map(|p| *p * Vec3::new(0.25, 0.15, 0.9) + at),
-        );
-    }
-    pos
+/// Where character `k` stands at time `t` seconds (a body scaled into a 0.5 × 0.3 × 1.8 m ellipsoid).
+fn character_at(k: usize, t: f32) -> Affine3A {
+    let phase = k as f32 * 0.7;
+    let home = Vec3::new(1.5 + (k % 4) as f32 * 2.3, 1.3 + (k / 4) as f32 * 1.8, 0.9);
+    let at = home + 0.6 * Vec3::new((t + phase).cos(), (1.3 * t + phase).sin(), 0.0);
+    Affine3A::from_scale_rotation_translation(Vec3::new(0.25, 0.15, 0.9), Quat::IDENTITY, at)
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -48,44 +43,59 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             _ => return Err(format!("unknown argument {a}").into()),
         }
     }
-    let body = scenes::cube_sphere(10);
-    let room = scenes::shoebox(Vec3::ZERO, ROOM);
-    let mut indices = room.indices().to_vec();
-    for k in 0..CHARACTERS {
-        let base = (8 + k * body.positions().len()) as u32;
-        indices.extend(body.indices().iter().map(|i| i + base));
-    }
-    let mesh = Mesh::new(scene_at(0.0, &body), indices)?;
-    let mut materials = vec![0u32; room.triangle_count()];
-    materials.resize(mesh.triangle_count(), 1);
     let plaster =
         AcousticMaterial::new([0.01, 0.01, 0.02, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08])?;
     let cloth = AcousticMaterial::new([0.02, 0.05, 0.1, 0.2, 0.35, 0.5, 0.6, 0.65, 0.7, 0.7])?;
-    let mut bvh = MeshBvh::build(&mesh, &BuildOptions::default())?;
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    KinetracePlugin::default().try_build(&mut world, &mut schedule)?;
+    world.insert_resource(SoundSettings {
+        config,
+        ..Default::default()
+    });
+    // The room (plaster) and the characters (clothing): one shared body mesh, each its own entity.
+    let room = scenes::shoebox(Vec3::ZERO, ROOM);
+    let body = scenes::cube_sphere(10);
+    world.spawn((TraceMesh(room.clone()), AcousticSurface(plaster)));
+    let characters: Vec<Entity> = (0..CHARACTERS)
+        .map(|k| {
+            let t = TraceTransform(character_at(k, 0.0));
+            world
+                .spawn((TraceMesh(body.clone()), t, AcousticSurface(cloth)))
+                .id()
+        })
+        .collect();
     let (source, listener) = (Vec3::new(0.8, 0.7, 1.7), Vec3::new(9.1, 7.2, 1.6));
+    world.spawn(SoundSource(source));
+    world.spawn(Listener(listener));
     println!(
         "{} triangles, {CHARACTERS} characters, order {}, {}² primary frusta per face, {}² samples",
-        mesh.triangle_count(),
+        room.triangle_count() + CHARACTERS * body.triangle_count(),
         config.max_order,
         config.primary,
         config.sampling
     );
-    let mut last = None;
     for f in 0..frames {
+        for (k, &e) in characters.iter().enumerate() {
+            world.get_mut::<TraceTransform>(e).ok_or("character")?.0 =
+                character_at(k, f as f32 * 0.1);
+        }
         let start = Instant::now();
-        bvh.refit(&scene_at(f as f32 * 0.1, &body))?;
-        let scene = SoundScene::new(&bvh, &materials, vec![plaster, cloth])?;
-        let found = propagate(&scene, source, listener, &config)?;
+        schedule.run(&mut world);
+        world.clear_trackers();
         let ms = start.elapsed().as_secs_f64() * 1e3;
+        let pair = &world.resource::<SoundPaths>().pairs[0];
         println!(
-            "frame {f}: {} paths from {} frusta in {ms:.1} ms",
-            found.paths.len(),
-            found.frusta
+            "frame {f}: {} paths from {} frusta in {ms:.1} ms (whole frame)",
+            pair.paths.len(),
+            pair.frusta
         );
-        last = Some(found);
     }
-    let Some(found) = last else { return Ok(()) };
-    for p in &found.paths {
+    let Some(pair) = world.resource::<SoundPaths>().pairs.first() else {
+        return Ok(());
+    };
+    for p in &pair.paths {
         println!(
             "order {} delay {:6.2} ms from ({:+.2} {:+.2} {:+.2}) level {:6.1} dB @1 kHz, surfaces {:?}",
             p.order,
@@ -97,7 +107,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             p.surfaces
         );
     }
-    plot(&out, &found.paths)?;
+    plot(&out, &pair.paths)?;
     println!("wrote {out}");
     Ok(())
 }

@@ -40,6 +40,8 @@ mod report_scenes;
 mod shadows;
 #[path = "../examples/bench/skinning.rs"]
 mod skinning;
+#[path = "../examples/bench/sound.rs"]
+mod sound;
 
 use serde_json::Value;
 use std::process::ExitCode;
@@ -148,4 +150,9 @@ fn raysort_suite_json_parses() {
 #[test]
 fn shadows_suite_json_parses() {
     check("shadows", false);
+}
+
+#[test]
+fn sound_suite_json_parses() {
+    check("sound", false);
 }

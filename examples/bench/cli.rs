@@ -3,8 +3,8 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 9] = [
-    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort", "shadows",
+const SUITES: [&str; 10] = [
+    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort", "shadows", "sound",
 ];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
@@ -39,6 +39,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "queries" => crate::queries::run(&mut rec),
             "raysort" => crate::raysort::run(&mut rec),
             "shadows" => crate::shadows::run(&mut rec),
+            "sound" => crate::sound::run(&mut rec),
             _ => unreachable!("checked above"),
         }
     }

@@ -10,7 +10,8 @@
 //! single-ray and packet queries), `queries` (sphere and capsule casts, closest points, containment and
 //! sphere overlaps on a deforming mesh, refit included, against parry3d),
 //! `raysort` (secondary rays: BVH, sorted BVH, CRSH and RAH), `shadows` (selective ray-traced hard shadows
-//! on the crowd against the shadow map alone and a shadow ray per pixel).
+//! on the crowd against the shadow map alone and a shadow ray per pixel), `sound` (order-3 sound propagation:
+//! paths against the image-source count, time per ECS update in a room with 16 walking characters).
 //! With no suite named, all run. `--quick` uses small scenes and few repetitions (under a minute);
 //! `--json FILE` also writes every measurement as JSON: one object with `machine`, `gpu_adapter`
 //! (`null` when no suite used a GPU), `gpu_details`, `gpu_error`, `quick`, `threads` and a `records`
@@ -38,6 +39,7 @@ mod record;
 mod report_scenes;
 mod shadows;
 mod skinning;
+mod sound;
 
 fn main() -> std::process::ExitCode {
     cli::run(std::env::args().skip(1))

@@ -2,7 +2,8 @@
 //! current each frame, an immediate query parameter ([`SpatialRays`]), batched queries ([`RayQueue`] →
 //! [`RayResults`]), shape casts, closest points, overlaps and containment across all entities (immediate on
 //! [`SpatialRays`], batched through [`ShapeQueue`] → [`ShapeResults`]) and collision contacts between entities
-//! that opt in ([`Collider`] → [`Contacts`], [`CollisionStarted`] / [`CollisionEnded`]).
+//! that opt in ([`Collider`] → [`Contacts`], [`CollisionStarted`] / [`CollisionEnded`]), and sound paths
+//! from [`SoundSource`]s to [`Listener`]s ([`SoundPaths`]).
 //!
 //! Change detection decides the work: an untouched mesh costs nothing; a moved entity only updates the top
 //! level; a deformed mesh ([`VertexPositions`] or [`TraceSkin`] changed) is refitted and rebuilt when the
@@ -67,6 +68,7 @@ mod params;
 mod plugin;
 mod shape_batch;
 mod shape_queries;
+mod sound;
 mod stats;
 mod systems;
 mod top_level;
@@ -97,6 +99,7 @@ pub use shape_batch::{
     ShapeResults,
 };
 pub use shape_queries::{NearestPoint, ShapeHit};
+pub use sound::{AcousticSurface, Listener, SoundPair, SoundPaths, SoundSettings, SoundSource};
 pub use stats::{
     MeshAction, MeshStats, RebuildReason, TopLevelAction, TopLevelReason, TopLevelStats, TraceStats,
 };

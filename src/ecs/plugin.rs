@@ -49,7 +49,7 @@ pub type TraceSet = TraceSystems;
 /// single-threaded one about 1 µs (docs/BENCHMARKS.md). Batched queries use all threads either way.
 ///
 /// Resources: [`TraceConfig`], [`TraceWorld`], [`RayQueue`], [`RayResults`], [`TraceStats`], [`Contacts`],
-/// [`CollisionSettings`]; messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With
+/// [`CollisionSettings`], [`SoundSettings`], [`SoundPaths`]; messages [`TraceErrorMessage`], [`CollisionStarted`], [`CollisionEnded`]. With
 /// [`update_messages`](Self::update_messages) (the default) the plugin also runs bevy's `message_update_system` once per frame, before [`TraceSystems::Animate`]; turn it off when your
 /// loop already does.
 #[derive(Clone, Debug)]
@@ -98,6 +98,8 @@ impl KinetracePlugin {
         world.init_resource::<Contacts>();
         world.init_resource::<CollisionSettings>();
         world.init_resource::<super::collide::CollisionState>();
+        world.init_resource::<super::SoundSettings>();
+        world.init_resource::<super::SoundPaths>();
         MessageRegistry::register_message::<TraceErrorMessage>(world);
         MessageRegistry::register_message::<CollisionStarted>(world);
         MessageRegistry::register_message::<CollisionEnded>(world);
@@ -127,6 +129,10 @@ impl KinetracePlugin {
             super::shape_batch::shape_queries_system.in_set(TraceSystems::Queries),
             super::collide::collide_system
                 .run_if(super::collide::collisions_needed)
+                .in_set(TraceSystems::Queries),
+            super::sound::sound_system
+                .run_if(any_with_component::<super::SoundSource>)
+                .run_if(super::sound::sound_due)
                 .in_set(TraceSystems::Queries),
         ));
         #[cfg(feature = "gpu")]

@@ -415,16 +415,26 @@ impl TraceWorld {
     /// [`HardShadows`](crate::shadows::HardShadows). O(triangles); no allocation once `out` is large enough.
     pub fn world_triangles(&self, filter: &QueryFilter, out: &mut Vec<[Vec3; 3]>) {
         out.clear();
+        self.for_each_world_mesh(filter, |_, tris| out.extend(tris));
+    }
+
+    /// Calls `f` with each accepted entity and its triangles in world space (leaf order), entity by entity
+    /// in top-level order. O(triangles), no allocation.
+    pub(crate) fn for_each_world_mesh(
+        &self,
+        filter: &QueryFilter,
+        mut f: impl FnMut(Entity, &mut dyn Iterator<Item = [Vec3; 3]>),
+    ) {
         for e in &self.tlas_entities {
             let inst = &self.instances[e];
             if filter.accepts(*e, inst.layers) {
                 let t = inst.transform;
-                out.extend(
-                    inst.bvh
-                        .slot_triangles()
-                        .iter()
-                        .map(|tri| tri.map(|p| t.transform_point3(p))),
-                );
+                let mut tris = inst
+                    .bvh
+                    .slot_triangles()
+                    .iter()
+                    .map(|tri| tri.map(|p| t.transform_point3(p)));
+                f(*e, &mut tris);
             }
         }
     }
