@@ -112,6 +112,7 @@ pub(crate) struct Kernels {
     pub skin: Module,
     pub histogram: Module,
     pub collide: Module,
+    pub raysort: Module,
 }
 
 impl Kernels {
@@ -198,6 +199,13 @@ impl Kernels {
                     Read, Read, Read, Write, Write, Write, Write, Uniform, Uniform,
                 ],
                 &["pairs_init", "pairs_args", "pairs_round"],
+            ),
+            raysort: Module::new(
+                device,
+                "raysort",
+                shader!("raysort_keys.wgsl"),
+                &[Read, Write, Write, Write, Write, Uniform],
+                &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
             ),
         }
     }

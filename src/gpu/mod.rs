@@ -26,14 +26,14 @@
 //! # Ok(()) }
 //! ```
 
-mod buffers;
+pub(crate) mod buffers;
 mod bvh;
 mod collide;
 mod context;
 mod kernels;
 pub(crate) mod scene;
 mod skin;
-mod sort;
+pub(crate) mod sort;
 mod trace;
 mod tree;
 
