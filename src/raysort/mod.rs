@@ -16,7 +16,8 @@
 //! - [`trace`]: the strategies and their answers in request order.
 //! - `gpu` (feature `gpu`): the same sorted order computed on the GPU.
 //!
-//! The CRSH traversal and ECS ray kinds are CPU only / not implemented yet.
+//! The CRSH traversal is CPU only; ECS ray kinds and the planner's sorted/unsorted choice are not
+//! implemented.
 
 pub mod cone;
 #[cfg(feature = "gpu")]
