@@ -114,6 +114,7 @@ pub(crate) struct Kernels {
     pub collide: Module,
     pub sah: Module,
     pub ploc: Module,
+    pub raysort: Module,
 }
 
 impl Kernels {
@@ -240,6 +241,13 @@ impl Kernels {
                     "ploc_compact",
                     "ploc_advance",
                 ],
+            ),
+            raysort: Module::new(
+                device,
+                "raysort",
+                shader!("raysort_keys.wgsl"),
+                &[Read, Write, Write, Write, Write, Uniform],
+                &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
             ),
         }
     }

@@ -26,7 +26,7 @@
 //! # Ok(()) }
 //! ```
 
-mod buffers;
+pub(crate) mod buffers;
 mod build_sah;
 mod bvh;
 mod collide;
@@ -36,7 +36,7 @@ mod ploc;
 mod scan;
 pub(crate) mod scene;
 mod skin;
-mod sort;
+pub(crate) mod sort;
 mod trace;
 mod tree;
 

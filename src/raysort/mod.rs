@@ -14,16 +14,22 @@
 //! - [`cone`]: the sphere–cone node and its tests.
 //! - [`hierarchy`]: the bottom-up build over sorted rays.
 //! - [`trace`]: the strategies and their answers in request order.
+//! - `gpu` (feature `gpu`): the same sorted order computed on the GPU.
 //!
-//! CPU only; GPU versions and ECS ray kinds are not implemented.
+//! The CRSH traversal is CPU only; ECS ray kinds and the planner's sorted/unsorted choice are not
+//! implemented.
 
 pub mod cone;
+#[cfg(feature = "gpu")]
+pub mod gpu;
 pub mod hierarchy;
 pub mod key;
 pub mod sort;
 pub mod trace;
 
 pub use cone::RayNode;
+#[cfg(feature = "gpu")]
+pub use gpu::sort_rays_gpu;
 pub use hierarchy::RayHierarchy;
 pub use key::KeyLayout;
 pub use sort::{SortedRays, sort_rays};
