@@ -139,6 +139,9 @@ pub struct AdaptivePolicy {
     partial: Option<usize>,
     /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
     partial_rate: Estimate,
+    /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
+    /// [`sibling`](Self::sibling) never (what the first measures reaches it through the table).
+    explores: bool,
     /// The bound on the SAH ratio against a fresh binned-SAH tree ([`DEFAULT_SAH_BOUND`]).
     pub sah_bound: f64,
     /// Standard deviations of margin for every "act now?" decision and every change of build
@@ -187,6 +190,7 @@ impl AdaptivePolicy {
             last: Prediction::default(),
             partial: None,
             partial_rate: Estimate::default(),
+            explores: true,
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
         }
@@ -198,11 +202,13 @@ impl AdaptivePolicy {
     /// build that made it, the fresh cost then, the frames since — so the first
     /// [`after_refit`](Self::after_refit) judges the copy like any refitted tree: the guard rebuilds it
     /// at once if its cost would pass the bound, the rent when the copy costs more queries than a build.
-    /// Nothing is explored for it that the asset measured. Cost: one clone of the small policy (its
-    /// list of builds).
+    /// It explores nothing: trying builds is left to the asset's first mesh, whose measurements it reads
+    /// from the shared table (without that mesh, the asset keeps what was measured). Cost: one clone of
+    /// the small policy (its list of builds).
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
             rent: 0.0,
+            explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
             last: Prediction::default(),
@@ -630,7 +636,9 @@ impl View<'_> {
                 None => (self.cheapest_prior(), false),
             };
         };
-        if let Some(b) = self.worth_trying(chosen, rebuilding) {
+        if self.p.explores
+            && let Some(b) = self.worth_trying(chosen, rebuilding)
+        {
             return (b, true);
         }
         (chosen, false)
