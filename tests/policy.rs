@@ -611,7 +611,6 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
 /// acts often; learning the spread of each build's quality needs a measured reference, which only a
 /// binned-SAH build gives (see the issue note).
 #[test]
-#[ignore = "passes in most runs; under load a rebuild with LBVH of worse-than-mean quality can pass 1.5 by <3%"]
 fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
     for triangles in [1000, 2000, 4000] {
         let settings = harness::Settings {

@@ -129,6 +129,8 @@ pub struct AdaptivePolicy {
     sah_built: f64,
     /// The factor the guard last carried the fresh cost forward by (learned drift or spread).
     guard_factor: f64,
+    /// How far this mesh's rebuilt trees landed from their predicted cost: see [`AnchorError`].
+    anchor_error: AnchorError,
     current: Option<Build>,
     rent: f64,
     frames: u32,
@@ -179,6 +181,7 @@ impl AdaptivePolicy {
             area_built: None,
             sah_built: 0.0,
             guard_factor: 1.0,
+            anchor_error: AnchorError::default(),
             current: None,
             rent: 0.0,
             frames: 0,
@@ -254,6 +257,16 @@ impl AdaptivePolicy {
             self.costs.learn_time(build, triangles, seconds);
         }
         if sah_cost.is_finite() && sah_cost > 0.0 {
+            let predicted = {
+                let t = self.costs.lock();
+                let v = self.view(&t);
+                v.relative(build)
+                    .filter(|r| r.2 && self.reference > 0.0 && self.frames > 0)
+                    .map(|r| self.reference * r.0 * v.mean_drift(self.frames))
+            };
+            if let Some(predicted) = predicted {
+                self.anchor_error.learn(sah_cost, predicted);
+            }
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
         }
@@ -353,7 +366,7 @@ impl AdaptivePolicy {
         let mut guard_factor = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
-                guard_factor = v.guard_drift(self.frames).min(spread_out);
+                guard_factor = v.guard_drift(self.frames).min(spread_out) * v.anchor_factor();
                 p.fresh_sah = self.reference * sah * guard_factor;
                 ratio = sah_cost / p.fresh_sah;
             }
@@ -457,6 +470,44 @@ impl AdaptivePolicy {
 
     fn view<'a>(&'a self, tables: &'a Tables) -> View<'a> {
         View { t: tables, p: self }
+    }
+}
+
+/// The error of the anchor the guard predicts the fresh binned-SAH cost from. After a rebuild with
+/// LBVH or hybrid the fresh cost is inferred from that build's *mean* quality on the asset, but a single
+/// tree is better or worse than the mean (one LBVH tree over orbiting rigid bodies sits anywhere from
+/// 1.0 to 1.38 × binned SAH), so the inferred fresh cost can be too high and the ratio too low. Every
+/// rebuild whose build's quality was measured tests the prediction: the tree's cost against the cost
+/// predicted for a tree of that build (the reference carried forward at the mean drift, times the
+/// build's mean quality). `e = ln(actual / predicted)` holds the new tree's deviation from its mean, the
+/// previous anchor's deviation and the drift's error; under the assumption that these are independent,
+/// zero-mean and alike from one rebuild to the next, the spread of `e` is at least a single tree's. The
+/// guard divides the fresh cost by `exp(z · rms(e))` (RMS: a bias counts as error too), so the bound
+/// holds while a tree deviates from its build's mean by less than `z` RMS. Cost: a few operations per
+/// rebuild; no build is added.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct AnchorError {
+    /// The running mean of `e²`.
+    squares: Estimate,
+}
+
+impl AnchorError {
+    /// Learns one rebuild: its tree's SAH cost and the cost predicted for it (both positive).
+    fn learn(&mut self, actual: f64, predicted: f64) {
+        if actual > 0.0 && predicted > 0.0 {
+            self.squares.add((actual / predicted).ln().powi(2));
+        }
+    }
+
+    /// The root mean square of `e` (0 before any rebuild tested a prediction).
+    fn rms(&self) -> f64 {
+        self.squares.mean().unwrap_or(0.0).max(0.0).sqrt()
+    }
+
+    /// The factor a fresh cost anchored on an average-quality tree is multiplied by so that it is
+    /// `z` RMS errors low: `exp(−z · rms)`.
+    fn factor(&self, z: f64) -> f64 {
+        (-z * self.rms()).exp()
     }
 }
 
@@ -567,6 +618,16 @@ impl View<'_> {
         let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
         let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * d.spread().max(MIN_DRIFT_SPREAD));
         (low * frames as f64).exp()
+    }
+
+    /// The factor by which the fresh cost anchored at the last rebuild may be too high because that tree
+    /// was better or worse than its build's mean: 1 after a binned-SAH rebuild (that tree *is* the fresh
+    /// binned-SAH tree of its frame, so the anchor is exact), else [`AnchorError::factor`] at `z`.
+    fn anchor_factor(&self) -> f64 {
+        match self.p.current {
+            Some(b) if matches!(b.builder, Builder::Sah { .. }) => 1.0,
+            _ => self.p.anchor_error.factor(self.p.z),
+        }
     }
 
     /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last
@@ -738,6 +799,44 @@ mod tests {
             (why.fresh_sah - 10.0 * (-0.008f64).exp()).abs() < 1e-9,
             "{why:?}"
         );
+    }
+
+    /// The anchor error is the RMS of `ln(actual / predicted)`: two rebuilds 20% over and 20% under
+    /// their prediction give `ln 1.2`, and at `z` = 2 a factor `1.2⁻²`.
+    #[test]
+    fn the_anchor_error_is_the_rms_log_error() {
+        let mut e = AnchorError::default();
+        assert_eq!(e.factor(2.0), 1.0);
+        e.learn(12.0, 10.0);
+        e.learn(10.0, 12.0);
+        e.learn(f64::NAN, 1.0);
+        assert!((e.rms() - 1.2f64.ln()).abs() < 1e-12);
+        assert!((e.factor(2.0) - 1.0 / 1.44).abs() < 1e-12);
+    }
+
+    /// An LBVH rebuild after one frame lands at 12 against a predicted 10 (the unit tree's cost, no drift
+    /// learned yet): the guard then carries the fresh cost down by the anchor error `1.2⁻²` on top of the
+    /// drift (one sample of `ln 1.2`, spread its prior quarter: `1.2^(−1.5)` a frame), and the fresh cost
+    /// rests on LBVH's prior quality (no binned-SAH tree measured). After a binned-SAH rebuild that is
+    /// exact, the anchor error is not applied.
+    #[test]
+    fn the_guard_discounts_an_lbvh_anchor_by_its_error() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        p.after_refit(10.0, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 12.0);
+        p.after_refit(12.0, 0.0);
+        let prior = Build::cpu(Builder::LBVH).prior_quality(false);
+        let expect = 12.0 / prior * 1.2f64.powf(-1.5) / 1.44;
+        let fresh = p.prediction().fresh_sah;
+        assert!((fresh - expect).abs() < 1e-9 * expect, "{fresh} vs {expect}");
+        // A binned-SAH tree built at 10 after one more frame anchors the fresh cost exactly: only the
+        // drift factor remains.
+        p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        p.after_refit(10.0, 0.0);
+        let why = p.prediction();
+        let drift = (-(1.2f64.ln() + 2.0 * 0.25 * 1.2f64.ln())).exp();
+        assert!((why.fresh_sah - 10.0 * drift).abs() < 1e-9, "{why:?}");
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
