@@ -829,7 +829,10 @@ mod tests {
         let prior = Build::cpu(Builder::LBVH).prior_quality(false);
         let expect = 12.0 / prior * 1.2f64.powf(-1.5) / 1.44;
         let fresh = p.prediction().fresh_sah;
-        assert!((fresh - expect).abs() < 1e-9 * expect, "{fresh} vs {expect}");
+        assert!(
+            (fresh - expect).abs() < 1e-9 * expect,
+            "{fresh} vs {expect}"
+        );
         // A binned-SAH tree built at 10 after one more frame anchors the fresh cost exactly: only the
         // drift factor remains.
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
