@@ -260,12 +260,17 @@ impl AdaptivePolicy {
             let predicted = {
                 let t = self.costs.lock();
                 let v = self.view(&t);
+                // Before a drift was learned the error is the drift itself (learned as such).
+                let drift_known = t.drift.get(&self.asset).is_some_and(|d| d.samples() > 0);
                 v.relative(build)
-                    .filter(|r| r.2 && self.reference > 0.0 && self.frames > 0)
-                    .map(|r| self.reference * r.0 * v.mean_drift(self.frames))
+                    .filter(|r| r.2 && drift_known && self.reference > 0.0 && self.frames > 0)
+                    .map(|r| {
+                        let walk = self.frames as f64 * v.drift_spread().powi(2);
+                        (self.reference * r.0 * v.mean_drift(self.frames), walk)
+                    })
             };
-            if let Some(predicted) = predicted {
-                self.anchor_error.learn(sah_cost, predicted);
+            if let Some((predicted, walk)) = predicted {
+                self.anchor_error.learn(sah_cost, predicted, walk);
             }
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
@@ -480,11 +485,13 @@ impl AdaptivePolicy {
 /// rebuild whose build's quality was measured tests the prediction: the tree's cost against the cost
 /// predicted for a tree of that build (the reference carried forward at the mean drift, times the
 /// build's mean quality). `e = ln(actual / predicted)` holds the new tree's deviation from its mean, the
-/// previous anchor's deviation and the drift's error; under the assumption that these are independent,
-/// zero-mean and alike from one rebuild to the next, the spread of `e` is at least a single tree's. The
-/// guard divides the fresh cost by `exp(z · rms(e))` (RMS: a bias counts as error too), so the bound
-/// holds while a tree deviates from its build's mean by less than `z` RMS. Cost: a few operations per
-/// rebuild; no build is added.
+/// previous anchor's deviation and the drift's error. The drift's random walk over the interval
+/// (`frames · spread²`, which the guard's drift factor allows for apart) is subtracted from `e²`, and no
+/// error is learned before the asset's drift is (the first interval's error *is* the drift). Under the
+/// assumption that the trees' deviations are independent, zero-mean and alike from one rebuild to the
+/// next, `E[e²] − walk ≥ 2σ² ≥ σ²` of a single tree. The guard multiplies the fresh cost by
+/// `exp(−z · rms)` (RMS: a bias counts as error too), so the bound holds while a tree deviates from its
+/// build's mean by less than `z` RMS. Cost: a few operations per rebuild; no build is added.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct AnchorError {
     /// The running mean of `e²`.
@@ -492,10 +499,13 @@ struct AnchorError {
 }
 
 impl AnchorError {
-    /// Learns one rebuild: its tree's SAH cost and the cost predicted for it (both positive).
-    fn learn(&mut self, actual: f64, predicted: f64) {
+    /// Learns one rebuild: its tree's SAH cost, the cost predicted for it (both positive) and the
+    /// variance of `ln` of the fresh cost that the drift's own spread explains over the interval (the
+    /// guard allows for that apart): the sample is `max(0, e² − walk)`.
+    fn learn(&mut self, actual: f64, predicted: f64, walk: f64) {
         if actual > 0.0 && predicted > 0.0 {
-            self.squares.add((actual / predicted).ln().powi(2));
+            self.squares
+                .add(((actual / predicted).ln().powi(2) - walk).max(0.0));
         }
     }
 
@@ -616,8 +626,14 @@ impl View<'_> {
     /// earlier, so assuming a fall as fast as any motion seen costs early rebuilds, never the bound.
     fn guard_drift(&self, frames: u32) -> f64 {
         let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * d.spread().max(MIN_DRIFT_SPREAD));
+        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * self.drift_spread());
         (low * frames as f64).exp()
+    }
+
+    /// The spread of the per-frame drift of `ln` of the fresh cost, at least [`MIN_DRIFT_SPREAD`].
+    fn drift_spread(&self) -> f64 {
+        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
+        d.spread().max(MIN_DRIFT_SPREAD)
     }
 
     /// The factor by which the fresh cost anchored at the last rebuild may be too high because that tree
@@ -807,27 +823,35 @@ mod tests {
     fn the_anchor_error_is_the_rms_log_error() {
         let mut e = AnchorError::default();
         assert_eq!(e.factor(2.0), 1.0);
-        e.learn(12.0, 10.0);
-        e.learn(10.0, 12.0);
-        e.learn(f64::NAN, 1.0);
+        e.learn(12.0, 10.0, 0.0);
+        e.learn(10.0, 12.0, 0.0);
+        e.learn(f64::NAN, 1.0, 0.0);
+        // A sample the drift's walk explains in full adds a zero: three samples, RMS ln 1.2 · √(2/3).
+        let mut w = e;
+        w.learn(12.0, 10.0, 1.0);
+        assert!((w.rms() - 1.2f64.ln() * (2.0f64 / 3.0).sqrt()).abs() < 1e-12);
         assert!((e.rms() - 1.2f64.ln()).abs() < 1e-12);
         assert!((e.factor(2.0) - 1.0 / 1.44).abs() < 1e-12);
     }
 
-    /// An LBVH rebuild after one frame lands at 12 against a predicted 10 (the unit tree's cost, no drift
-    /// learned yet): the guard then carries the fresh cost down by the anchor error `1.2⁻²` on top of the
-    /// drift (one sample of `ln 1.2`, spread its prior quarter: `1.2^(−1.5)` a frame), and the fresh cost
-    /// rests on LBVH's prior quality (no binned-SAH tree measured). After a binned-SAH rebuild that is
-    /// exact, the anchor error is not applied.
+    /// LBVH rebuilds one frame apart: the second lands at 10 as predicted (its error is not learned: no
+    /// drift was known, so the error would be the drift itself; a drift of 0 is learned), the third at
+    /// 12 against a predicted 10: `e = ln 1.2`, less the drift's walk over one frame (its spread at the
+    /// least, 0.001²). The drift is then 0 and `ln 1.2` (mean and spread `ln 1.2 / 2`: a fall of
+    /// `1.2^(−1.5)` a frame), and the fresh cost rests on LBVH's prior quality (no binned-SAH tree
+    /// measured). After a binned-SAH rebuild, whose tree is the fresh one, the anchor error is not applied.
     #[test]
     fn the_guard_discounts_an_lbvh_anchor_by_its_error() {
         let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
         p.built(Builder::LBVH, 1000, 1e-3, 10.0);
         p.after_refit(10.0, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        p.after_refit(10.0, 0.0);
         p.built(Builder::LBVH, 1000, 1e-3, 12.0);
         p.after_refit(12.0, 0.0);
         let prior = Build::cpu(Builder::LBVH).prior_quality(false);
-        let expect = 12.0 / prior * 1.2f64.powf(-1.5) / 1.44;
+        let error = (1.2f64.ln().powi(2) - 1e-6).sqrt();
+        let expect = 12.0 / prior * 1.2f64.powf(-1.5) * (-2.0 * error).exp();
         let fresh = p.prediction().fresh_sah;
         assert!(
             (fresh - expect).abs() < 1e-9 * expect,
@@ -838,8 +862,10 @@ mod tests {
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
         p.after_refit(10.0, 0.0);
         let why = p.prediction();
-        let drift = (-(1.2f64.ln() + 2.0 * 0.25 * 1.2f64.ln())).exp();
-        assert!((why.fresh_sah - 10.0 * drift).abs() < 1e-9, "{why:?}");
+        assert!(
+            (why.fresh_sah - 10.0 * 1.2f64.powf(-1.5)).abs() < 1e-9,
+            "{why:?}"
+        );
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
