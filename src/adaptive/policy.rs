@@ -129,6 +129,8 @@ pub struct AdaptivePolicy {
     sah_built: f64,
     /// The factor the guard last carried the fresh cost forward by (learned drift or spread).
     guard_factor: f64,
+    /// How far this mesh's rebuilt trees landed from their predicted cost: see [`AnchorError`].
+    anchor_error: AnchorError,
     current: Option<Build>,
     rent: f64,
     frames: u32,
@@ -182,6 +184,7 @@ impl AdaptivePolicy {
             area_built: None,
             sah_built: 0.0,
             guard_factor: 1.0,
+            anchor_error: AnchorError::default(),
             current: None,
             rent: 0.0,
             frames: 0,
@@ -260,6 +263,21 @@ impl AdaptivePolicy {
             self.costs.learn_time(build, triangles, seconds);
         }
         if sah_cost.is_finite() && sah_cost > 0.0 {
+            let predicted = {
+                let t = self.costs.lock();
+                let v = self.view(&t);
+                // Before a drift was learned the error is the drift itself (learned as such).
+                let drift_known = t.drift.get(&self.asset).is_some_and(|d| d.samples() > 0);
+                v.relative(build)
+                    .filter(|r| r.2 && drift_known && self.reference > 0.0 && self.frames > 0)
+                    .map(|r| {
+                        let walk = self.frames as f64 * v.drift_spread().powi(2);
+                        (self.reference * r.0 * v.mean_drift(self.frames), walk)
+                    })
+            };
+            if let Some((predicted, walk)) = predicted {
+                self.anchor_error.learn(sah_cost, predicted, walk);
+            }
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
         }
@@ -359,7 +377,7 @@ impl AdaptivePolicy {
         let mut guard_factor = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
-                guard_factor = v.guard_drift(self.frames).min(spread_out);
+                guard_factor = v.guard_drift(self.frames).min(spread_out) * v.anchor_factor();
                 p.fresh_sah = self.reference * sah * guard_factor;
                 ratio = sah_cost / p.fresh_sah;
             }
@@ -463,6 +481,49 @@ impl AdaptivePolicy {
 
     fn view<'a>(&'a self, tables: &'a Tables) -> View<'a> {
         View { t: tables, p: self }
+    }
+}
+
+/// The error of the anchor the guard predicts the fresh binned-SAH cost from. After a rebuild with
+/// LBVH or hybrid the fresh cost is inferred from that build's *mean* quality on the asset, but a single
+/// tree is better or worse than the mean (one LBVH tree over orbiting rigid bodies sits anywhere from
+/// 1.0 to 1.38 × binned SAH), so the inferred fresh cost can be too high and the ratio too low. Every
+/// rebuild whose build's quality was measured tests the prediction: the tree's cost against the cost
+/// predicted for a tree of that build (the reference carried forward at the mean drift, times the
+/// build's mean quality). `e = ln(actual / predicted)` holds the new tree's deviation from its mean, the
+/// previous anchor's deviation and the drift's error. The drift's random walk over the interval
+/// (`frames · spread²`, which the guard's drift factor allows for apart) is subtracted from `e²`, and no
+/// error is learned before the asset's drift is (the first interval's error *is* the drift). Under the
+/// assumption that the trees' deviations are independent, zero-mean and alike from one rebuild to the
+/// next, `E[e²] − walk ≥ 2σ² ≥ σ²` of a single tree. The guard multiplies the fresh cost by
+/// `exp(−z · rms)` (RMS: a bias counts as error too), so the bound holds while a tree deviates from its
+/// build's mean by less than `z` RMS. Cost: a few operations per rebuild; no build is added.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct AnchorError {
+    /// The running mean of `e²`.
+    squares: Estimate,
+}
+
+impl AnchorError {
+    /// Learns one rebuild: its tree's SAH cost, the cost predicted for it (both positive) and the
+    /// variance of `ln` of the fresh cost that the drift's own spread explains over the interval (the
+    /// guard allows for that apart): the sample is `max(0, e² − walk)`.
+    fn learn(&mut self, actual: f64, predicted: f64, walk: f64) {
+        if actual > 0.0 && predicted > 0.0 {
+            self.squares
+                .add(((actual / predicted).ln().powi(2) - walk).max(0.0));
+        }
+    }
+
+    /// The root mean square of `e` (0 before any rebuild tested a prediction).
+    fn rms(&self) -> f64 {
+        self.squares.mean().unwrap_or(0.0).max(0.0).sqrt()
+    }
+
+    /// The factor a fresh cost anchored on an average-quality tree is multiplied by so that it is
+    /// `z` RMS errors low: `exp(−z · rms)`.
+    fn factor(&self, z: f64) -> f64 {
+        (-z * self.rms()).exp()
     }
 }
 
@@ -571,8 +632,24 @@ impl View<'_> {
     /// earlier, so assuming a fall as fast as any motion seen costs early rebuilds, never the bound.
     fn guard_drift(&self, frames: u32) -> f64 {
         let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * d.spread().max(MIN_DRIFT_SPREAD));
+        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * self.drift_spread());
         (low * frames as f64).exp()
+    }
+
+    /// The spread of the per-frame drift of `ln` of the fresh cost, at least [`MIN_DRIFT_SPREAD`].
+    fn drift_spread(&self) -> f64 {
+        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
+        d.spread().max(MIN_DRIFT_SPREAD)
+    }
+
+    /// The factor by which the fresh cost anchored at the last rebuild may be too high because that tree
+    /// was better or worse than its build's mean: 1 after a binned-SAH rebuild (that tree *is* the fresh
+    /// binned-SAH tree of its frame, so the anchor is exact), else [`AnchorError::factor`] at `z`.
+    fn anchor_factor(&self) -> f64 {
+        match self.p.current {
+            Some(b) if matches!(b.builder, Builder::Sah { .. }) => 1.0,
+            _ => self.p.anchor_error.factor(self.p.z),
+        }
     }
 
     /// The factor by which a fresh tree's cost is expected to have changed `frames` frames after the last
@@ -744,6 +821,57 @@ mod tests {
         assert_eq!(why.sah, 14.6);
         assert!(
             (why.fresh_sah - 10.0 * (-0.008f64).exp()).abs() < 1e-9,
+            "{why:?}"
+        );
+    }
+
+    /// The anchor error is the RMS of `ln(actual / predicted)`: two rebuilds 20% over and 20% under
+    /// their prediction give `ln 1.2`, and at `z` = 2 a factor `1.2⁻²`.
+    #[test]
+    fn the_anchor_error_is_the_rms_log_error() {
+        let mut e = AnchorError::default();
+        assert_eq!(e.factor(2.0), 1.0);
+        e.learn(12.0, 10.0, 0.0);
+        e.learn(10.0, 12.0, 0.0);
+        e.learn(f64::NAN, 1.0, 0.0);
+        // A sample the drift's walk explains in full adds a zero: three samples, RMS ln 1.2 · √(2/3).
+        let mut w = e;
+        w.learn(12.0, 10.0, 1.0);
+        assert!((w.rms() - 1.2f64.ln() * (2.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert!((e.rms() - 1.2f64.ln()).abs() < 1e-12);
+        assert!((e.factor(2.0) - 1.0 / 1.44).abs() < 1e-12);
+    }
+
+    /// LBVH rebuilds one frame apart: the second lands at 10 as predicted (its error is not learned: no
+    /// drift was known, so the error would be the drift itself; a drift of 0 is learned), the third at
+    /// 12 against a predicted 10: `e = ln 1.2`, less the drift's walk over one frame (its spread at the
+    /// least, 0.001²). The drift is then 0 and `ln 1.2` (mean and spread `ln 1.2 / 2`: a fall of
+    /// `1.2^(−1.5)` a frame), and the fresh cost rests on LBVH's prior quality (no binned-SAH tree
+    /// measured). After a binned-SAH rebuild, whose tree is the fresh one, the anchor error is not applied.
+    #[test]
+    fn the_guard_discounts_an_lbvh_anchor_by_its_error() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        p.after_refit(10.0, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 10.0);
+        p.after_refit(10.0, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 12.0);
+        p.after_refit(12.0, 0.0);
+        let prior = Build::cpu(Builder::LBVH).prior_quality(false);
+        let error = (1.2f64.ln().powi(2) - 1e-6).sqrt();
+        let expect = 12.0 / prior * 1.2f64.powf(-1.5) * (-2.0 * error).exp();
+        let fresh = p.prediction().fresh_sah;
+        assert!(
+            (fresh - expect).abs() < 1e-9 * expect,
+            "{fresh} vs {expect}"
+        );
+        // A binned-SAH tree built at 10 after one more frame anchors the fresh cost exactly: only the
+        // drift factor remains.
+        p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        p.after_refit(10.0, 0.0);
+        let why = p.prediction();
+        assert!(
+            (why.fresh_sah - 10.0 * 1.2f64.powf(-1.5)).abs() < 1e-9,
             "{why:?}"
         );
     }
