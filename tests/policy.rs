@@ -832,11 +832,16 @@ fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
                 assert!(options.is_empty());
                 continue;
             }
-            let [o] = options[..] else {
-                panic!("one option per maintained mesh: {options:?}")
+            let wide: Vec<_> = (options.iter())
+                .filter_map(|o| match o.option {
+                    PlannedOption::Wide(on) => Some((o.entity, on)),
+                    _ => None,
+                })
+                .collect();
+            let [(entity, on)] = wide[..] else {
+                panic!("one wide option per maintained mesh: {options:?}")
             };
-            assert_eq!(o.entity, a.entity);
-            let PlannedOption::Wide(on) = o.option;
+            assert_eq!(entity, a.entity);
             seen.push(on);
         }
         if adaptive {
@@ -845,6 +850,59 @@ fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
             assert!(
                 seen.contains(&false),
                 "with 16 rays a frame the binary tree is tried: {seen:?}"
+            );
+        }
+    }
+}
+
+/// Through the ECS: under the adaptive policy every maintained mesh reports whether its queued packets
+/// meet it as packets or ray by ray (`PlannedOption::Packets`), and queued packet rays equal brute force
+/// whichever way the planner picked that frame; a fixed policy plans no options.
+#[test]
+fn packets_are_a_planned_option_and_answers_stay_exact() {
+    for adaptive in [true, false] {
+        let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 1000, 73);
+        let mut seen = Vec::new();
+        for _ in 0..30 {
+            a.advance(&mut world);
+            let tile = rays(&mut r, 16);
+            world
+                .resource_mut::<RayQueue>()
+                .cast_packet(0, &tile, QueryFilter::default());
+            schedule.run(&mut world);
+            world.clear_trackers();
+            let results = world.resource::<RayResults>().clone();
+            for (i, ray) in tile.iter().enumerate() {
+                let expect = brute(&mut world, ray, &QueryFilter::default());
+                let got = (results.hits.iter()).find(|h| h.0 == i as u64);
+                agree(
+                    got.and_then(|h| h.1.as_ref()),
+                    expect,
+                    &format!("packet ray {i}"),
+                );
+            }
+            let options = &world.resource::<TraceStats>().options;
+            let packets: Vec<_> = (options.iter())
+                .filter_map(|o| match o.option {
+                    PlannedOption::Packets(on) => Some((o.entity, on)),
+                    _ => None,
+                })
+                .collect();
+            if !adaptive {
+                assert!(options.is_empty());
+                continue;
+            }
+            let [(entity, on)] = packets[..] else {
+                panic!("one packets option per maintained mesh: {options:?}")
+            };
+            assert_eq!(entity, a.entity);
+            seen.push(on);
+        }
+        if adaptive {
+            assert!(seen[0], "packets first, as without the planner");
+            assert!(
+                seen.contains(&false),
+                "single rays are tried (prior within one spread): {seen:?}"
             );
         }
     }

@@ -81,6 +81,9 @@ pub enum PlannedOption {
     /// The wide (4-lane) query tree on (`true`) or the binary tree only: the wide tree costs a collapse
     /// per build and its refit every frame, and repays it only with enough rays.
     Wide(bool),
+    /// Queued packet requests meet the mesh as packets (`true`) or ray by ray: a packet shares its node
+    /// visits among coherent rays and repays its lane bookkeeping only when they stay together.
+    Packets(bool),
 }
 
 /// Why a mesh is kept in its structure.

@@ -51,6 +51,9 @@ pub(crate) struct Kept {
     /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): whether the mesh keeps the wide query
     /// tree, decided from its measured maintenance and query costs with and without it.
     pub wide: Option<crate::adaptive::Choice<bool>>,
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): whether packet requests meet the mesh as
+    /// packets (`true`) or ray by ray, decided from the measured seconds per ray of each way.
+    pub packets: Option<crate::adaptive::Choice<bool>>,
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
@@ -150,6 +153,12 @@ impl Instance {
         }
     }
 
+    /// Whether packet requests meet the mesh as packets: its planner's pick under the adaptive policy,
+    /// always otherwise.
+    fn packets_on(&self) -> bool {
+        self.kept.packets.as_ref().is_none_or(|c| c.current())
+    }
+
     /// The nearest hit of an object-space ray, through the mesh's structure, counted into `stats` if given.
     fn closest_hit(&self, ray: &Ray, stats: Option<&mut TraversalStats>) -> Option<Hit> {
         match (self.grid(), stats) {
@@ -170,7 +179,14 @@ impl Instance {
 
     /// The nearest hits of a packet of object-space rays (up to [`crate::bvh::MAX_PACKET`]), through the
     /// mesh's structure: grid packets for a mesh kept as a grid, BVH packets otherwise.
+    /// Ray by ray instead when the mesh's packets option is off (same answers).
     pub(super) fn closest_hits_packet(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        if !self.packets_on() {
+            for (r, o) in rays.iter().zip(out.iter_mut()) {
+                *o = self.closest_hit(r, None);
+            }
+            return;
+        }
         let mut stats = TraversalStats::default();
         match self.grid() {
             Some(g) => g.closest_hits_packet(rays, out, &mut stats),
@@ -179,7 +195,14 @@ impl Instance {
     }
 
     /// Whether each object-space ray of a packet hits the mesh, through the mesh's structure.
+    /// Ray by ray instead when the mesh's packets option is off (same answers).
     pub(super) fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool]) {
+        if !self.packets_on() {
+            for (r, o) in rays.iter().zip(out.iter_mut()) {
+                *o = self.any_hit(r);
+            }
+            return;
+        }
         let mut stats = TraversalStats::default();
         match self.grid() {
             Some(g) => g.any_hits_packet(rays, out, &mut stats),
@@ -329,6 +352,9 @@ impl TraceWorld {
                 policy.queried(inst.rays, inst.sah, share);
                 if let Some(wide) = inst.kept.wide.as_mut() {
                     wide.served(inst.bvh.wide().is_some(), inst.rays, share);
+                }
+                if let Some(packets) = inst.kept.packets.as_mut() {
+                    packets.served(packets.current(), inst.rays, share);
                 }
             }
         }
