@@ -6,7 +6,7 @@ use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
 use crate::adaptive::{
-    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost, Verdict,
+    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost,
 };
 use crate::bvh::{BuildOptions, MeshBvh, PartialOptions};
 use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
@@ -604,19 +604,14 @@ impl Asked<'_> {
                 }
                 let cost = TreeCost::of(inst.bvh.bvh());
                 inst.sah = cost.sah;
-                // A partial rebuild is offered at the default options; selecting what it would rebuild
-                // is a pass over the nodes.
-                let degraded = inst
-                    .bvh
-                    .bvh()
-                    .degraded_primitives(&PartialOptions::default());
-                policy.offer_partial(degraded.unwrap_or(0));
                 let rebuild = policy.after_refit(cost, inst.rays);
                 let why = policy.prediction();
-                let decision = match why.verdict {
-                    Verdict::Partial => Decision::PartialRebuild,
-                    _ if rebuild => Decision::Rebuild(why.build),
-                    _ => Decision::Keep,
+                // Not offered a partial rebuild yet: with the offer, the sibling test in tests/policy.rs
+                // saw an Explore verdict after a partial rebuild in 1 of 4 runs (issue 17, open).
+                let decision = if rebuild {
+                    Decision::Rebuild(why.build)
+                } else {
+                    Decision::Keep
                 };
                 (decision, Some(why))
             }
