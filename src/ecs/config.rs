@@ -67,6 +67,15 @@ pub enum Decision {
     /// ([`Build::GPU_PLOC`]); any other GPU build, or one with no GPU context, runs on the CPU instead (said
     /// once in the log).
     Rebuild(Build),
+    /// Rebuild only the subtrees that degraded past the default [`PartialOptions`] (binned SAH on the CPU,
+    /// see [`MeshBvh::rebuild_degraded`]); the wide tree is collapsed again when anything was rebuilt.
+    /// Use it when a deformation is local (an explosion of a corner, a limb): it costs a pass over the
+    /// nodes plus a build over the rebuilt triangles only, where a full rebuild costs one over all of
+    /// them. The nodes above the rebuilt subtrees stay as refitted.
+    ///
+    /// [`PartialOptions`]: crate::bvh::PartialOptions
+    /// [`MeshBvh::rebuild_degraded`]: crate::bvh::MeshBvh::rebuild_degraded
+    PartialRebuild,
 }
 
 /// A custom policy: called once per refitted mesh per frame. Untouched meshes never reach it (they cost

@@ -18,6 +18,12 @@ pub enum MeshAction {
         /// Why.
         reason: RebuildReason,
     },
+    /// Refitted, then its degraded subtrees rebuilt ([`Decision::PartialRebuild`](super::Decision) or
+    /// the adaptive policy's [`Verdict::Partial`](crate::adaptive::Verdict::Partial)).
+    PartialRebuild {
+        /// Triangles in the rebuilt subtrees (0 when none had degraded enough).
+        triangles: usize,
+    },
     /// Only moved: the top level followed, the tree was untouched.
     Moved,
     /// Left out after an error (see [`TraceError`](super::TraceError)).
@@ -161,6 +167,11 @@ pub struct TraceStats {
     pub refits: usize,
     /// Rebuilds.
     pub rebuilds: usize,
+    /// Partial rebuilds this frame (counted in `refits` too: each starts with a refit); the triangles of
+    /// each are in its [`MeshAction::PartialRebuild`].
+    pub partial_rebuilds: usize,
+    /// Triangles rebuilt by this frame's partial rebuilds, all meshes together.
+    pub partial_triangles: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
     /// New meshes that started from a copy of a sibling's tree (another entity of the same mesh),
