@@ -907,3 +907,55 @@ fn packets_are_a_planned_option_and_answers_stay_exact() {
         }
     }
 }
+
+fn always_partial(_: &PolicyInput<'_>) -> Decision {
+    Decision::PartialRebuild
+}
+
+/// A custom policy may ask for partial rebuilds: while one corner of a soup explodes and the rest barely
+/// moves, the plugin rebuilds only degraded subtrees (counted in `TraceStats` and the mesh's action, fewer
+/// triangles than the mesh), and every batched and immediate answer equals brute force each frame.
+#[test]
+fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
+    const N: usize = 4000;
+    let (mut world, mut schedule) = app(RebuildPolicy::Custom(always_partial), TraceMode::Cpu);
+    let mut walk = Walk::spawn(&mut world, N, 41, 0.0005);
+    let mut r = rng(42);
+    frame(&mut world, &mut schedule, &walk, &mut r, 64, 8);
+    let (mut partial_frames, mut rebuilt) = (0, 0);
+    for _ in 0..10 {
+        walk.advance(&mut world);
+        {
+            // The corner explodes: each triangle whose centroid lies in [0, 0.4)³ flies off by up to 0.5.
+            let mesh = world.get::<TraceMesh>(walk.entity).unwrap().0.clone();
+            let mut vp = world.get_mut::<VertexPositions>(walk.entity).unwrap();
+            for tri in mesh.indices().chunks(3) {
+                let [a, b, c] = [0, 1, 2].map(|k| vp.0[tri[k] as usize]);
+                if ((a + b + c) / 3.0).max_element() < 0.4 {
+                    let d = rand_dir(&mut walk.rng) * walk.rng.random_range(0.0..0.5);
+                    for &i in tri {
+                        vp.0[i as usize] += d;
+                    }
+                }
+            }
+        }
+        let m = frame(&mut world, &mut schedule, &walk, &mut r, 256, 64);
+        let stats = world.resource::<TraceStats>();
+        match m.action {
+            MeshAction::PartialRebuild { triangles } => {
+                assert!(triangles > 0 && triangles < N, "{triangles} of {N}");
+                assert_eq!(stats.partial_rebuilds, 1);
+                assert_eq!(stats.partial_triangles, triangles);
+                partial_frames += 1;
+                rebuilt += triangles;
+            }
+            MeshAction::Refit => assert_eq!(stats.partial_rebuilds, 0),
+            other => panic!("a partial-rebuild policy never rebuilds whole: {other:?}"),
+        }
+    }
+    assert!(
+        partial_frames > 0,
+        "the exploding corner degraded no subtree"
+    );
+    eprintln!("{partial_frames} partial rebuilds, {rebuilt} triangles rebuilt in all");
+}

@@ -174,7 +174,8 @@ pub(crate) fn maintain_system(
                 };
                 inst.update_world_bounds();
                 match done {
-                    Ok(None) => MeshAction::Refit,
+                    // Asked, but no subtree had degraded: a plain refit.
+                    Ok(None | Some(0)) => MeshAction::Refit,
                     Ok(Some(triangles)) => {
                         stats.partial_rebuilds += 1;
                         stats.partial_triangles += triangles;
