@@ -21,9 +21,9 @@ fn leaf_count(n: Node) -> u32 { return (n.index >> 27u) & 0xfu; }
 // infinity occurs, so none is used).
 fn fmax() -> f32 { return bitcast<f32>(0x7f7fffffu); }
 
-// The linear invocation index of a 1D dispatch that may be folded into x and y (more than 65535 groups).
+// The linear invocation index of a 1D dispatch folded into x, y and z (past the groups per dimension).
 fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
-    return gid.x + gid.y * nwg.x * WG;
+    return gid.x + (gid.y + gid.z * nwg.y) * nwg.x * WG;
 }
 
 // SA(parent) / (SA(left) + SA(right)), scale-free and guarded exactly as geometry::sa_ratio on the CPU.

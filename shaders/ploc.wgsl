@@ -162,7 +162,9 @@ fn ploc_merge(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     tile[lid.x] = keep;
     scan_tile(lid.x);
     if i < c { offsets[i] = tile[lid.x] - keep; }
-    if lid.x == WG - 1u { sums[wid.x + wid.y * nwg.x] = tile[lid.x]; }
+    // Blocks past the end of a folded (x, y) dispatch write no total (a clamped index would race).
+    let block = wid.x + wid.y * nwg.x;
+    if lid.x == WG - 1u && block * WG < c { sums[block] = tile[lid.x]; }
 }
 
 @compute @workgroup_size(256)

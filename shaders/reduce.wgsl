@@ -42,7 +42,8 @@ fn sum_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_i
     if i < params.n { v = vec2<f32>(values[i], 0.0); }
     acc[lid.x] = v;
     fold(lid.x);
-    if lid.x == 0u { pairs[block] = acc[0]; }
+    // Blocks past the end of a folded (x, y) dispatch write nothing (a clamped index would race).
+    if lid.x == 0u && block * WG < params.n { pairs[block] = acc[0]; }
 }
 
 @compute @workgroup_size(256)

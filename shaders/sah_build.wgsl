@@ -71,7 +71,7 @@ const ARG_SMALL: u32 = 6u;
 fn small_on() -> bool { return (params.mode & 1u) != 0u; }
 
 // Whether nodes at `depth` are split as LBVH splits them (hybrid builds, the top levels).
-fn radix_level(depth: u32) -> bool { return depth < (params.mode >> 8u); }
+fn radix_level(depth: u32) -> bool { return depth < ((params.mode >> 8u) & 0xffu); }
 
 // LBVH's split of the Morton-sorted slots first .. first + m (Karras 2012): where the highest bit that
 // differs between the first and the last code turns on; equal codes are extended by their slot index.
@@ -240,9 +240,12 @@ fn bin_of(q: u32, lo: u32, hi: u32) -> u32 {
     return ((q - lo) * BINS) / (hi - lo + 1u);
 }
 
-// Workgroup counts for g groups, folded into y past 65535 (kernels recover the linear index).
+// Workgroup counts for g groups, folded into y past the device's groups per dimension m (mode bits 16..32,
+// at most 65535; kernels recover the linear index). wgpu skips an indirect dispatch with any count past the limit, so past m × m groups the rest go to z.
 fn split_threads(g: u32) -> vec3<u32> {
-    return vec3<u32>(min(g, 65535u), (g + 65534u) / 65535u, 1u);
+    let m = params.mode >> 16u;
+    let rows = (g + m - 1u) / m;
+    return vec3<u32>(min(g, m), min(rows, m), (rows + m - 1u) / m);
 }
 
 fn write_args(at: u32, g: vec3<u32>) {
@@ -457,7 +460,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
 @compute @workgroup_size(64)
 fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
-    let e = wid.x + wid.y * nwg.x;
+    let e = wid.x + (wid.y + wid.z * nwg.y) * nwg.x;
     if lid.x == 0u { wcount = atomicLoad(&state[params.level]); }
     if e >= workgroupUniformLoad(&wcount) { return; }
     let base = e * ENTRY_BINS;
@@ -555,7 +558,7 @@ var<workgroup> wsplit: vec4<u32>;
 @compute @workgroup_size(64)
 fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
-    let k = wid.x + wid.y * nwg.x;
+    let k = wid.x + (wid.y + wid.z * nwg.y) * nwg.x;
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }

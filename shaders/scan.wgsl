@@ -28,7 +28,9 @@ fn scan_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_
         workgroupBarrier();
     }
     if i < params.n { data[i] = tile[lid.x] - v; }
-    if lid.x == WG - 1u { sums[block] = tile[lid.x]; }
+    // Folded (x, y) dispatches run whole blocks past the end: they must not write a total (robust access
+    // would clamp the index onto the last real block's total and race with it).
+    if lid.x == WG - 1u && block * WG < params.n { sums[block] = tile[lid.x]; }
 }
 
 @compute @workgroup_size(256)

@@ -5,7 +5,9 @@
 
 mod common;
 use common::*;
-use kinetrace::gpu::{GpuContext, GpuMeshBvh, GpuOptions, GpuRays, Query};
+use kinetrace::gpu::{
+    GpuContext, GpuMeshBvh, GpuOptions, GpuRays, GpuSahBuilder, GpuSahOptions, Query,
+};
 use kinetrace::{Error, Mesh, Ray};
 
 /// Workgroups per dimension of the small-limit device: 8 × 8 groups of 256 cover 16,384 tree nodes, of 64
@@ -140,4 +142,28 @@ fn too_few_storage_buffers_per_stage_is_an_error() {
         return;
     };
     expect_gpu_error(g, "kernels on a device with 8 storage buffers per stage");
+}
+
+/// The GPU SAH and hybrid builders write their own indirect arguments: on a device with 8 workgroups per
+/// dimension they fold them over (x, y) at that limit, and build the same trees, node for node, as on
+/// the full-limit device (whose trees `tests/gpu_sah.rs` checks against a CPU reference).
+#[test]
+fn sah_indirect_dispatches_fold_at_the_device_limit() {
+    let Some(g) = small(|l| l.max_compute_workgroups_per_dimension = GROUPS) else {
+        return;
+    };
+    let g = g.expect("a device with fewer workgroups per dimension");
+    let full = gpu_or_skip().expect("the shared device exists when the small one does");
+    // 1,500 triangles: up to 46 queued nodes of more than 32 triangles per level, 6 × 8 groups.
+    let m = soup(13, 1500);
+    for options in [GpuSahOptions::SAH, GpuSahOptions::hybrid(6)] {
+        let tree = |ctx: &GpuContext| {
+            let mut bvh = GpuMeshBvh::new(ctx, &m).unwrap();
+            let sah = GpuSahBuilder::new(ctx, &bvh, options).unwrap();
+            sah.build_for_cpu(ctx, &mut bvh, &m).unwrap().bvh().clone()
+        };
+        let (folded, reference) = (tree(&g), tree(&full));
+        folded.validate(Some(&m.triangle_bounds())).unwrap();
+        assert_eq!(folded.nodes(), reference.nodes(), "{options:?}");
+    }
 }

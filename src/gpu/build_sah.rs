@@ -202,7 +202,11 @@ impl GpuSahBuilder {
             STORAGE | wgpu::BufferUsages::INDIRECT,
         );
         let stand_in = GpuBuffer::storage(ctx, "sah stand-in", 16);
-        let mode = u32::from(options.small_split) | options.lbvh_levels.min(LEVELS as u32) << 8;
+        // Bit 0: the small-split kernel; bits 8..16: LBVH levels; bits 16..32: the device's workgroups per
+        // dimension, where the indirect arguments fold into y.
+        let mode = u32::from(options.small_split)
+            | options.lbvh_levels.min(LEVELS as u32) << 8
+            | ctx.max_groups().min(0xffff) << 16;
         let slots_params: Vec<[u32; 4]> =
             (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
         let params = ParamSlots::new(ctx, &slots_params);
