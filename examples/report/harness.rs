@@ -6,7 +6,7 @@ use super::grid_rows::{self, StructureStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, TreeCost};
-use kinetrace::bvh::{BuildOptions, Builder, Hit, TraversalStats};
+use kinetrace::bvh::{BuildOptions, Builder, Hit, PartialOptions, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use std::time::Instant;
@@ -31,6 +31,8 @@ pub fn find_gpu() -> Result<Gpu, String> {
 pub enum Strategy {
     Rebuild(Build),
     Refit,
+    /// Refit, then rebuild the subtrees that degraded past the default [`PartialOptions`] (issue 17).
+    RefitPartial,
     RefitEvery(u32),
     Lauterbach(f32),
     /// The adaptive policy over CPU LBVH, hybrid and SAH, and GPU LBVH when `gpu`.
@@ -43,11 +45,12 @@ pub enum Strategy {
 
 impl Strategy {
     /// The strategies that run everywhere.
-    pub const CPU: [Strategy; 9] = [
+    pub const CPU: [Strategy; 10] = [
         Strategy::Rebuild(Build::cpu(Builder::LBVH)),
         Strategy::Rebuild(Build::cpu(Builder::HYBRID)),
         Strategy::Rebuild(Build::cpu(Builder::SAH)),
         Strategy::Refit,
+        Strategy::RefitPartial,
         Strategy::RefitEvery(20),
         Strategy::Lauterbach(0.2),
         Strategy::Lauterbach(0.4),
@@ -78,6 +81,7 @@ impl Strategy {
         match self {
             Strategy::Rebuild(b) => format!("rebuild-{b}"),
             Strategy::Refit => "refit".into(),
+            Strategy::RefitPartial => "refit-partial".into(),
             Strategy::RefitEvery(k) => format!("refit-rebuild-every-{k}"),
             Strategy::Lauterbach(t) => format!("lauterbach-{t}"),
             Strategy::Adaptive { gpu: false } => "adaptive".into(),
@@ -366,6 +370,12 @@ pub fn run_strategy(
                 Strategy::Refit => {
                     bvh.refit(mesh.positions()).expect("same topology");
                     false
+                }
+                Strategy::RefitPartial => {
+                    let (_, done) = (bvh
+                        .refit_partial(mesh.positions(), &PartialOptions::default()))
+                    .expect("same topology, default options");
+                    done.subtrees > 0
                 }
                 Strategy::RefitEvery(k) => {
                     since += 1;

@@ -70,7 +70,7 @@ pub fn looks(strategies: &[Strategy]) -> Vec<Look> {
             colour: COLOURS[i % COLOURS.len()],
             shape: match s {
                 Strategy::Rebuild(_) => Shape::Circle,
-                Strategy::Refit | Strategy::RefitEvery(_) => Shape::Square,
+                Strategy::Refit | Strategy::RefitPartial | Strategy::RefitEvery(_) => Shape::Square,
                 Strategy::Lauterbach(_) => Shape::Triangle,
                 Strategy::Adaptive { .. } => Shape::Diamond,
                 Strategy::Structure(_) => Shape::Square,
