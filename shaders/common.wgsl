@@ -26,6 +26,18 @@ fn linear_id(gid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return gid.x + (gid.y + gid.z * nwg.y) * nwg.x * WG;
 }
 
+// The linear workgroup index of a 1D dispatch folded into x, y and z.
+fn linear_group(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
+    return wid.x + (wid.y + wid.z * nwg.y) * nwg.x;
+}
+
+// Indirect workgroup counts for g groups at m groups per dimension (the device's limit): folded into y,
+// then z. wgpu skips an indirect dispatch with any count past the limit, so nothing may exceed m.
+fn fold_groups(g: u32, m: u32) -> vec3<u32> {
+    let rows = (g + m - 1u) / m;
+    return vec3<u32>(min(g, m), min(rows, m), (rows + m - 1u) / m);
+}
+
 // SA(parent) / (SA(left) + SA(right)), scale-free and guarded exactly as geometry::sa_ratio on the CPU.
 fn half_area_scaled(e: vec3<f32>, inv: f32) -> f32 {
     let s = max(e * inv, vec3<f32>(0.0));

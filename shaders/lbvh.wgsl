@@ -67,7 +67,7 @@ fn tri_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     reduce_workgroup(lid.x);
     // Folded (x, y) dispatches run whole blocks past the end: they must not write (robust access would
     // clamp the index onto the last real partial).
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     if lid.x == 0u && block * WG < params.tris {
         partials[2u * block] = vec4<f32>(wmin[0], 0.0);
         partials[2u * block + 1u] = vec4<f32>(wmax[0], 0.0);

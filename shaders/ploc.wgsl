@@ -17,7 +17,7 @@
 // The three per-cluster kernels are dispatched indirectly from `args`, sized by the clusters left, and with
 // zero workgroups once one cluster is left, so the host records rounds in batches without reading back.
 
-struct PlocParams { n: u32, radius: u32, _a: u32, _b: u32 }
+struct PlocParams { n: u32, radius: u32, max_groups: u32, _b: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
@@ -40,7 +40,6 @@ struct PlocParams { n: u32, radius: u32, _a: u32, _b: u32 }
 @group(0) @binding(12) var<storage, read_write> args: array<u32>;
 
 const GONE: u32 = 0xffffffffu;
-const MAX_X: u32 = 65535u;
 
 var<workgroup> tile: array<u32, 256>;
 var<workgroup> clusters_left: u32;
@@ -82,12 +81,10 @@ fn merge_area(amin: vec3<f32>, amax: vec3<f32>, bmin: vec3<f32>, bmax: vec3<f32>
 fn set_args(c: u32) {
     var g = (c + WG - 1u) / WG;
     if c <= 1u { g = 0u; }
-    let x = min(g, MAX_X);
-    var y = 0u;
-    if g > 0u { y = (g + MAX_X - 1u) / MAX_X; }
-    args[0] = x;
-    args[1] = y;
-    args[2] = 1u;
+    let a = fold_groups(g, params.max_groups);
+    args[0] = a.x;
+    args[1] = a.y;
+    args[2] = a.z;
 }
 
 @compute @workgroup_size(256)
@@ -163,7 +160,7 @@ fn ploc_merge(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     scan_tile(lid.x);
     if i < c { offsets[i] = tile[lid.x] - keep; }
     // Blocks past the end of a folded (x, y) dispatch write no total (a clamped index would race).
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     if lid.x == WG - 1u && block * WG < c { sums[block] = tile[lid.x]; }
 }
 
@@ -194,7 +191,7 @@ fn ploc_compact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgrou
     let c = atomicLoad(&state[3]);
     if i >= c { return; }
     let v = next[i];
-    if v != GONE { clusters[offsets[i] + sums[wid.x + wid.y * nwg.x]] = v; }
+    if v != GONE { clusters[offsets[i] + sums[linear_group(wid, nwg)]] = v; }
 }
 
 @compute @workgroup_size(1)

@@ -36,7 +36,7 @@ fn fold(lid: u32) {
 @compute @workgroup_size(256)
 fn sum_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
               @builtin(num_workgroups) nwg: vec3<u32>) {
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
     var v = vec2<f32>(0.0);
     if i < params.n { v = vec2<f32>(values[i], 0.0); }

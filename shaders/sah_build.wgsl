@@ -240,12 +240,9 @@ fn bin_of(q: u32, lo: u32, hi: u32) -> u32 {
     return ((q - lo) * BINS) / (hi - lo + 1u);
 }
 
-// Workgroup counts for g groups, folded into y past the device's groups per dimension m (mode bits 16..32,
-// at most 65535; kernels recover the linear index). wgpu skips an indirect dispatch with any count past the limit, so past m × m groups the rest go to z.
+// Workgroup counts for g groups at the device's groups per dimension (mode bits 16..32, at most 65535).
 fn split_threads(g: u32) -> vec3<u32> {
-    let m = params.mode >> 16u;
-    let rows = (g + m - 1u) / m;
-    return vec3<u32>(min(g, m), min(rows, m), (rows + m - 1u) / m);
+    return fold_groups(g, params.mode >> 16u);
 }
 
 fn write_args(at: u32, g: vec3<u32>) {
@@ -460,7 +457,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
 @compute @workgroup_size(64)
 fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
-    let e = wid.x + (wid.y + wid.z * nwg.y) * nwg.x;
+    let e = linear_group(wid, nwg);
     if lid.x == 0u { wcount = atomicLoad(&state[params.level]); }
     if e >= workgroupUniformLoad(&wcount) { return; }
     let base = e * ENTRY_BINS;
@@ -558,7 +555,7 @@ var<workgroup> wsplit: vec4<u32>;
 @compute @workgroup_size(64)
 fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
-    let k = wid.x + (wid.y + wid.z * nwg.y) * nwg.x;
+    let k = linear_group(wid, nwg);
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }

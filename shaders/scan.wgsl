@@ -13,7 +13,7 @@ var<workgroup> tile: array<u32, 256>;
 @compute @workgroup_size(256)
 fn scan_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
                @builtin(num_workgroups) nwg: vec3<u32>) {
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
     var v = 0u;
     if i < params.n { v = data[i]; }
@@ -36,7 +36,7 @@ fn scan_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_
 @compute @workgroup_size(256)
 fn add_offsets(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
                @builtin(num_workgroups) nwg: vec3<u32>) {
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
     if i < params.n { data[i] = data[i] + sums[block]; }
 }

@@ -31,7 +31,7 @@ fn digit_of(i: u32) -> u32 {
 @compute @workgroup_size(256)
 fn count(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
          @builtin(num_workgroups) nwg: vec3<u32>) {
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     if lid.x < 16u { atomicStore(&counts[lid.x], 0u); }
     workgroupBarrier();
     let d = digit_of(block * WG + lid.x);
@@ -45,7 +45,7 @@ fn count(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wi
 @compute @workgroup_size(256)
 fn scatter(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
            @builtin(num_workgroups) nwg: vec3<u32>) {
-    let block = wid.x + wid.y * nwg.x;
+    let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
     let d = digit_of(i);
     digits[lid.x] = d;

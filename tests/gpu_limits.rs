@@ -6,7 +6,7 @@
 mod common;
 use common::*;
 use kinetrace::gpu::{
-    GpuContext, GpuMeshBvh, GpuOptions, GpuRays, GpuSahBuilder, GpuSahOptions, Query,
+    GpuContext, GpuMeshBvh, GpuOptions, GpuPloc, GpuRays, GpuSahBuilder, GpuSahOptions, Query,
 };
 use kinetrace::{Error, Mesh, Ray};
 
@@ -166,4 +166,25 @@ fn sah_indirect_dispatches_fold_at_the_device_limit() {
         folded.validate(Some(&m.triangle_bounds())).unwrap();
         assert_eq!(folded.nodes(), reference.nodes(), "{options:?}");
     }
+}
+
+/// GPU PLOC sizes its per-cluster dispatches itself: on a device with 8 workgroups per dimension it folds
+/// them at that limit and builds the same tree, node for node, as on the full-limit device (whose tree
+/// `tests/gpu_ploc.rs` checks against CPU PLOC).
+#[test]
+fn ploc_indirect_dispatches_fold_at_the_device_limit() {
+    let Some(g) = small(|l| l.max_compute_workgroups_per_dimension = GROUPS) else {
+        return;
+    };
+    let g = g.expect("a device with fewer workgroups per dimension");
+    let full = gpu_or_skip().expect("the shared device exists when the small one does");
+    // 5,000 triangles: 20 groups of 256 clusters in the first rounds, 8 × 3 on the small device.
+    let m = soup(17, 5000);
+    let tree = |ctx: &GpuContext| {
+        let mut ploc = GpuPloc::new(ctx, &m, 16).unwrap();
+        ploc.build_for_cpu(ctx, &m).unwrap().bvh().clone()
+    };
+    let (folded, reference) = (tree(&g), tree(&full));
+    folded.validate(Some(&m.triangle_bounds())).unwrap();
+    assert_eq!(folded.nodes(), reference.nodes());
 }

@@ -76,7 +76,16 @@ impl GpuPloc {
             super::buffers::STORAGE | wgpu::BufferUsages::INDIRECT,
         );
         let stand_in = GpuBuffer::storage(ctx, "ploc stand-in", 16);
-        let params = ParamSlots::new(ctx, &[[lbvh.triangle_count(), radius, 0, 0]]);
+        // The device's workgroups per dimension: where the kernels' own indirect sizes fold.
+        let params = ParamSlots::new(
+            ctx,
+            &[[
+                lbvh.triangle_count(),
+                radius,
+                ctx.max_groups().min(0xffff),
+                0,
+            ]],
+        );
         let with = |a: &GpuBuffer| {
             bind_group(
                 ctx,
