@@ -6,16 +6,27 @@ mod common;
 mod scenes;
 
 use common::*;
-use glam::{UVec3, Vec3};
+use glam::{DVec3, UVec3, Vec3};
 use kinetrace::bvh::TraversalStats;
 use kinetrace::grid::{GridOptions, MAX_PACKET, UniformGrid};
-use kinetrace::scenes::bumpy_torus;
+use kinetrace::scenes::{bumpy_torus, cube_sphere, icosphere, soup};
 use kinetrace::{Error, Mesh, Ray};
 use rand::Rng;
 use std::path::Path;
 
 fn grid(m: &Mesh) -> UniformGrid {
     UniformGrid::build(m, &GridOptions::default()).unwrap()
+}
+
+/// The grid without and with the triangle–cell overlap test.
+fn grids(m: &Mesh) -> [UniformGrid; 2] {
+    [false, true].map(|overlap_test| {
+        let options = GridOptions {
+            overlap_test,
+            ..Default::default()
+        };
+        UniformGrid::build(m, &options).unwrap()
+    })
 }
 
 /// Closest and any hit of every ray, single ray and in packets of 16 and 64, against brute force.
@@ -97,13 +108,14 @@ fn every_report_scene_matches_brute_force() {
         for frame in [0, 45] {
             s.positions(frame, &mut pos);
             let m = s.mesh(&pos);
-            let g = grid(&m);
-            let b = g.bounds();
-            let eye = b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length();
-            let mut rays = camera(eye, b.center(), 32, 8, 0.9);
-            rays.extend(random_rays(&m, frame as u64 + 7, 400));
-            let hits = check(&m, &g, &rays, &format!("{} frame {frame}", s.name));
-            assert!(hits > 0, "{}: no ray hits", s.name);
+            for g in grids(&m) {
+                let b = g.bounds();
+                let eye = b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length();
+                let mut rays = camera(eye, b.center(), 32, 8, 0.9);
+                rays.extend(random_rays(&m, frame as u64 + 7, 400));
+                let what = format!("{} frame {frame} {:?}", s.name, g.options());
+                assert!(check(&m, &g, &rays, &what) > 0, "{what}: no ray hits");
+            }
         }
     }
 }
@@ -157,9 +169,10 @@ fn offsets_of_1e5_and_origins_far_outside() {
     let base = icosphere(3);
     for off in [Vec3::splat(1e5), Vec3::new(-1e5, 3.0, 1e5)] {
         let m = map_mesh(&base, |p| p + off);
-        let g = grid(&m);
         let rays = random_rays(&m, 3, 600);
-        check(&m, &g, &rays, "offset");
+        for g in grids(&m) {
+            check(&m, &g, &rays, "offset");
+        }
     }
     // Origins 1e5 away from a unit mesh near the origin: far rays take the brute-force path.
     let g = grid(&base);
@@ -188,12 +201,13 @@ fn teapot_in_stadium_one_cell_one_triangle_and_empty() {
     ]);
     idx.extend([k, k + 1, k + 2]);
     let m = Mesh::new(pos, idx).unwrap();
-    let g = grid(&m);
-    assert!(g.reference_count() as u64 <= 32 * m.triangle_count() as u64);
     let mut rays = random_rays(&teapot, 9, 500);
     rays.extend(camera(Vec3::new(0.0, 0.0, 0.05), Vec3::ZERO, 16, 4, 0.8));
     rays.extend(random_rays(&m, 10, 300));
-    check(&m, &g, &rays, "stadium");
+    for g in grids(&m) {
+        assert!(g.reference_count() as u64 <= 32 * m.triangle_count() as u64);
+        check(&m, &g, &rays, "stadium");
+    }
 
     // Every triangle overlapping every other: identical large triangles, all in every cell.
     let tri = [
@@ -258,7 +272,13 @@ fn incoherent_packets_equal_single_rays() {
     // Packets of random directions (falling back to single rays) and packets of shadow rays toward a
     // point light (coherent, different origins).
     let m = bumpy_torus(4000);
-    let g = grid(&m);
+    let [g, overlap] = grids(&m);
+    check(
+        &m,
+        &overlap,
+        &random_rays(&m, 21, 640),
+        "incoherent, overlap test",
+    );
     check(&m, &g, &random_rays(&m, 21, 640), "incoherent");
     let mut r = rng(22);
     let light = Vec3::new(0.3, 3.0, 0.2);
@@ -421,4 +441,139 @@ fn rebuilds_keep_the_reference_bound_when_triangles_grow() {
     );
     assert_eq!(g.resolution(), fresh.resolution());
     assert_eq!(g.reference_count(), fresh.reference_count());
+}
+
+/// Whether the closed triangle `t` and the closed box `lo..hi` share a point: the triangle clipped by the
+/// box's six planes (Sutherland–Hodgman in `f64`) is not empty. Independent of the grid's separating-axis
+/// test.
+fn clip_overlaps(t: [DVec3; 3], lo: DVec3, hi: DVec3) -> bool {
+    let mut poly = t.to_vec();
+    for axis in 0..3 {
+        for (bound, keep_below) in [(hi[axis], true), (lo[axis], false)] {
+            let inside = |p: &DVec3| {
+                if keep_below {
+                    p[axis] <= bound
+                } else {
+                    p[axis] >= bound
+                }
+            };
+            let mut out = Vec::with_capacity(poly.len() + 1);
+            for i in 0..poly.len() {
+                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+                if inside(&a) {
+                    out.push(a);
+                }
+                if inside(&a) != inside(&b) {
+                    let s = (bound - a[axis]) / (b[axis] - a[axis]);
+                    let mut x = a + (b - a) * s;
+                    x[axis] = bound;
+                    out.push(x);
+                }
+            }
+            poly = out;
+            if poly.is_empty() {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+#[test]
+fn the_overlap_test_bins_a_triangle_into_exactly_the_cells_it_reaches() {
+    // Large diagonal triangles, a soup, needles and slivers, a sheet at a 1e5 offset, a teapot in a
+    // stadium: with the overlap test a triangle is listed in a cell exactly when it reaches the cell grown
+    // by the margin (up to the test's documented 1/1024 of the margin); without it, in every cell of its
+    // grown box. Checked cell by cell against a polygon clipper.
+    let mut r = rng(31);
+    let big: Vec<Vec3> = (0..60).map(|_| rand_vec(&mut r, -1.0, 1.0)).collect();
+    let needles: Vec<Vec3> = (0..40)
+        .flat_map(|_| {
+            let a = rand_vec(&mut r, -1.0, 1.0);
+            let d = rand_vec(&mut r, -1.0, 1.0);
+            [a, a + d, a + d * 1.0001 + Vec3::splat(1e-6)]
+        })
+        .collect();
+    let stadium = {
+        let mut p = map_mesh(&icosphere(2), |p| p * 0.01).positions().to_vec();
+        p.extend([
+            Vec3::splat(-50.0),
+            Vec3::new(50.0, -50.0, -50.0),
+            Vec3::new(0.0, 50.0, 50.0),
+        ]);
+        p
+    };
+    let soup_tris = |p: Vec<Vec3>| {
+        let n = p.len() as u32 / 3 * 3;
+        Mesh::new(p, (0..n).collect::<Vec<u32>>()).unwrap()
+    };
+    let teapot = icosphere(2);
+    let mut stadium_idx = teapot.indices().to_vec();
+    let k = teapot.positions().len() as u32;
+    stadium_idx.extend([k, k + 1, k + 2]);
+    let meshes = [
+        soup_tris(big),
+        soup_tris(needles),
+        soup(5, 3000),
+        map_mesh(&cube_sphere(6), |p| {
+            p * Vec3::new(3.0, 1.0, 0.2) + Vec3::splat(1e5)
+        }),
+        Mesh::new(stadium, stadium_idx).unwrap(),
+    ];
+    for (mi, m) in meshes.iter().enumerate() {
+        let [boxed, exact] = grids(m);
+        assert_eq!(boxed.resolution(), exact.resolution(), "mesh {mi}");
+        assert!(exact.reference_count() <= boxed.reference_count());
+        let (b, res, margin) = (exact.bounds(), exact.resolution(), exact.margin() as f64);
+        let cell = (b.extent() / res.as_vec3()).as_dvec3();
+        let tris: Vec<[DVec3; 3]> = (0..m.triangle_count())
+            .map(|i| m.triangle(i).map(|p| p.as_dvec3()))
+            .collect();
+        let mut dropped = 0;
+        for z in 0..res.z {
+            for y in 0..res.y {
+                for x in 0..res.x {
+                    let c = UVec3::new(x, y, z);
+                    let lo = b.min.as_dvec3() + c.as_dvec3() * cell;
+                    let (got, all) = (exact.cell_triangles(c), boxed.cell_triangles(c));
+                    assert!(got.iter().all(|t| all.contains(t)), "mesh {mi} cell {c}");
+                    for &t in all {
+                        let reach = |grow: f64| {
+                            clip_overlaps(tris[t as usize], lo - grow, lo + cell + grow)
+                        };
+                        let listed = got.contains(&t);
+                        if reach(margin) {
+                            assert!(
+                                listed,
+                                "mesh {mi}: triangle {t} reaches cell {c}, not listed"
+                            );
+                        }
+                        if listed {
+                            assert!(
+                                reach(margin * (1.0 + 2.0 / 1024.0)),
+                                "mesh {mi}: triangle {t} listed in cell {c} it does not reach"
+                            );
+                        }
+                        dropped += !listed as usize;
+                    }
+                }
+            }
+        }
+        eprintln!(
+            "mesh {mi}: {} references with the overlap test, {} without ({dropped} dropped)",
+            exact.reference_count(),
+            boxed.reference_count()
+        );
+        // Same result on one thread.
+        let seq = UniformGrid::build(
+            m,
+            &GridOptions {
+                overlap_test: true,
+                parallel: false,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert_eq!(seq.reference_count(), exact.reference_count());
+    }
 }

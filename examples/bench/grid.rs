@@ -111,6 +111,24 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
         b1 / g1,
         "x",
     );
+    // The same grid binning each triangle only into the cells it overlaps.
+    let overlap = GridOptions {
+        overlap_test: true,
+        ..seq
+    };
+    let (o1, exact) = one_thread(|| best_of(reps, || UniformGrid::build(mesh, &overlap).unwrap()));
+    rec.add(
+        SUITE,
+        name,
+        "grid overlap test",
+        "build 1 thread",
+        n / o1 / 1e6,
+        "Mtris/s",
+    );
+    for (who, g) in [("grid", &grid), ("grid overlap test", &exact)] {
+        let refs = g.reference_count() as f64 / n;
+        rec.add(SUITE, name, who, "references per triangle", refs, "");
+    }
 
     let camera = tiled_camera(&grid.bounds(), side, 8);
     let mut hits = vec![None; camera.len()];
@@ -160,6 +178,23 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
             &format!("grid single ray, {kind}"),
             "Mrays/s 1 thread",
             m(rays, t_grid),
+            "Mrays/s",
+        );
+        let (t_exact, _) = best_of(reps, || {
+            if any {
+                rays.iter().filter(|r| exact.any_hit(r)).count()
+            } else {
+                rays.iter()
+                    .filter(|r| exact.closest_hit(r).is_some())
+                    .count()
+            }
+        });
+        rec.add(
+            SUITE,
+            name,
+            &format!("grid overlap test single ray, {kind}"),
+            "Mrays/s 1 thread",
+            m(rays, t_exact),
             "Mrays/s",
         );
         rec.add(
@@ -214,7 +249,12 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
         }
         for size in [16, 64] {
             let ranges = packets(tiles, size);
-            for (who, single) in [("grid", t_grid), ("BVH", t_bvh)] {
+            let who_single = [
+                ("grid", t_grid),
+                ("grid overlap test", t_exact),
+                ("BVH", t_bvh),
+            ];
+            for (who, single) in who_single {
                 let (t, _) = best_of(reps, || {
                     let mut st = TraversalStats::default();
                     for range in &ranges {
@@ -223,6 +263,10 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
                         match (who, any) {
                             ("grid", true) => grid.any_hits_packet(r, a, &mut st),
                             ("grid", false) => grid.closest_hits_packet(r, o, &mut st),
+                            ("grid overlap test", true) => exact.any_hits_packet(r, a, &mut st),
+                            ("grid overlap test", false) => {
+                                exact.closest_hits_packet(r, o, &mut st)
+                            }
                             (_, true) => bvh.any_hits_packet(r, a, &mut st),
                             (_, false) => bvh.closest_hits_packet(r, o, &mut st),
                         }

@@ -1,5 +1,5 @@
-//! Per-frame grid build: resolution from λ, triangles binned by their grown boxes, a counting sort into one
-//! compact cell → triangle array, macrocell occupancy.
+//! Per-frame grid build: resolution from λ, triangles binned by their grown boxes (optionally only into the
+//! cells they overlap), a counting sort into one compact cell → triangle array, macrocell occupancy.
 //!
 //! The counting sort runs over slabs of z-layers of cells, one slab per task: every task reads all
 //! triangles' cell ranges and counts (then writes) only its own cells, so no two tasks touch the same cell,
@@ -151,11 +151,14 @@ impl UniformGrid {
         let (rx, ry, rz) = (self.res.x, self.res.y, self.res.z);
         let sxy = (rx * ry) as usize;
         let cells = sxy * rz as usize;
-        self.cell_start.clear();
-        self.cell_start.resize(cells + 1, 0);
-        let ranges = &self.ranges;
+        // Taken out while the passes read the rest of the grid; put back at the end (no allocation).
+        let mut cell_start = std::mem::take(&mut self.cell_start);
+        let mut refs = std::mem::take(&mut self.refs);
+        cell_start.clear();
+        cell_start.resize(cells + 1, 0);
+        let grid = &*self;
         let slab_grain = (rz as usize / (2 * parallel::threads())).max(1) as u32;
-        let starts = &mut self.cell_start[..cells];
+        let starts = &mut cell_start[..cells];
         for_slabs(
             par,
             slab_grain,
@@ -166,8 +169,8 @@ impl UniformGrid {
             &mut [],
             0,
             &|z0, z1, counts, _, _| {
-                for r in ranges {
-                    each_cell(r, z0, z1, rx, sxy, |c| counts[c] += 1);
+                for (t, r) in grid.ranges.iter().enumerate() {
+                    grid.each_binned_cell(t, r, z0, z1, |c| counts[c] += 1);
                 }
             },
         );
@@ -176,27 +179,55 @@ impl UniformGrid {
             sum += *c;
             *c = sum;
         }
-        self.cell_start[cells] = sum;
-        self.refs.clear();
-        self.refs.resize(sum as usize, 0);
-        let starts = &mut self.cell_start[..cells];
+        cell_start[cells] = sum;
+        refs.clear();
+        refs.resize(sum as usize, 0);
         for_slabs(
             par,
             slab_grain,
             0,
             rz,
             sxy,
-            starts,
-            &mut self.refs,
+            &mut cell_start[..cells],
+            &mut refs,
             0,
             &|z0, z1, ends, refs, base| {
-                for (t, r) in ranges.iter().enumerate().rev() {
-                    each_cell(r, z0, z1, rx, sxy, |c| {
+                for (t, r) in grid.ranges.iter().enumerate().rev() {
+                    grid.each_binned_cell(t, r, z0, z1, |c| {
                         ends[c] -= 1;
                         refs[(ends[c] - base) as usize] = t as u32;
                     });
                 }
             },
+        );
+        self.cell_start = cell_start;
+        self.refs = refs;
+    }
+
+    /// Calls `f` with the slab-local index of every cell of triangle `t`'s range `r` in z-layers `z0..z1`
+    /// that the triangle is binned into: every cell of the range, or with
+    /// [`GridOptions::overlap_test`](super::GridOptions::overlap_test) only the cells it overlaps.
+    #[inline]
+    fn each_binned_cell(&self, t: usize, r: &[UVec3; 2], z0: u32, z1: u32, f: impl FnMut(usize)) {
+        let (rx, sxy) = (self.res.x, (self.res.x * self.res.y) as usize);
+        if !(self.options.overlap_test && needs_overlap_test(r)) || r[1].z < z0 || r[0].z >= z1 {
+            return each_cell(r, z0, z1, rx, sxy, |_| true, f);
+        }
+        // Half a cell grown by the margin, plus 1/1024 of it so that `f64` rounding in the test (about
+        // 1e-15 of the coordinates, against a margin of at least 4e-6 of them) can never drop a cell the
+        // triangle reaches within the margin.
+        let cell = self.cell.as_dvec3();
+        let half = cell * 0.5 + f64::from(self.margin) * (1.0 + 1.0 / 1024.0);
+        let origin = self.bounds.min.as_dvec3() + cell * 0.5;
+        let sat = CellSat::new(&self.tris[t], half);
+        each_cell(
+            r,
+            z0,
+            z1,
+            rx,
+            sxy,
+            |c| sat.overlaps(origin + c.as_dvec3() * cell),
+            f,
         );
     }
 
@@ -222,6 +253,50 @@ impl UniformGrid {
                 }
             }
         }
+    }
+}
+
+/// The separating-axis test of one triangle against equal axis-aligned boxes at many centres
+/// (Akenine-Möller 2001), with everything that does not depend on the centre computed once: per axis the
+/// triangle's projected interval and the box's projected radius. The box's own three axes are left out:
+/// the cells tested come from the triangle's grown box, so those axes separate nothing that matters (a
+/// cell they would drop is only kept, never lost).
+struct CellSat {
+    /// The triangle's normal and the nine cross products of its edges with the coordinate axes.
+    axes: [DVec3; 10],
+    /// Per axis: the triangle's projection interval, grown by the box's projected radius.
+    lo: [f64; 10],
+    hi: [f64; 10],
+}
+
+impl CellSat {
+    fn new(t: &[Vec3; 3], half: DVec3) -> Self {
+        let v = t.map(Vec3::as_dvec3);
+        let e = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+        let mut axes = [e[0].cross(e[1]); 10];
+        for (i, a) in [DVec3::X, DVec3::Y, DVec3::Z].into_iter().enumerate() {
+            for (j, e) in e.iter().enumerate() {
+                axes[1 + 3 * i + j] = a.cross(*e);
+            }
+        }
+        let (mut lo, mut hi) = ([0.0; 10], [0.0; 10]);
+        for (k, a) in axes.iter().enumerate() {
+            let p = v.map(|x| x.dot(*a));
+            let r = half.dot(a.abs());
+            lo[k] = p[0].min(p[1]).min(p[2]) - r;
+            hi[k] = p[0].max(p[1]).max(p[2]) + r;
+        }
+        Self { axes, lo, hi }
+    }
+
+    /// Whether the triangle and the box centred at `c` overlap on every axis (a vanishing axis has a
+    /// zero-width interval around 0 and never separates).
+    #[inline]
+    fn overlaps(&self, c: DVec3) -> bool {
+        (0..10).all(|k| {
+            let d = self.axes[k].dot(c);
+            self.lo[k] <= d && d <= self.hi[k]
+        })
     }
 }
 
@@ -265,9 +340,27 @@ fn range_cells(r: &[UVec3; 2]) -> u64 {
     d.x * d.y * d.z
 }
 
-/// Calls `f` with the slab-local index of every cell of range `r` in z-layers `z0..z1` (`sxy` cells a layer).
+/// Whether a triangle binned into cell range `r` can miss some of its cells: only when the range is more
+/// than one cell wide on at least two axes. A range one cell wide on two axes is a column of cells, and a
+/// triangle (connected, spanning its box on the third axis) reaches every cell of its column.
 #[inline]
-fn each_cell(r: &[UVec3; 2], z0: u32, z1: u32, rx: u32, sxy: usize, mut f: impl FnMut(usize)) {
+fn needs_overlap_test(r: &[UVec3; 2]) -> bool {
+    let wide = r[1].cmpgt(r[0]);
+    (wide.x as u8 + wide.y as u8 + wide.z as u8) >= 2
+}
+
+/// Calls `f` with the slab-local index of every cell of range `r` in z-layers `z0..z1` (`sxy` cells a layer)
+/// for which `keep` (given the cell's coordinates) holds.
+#[inline]
+fn each_cell(
+    r: &[UVec3; 2],
+    z0: u32,
+    z1: u32,
+    rx: u32,
+    sxy: usize,
+    mut keep: impl FnMut(UVec3) -> bool,
+    mut f: impl FnMut(usize),
+) {
     let (lo, hi) = (r[0], r[1]);
     if lo.x > hi.x || hi.z < z0 || lo.z >= z1 {
         return;
@@ -277,7 +370,9 @@ fn each_cell(r: &[UVec3; 2], z0: u32, z1: u32, rx: u32, sxy: usize, mut f: impl 
         for y in lo.y..=hi.y {
             let row = layer + (y * rx) as usize;
             for x in lo.x..=hi.x {
-                f(row + x as usize);
+                if keep(UVec3::new(x, y, z)) {
+                    f(row + x as usize);
+                }
             }
         }
     }
