@@ -123,7 +123,8 @@ mod imp {
             blocking: bool,
         ) -> Option<crate::Result<RayResults>> {
             let (closest, shadows) = (self.closest.as_ref()?, self.shadows.as_ref()?);
-            if !blocking && !(closest.ready(ctx) && shadows.ready(ctx)) {
+            let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx));
+            if !ready {
                 return None;
             }
             let (closest, shadows) = (self.closest.take()?, self.shadows.take()?);

@@ -58,9 +58,12 @@ type SkinData<'a> = (
     &'a mut VertexPositions,
 );
 
+/// Skins the CPU skins: changed, healthy, and not left to the GPU alone.
+type Reskinned = (Changed<TraceSkin>, Without<TraceError>, Without<GpuOnly>);
+
 /// [`TraceSystems::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
 pub(crate) fn skin_system(
-    mut skinned: Query<SkinData, (Changed<TraceSkin>, Without<TraceError>, Without<GpuOnly>)>,
+    mut skinned: Query<SkinData, Reskinned>,
     mut world: ResMut<TraceWorld>,
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,

@@ -17,7 +17,7 @@ use super::buffers::{GpuBuffer, bind_group};
 use super::scene::{Batch, GpuInstance, SceneReadback, SceneRequest};
 use super::{GpuContext, GpuMeshBvh};
 use crate::{Mesh, Result};
-use glam::{Affine3A, Mat3A, Vec3};
+use glam::{Affine3A, Vec3};
 
 /// One instance of a resident mesh in this frame's scene.
 pub(crate) struct FrameInstance<'a> {
@@ -143,7 +143,7 @@ impl ResidentScene {
         for inst in live {
             let bvh = inst.mesh.bvh();
             let inverse = inst.transform.inverse();
-            let normal = Mat3A::from(inverse.matrix3).transpose();
+            let normal = inverse.matrix3.transpose();
             self.up_instances.push(GpuInstance::new(
                 &inverse,
                 &normal,
