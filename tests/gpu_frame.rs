@@ -7,7 +7,8 @@
 //! skinning, is hit by the independent oracle at that `t`); one submission; no blocking wait under
 //! `Latency::NextFrame`, at most one under `SameFrame`; and after the first frame the bytes uploaded do not
 //! depend on the characters' triangle counts and are exactly the joint matrices, instances and requests
-//! (no vertex data).
+//! (no vertex data). Immediate queries read the CPU's world: it holds the mirrored characters, not those
+//! marked `GpuOnly`.
 #![cfg(feature = "gpu")]
 
 mod common;
@@ -63,6 +64,8 @@ struct Run {
     triangles: BTreeMap<u64, Placed>,
     /// The characters in spawn order (entity ids differ between worlds: resources are entities too).
     spawned: Vec<Entity>,
+    /// Characters the CPU's world holds at the end (what immediate queries see).
+    on_cpu: usize,
 }
 
 impl Run {
@@ -98,6 +101,7 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
         counters: Vec::new(),
         triangles: BTreeMap::new(),
         spawned,
+        on_cpu: 0,
     };
     let mut frame = 0;
     while frame < FRAMES
@@ -131,6 +135,12 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
             }
         }
     }
+    let cpu_world = world.resource::<TraceWorld>();
+    out.on_cpu = out
+        .spawned
+        .iter()
+        .filter(|&&e| cpu_world.contains(e))
+        .count();
     out
 }
 
@@ -197,6 +207,8 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     let cpu = run(TraceConfig::default(), 600, false);
     let gpu = run(resident(Latency::NextFrame), 600, true);
     assert_same_answers(&cpu, &gpu, "next frame, GPU only");
+    // Without their CPU mirror the characters are invisible to immediate queries.
+    assert_eq!(gpu.on_cpu, 0);
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
         assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
@@ -229,6 +241,8 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
     };
     let gpu = run(config, 600, false);
     assert_same_answers(&cpu, &gpu, "same frame, mirrored, rebuilding");
+    // Mirrored, they are on the CPU as in the CPU mode, for immediate queries.
+    assert_eq!(gpu.on_cpu, CHARACTERS);
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
         assert!(c.blocking_waits <= 1, "frame {}: {c:?}", f + 1);
