@@ -139,12 +139,12 @@ pub(crate) fn resident_frame_system(
         })
         .collect();
     let (closest, any) = pending.requests();
-    match (resident.scene).record(&ctx, &mut enc, &instances, closest, any) {
-        Ok(readback) => {
-            ctx.submit(enc);
-            gpu.push_pending(pending, readback);
-        }
-        Err(e) => log::error!("kinetrace: GPU-resident frame lost: {e}"),
+    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any);
+    // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
+    ctx.submit(enc);
+    match recorded {
+        Ok(readback) => gpu.push_pending(pending, readback),
+        Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),
     }
     if !next_frame {
         publish(gpu.collect(true), &mut results);
