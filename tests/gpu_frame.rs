@@ -1,5 +1,5 @@
 //! The GPU-resident frame (`TraceConfig::resident`) against the CPU mode, on lavapipe in CI: a few small
-//! animated humanoids (4 × about 600 triangles, skinned on the GPU), 16 frames of closest-hit rays and
+//! animated humanoids (4 × about 600 triangles, skinned on the GPU) on a static ground, 16 frames of closest-hit rays and
 //! shadow segments. Kept small for a software adapter: it runs in seconds.
 //!
 //! Checked per frame: every batched answer equals the CPU mode's for the same frame (same entity and
@@ -85,7 +85,13 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
     let cpu = config.mode == TraceMode::Cpu;
     let (mut world, mut schedule) = app_with(config);
     let asset = Arc::new(humanoid(triangles));
-    let mut spawned = Vec::new();
+    // A static ground under the crowd: a mesh the resident frame uploads once and never touches again.
+    let ground = kinetrace::Mesh::new(
+        [(-2.0, -2.0), (5.0, -2.0), (5.0, 3.0), (-2.0, 3.0)].map(|(x, z)| Vec3::new(x, 0.0, z)),
+        vec![0, 2, 1, 0, 3, 2],
+    )
+    .unwrap();
+    let mut spawned = vec![world.spawn((TraceMesh(ground), MotionHint::Static)).id()];
     for k in 0..CHARACTERS {
         let clip = k % asset.clips.len();
         let at = Vec3::new(k as f32 * 0.9, 0.0, (k % 2) as f32 * 0.7);
@@ -207,8 +213,8 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     let cpu = run(TraceConfig::default(), 600, false);
     let gpu = run(resident(Latency::NextFrame), 600, true);
     assert_same_answers(&cpu, &gpu, "next frame, GPU only");
-    // Without their CPU mirror the characters are invisible to immediate queries.
-    assert_eq!(gpu.on_cpu, 0);
+    // Without their CPU mirror the characters are invisible to immediate queries; the ground has one.
+    assert_eq!(gpu.on_cpu, 1);
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
         assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
@@ -216,10 +222,11 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     // After the first frame no vertex data goes up: uploads do not depend on the triangle count.
     let big = run(resident(Latency::NextFrame), 1500, true);
     assert!(big.counters[0].uploaded_bytes > gpu.counters[0].uploaded_bytes);
-    // Exactly: per character its joint matrices (64 bytes each) and its instance (144 bytes, plus a
-    // 64-byte transform); per request a ray (80 bytes) and its filter (16); three 16-byte parameter blocks.
+    // Exactly: per character its joint matrices (64 bytes each); per instance (the characters and the
+    // ground) 144 bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three
+    // 16-byte parameter blocks.
     let joints = humanoid(600).skeleton.joints.len();
-    let expected = CHARACTERS * (64 * joints + 208) + (RAYS + SHADOWS) * 96 + 48;
+    let expected = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
     for f in 1..FRAMES as usize {
         let (small, big) = (gpu.counters[f], big.counters[f]);
         assert_eq!(small.uploaded_bytes, big.uploaded_bytes, "frame {}", f + 1);
@@ -242,7 +249,7 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
     let gpu = run(config, 600, false);
     assert_same_answers(&cpu, &gpu, "same frame, mirrored, rebuilding");
     // Mirrored, they are on the CPU as in the CPU mode, for immediate queries.
-    assert_eq!(gpu.on_cpu, CHARACTERS);
+    assert_eq!(gpu.on_cpu, CHARACTERS + 1);
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
         assert!(c.blocking_waits <= 1, "frame {}: {c:?}", f + 1);
