@@ -240,14 +240,15 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
         return;
     }
     let cpu = run(TraceConfig::default(), 600, false);
-    // Threshold 0: every refit whose metric comes back rebuilds the next frame, so the GPU LBVH rebuild
-    // path answers about half the frames.
+    // Threshold 0: every refit whose metric comes back rebuilds the next frame, so GPU rebuilds answer
+    // about half the frames; binned SAH (the GPU's 16 bins) for them, LBVH in the other test.
     let config = TraceConfig {
         policy: RebuildPolicy::Lauterbach { threshold: 0.0 },
+        builder: kinetrace::bvh::Builder::Sah { bins: 16 },
         ..resident(Latency::SameFrame)
     };
     let gpu = run(config, 600, false);
-    assert_same_answers(&cpu, &gpu, "same frame, mirrored, rebuilding");
+    assert_same_answers(&cpu, &gpu, "same frame, mirrored, SAH rebuilds");
     // Mirrored, they are on the CPU as in the CPU mode, for immediate queries.
     assert_eq!(gpu.on_cpu, CHARACTERS + 1);
     for (f, c) in gpu.counters.iter().enumerate() {

@@ -10,8 +10,11 @@
 //!
 //! The rebuild rule is Lauterbach's at [`RebuildPolicy::Lauterbach`]'s threshold (0.40 under the other
 //! policies) on the metric of an earlier refit, read back without blocking: a mesh rebuilds one frame
-//! after its refit crossed the threshold, or later when the GPU is behind. The adaptive policy's builders
-//! and costs are not consulted on this path (the CPU mirror still runs them for its own trees).
+//! after its refit crossed the threshold, or later when the GPU is behind. Rebuilds use
+//! [`TraceConfig::builder`] where the GPU has it in one submission (LBVH over 30-bit codes, 16-bin SAH or
+//! hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per round). The adaptive policy's
+//! builders and costs are not consulted on this path (the CPU mirror still runs them for its own trees),
+//! and no SAH cost comes back.
 //!
 //! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
 //! predicate or several exclusions, collisions, shape and sound queries) read the CPU's trees. By default
@@ -79,6 +82,8 @@ pub(crate) fn resident_frame_system(
         RebuildPolicy::Lauterbach { threshold } => threshold,
         _ => super::config::THESIS_THRESHOLD,
     };
+    // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
+    let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
     let ctx = gpu.context().clone();
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
     let resident = gpu.resident();
@@ -92,7 +97,7 @@ pub(crate) fn resident_frame_system(
             let weights = gpu_skin
                 .as_ref()
                 .map(|s| (&*s.weights, s.joint_matrices.len()));
-            ResidentMesh::new(&ctx, &mesh.0, weights).map(|m| {
+            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
                 resident.meshes.insert(e, m);
             })
         } else {

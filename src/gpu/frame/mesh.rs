@@ -4,7 +4,9 @@
 use crate::Mesh;
 use crate::Result;
 use crate::anim::SkinWeights;
-use crate::gpu::{DegradationReadback, GpuContext, GpuMeshBvh, GpuSkin};
+use crate::gpu::{
+    DegradationReadback, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, GpuSkin,
+};
 use glam::{Mat4, Vec3};
 
 /// What changed about a resident mesh this frame.
@@ -26,7 +28,7 @@ pub enum Maintained {
     Kept,
     /// Refitted, with the degradation metric on its way back.
     Refit,
-    /// Rebuilt with GPU LBVH: the first build, or the last known degradation was above the threshold.
+    /// Rebuilt with its builder: the first build, or the last known degradation was above the threshold.
     Rebuilt,
 }
 
@@ -35,10 +37,13 @@ pub enum Maintained {
 ///
 /// The refit-or-rebuild rule is Lauterbach's (thesis §4.1.5) on the metric of an earlier refit: the
 /// metric of frame n's refit comes back without blocking and decides frame n+1 (or later, if the GPU is
-/// behind): a rebuild one frame late. Rebuilds use GPU LBVH.
+/// behind): a rebuild one frame late. Rebuilds use GPU LBVH, or the binned SAH or hybrid builder
+/// ([`GpuSahBuilder`]) the mesh was made with.
 pub struct ResidentMesh {
     bvh: GpuMeshBvh,
     skin: Option<GpuSkin>,
+    /// The SAH or hybrid builder, `None` for LBVH.
+    sah: Option<GpuSahBuilder>,
     built: bool,
     /// The last refit's metric, not yet read back.
     pending: Option<DegradationReadback>,
@@ -48,11 +53,20 @@ pub struct ResidentMesh {
 
 impl ResidentMesh {
     /// Uploads `mesh` (and, with `skin`, its rest pose, weights and a palette of `joints` matrices) and
-    /// allocates its tree; nothing is built until the first [`record`](Self::record). Costs the uploads
-    /// (12 bytes per vertex and 12 per triangle, 36 more per vertex for a skin) and about 112 bytes of GPU
-    /// memory per triangle.
-    pub fn new(ctx: &GpuContext, mesh: &Mesh, skin: Option<(&SkinWeights, usize)>) -> Result<Self> {
+    /// allocates its tree, and with `sah` that builder's scratch; nothing is built until the first
+    /// [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36 more per
+    /// vertex for a skin) and about 112 bytes of GPU memory per triangle, plus the SAH builder's scratch.
+    pub fn new(
+        ctx: &GpuContext,
+        mesh: &Mesh,
+        skin: Option<(&SkinWeights, usize)>,
+        sah: Option<GpuSahOptions>,
+    ) -> Result<Self> {
         let bvh = GpuMeshBvh::new(ctx, mesh)?;
+        let sah = match sah {
+            Some(options) => Some(GpuSahBuilder::new(ctx, &bvh, options)?),
+            None => None,
+        };
         let skin = match skin {
             Some((weights, joints)) => {
                 Some(GpuSkin::new(ctx, mesh.positions(), weights, joints, &bvh)?)
@@ -62,6 +76,7 @@ impl ResidentMesh {
         Ok(Self {
             bvh,
             skin,
+            sah,
             built: false,
             pending: None,
             degradation: 0.0,
@@ -85,7 +100,7 @@ impl ResidentMesh {
 
     /// Records this frame's update and maintenance into `encoder`: skinning or the position upload, then
     /// a refit (and its metric's read-back) or, on the first frame and when the last metric read back
-    /// exceeds `threshold`, a GPU LBVH rebuild. Never blocks.
+    /// exceeds `threshold`, a rebuild with its builder. Never blocks.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
@@ -111,7 +126,10 @@ impl ResidentMesh {
             (MeshUpdate::Positions(p), _) => self.bvh.upload_positions(ctx, p)?,
         }
         if !self.built || self.degradation > threshold {
-            self.bvh.record_build(ctx, encoder);
+            match &self.sah {
+                Some(builder) => builder.record(ctx, &mut self.bvh, encoder),
+                None => self.bvh.record_build(ctx, encoder),
+            }
             self.built = true;
             self.degradation = 0.0;
             // A metric of the tree before the rebuild says nothing about the new one.
