@@ -25,18 +25,19 @@
 //! requests answered on the GPU — a ray that the CPU answers passes through it. Use it for crowds that
 //! only batched rays and shadow rays need to see.
 
-use super::systems::{attribute, checked_transform, fail, finish};
+#[cfg(feature = "gpu")]
 use super::*;
 use bevy_ecs::prelude::*;
 
 /// Drops an entity's CPU mirror in the GPU-resident frame (see [`gpu_frame`](self)): it is skinned and
-/// maintained on the GPU only and seen only by batched requests answered there. Without the resident
-/// frame it is ignored by nothing but [`TraceSystems::Skin`] and [`TraceSystems::Maintain`]: do not add
-/// it in other modes.
+/// maintained on the GPU only and seen only by batched requests answered there. Blend shapes need the
+/// mirror (the GPU skin does not apply them). Outside the resident frame it still keeps the entity out
+/// of [`TraceSystems::Skin`] and [`TraceSystems::Maintain`], so nothing sees it: do not add it there.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct GpuOnly;
 
 /// Whether the GPU-resident frame answers this frame.
+#[cfg(feature = "gpu")]
 pub(crate) fn resident_on(config: Res<TraceConfig>, gpu: Option<Res<GpuQueries>>) -> bool {
     config.resident && gpu.is_some()
 }
@@ -71,6 +72,7 @@ pub(crate) fn resident_frame_system(
     mut commands: Commands,
     mut errors: MessageWriter<TraceErrorMessage>,
 ) {
+    use super::systems::{attribute, checked_transform, fail, finish};
     use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
     let t = std::time::Instant::now();
     let next_frame = config.latency == Latency::NextFrame;

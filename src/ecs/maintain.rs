@@ -550,7 +550,13 @@ impl Rebuilder<'_> {
     }
 
     #[cfg(not(feature = "gpu"))]
-    fn on_gpu(&mut self, _: &Mesh, _: Build, _: &mut Kept) -> Option<(MeshBvh, Build, f64)> {
+    fn on_gpu(
+        &mut self,
+        _: &Mesh,
+        _: Build,
+        _: bool,
+        _: &mut Kept,
+    ) -> Option<(MeshBvh, Build, f64)> {
         self.fallbacks.no_gpu();
         None
     }
