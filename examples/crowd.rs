@@ -37,6 +37,8 @@ pub struct Options {
     pub frames: usize,
     /// Batched queries on the GPU when there is one.
     pub gpu: bool,
+    /// The GPU-resident frame (`TraceConfig::resident`; implies `gpu`).
+    pub resident: bool,
     /// Write a PNG every this many frames (0: never), and after the last frame.
     pub png_every: usize,
     /// Where the PNGs go.
@@ -56,6 +58,7 @@ impl Default for Options {
             triangles: 10_000,
             frames: 600,
             gpu: true,
+            resident: false,
             png_every: 120,
             out: PathBuf::from("target/crowd"),
             width: 480,
@@ -271,6 +274,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
     KinetracePlugin {
         config: TraceConfig {
             mode,
+            resident: opt.resident,
             ..Default::default()
         },
         ..Default::default()
@@ -723,12 +727,13 @@ fn main() {
                 }
             }
             "--gpu" => opt.gpu = true,
+            "--resident" => (opt.gpu, opt.resident) = (true, true),
             "--out" => {
                 opt.out = PathBuf::from(args.next().unwrap_or_else(|| "target/crowd".into()))
             }
             _ => {
                 eprintln!(
-                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR] [--shadows map|selective|traced]"
+                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu|--resident] [--out DIR] [--shadows map|selective|traced]"
                 );
                 std::process::exit(2);
             }

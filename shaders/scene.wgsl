@@ -26,7 +26,8 @@ struct Instance {
 
 // The world normal is computed here, so that answers collected a frame later do not depend on how the
 // meshes changed since.
-struct SceneHit { t: f32, prim: u32, u: f32, v: f32, instance: u32, _a: u32, _b: u32, _c: u32, normal: vec3<f32>, _d: f32 }
+// `entity_lo` and `entity_hi` name the instance hit by its id, so that answers need no slot table.
+struct SceneHit { t: f32, prim: u32, u: f32, v: f32, instance: u32, entity_lo: u32, entity_hi: u32, _c: u32, normal: vec3<f32>, _d: f32 }
 
 struct SceneParams { rays: u32, any: u32, _b: u32, _c: u32 }
 
@@ -161,7 +162,7 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
                 if b.found && (out.prim == MISS || b.t < out.t) {
                     let n = normalize(b.normal);
                     let wn = normalize(inst.n0.xyz * n.x + inst.n1.xyz * n.y + inst.n2.xyz * n.z);
-                    out = SceneHit(b.t, b.prim, b.u, b.v, s, 0u, 0u, 0u, wn, 0.0);
+                    out = SceneHit(b.t, b.prim, b.u, b.v, s, inst.entity_lo, inst.entity_hi, 0u, wn, 0.0);
                     if any { break; }
                 }
             }

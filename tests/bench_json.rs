@@ -15,6 +15,8 @@ mod cpu;
 mod crowd;
 #[path = "../examples/bench/ecs.rs"]
 mod ecs;
+#[path = "../examples/bench/ecs_gpu.rs"]
+mod ecs_gpu;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
 #[path = "../examples/bench/gpu_ploc.rs"]
@@ -120,6 +122,11 @@ fn gpu_suite_json_parses() {
 #[test]
 fn ecs_suite_json_parses() {
     check("ecs", false);
+}
+
+#[test]
+fn ecs_gpu_suite_json_parses() {
+    check("ecs-gpu", true);
 }
 
 #[test]

@@ -3,8 +3,9 @@
 use crate::record::Records;
 use std::process::ExitCode;
 
-const SUITES: [&str; 10] = [
-    "cpu", "gpu", "ecs", "skinning", "collide", "grid", "queries", "raysort", "shadows", "sound",
+const SUITES: [&str; 11] = [
+    "cpu", "gpu", "ecs", "ecs-gpu", "skinning", "collide", "grid", "queries", "raysort", "shadows",
+    "sound",
 ];
 
 /// Runs the suites the arguments name (all when none is named) and writes the JSON file if asked.
@@ -33,6 +34,7 @@ pub fn run(mut args: impl Iterator<Item = String>) -> ExitCode {
             "cpu" => crate::cpu::run(&mut rec),
             "gpu" => crate::gpu::run(&mut rec),
             "ecs" => crate::ecs::run(&mut rec),
+            "ecs-gpu" => crate::ecs_gpu::run(&mut rec),
             "skinning" => crate::skinning::run(&mut rec),
             "collide" => crate::collide::run(&mut rec),
             "grid" => crate::grid::run(&mut rec),

@@ -25,6 +25,7 @@ mod cpu;
 #[allow(dead_code)]
 mod crowd;
 mod ecs;
+mod ecs_gpu;
 mod gpu;
 mod gpu_ploc;
 mod gpu_sah;

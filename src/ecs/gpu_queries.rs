@@ -24,12 +24,16 @@ impl GpuQueries {
 }
 
 #[cfg(feature = "gpu")]
+pub(crate) use imp::Pending;
+
+#[cfg(feature = "gpu")]
 mod imp {
     use super::*;
     use crate::ecs::{RayHit, RayQueue, RayResults, TraceWorld};
     use crate::geometry::Ray;
-    use crate::gpu::GpuContext;
     use crate::gpu::scene::{GpuScene, SceneInstance, SceneReadback, SceneRequest};
+    use crate::gpu::{GpuContext, ResidentMesh, ResidentScene};
+    use std::collections::{HashMap, VecDeque};
 
     /// A batch submitted but not yet collected: the CPU-answered part is in `fresh`, the GPU answers
     /// arrive through the read-backs and go to the recorded indices.
@@ -37,17 +41,113 @@ mod imp {
         fresh: RayResults,
         ray_at: Vec<usize>,
         ray_requests: Vec<SceneRequest>,
-        closest: SceneReadback,
+        closest: Option<SceneReadback>,
         shadow_at: Vec<usize>,
-        shadows: SceneReadback,
+        shadow_requests: Vec<SceneRequest>,
+        shadows: Option<SceneReadback>,
+    }
+
+    /// The state of the GPU-resident frame (see [`TraceConfig::resident`](crate::ecs::TraceConfig)).
+    pub(crate) struct Resident {
+        pub(crate) meshes: HashMap<Entity, ResidentMesh>,
+        pub(crate) scene: ResidentScene,
     }
 
     pub(crate) struct Inner {
         pub(super) ctx: GpuContext,
         scene: GpuScene,
-        pending: Option<Pending>,
+        /// Submitted batches, oldest first.
+        pending: VecDeque<Pending>,
+        resident: Option<Resident>,
         /// The context's totals when the last frame's traffic was counted.
         pub(super) counted: crate::gpu::GpuCounters,
+    }
+
+    impl Pending {
+        /// Splits `queue` into what the GPU answers (requests with a layer mask and at most one exclusion)
+        /// and what `world` answers now on the CPU (predicates, longer exclusion lists).
+        pub(crate) fn new(world: &TraceWorld, queue: &RayQueue, frame: u64) -> Self {
+            let mut p = Pending {
+                fresh: RayResults {
+                    frame,
+                    hits: Vec::with_capacity(queue.rays.len()),
+                    shadows: Vec::with_capacity(queue.shadows.len()),
+                },
+                ray_at: vec![],
+                ray_requests: vec![],
+                closest: None,
+                shadow_at: vec![],
+                shadow_requests: vec![],
+                shadows: None,
+            };
+            let gpu_ok =
+                |f: &super::super::QueryFilter| f.predicate.is_none() && f.excluded.len() <= 1;
+            let request = |ray, f: &super::super::QueryFilter| SceneRequest {
+                ray,
+                layers: f.layers,
+                exclude: f.excluded.first().map(|e| e.to_bits()),
+            };
+            for (i, r) in queue.rays.iter().enumerate() {
+                if gpu_ok(&r.filter) {
+                    p.ray_at.push(i);
+                    p.ray_requests.push(request(r.ray, &r.filter));
+                    p.fresh.hits.push((r.tag, None));
+                } else {
+                    let hit = world.cast_ray(&r.ray, f32::INFINITY, &r.filter);
+                    p.fresh.hits.push((r.tag, hit));
+                }
+            }
+            for (i, s) in queue.shadows.iter().enumerate() {
+                if gpu_ok(&s.filter) {
+                    p.shadow_at.push(i);
+                    p.shadow_requests
+                        .push(request(Ray::segment(s.from, s.to), &s.filter));
+                    p.fresh.shadows.push((s.tag, false));
+                } else {
+                    let blocked = world.occluded(s.from, s.to, &s.filter);
+                    p.fresh.shadows.push((s.tag, blocked));
+                }
+            }
+            p
+        }
+
+        /// The GPU's requests: closest hits, occlusion.
+        pub(crate) fn requests(&self) -> (&[SceneRequest], &[SceneRequest]) {
+            (&self.ray_requests, &self.shadow_requests)
+        }
+
+        /// The answers, if both read-backs are there (or `blocking`, after waiting for them).
+        fn answers(
+            &mut self,
+            ctx: &GpuContext,
+            blocking: bool,
+        ) -> Option<crate::Result<RayResults>> {
+            let (closest, shadows) = (self.closest.as_ref()?, self.shadows.as_ref()?);
+            let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx));
+            if !ready {
+                return None;
+            }
+            let (closest, shadows) = (self.closest.take()?, self.shadows.take()?);
+            let (hits, blocked) = (closest.wait(ctx), shadows.wait(ctx));
+            let run = || -> crate::Result<RayResults> {
+                let mut fresh = std::mem::take(&mut self.fresh);
+                for ((at, r), h) in self.ray_at.iter().zip(&self.ray_requests).zip(hits?) {
+                    fresh.hits[*at].1 = h.closest().map(|(id, h)| RayHit {
+                        entity: Entity::from_bits(id),
+                        distance: h.t,
+                        point: r.ray.at(h.t),
+                        normal: h.normal,
+                        triangle: h.primitive,
+                        barycentrics: glam::Vec2::new(h.u, h.v),
+                    });
+                }
+                for (at, b) in self.shadow_at.iter().zip(blocked?) {
+                    fresh.shadows[*at].1 = b.blocked();
+                }
+                Ok(fresh)
+            };
+            Some(run())
+        }
     }
 
     impl GpuQueries {
@@ -63,14 +163,16 @@ mod imp {
                 inner: Inner {
                     ctx,
                     scene,
-                    pending: None,
+                    pending: VecDeque::new(),
+                    resident: None,
                     counted,
                 },
             }
         }
 
         /// Answers `queue` (requests the GPU cannot take — predicates, several exclusions — on the CPU) and
-        /// submits; the answers come back through [`collect`](Self::collect).
+        /// submits; the answers come back through [`collect`](Self::collect). Uploads the world's trees
+        /// whenever it changed.
         pub(crate) fn submit(&mut self, world: &TraceWorld, queue: &RayQueue, frame: u64) {
             let inner = &mut self.inner;
             let tlas = world.tlas();
@@ -86,88 +188,44 @@ mod imp {
                 }
             });
             inner.scene.sync(&inner.ctx, world.version, tlas, instances);
-            let mut fresh = RayResults {
-                frame,
-                hits: Vec::with_capacity(queue.rays.len()),
-                shadows: Vec::with_capacity(queue.shadows.len()),
-            };
-            let gpu_ok =
-                |f: &super::super::QueryFilter| f.predicate.is_none() && f.excluded.len() <= 1;
-            let (mut ray_at, mut ray_requests, mut shadow_at, mut shadow_requests) =
-                (vec![], vec![], vec![], vec![]);
-            for (i, r) in queue.rays.iter().enumerate() {
-                if gpu_ok(&r.filter) {
-                    ray_at.push(i);
-                    ray_requests.push(SceneRequest {
-                        ray: r.ray,
-                        layers: r.filter.layers,
-                        exclude: r.filter.excluded.first().map(|e| e.to_bits()),
-                    });
-                    fresh.hits.push((r.tag, None));
-                } else {
-                    fresh
-                        .hits
-                        .push((r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter)));
-                }
-            }
-            for (i, s) in queue.shadows.iter().enumerate() {
-                if gpu_ok(&s.filter) {
-                    shadow_at.push(i);
-                    shadow_requests.push(SceneRequest {
-                        ray: Ray::segment(s.from, s.to),
-                        layers: s.filter.layers,
-                        exclude: s.filter.excluded.first().map(|e| e.to_bits()),
-                    });
-                    fresh.shadows.push((s.tag, false));
-                } else {
-                    fresh
-                        .shadows
-                        .push((s.tag, world.occluded(s.from, s.to, &s.filter)));
-                }
-            }
+            let mut p = Pending::new(world, queue, frame);
             let mut enc = inner.ctx.encoder();
-            let closest = inner
-                .scene
-                .record(&inner.ctx, &mut enc, &ray_requests, false);
-            let shadows = inner
-                .scene
-                .record(&inner.ctx, &mut enc, &shadow_requests, true);
+            p.closest = Some((inner.scene).record(&inner.ctx, &mut enc, &p.ray_requests, false));
+            p.shadows = Some((inner.scene).record(&inner.ctx, &mut enc, &p.shadow_requests, true));
             inner.ctx.submit(enc);
-            inner.pending = Some(Pending {
-                fresh,
-                ray_at,
-                ray_requests,
-                closest,
-                shadow_at,
-                shadows,
-            });
+            inner.pending.push_back(p);
         }
 
-        /// The answers of the last submitted batch (blocking until the GPU is done), or `None` when there is
-        /// none.
-        pub(crate) fn collect(&mut self) -> Option<crate::Result<RayResults>> {
+        /// Queues a batch recorded by the resident frame.
+        pub(crate) fn push_pending(&mut self, mut p: Pending, readback: crate::gpu::FrameReadback) {
+            p.closest = Some(readback.closest);
+            p.shadows = Some(readback.any);
+            self.inner.pending.push_back(p);
+        }
+
+        /// The resident frame's state, made at its first frame.
+        pub(crate) fn resident(&mut self) -> &mut Resident {
+            let ctx = &self.inner.ctx;
+            self.inner.resident.get_or_insert_with(|| Resident {
+                meshes: Default::default(),
+                scene: ResidentScene::new(ctx),
+            })
+        }
+
+        /// Batches submitted and not collected yet.
+        pub(crate) fn in_flight(&self) -> usize {
+            self.inner.pending.len()
+        }
+
+        /// The answers of the oldest submitted batch, or `None` when there is none or (not `blocking`) when
+        /// the GPU has not finished it; `blocking` waits for it.
+        pub(crate) fn collect(&mut self, blocking: bool) -> Option<crate::Result<RayResults>> {
             let inner = &mut self.inner;
-            let p = inner.pending.take()?;
-            let mut fresh = p.fresh;
-            let run = || -> crate::Result<RayResults> {
-                let hits = inner.scene.closest_hits(&inner.ctx, p.closest)?;
-                for ((at, r), h) in p.ray_at.iter().zip(&p.ray_requests).zip(hits) {
-                    fresh.hits[*at].1 = h.map(|(id, h)| RayHit {
-                        entity: Entity::from_bits(id),
-                        distance: h.t,
-                        point: r.ray.at(h.t),
-                        normal: h.normal,
-                        triangle: h.primitive,
-                        barycentrics: glam::Vec2::new(h.u, h.v),
-                    });
-                }
-                let blocked = inner.scene.occluded(&inner.ctx, p.shadows)?;
-                for (at, b) in p.shadow_at.iter().zip(blocked) {
-                    fresh.shadows[*at].1 = b;
-                }
-                Ok(fresh)
-            };
-            Some(run())
+            let answers = inner.pending.front_mut()?.answers(&inner.ctx, blocking);
+            if answers.is_some() {
+                inner.pending.pop_front();
+            }
+            answers
         }
     }
 }

@@ -25,6 +25,7 @@ type MeshData<'a> = (
 /// Meshes whose geometry changed this frame.
 type GeometryChanged = (
     Without<TraceError>,
+    Without<GpuOnly>,
     Or<(
         Changed<TraceMesh>,
         Changed<VertexPositions>,
@@ -65,7 +66,7 @@ impl Fallbacks {
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn maintain_system(
     changed: Query<MeshData, GeometryChanged>,
-    all: Query<MeshData, Without<TraceError>>,
+    all: Query<MeshData, (Without<TraceError>, Without<GpuOnly>)>,
     mut removed: RemovedComponents<TraceMesh>,
     mut recovered: RemovedComponents<TraceError>,
     mut world: ResMut<TraceWorld>,
@@ -549,7 +550,13 @@ impl Rebuilder<'_> {
     }
 
     #[cfg(not(feature = "gpu"))]
-    fn on_gpu(&mut self, _: &Mesh, _: Build, _: &mut Kept) -> Option<(MeshBvh, Build, f64)> {
+    fn on_gpu(
+        &mut self,
+        _: &Mesh,
+        _: Build,
+        _: bool,
+        _: &mut Kept,
+    ) -> Option<(MeshBvh, Build, f64)> {
         self.fallbacks.no_gpu();
         None
     }

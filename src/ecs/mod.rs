@@ -62,6 +62,7 @@ mod collide;
 mod components;
 mod config;
 mod filter;
+pub mod gpu_frame;
 mod gpu_queries;
 mod maintain;
 mod params;
@@ -89,6 +90,7 @@ pub use config::{
     lauterbach_policy,
 };
 pub use filter::{QueryFilter, RayHit};
+pub use gpu_frame::GpuOnly;
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
 #[allow(deprecated)] // the old name, re-exported until it is removed

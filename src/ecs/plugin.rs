@@ -136,7 +136,12 @@ impl KinetracePlugin {
                 .in_set(TraceSystems::Queries),
         ));
         #[cfg(feature = "gpu")]
-        schedule.add_systems(super::gpu_queries::gpu_counters_system.after(TraceSystems::Queries));
+        schedule.add_systems((
+            super::gpu_frame::resident_frame_system
+                .run_if(super::gpu_frame::resident_on)
+                .in_set(TraceSystems::Queries),
+            super::gpu_queries::gpu_counters_system.after(TraceSystems::Queries),
+        ));
         for source in &self.transform_sources {
             source.install(schedule);
         }

@@ -58,9 +58,12 @@ type SkinData<'a> = (
     &'a mut VertexPositions,
 );
 
+/// Skins the CPU skins: changed, healthy, and not left to the GPU alone.
+type Reskinned = (Changed<TraceSkin>, Without<TraceError>, Without<GpuOnly>);
+
 /// [`TraceSystems::Skin`]: re-skins every mesh whose joint matrices changed into its [`VertexPositions`].
 pub(crate) fn skin_system(
-    mut skinned: Query<SkinData, (Changed<TraceSkin>, Without<TraceError>)>,
+    mut skinned: Query<SkinData, Reskinned>,
     mut world: ResMut<TraceWorld>,
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,
@@ -272,6 +275,10 @@ pub(crate) fn queries_system(
     let next_frame = config.latency == Latency::NextFrame;
     #[cfg(feature = "gpu")]
     if let Some(mut gpu) = gpu {
+        if config.resident {
+            // The GPU-resident frame answers (super::gpu_frame).
+            return;
+        }
         let publish = |r: Option<crate::Result<RayResults>>, results: &mut RayResults| match r {
             Some(Ok(r)) => *results = r,
             Some(Err(e)) => log::error!("kinetrace: GPU batch lost: {e}"),
@@ -281,12 +288,12 @@ pub(crate) fn queries_system(
             }
         };
         if next_frame {
-            let previous = gpu.collect();
+            let previous = gpu.collect(true);
             publish(previous, &mut results);
             gpu.submit(&world, &queue, frame);
         } else {
             gpu.submit(&world, &queue, frame);
-            let now = gpu.collect();
+            let now = gpu.collect(true);
             publish(now, &mut results);
         }
         finish(&mut queue, &mut stats, t);
@@ -309,7 +316,7 @@ pub(crate) fn queries_system(
 /// Under the adaptive policy, tells every mesh its share of the frame's batched query time (see
 /// [`TraceWorld::attribute_queries`]); other policies pay nothing for it. Not a change of what queries
 /// read, so it bypasses change detection.
-fn attribute(world: &mut ResMut<TraceWorld>, config: &TraceConfig, stats: &TraceStats) {
+pub(super) fn attribute(world: &mut ResMut<TraceWorld>, config: &TraceConfig, stats: &TraceStats) {
     if matches!(config.policy, RebuildPolicy::Adaptive { .. }) {
         world
             .bypass_change_detection()
@@ -318,7 +325,7 @@ fn attribute(world: &mut ResMut<TraceWorld>, config: &TraceConfig, stats: &Trace
 }
 
 /// Empties the queue (keeping its memory) and records the phase.
-fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
+pub(super) fn finish(queue: &mut RayQueue, stats: &mut TraceStats, start: Instant) {
     stats.batched_rays = queue.len();
     queue.rays.clear();
     queue.shadows.clear();

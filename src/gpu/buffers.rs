@@ -269,6 +269,12 @@ impl<T: Pod> Readback<T> {
         Some(done.map_err(Error::Gpu).map(|()| self.read(ctx)))
     }
 
+    /// Whether the results are there (a [`wait`](Self::wait) would not block), without blocking.
+    pub fn ready(&self, ctx: &GpuContext) -> bool {
+        ctx.poll();
+        self.state.lock().expect("readback state").is_some()
+    }
+
     /// Blocks until the results are there.
     pub fn wait(self, ctx: &GpuContext) -> Result<Vec<T>> {
         loop {

@@ -289,6 +289,11 @@ impl GpuMeshBvh {
         self.tris
     }
 
+    /// Number of vertices.
+    pub fn vertex_count(&self) -> u32 {
+        self.vertices
+    }
+
     /// Number of nodes the GPU builder makes (`2 · triangles − 1`; 0 for an empty mesh). An uploaded CPU
     /// tree with several triangles per leaf fills only the first `nodes().len()` of them.
     pub fn node_count(&self) -> u32 {
@@ -639,12 +644,23 @@ pub struct DegradationReadback {
 impl DegradationReadback {
     /// The metric (see [`Bvh::refit`]), blocking until the GPU is done.
     pub fn wait(self, ctx: &GpuContext) -> Result<f32> {
+        let inner = self.inner;
         let s = self.sum.wait(ctx)?[0];
-        let total = s[0] as f64 + s[1] as f64;
-        Ok(if self.inner == 0 {
-            0.0
-        } else {
-            (total / self.inner as f64) as f32
-        })
+        Ok(metric(s, inner))
+    }
+
+    /// The metric if the GPU has finished it, without blocking (for decisions one frame late).
+    pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<f32>> {
+        (self.sum.try_take(ctx)).map(|r| r.map(|s| metric(s[0], self.inner)))
+    }
+}
+
+/// The degradation metric from the reduction's two partial sums over `inner` inner nodes.
+fn metric(s: [f32; 2], inner: u32) -> f32 {
+    let total = s[0] as f64 + s[1] as f64;
+    if inner == 0 {
+        0.0
+    } else {
+        (total / inner as f64) as f32
     }
 }

@@ -110,6 +110,7 @@ pub(crate) struct Kernels {
     pub trace: Module,
     pub scene: Module,
     pub skin: Module,
+    pub frame: Module,
     pub histogram: Module,
     pub collide: Module,
     pub sah: Module,
@@ -185,6 +186,13 @@ impl Kernels {
                 shader!("skin.wgsl"),
                 &[Read, Read, Read, Read, Write, Uniform],
                 &["skin"],
+            ),
+            frame: Module::new(
+                device,
+                "frame",
+                shader!("frame.wgsl"),
+                &[Read, Read, Read, Read, Write, Write, Uniform],
+                &["instance_boxes", "order_instances"],
             ),
             histogram: Module::new(
                 device,

@@ -31,6 +31,7 @@ mod build_sah;
 mod bvh;
 mod collide;
 mod context;
+mod frame;
 mod kernels;
 mod ploc;
 mod scan;
@@ -52,6 +53,8 @@ pub use context::shared_for_tests;
 pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
+pub(crate) use frame::{FrameInstance, FrameReadback, ResidentScene};
+pub use frame::{Maintained, MeshUpdate, ResidentMesh};
 pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]

@@ -13,7 +13,7 @@ use glam::{Affine3A, Mat3A, Vec3};
 /// One instance as the kernel reads it (144 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuInstance {
+pub(crate) struct GpuInstance {
     /// World-to-object transform, columns x, y, z, translation (w unused).
     columns: [[f32; 4]; 4],
     /// Object-to-world normal matrix, columns.
@@ -33,6 +33,36 @@ struct GpuInstance {
 
 const _: () = assert!(std::mem::size_of::<GpuInstance>() == 144);
 
+impl GpuInstance {
+    /// An instance with world-to-object transform `inverse`, object-to-world `normal` matrix, its tree's
+    /// root, first slot and first corner (`offsets`) in the scene's buffers, on `layers`, named `id`.
+    pub(crate) fn new(
+        inverse: &Affine3A,
+        normal: &Mat3A,
+        offsets: [u32; 3],
+        layers: u32,
+        id: u64,
+    ) -> Self {
+        let m = inverse;
+        let [node_offset, slot_offset, vertex_offset] = offsets;
+        Self {
+            columns: [
+                m.matrix3.x_axis.extend(0.0).to_array(),
+                m.matrix3.y_axis.extend(0.0).to_array(),
+                m.matrix3.z_axis.extend(0.0).to_array(),
+                m.translation.extend(0.0).to_array(),
+            ],
+            normal: [0, 1, 2].map(|c| normal.col(c).extend(0.0).to_array()),
+            node_offset,
+            slot_offset,
+            vertex_offset,
+            layers,
+            entity: split(id),
+            _pad: [0; 2],
+        }
+    }
+}
+
 /// One ray's answer (48 bytes): `instance` is a TLAS slot; the unit world normal is computed on the GPU.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -42,7 +72,9 @@ pub(crate) struct SceneHit {
     u: f32,
     v: f32,
     instance: u32,
-    _pad: [u32; 3],
+    /// The id of the instance hit, low word first.
+    entity: [u32; 2],
+    _pad: u32,
     normal: [f32; 3],
     _pad2: f32,
 }
@@ -70,7 +102,7 @@ pub(crate) struct SceneInstance<'a> {
 }
 
 /// Ray, filter and hit buffers of one kind of query.
-struct Batch {
+pub(crate) struct Batch {
     rays: GpuBuffer,
     filters: GpuBuffer,
     hits: GpuBuffer,
@@ -80,7 +112,7 @@ struct Batch {
 }
 
 impl Batch {
-    fn new(ctx: &GpuContext) -> Self {
+    pub(crate) fn new(ctx: &GpuContext) -> Self {
         Self {
             rays: GpuBuffer::storage(ctx, "scene rays", 80 * 1024),
             filters: GpuBuffer::storage(ctx, "scene filters", 16 * 1024),
@@ -88,6 +120,77 @@ impl Batch {
             params: GpuBuffer::uniform(ctx, "scene params"),
             up_rays: Vec::new(),
             up_filters: Vec::new(),
+        }
+    }
+
+    /// Uploads `requests` and records their traversal of `scene` (its top-level nodes, instances in
+    /// top-level slot order, meshes' nodes, slot triangles and corners; `tlas_len` top-level nodes) and
+    /// the answers' read-back.
+    pub(crate) fn record(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        scene: [wgpu::BindingResource<'_>; 5],
+        tlas_len: u32,
+        requests: &[SceneRequest],
+        any: bool,
+    ) -> SceneReadback {
+        let b = self;
+        let n = requests.len() as u32;
+        b.up_rays.clear();
+        b.up_rays
+            .extend(requests.iter().map(|r| GpuRay::for_scene(&r.ray)));
+        b.up_filters.clear();
+        b.up_filters.extend(requests.iter().map(|r| {
+            let [lo, hi] = r.exclude.map_or([u32::MAX; 2], split);
+            [r.layers, lo, hi, 0]
+        }));
+        b.rays
+            .ensure(ctx, std::mem::size_of_val(&b.up_rays[..]) as u64);
+        b.filters
+            .ensure(ctx, std::mem::size_of_val(&b.up_filters[..]) as u64);
+        b.hits
+            .ensure(ctx, n as u64 * std::mem::size_of::<SceneHit>() as u64);
+        b.rays.write(ctx, &b.up_rays);
+        b.filters.write(ctx, &b.up_filters);
+        ctx.write_buffer(
+            b.params.buffer(),
+            0,
+            bytemuck::bytes_of(&[n, any as u32, tlas_len, 0]),
+        );
+        if n > 0 {
+            let k = &ctx.kernels;
+            let [tlas, instances, blas, slot_tris, corners] = scene;
+            let group = bind_group(
+                ctx,
+                &k.scene.layout,
+                &[
+                    tlas,
+                    instances,
+                    blas,
+                    slot_tris,
+                    corners,
+                    b.rays.binding(),
+                    b.filters.binding(),
+                    b.hits.binding(),
+                    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                        buffer: b.params.buffer(),
+                        offset: 0,
+                        size: wgpu::BufferSize::new(16),
+                    }),
+                ],
+            );
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("kinetrace scene"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(k.scene.pipeline("scene_trace"));
+            pass.set_bind_group(0, &group, &[0]);
+            let (x, y) = ctx.groups(n, 64);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        SceneReadback {
+            hits: Readback::record(ctx, encoder, b.hits.buffer(), requests.len()),
         }
     }
 }
@@ -100,8 +203,8 @@ pub(crate) struct GpuScene {
     blas: GpuBuffer,
     slot_tris: GpuBuffer,
     corners: GpuBuffer,
-    /// TLAS slot → instance id, for turning answers back into ids.
-    ids: Vec<u64>,
+    /// Instances uploaded.
+    count: usize,
     version: Option<u64>,
     batches: [Batch; 2],
     upload: Upload,
@@ -129,7 +232,7 @@ impl GpuScene {
             blas: GpuBuffer::storage(ctx, "scene blas", 1024),
             slot_tris: GpuBuffer::storage(ctx, "scene slot triangles", 1024),
             corners: GpuBuffer::storage(ctx, "scene corners", 1024),
-            ids: Vec::new(),
+            count: 0,
             version: None,
             batches: [Batch::new(ctx), Batch::new(ctx)],
             upload: Upload::default(),
@@ -151,7 +254,7 @@ impl GpuScene {
             return;
         }
         self.version = Some(version);
-        self.ids.clear();
+        self.count = 0;
         // The upload arrays keep their memory from one sync to the next.
         let Upload {
             nodes,
@@ -164,7 +267,7 @@ impl GpuScene {
         corners.clear();
         uploads.clear();
         for inst in instances {
-            self.ids.push(inst.id);
+            self.count += 1;
             let bvh = inst.bvh;
             let (node_offset, slot_offset, vertex_offset) = (
                 nodes.len() as u32,
@@ -182,22 +285,13 @@ impl GpuScene {
                 slot_tris.push([base, base + 1, base + 2, p]);
                 corners.extend_from_slice(tri);
             }
-            let m = inst.inverse;
-            uploads.push(GpuInstance {
-                columns: [
-                    m.matrix3.x_axis.extend(0.0).to_array(),
-                    m.matrix3.y_axis.extend(0.0).to_array(),
-                    m.matrix3.z_axis.extend(0.0).to_array(),
-                    m.translation.extend(0.0).to_array(),
-                ],
-                normal: [0, 1, 2].map(|c| inst.normal_matrix.col(c).extend(0.0).to_array()),
-                node_offset,
-                slot_offset,
-                vertex_offset,
-                layers: inst.layers,
-                entity: split(inst.id),
-                _pad: [0; 2],
-            });
+            uploads.push(GpuInstance::new(
+                &inst.inverse,
+                &inst.normal_matrix,
+                [node_offset, slot_offset, vertex_offset],
+                inst.layers,
+                inst.id,
+            ));
         }
         for (buf, bytes) in [
             (&mut self.tlas, std::mem::size_of_val(tlas.nodes())),
@@ -225,111 +319,61 @@ impl GpuScene {
         any: bool,
     ) -> SceneReadback {
         let tlas_len = self.tlas_nodes();
-        let b = &mut self.batches[any as usize];
-        let n = requests.len() as u32;
-        b.up_rays.clear();
-        b.up_rays
-            .extend(requests.iter().map(|r| GpuRay::for_scene(&r.ray)));
-        b.up_filters.clear();
-        b.up_filters.extend(requests.iter().map(|r| {
-            let [lo, hi] = r.exclude.map_or([u32::MAX; 2], split);
-            [r.layers, lo, hi, 0]
-        }));
-        b.rays
-            .ensure(ctx, std::mem::size_of_val(&b.up_rays[..]) as u64);
-        b.filters
-            .ensure(ctx, std::mem::size_of_val(&b.up_filters[..]) as u64);
-        b.hits
-            .ensure(ctx, n as u64 * std::mem::size_of::<SceneHit>() as u64);
-        b.rays.write(ctx, &b.up_rays);
-        b.filters.write(ctx, &b.up_filters);
-        ctx.write_buffer(
-            b.params.buffer(),
-            0,
-            bytemuck::bytes_of(&[n, any as u32, tlas_len, 0]),
-        );
-        if n > 0 {
-            let k = &ctx.kernels;
-            let group = bind_group(
-                ctx,
-                &k.scene.layout,
-                &[
-                    self.tlas.binding(),
-                    self.instances.binding(),
-                    self.blas.binding(),
-                    self.slot_tris.binding(),
-                    self.corners.binding(),
-                    b.rays.binding(),
-                    b.filters.binding(),
-                    b.hits.binding(),
-                    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                        buffer: b.params.buffer(),
-                        offset: 0,
-                        size: wgpu::BufferSize::new(16),
-                    }),
-                ],
-            );
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("kinetrace scene"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(k.scene.pipeline("scene_trace"));
-            pass.set_bind_group(0, &group, &[0]);
-            let (x, y) = ctx.groups(n, 64);
-            pass.dispatch_workgroups(x, y, 1);
-        }
-        SceneReadback {
-            hits: Readback::record(ctx, encoder, b.hits.buffer(), requests.len()),
-        }
+        let scene = [
+            self.tlas.binding(),
+            self.instances.binding(),
+            self.blas.binding(),
+            self.slot_tris.binding(),
+            self.corners.binding(),
+        ];
+        self.batches[any as usize].record(ctx, encoder, scene, tlas_len, requests, any)
     }
 
     /// Number of TLAS nodes uploaded (0 for an empty scene).
     fn tlas_nodes(&self) -> u32 {
-        if self.ids.is_empty() {
+        if self.count == 0 {
             0
         } else {
-            (2 * self.ids.len() - 1) as u32
+            (2 * self.count - 1) as u32
         }
     }
+}
 
-    /// A batch's answers (blocking until they are there): per request, the id of the instance hit and the
-    /// hit, its normal in world space. Needs nothing of the scene but the id list of the upload the batch
-    /// ran on, so it can be called a frame later.
-    pub fn closest_hits(
-        &self,
-        ctx: &GpuContext,
-        readback: SceneReadback,
-    ) -> crate::Result<Vec<Option<(u64, Hit)>>> {
-        let hits = readback.hits.wait(ctx)?;
-        Ok(hits
-            .iter()
-            .map(|h| {
-                (h.prim != u32::MAX).then(|| {
-                    let hit = Hit {
-                        t: h.t,
-                        primitive: h.prim,
-                        u: h.u,
-                        v: h.v,
-                        normal: Vec3::from_array(h.normal),
-                    };
-                    (self.ids[h.instance as usize], hit)
-                })
-            })
-            .collect())
+impl SceneReadback {
+    /// Whether the GPU has finished the answers (then [`wait`](Self::wait) does not block); never blocks.
+    pub fn ready(&self, ctx: &GpuContext) -> bool {
+        self.hits.ready(ctx)
     }
 
-    /// Whether each occlusion request was blocked (blocking until the answers are there).
-    pub fn occluded(&self, ctx: &GpuContext, readback: SceneReadback) -> crate::Result<Vec<bool>> {
-        Ok(readback
-            .hits
-            .wait(ctx)?
-            .iter()
-            .map(|h| h.prim != u32::MAX)
-            .collect())
+    /// The answers, one per request, blocking until they are there.
+    pub fn wait(self, ctx: &GpuContext) -> crate::Result<Vec<SceneHit>> {
+        self.hits.wait(ctx)
+    }
+}
+
+impl SceneHit {
+    /// A closest-hit answer: the id of the instance hit and the hit, its normal in world space. Needs
+    /// nothing of the scene, so it can be read a frame later.
+    pub fn closest(&self) -> Option<(u64, Hit)> {
+        (self.prim != u32::MAX).then(|| {
+            let hit = Hit {
+                t: self.t,
+                primitive: self.prim,
+                u: self.u,
+                v: self.v,
+                normal: Vec3::from_array(self.normal),
+            };
+            (self.entity[0] as u64 | (self.entity[1] as u64) << 32, hit)
+        })
+    }
+
+    /// An occlusion answer: whether the segment was blocked.
+    pub fn blocked(&self) -> bool {
+        self.prim != u32::MAX
     }
 }
 
 /// An id as two u32, low word first.
-fn split(id: u64) -> [u32; 2] {
+pub(crate) fn split(id: u64) -> [u32; 2] {
     [id as u32, (id >> 32) as u32]
 }

@@ -1,0 +1,171 @@
+//! Suite `ecs-gpu`: the GPU-resident frame (`TraceConfig::resident`, `Latency::NextFrame`, characters
+//! marked `GpuOnly`) against the CPU mode, for crowds of animated humanoids queried with batched rays and
+//! shadow rays: per frame the bytes uploaded and read back, the submissions and blocking waits (means over
+//! the frames after the first, which uploads the meshes), and the time per frame. The full run measures
+//! 16, 64 and 256 characters of 10k triangles with 10k rays; `--quick` 4 and 16 of 2k with 1k. Where the
+//! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
+
+use crate::record::Records;
+use bevy_ecs::prelude::*;
+use glam::{Affine3A, Vec3};
+use kinetrace::Ray;
+use kinetrace::anim::humanoid;
+use kinetrace::ecs::*;
+use kinetrace::scenes::SceneRng;
+use std::sync::Arc;
+use std::time::Instant;
+
+const SUITE: &str = "ecs-gpu";
+
+pub fn run(rec: &mut Records) {
+    let adapter = match rec.gpu() {
+        Ok(ctx) => ctx.adapter_name().to_string(),
+        Err(e) => {
+            println!("suite ecs-gpu skipped: {e}");
+            return;
+        }
+    };
+    println!(
+        "suite ecs-gpu on {} with {adapter}",
+        crate::record::machine()
+    );
+    let (counts, triangles, rays, frames): (&[usize], _, _, _) = if rec.quick {
+        (&[4, 16], 2_000, 1_000, 6)
+    } else {
+        (&[16, 64, 256], 10_000, 10_000, 20)
+    };
+    let asset = Arc::new(humanoid(triangles));
+    for &n in counts {
+        let scene = format!("{n} characters x {triangles} tris + {rays} rays");
+        println!("\n{scene}");
+        for resident in [false, true] {
+            crowd(rec, &scene, &asset, n, rays, frames, resident);
+        }
+    }
+}
+
+/// `frames` frames of `n` characters of `asset` on a grid, each queried with `rays` closest-hit rays and
+/// as many shadow rays; records the per-frame means.
+fn crowd(
+    rec: &mut Records,
+    scene: &str,
+    asset: &Arc<kinetrace::anim::CharacterAsset>,
+    n: usize,
+    rays: usize,
+    frames: usize,
+    resident: bool,
+) {
+    let config = TraceConfig {
+        mode: if resident {
+            TraceMode::GpuRequired
+        } else {
+            TraceMode::Cpu
+        },
+        latency: Latency::NextFrame,
+        resident,
+        ..Default::default()
+    };
+    let mut world = World::new();
+    let mut schedule = Schedule::default();
+    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
+    let plugin = KinetracePlugin {
+        config,
+        ..Default::default()
+    };
+    if let Err(e) = plugin.try_build(&mut world, &mut schedule) {
+        println!("  resident frame skipped: {e}");
+        return;
+    }
+    let side = (n as f32).sqrt().ceil() as usize;
+    for i in 0..n {
+        let at = Vec3::new((i % side) as f32, 0.0, (i / side) as f32) * 1.5;
+        let mut e = world.spawn(AnimationPlayer::bundle(
+            asset,
+            i % asset.clips.len(),
+            0.1 * i as f32,
+        ));
+        e.insert(TraceTransform(Affine3A::from_translation(at)));
+        if resident {
+            e.insert(GpuOnly);
+        }
+    }
+    let extent = side as f32 * 1.5;
+    let mut r = SceneRng::new(3);
+    let mut point = || {
+        Vec3::new(
+            r.range(-0.5, extent),
+            r.range(0.0, 1.8),
+            r.range(-0.5, extent),
+        )
+    };
+    let requests: Vec<(Ray, Vec3, Vec3)> = (0..rays)
+        .map(|_| {
+            let (from, to) = (point() + Vec3::Y * 3.0, point());
+            let light = point() + Vec3::new(0.0, 5.0, 0.0);
+            (Ray::new(from, (to - from).normalize()), to, light)
+        })
+        .collect();
+    let (mut up, mut down, mut submissions, mut waits, mut seconds) = (0, 0, 0, 0, 0.0);
+    for frame in 0..frames {
+        let mut queue = world.resource_mut::<RayQueue>();
+        for (i, (ray, to, light)) in requests.iter().enumerate() {
+            queue.cast(i as u64, *ray, QueryFilter::default());
+            queue.shadow(i as u64, *to, *light, QueryFilter::default());
+        }
+        let t = Instant::now();
+        schedule.run(&mut world);
+        let elapsed = t.elapsed().as_secs_f64();
+        world.clear_trackers();
+        // The first frame uploads the meshes and builds every tree: left out of the means.
+        if frame > 0 {
+            let c = world.resource::<TraceStats>().gpu;
+            (up, down) = (up + c.uploaded_bytes, down + c.read_back_bytes);
+            (submissions, waits) = (submissions + c.submissions, waits + c.blocking_waits);
+            seconds += elapsed;
+        }
+    }
+    let per = (frames - 1) as f64;
+    let subject = if resident { "GPU-resident" } else { "CPU mode" };
+    rec.add(
+        SUITE,
+        scene,
+        subject,
+        "time per frame",
+        seconds / per * 1e3,
+        "ms",
+    );
+    if resident {
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "uploaded per frame",
+            up as f64 / per,
+            "B",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "read back per frame",
+            down as f64 / per,
+            "B",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "submissions per frame",
+            submissions as f64 / per,
+            "",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "blocking waits per frame",
+            waits as f64 / per,
+            "",
+        );
+    }
+}

@@ -1,0 +1,174 @@
+//! The GPU-resident frame ([`TraceConfig::resident`]): in a GPU mode that found an adapter, one
+//! submission per frame skins every GPU-skinned mesh, refits or rebuilds every changed tree, builds the top
+//! level and answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]).
+//!
+//! What moves per frame: joint matrices of changed skins (64 bytes per joint), every instance (208 bytes:
+//! transform, inverse, offsets, layers) and the requests (96 bytes each) up; the answers (48 bytes each) and
+//! one degradation metric per refitted mesh (8 bytes) down. Vertices go up once, when a mesh is first
+//! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
+//! with active blend shapes, which the GPU skin does not apply).
+//!
+//! The rebuild rule is Lauterbach's at [`RebuildPolicy::Lauterbach`]'s threshold (0.40 under the other
+//! policies) on the metric of an earlier refit, read back without blocking: a mesh rebuilds one frame
+//! after its refit crossed the threshold, or later when the GPU is behind. Rebuilds use
+//! [`TraceConfig::builder`] where the GPU has it in one submission (LBVH over 30-bit codes, 16-bin SAH or
+//! hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per round). The adaptive policy's
+//! builders and costs are not consulted on this path (the CPU mirror still runs them for its own trees),
+//! and no SAH cost comes back.
+//!
+//! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
+//! predicate or several exclusions, collisions, shape and sound queries) read the CPU's trees. By default
+//! every entity keeps a CPU mirror: the CPU skins and maintains it as in [`TraceMode::Cpu`], so those
+//! features see the same geometry as the GPU — at the CPU mode's cost of skinning and maintenance per
+//! frame, and no saving but the bus traffic. An entity with [`GpuOnly`] drops its mirror: the CPU neither
+//! skins nor maintains it (its whole CPU cost goes), and it is invisible to everything but the batched
+//! requests answered on the GPU — a ray that the CPU answers passes through it. Use it for crowds that
+//! only batched rays and shadow rays need to see.
+
+#[cfg(feature = "gpu")]
+use super::*;
+use bevy_ecs::prelude::*;
+
+/// Drops an entity's CPU mirror in the GPU-resident frame (see [`gpu_frame`](self)): it is skinned and
+/// maintained on the GPU only and seen only by batched requests answered there. Blend shapes need the
+/// mirror (the GPU skin does not apply them). Outside the resident frame it still keeps the entity out
+/// of [`TraceSystems::Skin`] and [`TraceSystems::Maintain`], so nothing sees it: do not add it there.
+#[derive(Component, Clone, Copy, Debug, Default)]
+pub struct GpuOnly;
+
+/// Whether the GPU-resident frame answers this frame.
+#[cfg(feature = "gpu")]
+pub(crate) fn resident_on(config: Res<TraceConfig>, gpu: Option<Res<GpuQueries>>) -> bool {
+    config.resident && gpu.is_some()
+}
+
+/// Under [`Latency::NextFrame`], the frames that may be in flight before the CPU waits for the oldest
+/// (as a swap chain bounds its frames): never reached while the GPU keeps up.
+#[cfg(feature = "gpu")]
+const IN_FLIGHT: usize = 3;
+
+#[cfg(feature = "gpu")]
+type ResidentData<'a> = (
+    Entity,
+    Ref<'a, TraceMesh>,
+    Option<Ref<'a, TraceSkin>>,
+    Option<Ref<'a, VertexPositions>>,
+    &'a TraceTransform,
+    &'a QueryLayers,
+);
+
+/// [`TraceSystems::Queries`] in the resident frame: records every mesh's update and maintenance, the top
+/// level and the batches into one encoder, submits it, and publishes answers (see [`Latency`]).
+#[cfg(feature = "gpu")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn resident_frame_system(
+    meshes: Query<ResidentData, Without<TraceError>>,
+    mut world: ResMut<TraceWorld>,
+    config: Res<TraceConfig>,
+    mut queue: ResMut<RayQueue>,
+    mut results: ResMut<RayResults>,
+    mut gpu: ResMut<GpuQueries>,
+    mut stats: ResMut<TraceStats>,
+    mut commands: Commands,
+    mut errors: MessageWriter<TraceErrorMessage>,
+) {
+    use super::systems::{attribute, checked_transform, fail, finish};
+    use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
+    let t = std::time::Instant::now();
+    let next_frame = config.latency == Latency::NextFrame;
+    if next_frame {
+        let blocking = gpu.in_flight() >= IN_FLIGHT;
+        publish(gpu.collect(blocking), &mut results);
+    }
+    let threshold = match config.policy {
+        RebuildPolicy::Lauterbach { threshold } => threshold,
+        _ => super::config::THESIS_THRESHOLD,
+    };
+    // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
+    let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
+    let ctx = gpu.context().clone();
+    let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
+    let resident = gpu.resident();
+    let mut enc = ctx.encoder();
+    let mut placed = Vec::with_capacity(meshes.iter().len());
+    for (e, mesh, skin, positions, transform, layers) in &meshes {
+        // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
+        let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
+        let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
+        let made = if fresh {
+            let weights = gpu_skin
+                .as_ref()
+                .map(|s| (&*s.weights, s.joint_matrices.len()));
+            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
+                resident.meshes.insert(e, m);
+            })
+        } else {
+            Ok(())
+        };
+        let state = resident.meshes.get_mut(&e);
+        let update = match (&gpu_skin, &positions) {
+            (Some(s), _) if state.as_ref().is_some_and(|m| m.skinned()) => {
+                (fresh || s.is_changed()).then_some(MeshUpdate::Joints(&s.joint_matrices))
+            }
+            (_, Some(p)) if !p.0.is_empty() => {
+                (fresh || p.is_changed()).then_some(MeshUpdate::Positions(&p.0))
+            }
+            _ => None,
+        };
+        let done = made
+            .and_then(|()| checked_transform(transform))
+            .and_then(|tr| {
+                let state = state.expect("made above");
+                let update = update.unwrap_or(MeshUpdate::Unchanged);
+                state.record(&ctx, &mut enc, update, threshold)?;
+                Ok(tr)
+            });
+        match done {
+            Ok(tr) => placed.push((e, tr, layers.0)),
+            Err(err) => {
+                resident.meshes.remove(&e);
+                fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+            }
+        }
+    }
+    // Entities gone or failed since last frame.
+    if resident.meshes.len() > placed.len() {
+        let live: std::collections::HashSet<Entity> = placed.iter().map(|p| p.0).collect();
+        resident.meshes.retain(|e, _| live.contains(e));
+    }
+    let instances: Vec<FrameInstance> = placed
+        .iter()
+        .map(|&(e, transform, layers)| FrameInstance {
+            id: e.to_bits(),
+            mesh: &resident.meshes[&e],
+            transform,
+            layers,
+        })
+        .collect();
+    let (closest, any) = pending.requests();
+    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any);
+    // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
+    ctx.submit(enc);
+    match recorded {
+        Ok(readback) => gpu.push_pending(pending, readback),
+        Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),
+    }
+    if !next_frame {
+        publish(gpu.collect(true), &mut results);
+    }
+    finish(&mut queue, &mut stats, t);
+    attribute(&mut world, &config, &stats);
+}
+
+/// Publishes collected answers; with none (nothing submitted, or not back yet) the results are empty.
+#[cfg(feature = "gpu")]
+fn publish(r: Option<crate::Result<RayResults>>, results: &mut RayResults) {
+    match r {
+        Some(Ok(r)) => *results = r,
+        Some(Err(e)) => log::error!("kinetrace: GPU batch lost: {e}"),
+        None => {
+            results.hits.clear();
+            results.shadows.clear();
+        }
+    }
+}

@@ -1,0 +1,145 @@
+//! One mesh of the GPU-resident frame: its tree, its skin, and the refit-or-rebuild rule fed by the
+//! degradation metric read back one frame late.
+
+use crate::Mesh;
+use crate::Result;
+use crate::anim::SkinWeights;
+use crate::gpu::{
+    DegradationReadback, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, GpuSkin,
+};
+use glam::{Mat4, Vec3};
+
+/// What changed about a resident mesh this frame.
+#[derive(Clone, Copy, Debug)]
+pub enum MeshUpdate<'a> {
+    /// Nothing: its tree stays as it is (rigid and static meshes, a skin whose matrices did not change).
+    Unchanged,
+    /// New joint matrices for its [`GpuSkin`] (uploads 64 bytes per joint).
+    Joints(&'a [Mat4]),
+    /// New vertex positions from the CPU (uploads 12 bytes per vertex): meshes deformed by gameplay code
+    /// or by blend shapes, which the GPU skin does not apply.
+    Positions(&'a [Vec3]),
+}
+
+/// What [`ResidentMesh::record`] recorded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Maintained {
+    /// Nothing changed.
+    Kept,
+    /// Refitted, with the degradation metric on its way back.
+    Refit,
+    /// Rebuilt with its builder: the first build, or the last known degradation was above the threshold.
+    Rebuilt,
+}
+
+/// A mesh kept on the GPU for the resident frame: uploaded once ([`new`](Self::new): positions, indices,
+/// and for a skinned mesh its rest pose and weights), then per frame only what [`MeshUpdate`] names.
+///
+/// The refit-or-rebuild rule is Lauterbach's (thesis §4.1.5) on the metric of an earlier refit: the
+/// metric of frame n's refit comes back without blocking and decides frame n+1 (or later, if the GPU is
+/// behind): a rebuild one frame late. Rebuilds use GPU LBVH, or the binned SAH or hybrid builder
+/// ([`GpuSahBuilder`]) the mesh was made with.
+pub struct ResidentMesh {
+    bvh: GpuMeshBvh,
+    skin: Option<GpuSkin>,
+    /// The SAH or hybrid builder, `None` for LBVH.
+    sah: Option<GpuSahBuilder>,
+    built: bool,
+    /// The last refit's metric, not yet read back.
+    pending: Option<DegradationReadback>,
+    /// The most recent metric read back (0 after a rebuild).
+    degradation: f32,
+}
+
+impl ResidentMesh {
+    /// Uploads `mesh` (and, with `skin`, its rest pose, weights and a palette of `joints` matrices) and
+    /// allocates its tree, and with `sah` that builder's scratch; nothing is built until the first
+    /// [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36 more per
+    /// vertex for a skin) and about 112 bytes of GPU memory per triangle, plus the SAH builder's scratch.
+    pub fn new(
+        ctx: &GpuContext,
+        mesh: &Mesh,
+        skin: Option<(&SkinWeights, usize)>,
+        sah: Option<GpuSahOptions>,
+    ) -> Result<Self> {
+        let bvh = GpuMeshBvh::new(ctx, mesh)?;
+        let sah = match sah {
+            Some(options) => Some(GpuSahBuilder::new(ctx, &bvh, options)?),
+            None => None,
+        };
+        let skin = match skin {
+            Some((weights, joints)) => {
+                Some(GpuSkin::new(ctx, mesh.positions(), weights, joints, &bvh)?)
+            }
+            None => None,
+        };
+        Ok(Self {
+            bvh,
+            skin,
+            sah,
+            built: false,
+            pending: None,
+            degradation: 0.0,
+        })
+    }
+
+    /// Whether the GPU skins this mesh.
+    pub fn skinned(&self) -> bool {
+        self.skin.is_some()
+    }
+
+    /// The tree, for the frame's scene.
+    pub fn bvh(&self) -> &GpuMeshBvh {
+        &self.bvh
+    }
+
+    /// The most recent degradation metric read back (0 after a rebuild, before the first refit's).
+    pub fn degradation(&self) -> f32 {
+        self.degradation
+    }
+
+    /// Records this frame's update and maintenance into `encoder`: skinning or the position upload, then
+    /// a refit (and its metric's read-back) or, on the first frame and when the last metric read back
+    /// exceeds `threshold`, a rebuild with its builder. Never blocks.
+    pub fn record(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        update: MeshUpdate<'_>,
+        threshold: f32,
+    ) -> Result<Maintained> {
+        if let Some(r) = &self.pending
+            && let Some(metric) = r.try_take(ctx)
+        {
+            self.degradation = metric?;
+            self.pending = None;
+        }
+        match (update, &self.skin) {
+            (MeshUpdate::Unchanged, _) if self.built => return Ok(Maintained::Kept),
+            (MeshUpdate::Unchanged, _) => {}
+            (MeshUpdate::Joints(m), Some(skin)) => skin.record(ctx, encoder, m)?,
+            (MeshUpdate::Joints(_), None) => {
+                return Err(crate::Error::InvalidOption(
+                    "joint matrices for a mesh without a GPU skin".into(),
+                ));
+            }
+            (MeshUpdate::Positions(p), _) => self.bvh.upload_positions(ctx, p)?,
+        }
+        if !self.built || self.degradation > threshold {
+            match &self.sah {
+                Some(builder) => builder.record(ctx, &mut self.bvh, encoder),
+                None => self.bvh.record_build(ctx, encoder),
+            }
+            self.built = true;
+            self.degradation = 0.0;
+            // A metric of the tree before the rebuild says nothing about the new one.
+            self.pending = None;
+            return Ok(Maintained::Rebuilt);
+        }
+        self.bvh.record_refit(ctx, encoder)?;
+        if self.pending.is_none() {
+            self.pending = Some(self.bvh.record_degradation(ctx, encoder));
+        }
+        Ok(Maintained::Refit)
+    }
+}

@@ -1,0 +1,258 @@
+//! The GPU-resident frame (`TraceConfig::resident`) against the CPU mode, on lavapipe in CI: a few small
+//! animated humanoids (4 × about 600 triangles, skinned on the GPU) on a static ground, 16 frames of closest-hit rays and
+//! shadow segments. Kept small for a software adapter: it runs in seconds.
+//!
+//! Checked per frame: every batched answer equals the CPU mode's for the same frame (same entity and
+//! triangle with `t` within 1e-5 relative, or an exact tie: the GPU's triangle, placed by the CPU mode's
+//! skinning, is hit by the independent oracle at that `t`); one submission; no blocking wait under
+//! `Latency::NextFrame`, at most one under `SameFrame`; and after the first frame the bytes uploaded do not
+//! depend on the characters' triangle counts and are exactly the joint matrices, instances and requests
+//! (no vertex data). Immediate queries read the CPU's world: it holds the mirrored characters, not those
+//! marked `GpuOnly`.
+#![cfg(feature = "gpu")]
+
+mod common;
+use bevy_ecs::entity::Entity;
+use common::ecs::{app_with, world_triangles};
+use common::*;
+use glam::{Affine3A, Vec3};
+use kinetrace::Ray;
+use kinetrace::anim::humanoid;
+use kinetrace::ecs::*;
+use kinetrace::gpu::GpuCounters;
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+const CHARACTERS: usize = 4;
+const FRAMES: u64 = 16;
+const RAYS: usize = 48;
+const SHADOWS: usize = 24;
+
+/// Every triangle in world space with its (entity, triangle index).
+type Placed = (Vec<(Entity, u32)>, Vec<[Vec3; 3]>);
+
+/// Answers by the frame they answer.
+type Answers = BTreeMap<u64, RayResults>;
+
+/// Frame `f`'s rays and shadow segments: aimed from in front of the crowd through it.
+fn requests(f: u64) -> (Vec<Ray>, Vec<(Vec3, Vec3)>) {
+    let mut r = rng(15 + f);
+    let spread = |r: &mut _, lo, hi, scale: Vec3, shift: Vec3| rand_vec(r, lo, hi) * scale + shift;
+    let rays = (0..RAYS)
+        .map(|_| {
+            let from = spread(&mut r, -1.0, 3.5, Vec3::new(1.0, 0.6, 0.0), Vec3::Z * -3.0);
+            let to = spread(&mut r, -0.5, 3.2, Vec3::new(1.0, 0.7, 0.3), Vec3::ZERO);
+            Ray::new(from, (to - from).normalize())
+        })
+        .collect();
+    let shadows = (0..SHADOWS)
+        .map(|_| {
+            let shift = |z| Vec3::new(0.0, 0.1, z);
+            let from = spread(&mut r, -0.5, 3.0, Vec3::new(1.0, 0.6, 0.0), shift(-2.0));
+            let to = spread(&mut r, -0.5, 3.0, Vec3::new(1.0, 0.6, 0.0), shift(2.5));
+            (from, to)
+        })
+        .collect();
+    (rays, shadows)
+}
+
+struct Run {
+    answers: Answers,
+    /// Per frame the GPU traffic counted.
+    counters: Vec<GpuCounters>,
+    /// Per frame the world triangles (CPU mode only), for judging ties.
+    triangles: BTreeMap<u64, Placed>,
+    /// The characters in spawn order (entity ids differ between worlds: resources are entities too).
+    spawned: Vec<Entity>,
+    /// Characters the CPU's world holds at the end (what immediate queries see).
+    on_cpu: usize,
+}
+
+impl Run {
+    /// Which character `e` is.
+    fn character(&self, e: Entity) -> usize {
+        self.spawned
+            .iter()
+            .position(|&s| s == e)
+            .expect("a character")
+    }
+}
+
+/// Runs `FRAMES` frames (then, for `NextFrame`, empty frames until the last answers are in) of the crowd
+/// under `config` with the same requests every time.
+fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
+    let next_frame = config.latency == Latency::NextFrame;
+    let cpu = config.mode == TraceMode::Cpu;
+    let (mut world, mut schedule) = app_with(config);
+    let asset = Arc::new(humanoid(triangles));
+    // A static ground under the crowd: a mesh the resident frame uploads once and never touches again.
+    let ground = kinetrace::Mesh::new(
+        [(-2.0, -2.0), (5.0, -2.0), (5.0, 3.0), (-2.0, 3.0)].map(|(x, z)| Vec3::new(x, 0.0, z)),
+        vec![0, 2, 1, 0, 3, 2],
+    )
+    .unwrap();
+    let mut spawned = vec![world.spawn((TraceMesh(ground), MotionHint::Static)).id()];
+    for k in 0..CHARACTERS {
+        let clip = k % asset.clips.len();
+        let at = Vec3::new(k as f32 * 0.9, 0.0, (k % 2) as f32 * 0.7);
+        let mut e = world.spawn(AnimationPlayer::bundle(&asset, clip, 0.13 * k as f32));
+        e.insert(TraceTransform(Affine3A::from_translation(at)));
+        if gpu_only {
+            e.insert(GpuOnly);
+        }
+        spawned.push(e.id());
+    }
+    let mut out = Run {
+        answers: Answers::new(),
+        counters: Vec::new(),
+        triangles: BTreeMap::new(),
+        spawned,
+        on_cpu: 0,
+    };
+    let mut frame = 0;
+    while frame < FRAMES
+        || (next_frame && !out.answers.contains_key(&FRAMES) && frame < FRAMES + 400)
+    {
+        frame += 1;
+        if frame <= FRAMES {
+            let (rays, shadows) = requests(frame);
+            let mut queue = world.resource_mut::<RayQueue>();
+            for (i, ray) in rays.into_iter().enumerate() {
+                queue.cast(i as u64, ray, QueryFilter::default());
+            }
+            for (i, (from, to)) in shadows.into_iter().enumerate() {
+                queue.shadow(i as u64, from, to, QueryFilter::default());
+            }
+        } else {
+            // Draining: give the GPU time to finish without blocking in the frame.
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let results = world.resource::<RayResults>().clone();
+        if !results.hits.is_empty() || !results.shadows.is_empty() {
+            out.answers.insert(results.frame, results);
+        }
+        if frame <= FRAMES {
+            out.counters.push(world.resource::<TraceStats>().gpu);
+            if cpu {
+                out.triangles
+                    .insert(frame, world_triangles(&mut world, &QueryFilter::default()));
+            }
+        }
+    }
+    let cpu_world = world.resource::<TraceWorld>();
+    out.on_cpu = out
+        .spawned
+        .iter()
+        .filter(|&&e| cpu_world.contains(e))
+        .count();
+    out
+}
+
+/// Every frame's GPU answers equal the CPU mode's, and the requests are not all misses or all hits.
+fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
+    let hits: usize = (cpu.answers.values())
+        .map(|a| a.hits.iter().filter(|h| h.1.is_some()).count())
+        .sum();
+    let blocked: usize = (cpu.answers.values())
+        .map(|a| a.shadows.iter().filter(|s| s.1).count())
+        .sum();
+    eprintln!("{what}: {hits} hits, {blocked} blocked");
+    let (rays, shadows) = (RAYS * FRAMES as usize, SHADOWS * FRAMES as usize);
+    assert!(hits > rays / 5 && hits < rays, "{hits} of {rays} rays hit");
+    assert!(
+        blocked > shadows / 10 && blocked < shadows,
+        "{blocked} of {shadows} blocked"
+    );
+    for f in 1..=FRAMES {
+        let (c, g) = (&cpu.answers[&f], &gpu.answers[&f]);
+        assert_eq!(c.hits.len(), RAYS, "{what} frame {f}");
+        assert_eq!(g.hits.len(), RAYS, "{what} frame {f}");
+        let (keys, tris) = &cpu.triangles[&f];
+        let (rays, _) = requests(f);
+        for ((tag, ch), (gtag, gh)) in c.hits.iter().zip(&g.hits) {
+            assert_eq!(tag, gtag);
+            let at = format!("{what} frame {f} ray {tag}");
+            match (ch, gh) {
+                (None, None) => {}
+                (Some(c), Some(g)) => {
+                    let rel = (c.distance - g.distance).abs() / c.distance;
+                    assert!(rel <= 1e-5, "{at}: t {} vs {}", g.distance, c.distance);
+                    let (ce, ge) = (cpu.character(c.entity), gpu.character(g.entity));
+                    if (ce, c.triangle) != (ge, g.triangle) {
+                        // An exact tie: the GPU's triangle is hit at the CPU's distance.
+                        let e = cpu.spawned[ge];
+                        let k = keys.iter().position(|&k| k == (e, g.triangle));
+                        let v = ray_triangle(&rays[*tag as usize], tris[k.expect("a triangle")]);
+                        let tie = v.hit && (v.t as f32 - c.distance).abs() <= 1e-5 * c.distance;
+                        assert!(tie, "{at}: {g:?} vs {c:?}, oracle {v:?}");
+                    }
+                }
+                _ => panic!("{at}: {gh:?} vs {ch:?}"),
+            }
+        }
+        assert_eq!(c.shadows, g.shadows, "{what} frame {f}");
+    }
+}
+
+fn resident(latency: Latency) -> TraceConfig {
+    TraceConfig {
+        mode: TraceMode::GpuRequired,
+        latency,
+        resident: true,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let cpu = run(TraceConfig::default(), 600, false);
+    let gpu = run(resident(Latency::NextFrame), 600, true);
+    assert_same_answers(&cpu, &gpu, "next frame, GPU only");
+    // Without their CPU mirror the characters are invisible to immediate queries; the ground has one.
+    assert_eq!(gpu.on_cpu, 1);
+    for (f, c) in gpu.counters.iter().enumerate() {
+        assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
+        assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
+    }
+    // After the first frame no vertex data goes up: uploads do not depend on the triangle count.
+    let big = run(resident(Latency::NextFrame), 1500, true);
+    assert!(big.counters[0].uploaded_bytes > gpu.counters[0].uploaded_bytes);
+    // Exactly: per character its joint matrices (64 bytes each); per instance (the characters and the
+    // ground) 144 bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three
+    // 16-byte parameter blocks.
+    let joints = humanoid(600).skeleton.joints.len();
+    let expected = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    for f in 1..FRAMES as usize {
+        let (small, big) = (gpu.counters[f], big.counters[f]);
+        assert_eq!(small.uploaded_bytes, big.uploaded_bytes, "frame {}", f + 1);
+        assert_eq!(small.uploaded_bytes, expected as u64, "frame {}", f + 1);
+    }
+}
+
+#[test]
+fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let cpu = run(TraceConfig::default(), 600, false);
+    // Threshold 0: every refit whose metric comes back rebuilds the next frame, so GPU rebuilds answer
+    // about half the frames; binned SAH (the GPU's 16 bins) for them, LBVH in the other test.
+    let config = TraceConfig {
+        policy: RebuildPolicy::Lauterbach { threshold: 0.0 },
+        builder: kinetrace::bvh::Builder::Sah { bins: 16 },
+        ..resident(Latency::SameFrame)
+    };
+    let gpu = run(config, 600, false);
+    assert_same_answers(&cpu, &gpu, "same frame, mirrored, SAH rebuilds");
+    // Mirrored, they are on the CPU as in the CPU mode, for immediate queries.
+    assert_eq!(gpu.on_cpu, CHARACTERS + 1);
+    for (f, c) in gpu.counters.iter().enumerate() {
+        assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
+        assert!(c.blocking_waits <= 1, "frame {}: {c:?}", f + 1);
+    }
+}
