@@ -90,6 +90,9 @@ pub enum PlannedOption {
     /// Queued packet requests meet the mesh as packets (`true`) or ray by ray: a packet shares its node
     /// visits among coherent rays and repays its lane bookkeeping only when they stay together.
     Packets(bool),
+    /// How this frame's batch of secondary rays was traced ([`SecondaryRays`](super::SecondaryRays)). A
+    /// choice per batch, not per mesh: its [`OptionStats::entity`] is `Entity::PLACEHOLDER`.
+    Secondary(super::RayBatch, super::SecondaryStrategy),
 }
 
 /// Why a mesh is kept in its structure.

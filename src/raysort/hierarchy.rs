@@ -68,7 +68,7 @@ impl RayHierarchy {
 }
 
 /// `Error::InvalidOption` unless `s >= 2`, `D >= 1` and `s^D <= 2^24`.
-fn check_shape(branching: usize, depth: usize) -> Result<()> {
+pub(crate) fn check_shape(branching: usize, depth: usize) -> Result<()> {
     let rays_per_top = u32::try_from(depth)
         .ok()
         .and_then(|d| (branching as u64).checked_pow(d));

@@ -16,8 +16,9 @@
 //! - [`trace`]: the strategies and their answers in request order.
 //! - `gpu` (feature `gpu`): the same sorted order computed on the GPU.
 //!
-//! The CRSH traversal is CPU only; ECS ray kinds and the planner's sorted/unsorted choice are not
-//! implemented.
+//! In the ECS, requests queued with a secondary [`RequestKind`](crate::ecs::RequestKind) form per-frame
+//! batches traced by these strategies through the two-level world, picked per batch by the planner
+//! ([`SecondaryRays`](crate::ecs::SecondaryRays)). The CRSH traversal is CPU only.
 
 pub mod cone;
 #[cfg(feature = "gpu")]
