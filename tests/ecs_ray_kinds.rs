@@ -307,11 +307,8 @@ fn crsh_shapes_answer_as_brute_force() {
 
 #[test]
 fn planner_picks_per_batch_and_answers_stay_exact() {
-    let config = TraceConfig {
-        policy: RebuildPolicy::ADAPTIVE,
-        ..Default::default()
-    };
-    let (mut world, mut schedule) = app_with(config);
+    // The default policy: the batch planner needs no adaptive rebuild policy.
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
     let scene = Scene::spawn(&mut world);
     let mut r = rng(21);
     let mut picked = Vec::new();

@@ -76,12 +76,12 @@ const PRIORS: [(SecondaryStrategy, f64, f64); 3] = [
     (SecondaryStrategy::Crsh, 4.0, 1.0),
 ];
 
-/// How secondary batches are traced: a fixed strategy, or under
-/// [`RebuildPolicy::Adaptive`](super::RebuildPolicy) the strategy each batch's planner
-/// ([`Choice`]) learns is cheapest from the measured seconds per ray of each (the pick is in
-/// [`TraceStats::options`] as [`PlannedOption::Secondary`]). Under other policies, without a fixed
-/// strategy, batches go through the BVH in request order. The plugin inserts the default; replace the
-/// resource to change it.
+/// How secondary batches are traced: a fixed strategy, or (the default) the strategy each batch's
+/// planner ([`Choice`]) learns is cheapest from the measured seconds per ray of each, whatever the
+/// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
+/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorted BVH is tried (at
+/// most three frames unless it measures cheaper), the sort. The plugin inserts the default; replace
+/// the resource to change it.
 #[derive(Resource, Clone, Debug)]
 pub struct SecondaryRays {
     fixed: Option<SecondaryStrategy>,
@@ -131,12 +131,9 @@ impl SecondaryRays {
     }
 
     /// The strategy for a batch of `units` rays, and whether it is being tried.
-    fn pick(&mut self, batch: RayBatch, units: usize, planned: bool) -> (SecondaryStrategy, bool) {
+    fn pick(&mut self, batch: RayBatch, units: usize) -> (SecondaryStrategy, bool) {
         if let Some(s) = self.fixed {
             return (s, false);
-        }
-        if !planned {
-            return (SecondaryStrategy::Bvh, false);
         }
         let planner = &mut self.planners[batch as usize];
         (planner.decide(units as f64), planner.explored())
@@ -144,12 +141,11 @@ impl SecondaryRays {
 }
 
 /// Answers the secondary requests of `queue` into `out` (already sized by the primary pass, which skips
-/// them), batch by batch, with each batch's strategy; under a planner (`planned`), teaches it the batch's
-/// time and records the pick in `stats`. Allocates per batch (indices, keys, the answers in trace order).
+/// them), batch by batch, with each batch's strategy; unless the strategy is fixed, teaches the batch's
+/// planner its time and records the pick in `stats`. Allocates per batch (indices, keys, the answers in trace order).
 pub(super) fn answer_secondary(
     world: &TraceWorld,
     queue: &RayQueue,
-    planned: bool,
     config: &mut SecondaryRays,
     out: &mut RayResults,
     stats: &mut TraceStats,
@@ -167,7 +163,7 @@ pub(super) fn answer_secondary(
         if rays.is_empty() {
             continue;
         }
-        let (strategy, tried) = config.pick(batch, rays.len(), planned);
+        let (strategy, tried) = config.pick(batch, rays.len());
         let start = Instant::now();
         let answers = match trace_batch(world, queue, batch, &rays, strategy, config) {
             Ok(a) => a,
@@ -193,7 +189,7 @@ pub(super) fn answer_secondary(
                 }
             }
         }
-        if planned && config.fixed.is_none() {
+        if config.fixed.is_none() {
             let seconds = start.elapsed().as_secs_f64();
             config.planners[batch as usize].served(strategy, rays.len() as f64, seconds);
             stats.options.push(OptionStats {

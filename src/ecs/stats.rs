@@ -162,7 +162,8 @@ pub struct TraceStats {
     /// Per mesh maintained this frame, which structure answers its rays and why (meshes not maintained keep
     /// last frame's).
     pub structures: Vec<StructureStats>,
-    /// Per mesh maintained this frame under the adaptive policy, the options the planner picked.
+    /// Per mesh maintained this frame under the adaptive policy, the options the planner picked; and per
+    /// secondary batch answered this frame, how it was traced ([`PlannedOption::Secondary`]).
     pub options: Vec<OptionStats>,
     /// Time spent characterising.
     pub characterize_time: Duration,

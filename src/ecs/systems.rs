@@ -311,8 +311,7 @@ pub(crate) fn queries_system(
         &mut *results
     };
     answer_on_cpu(&world, &queue, frame, out);
-    let planned = matches!(config.policy, RebuildPolicy::Adaptive { .. });
-    super::ray_kinds::answer_secondary(&world, &queue, planned, &mut secondary, out, &mut stats);
+    super::ray_kinds::answer_secondary(&world, &queue, &mut secondary, out, &mut stats);
     finish(&mut queue, &mut stats, t);
     attribute(&mut world, &config, &stats);
 }
