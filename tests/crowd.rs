@@ -37,7 +37,7 @@ fn crowd_runs_120_frames_and_writes_pngs() {
     // Two shadow rays and a reflection ray per probe hit, the ground filling most of the probe.
     let per_frame = s.secondary_rays / 120;
     assert!(
-        s.secondary_rays % 3 == 0 && per_frame > 3 * 48 * 27 / 2,
+        s.secondary_rays.is_multiple_of(3) && per_frame > 3 * 48 * 27 / 2,
         "{per_frame}"
     );
     assert!(
