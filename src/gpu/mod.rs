@@ -37,7 +37,7 @@ mod scan;
 pub(crate) mod scene;
 mod skin;
 pub(crate) mod sort;
-mod trace;
+pub(crate) mod trace;
 mod tree;
 
 pub use buffers::Readback;

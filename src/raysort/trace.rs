@@ -85,9 +85,10 @@ pub struct Traced {
 #[derive(Clone, Debug)]
 pub struct RayScene {
     bvh: MeshBvh,
-    sphere: (Vec3, f32),
+    /// The mesh's bounding sphere.
+    pub(super) sphere: (Vec3, f32),
     /// Triangles of non-zero area: mesh index, corners and bounding sphere.
-    tris: Vec<(u32, [Vec3; 3], Vec3, f32)>,
+    pub(super) tris: Vec<(u32, [Vec3; 3], Vec3, f32)>,
 }
 
 impl RayScene {
