@@ -11,9 +11,10 @@
 use super::world::Instance;
 use super::{QueryFilter, TraceWorld};
 use crate::bvh::Hit;
-use crate::geometry::{Ray, TriangleRay};
+use crate::geometry::Ray;
 use crate::raysort::RayHierarchy;
 use crate::raysort::cone::bounding_sphere;
+use crate::raysort::trace::exact_hit;
 use crate::{Result, parallel};
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
@@ -96,23 +97,11 @@ impl Walk<'_> {
         candidates: &[u32],
         out: &mut [Option<(Entity, Hit)>],
     ) {
-        let node = &self.h.level(k)[j];
-        let survivors: Vec<u32> = (candidates.iter().copied())
-            .filter(|&t| {
-                let (c, r) = m.triangles[t as usize];
-                node.hits_sphere(c, r)
-            })
-            .collect();
+        let survivors = (self.h).survivors(k, j, candidates, |t| m.triangles[t as usize]);
         if survivors.is_empty() {
             return;
         }
-        let s = self.h.branching();
-        let below = if k == 1 {
-            self.rays.len()
-        } else {
-            self.h.level(k - 1).len()
-        };
-        for child in j * s..((j + 1) * s).min(below) {
+        for child in self.h.children(k, j, self.rays.len()) {
             if k == 1 {
                 self.exact(m, child, &survivors, &mut out[child - self.base]);
             } else {
@@ -134,32 +123,12 @@ impl Walk<'_> {
             return;
         }
         let world_ray = &self.rays[i];
-        let mut tmax = found.map_or(world_ray.tmax, |(_, h)| h.t);
+        let tmax = found.map_or(world_ray.tmax, |(_, h)| h.t);
         let ray = m.inst.object_ray(world_ray, tmax);
-        let tr = TriangleRay::new(&ray);
-        let tris = m.inst.bvh.slot_triangles();
-        let prims = m.inst.bvh.bvh().prim_indices();
-        let mut best: Option<Hit> = None;
-        for &s in candidates {
-            let [a, b, c] = tris[s as usize];
-            let Some(h) = tr.intersect(a, b, c, ray.tmin, tmax) else {
-                continue;
-            };
-            let p = prims[s as usize];
-            if best.is_none_or(|o| h.t < o.t || (h.t == o.t && p < o.primitive)) {
-                tmax = h.t;
-                best = Some(Hit {
-                    t: h.t,
-                    primitive: p,
-                    u: h.u,
-                    v: h.v,
-                    normal: (b - a).cross(c - a).normalize_or_zero(),
-                });
-                if self.any {
-                    break;
-                }
-            }
-        }
+        let (tris, prims) = (m.inst.bvh.slot_triangles(), m.inst.bvh.bvh().prim_indices());
+        let best = exact_hit(&ray, tmax, candidates, self.any, &mut 0, |s| {
+            (prims[s as usize], tris[s as usize])
+        });
         if let Some(h) = best
             && found.is_none_or(|(_, o)| h.t < o.t)
         {
