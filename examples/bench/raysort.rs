@@ -1,7 +1,8 @@
 //! Suite `raysort`: the crowd's secondary rays (one shadow ray per primary hit toward one light, toward one
 //! of four lights chosen per pixel, and one reflection ray per hit) through the BVH in pixel order, the BVH
 //! in key order, CRSH (s and D swept) and RAH: intersection tests per ray and Mrays/s on one thread; with an
-//! adapter, the GPU sort with its transfers (lavapipe on the dev VM: a CPU figure, not a GPU one).
+//! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
+//! 16 384 rays (lavapipe on the dev VM: CPU figures, not GPU ones).
 
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
@@ -10,7 +11,7 @@ use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::gpu::GpuContext;
 use kinetrace::raysort::{
-    KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu,
+    KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu, trace_crsh_gpu,
 };
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Mesh, Ray};
@@ -43,6 +44,7 @@ pub fn run(rec: &mut Records) {
             shuffled(rec, &scene, &name, &rays);
             if let Some(g) = &gpu {
                 gpu_sort(rec, g, &name, &rays);
+                gpu_crsh(rec, g, &scene, &name, &rays);
             }
         }
     }
@@ -111,6 +113,35 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
         "speed-up 1 thread",
         time[0] / (time[1] - t_sort),
         "x",
+    );
+}
+
+/// The GPU CRSH traversal (s = 8, D = 2: the best shadow shape on the CPU) of the batch's first 16 384
+/// rays, with the CPU sort and hierarchy build, uploads and read-back, blocking. The prefix keeps a
+/// lavapipe run short: its cost grows with rays × triangles.
+fn gpu_crsh(
+    rec: &mut Records,
+    g: &GpuContext,
+    scene: &RayScene,
+    name: &str,
+    rays: &[SecondaryRay],
+) {
+    let layout = KeyLayout::default();
+    let rays = &rays[..rays.len().min(16_384)];
+    let (t, _) = best_of(rec.reps(), || {
+        trace_crsh_gpu(g, scene, rays, &layout, 8, 2).unwrap()
+    });
+    let label = format!(
+        "GPU CRSH s8 D2, first 16384 rays, {}",
+        g.adapter_name().split(" (").next().unwrap_or("GPU")
+    );
+    rec.add(
+        SUITE,
+        name,
+        &label,
+        "Mrays/s with transfers",
+        rays.len() as f64 / t / 1e6,
+        "Mrays/s",
     );
 }
 
