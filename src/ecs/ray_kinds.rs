@@ -67,9 +67,10 @@ pub enum SecondaryStrategy {
 }
 
 /// Priors of the secondary planners (ours, from `bench raysort` on the crowd's secondary rays, 2-core
-/// dev VM): seconds per ray relative to the BVH's — sorting gains about 20% on reflection rays, CRSH
-/// runs at 0.04–0.25× the BVH's rays per second — and no overhead outside the batch. With CRSH at 4×,
-/// the planner never tries it on its own on the CPU; [`SecondaryRays::fixed`] forces it.
+/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. The sorted BVH at 0.8,
+/// optimistic so that it is tried (it measured 0.61–1.12× the BVH's speed on shuffled rays, slower on
+/// rays in pixel order); CRSH at 4 (it runs at 0.04–0.25× the BVH's rays per second), so the planner
+/// never tries it on its own on the CPU; [`SecondaryRays::fixed`] forces it.
 const PRIORS: [(SecondaryStrategy, f64, f64); 3] = [
     (SecondaryStrategy::Bvh, 1.0, 1.0),
     (SecondaryStrategy::SortedBvh, 0.8, 1.0),
@@ -102,7 +103,7 @@ impl Default for SecondaryRays {
 
 impl SecondaryRays {
     /// A fixed strategy (`Some`) or the planner (`None`), the key layout of the sorting strategies, and
-    /// CRSH's branching `s` and depth `D`. [`Error::InvalidOption`] for a layout over 32 bits or a
+    /// CRSH's branching `s` and depth `D`. [`Error::InvalidOption`](crate::Error::InvalidOption) for a layout over 32 bits or a
     /// hierarchy shape outside `s >= 2, D >= 1, s^D <= 2^24`.
     pub fn new(
         fixed: Option<SecondaryStrategy>,
