@@ -131,17 +131,13 @@ fn gpu_crsh(
     let (t, _) = best_of(rec.reps(), || {
         trace_crsh_gpu(g, scene, rays, &layout, 8, 2).unwrap()
     });
-    let label = format!(
-        "GPU CRSH s8 D2, first 16384 rays, {}",
-        g.adapter_name().split(" (").next().unwrap_or("GPU")
-    );
-    rec.add(
-        SUITE,
+    gpu_row(
+        rec,
+        g,
         name,
-        &label,
-        "Mrays/s with transfers",
-        rays.len() as f64 / t / 1e6,
-        "Mrays/s",
+        "GPU CRSH s8 D2, first 16384 rays",
+        rays.len(),
+        t,
     );
 }
 
@@ -150,16 +146,20 @@ fn gpu_crsh(
 fn gpu_sort(rec: &mut Records, g: &GpuContext, name: &str, rays: &[SecondaryRay]) {
     let layout = KeyLayout::default();
     let (t, _) = best_of(rec.reps(), || sort_rays_gpu(g, rays, &layout).unwrap());
-    let label = format!(
-        "GPU sort only, {}",
-        g.adapter_name().split(" (").next().unwrap_or("GPU")
-    );
+    gpu_row(rec, g, name, "GPU sort only", rays.len(), t);
+}
+
+/// Records a GPU row: `what` on the adapter, `n` rays in `t` seconds, transfers included.
+fn gpu_row(rec: &mut Records, g: &GpuContext, name: &str, what: &str, n: usize, t: f64) {
+    let adapter = g.adapter_name().split(" (").next().unwrap_or("GPU");
+    let label = format!("{what}, {adapter}");
+    let speed = n as f64 / t / 1e6;
     rec.add(
         SUITE,
         name,
         &label,
         "Mrays/s with transfers",
-        rays.len() as f64 / t / 1e6,
+        speed,
         "Mrays/s",
     );
 }
