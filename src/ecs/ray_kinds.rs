@@ -82,7 +82,8 @@ const PRIORS: [(SecondaryStrategy, f64, f64); 3] = [
 /// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
 /// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorted BVH is tried (at
 /// most three frames unless it measures cheaper), the sort. The plugin inserts the default; replace
-/// the resource to change it.
+/// the resource to change it. CPU query path only: when a GPU mode answers the batched queries, the GPU
+/// answers secondary requests too, in request order, and nothing is planned.
 #[derive(Resource, Clone, Debug)]
 pub struct SecondaryRays {
     fixed: Option<SecondaryStrategy>,
