@@ -10,7 +10,10 @@
 //! neighbours and probes the ground under it (immediate ray); a turret sweeps the crowd and reports which
 //! character, triangle and joint its ray hits. Characters are colliders: when two bump into each other
 //! (their skinned meshes touch), a gameplay system reads the `CollisionStarted` message and the contacts
-//! (triangles, point, depth). Once per simulated second a table line shows the frame time by
+//! (triangles, point, depth). A probe camera of 48×27 rays casts, from every primary hit, a shadow ray
+//! toward each of two lights and one reflection ray, queued as secondary kinds: the planner picks per
+//! batch how they are traced (BVH, sorted BVH or CRSH, see `SecondaryRays`), printed once per simulated
+//! second with the table line. Once per simulated second a table line shows the frame time by
 //! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
 //! shadows from the sun (`--shadows`: shadow map alone, selective ray-traced — the default — or a shadow
 //! ray per pixel, see `kinetrace::shadows`), the turret's hits marked red. Batched queries run on the GPU when one is found
@@ -79,6 +82,8 @@ pub struct Summary {
     pub turret_hits: usize,
     /// Line-of-sight checks answered.
     pub sight_checks: usize,
+    /// Secondary requests (shadow rays toward the two lights, reflection rays) answered.
+    pub secondary_rays: usize,
     /// Rebuilds and refits over the run.
     pub rebuilds: usize,
     /// Refits over the run.
@@ -90,6 +95,12 @@ pub struct Summary {
 const CHARACTERS: u32 = 1 << 0;
 const GROUND: u32 = 1 << 1;
 const DT: f32 = 1.0 / 60.0;
+/// Tags of the probe's secondary requests start here (line-of-sight tags are below).
+const SECONDARY: u64 = 1 << 32;
+/// The probe camera's rays across and down.
+const PROBE: (u32, u32) = (48, 27);
+/// The two lights of the probe's shadow rays: a high sun-like light and a lamp over the crowd.
+const LIGHTS: [Vec3; 2] = [Vec3::new(20.0, 40.0, -10.0), Vec3::new(-6.0, 6.0, 4.0)];
 
 /// A character's own state, its placement included: the plugin follows it into the trace transform
 /// (`sync_transforms`), so gameplay never writes `TraceTransform`.
@@ -172,6 +183,35 @@ fn look_and_probe(
             .is_some_and(|h| (h.distance - 1.0).abs() < 0.01);
     }
     crowd.summary.grounded_frames += grounded as usize;
+}
+
+/// The probe camera's primary hits (immediate rays) and, from each, a shadow ray from each light to the
+/// hit and a reflection ray, queued as secondary kinds (starting 1 mm off the surface, on the camera's
+/// side).
+fn secondary_probe(rays: SpatialRays, mut queue: ResMut<RayQueue>) {
+    let all = QueryFilter::default();
+    let camera = Camera::default();
+    let ray_at = pixel_ray(PROBE.0, PROBE.1, &camera);
+    for i in 0..PROBE.0 * PROBE.1 {
+        let ray = ray_at(i % PROBE.0, i / PROBE.0);
+        let Some(hit) = rays.cast_ray(&ray, 200.0, &all) else {
+            continue;
+        };
+        let facing = -hit.normal * ray.dir().dot(hit.normal).signum();
+        let point = hit.point + 1e-3 * facing;
+        let tag = SECONDARY + 3 * i as u64;
+        for (k, &light) in LIGHTS.iter().enumerate() {
+            let kind = RequestKind::Shadow { light: k as u32 };
+            queue.shadow_kind(tag + k as u64, light, point, kind, all.clone());
+        }
+        let d = ray.dir() - 2.0 * ray.dir().dot(hit.normal) * hit.normal;
+        queue.cast_kind(
+            tag + 2,
+            Ray::new(point, d),
+            RequestKind::Reflection,
+            all.clone(),
+        );
+    }
 }
 
 /// The turret sweeps the crowd; a hit reports character, triangle and the joint that moves it most.
@@ -343,7 +383,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
     });
     schedule.add_systems((
         walk.before(TraceSystems::TopLevel),
-        (look_and_probe, turret)
+        (look_and_probe, turret, secondary_probe)
             .after(TraceSystems::TopLevel)
             .before(TraceSystems::Queries),
         bumps.after(TraceSystems::Queries),
@@ -383,11 +423,14 @@ fn run_frames(
         work.1 += s.rebuilds;
         work.2 += s.batched_rays;
         {
-            let sight = world.resource::<RayResults>().shadows.len();
+            let results = world.resource::<RayResults>();
+            let sight = (results.shadows.iter()).filter(|s| s.0 < SECONDARY).count();
+            let secondary = results.hits.len() + results.shadows.len() - sight;
             let mut crowd = world.resource_mut::<Crowd>();
             crowd.summary.refits += s.refits;
             crowd.summary.rebuilds += s.rebuilds;
             crowd.summary.sight_checks += sight;
+            crowd.summary.secondary_rays += secondary;
         }
         if (f + 1) % 60 == 0 {
             let ms = |d: Duration| d.as_secs_f64() * 1e3 / 60.0;
@@ -403,6 +446,22 @@ fn run_frames(
                 work.1,
                 work.2
             );
+            let picks: Vec<String> = (s.options.iter())
+                .filter_map(|o| match o.option {
+                    PlannedOption::Secondary(batch, strategy) => Some(format!(
+                        "{batch:?} via {strategy:?}{}",
+                        if o.tried { " (tried)" } else { "" }
+                    )),
+                    _ => None,
+                })
+                .collect();
+            if picks.is_empty() {
+                println!(
+                    "    secondary rays: on the GPU, in request order (the planner is CPU only)"
+                );
+            } else {
+                println!("    secondary rays: {}", picks.join(", "));
+            }
             (acc, phases, work) = (Duration::ZERO, [Duration::ZERO; 4], (0, 0, 0));
         }
         if (opt.png_every > 0 && (f + 1) % opt.png_every == 0) || f + 1 == opt.frames {
@@ -421,11 +480,12 @@ fn run_frames(
     let crowd = world.remove_resource::<Crowd>().expect("inserted");
     let s = &crowd.summary;
     println!(
-        "{} frames: {} refits, {} rebuilds, {} line-of-sight checks, turret hit a character {} times, {} bumps between characters, ground found under everyone in {} frames; images: {}",
+        "{} frames: {} refits, {} rebuilds, {} line-of-sight checks, {} secondary rays, turret hit a character {} times, {} bumps between characters, ground found under everyone in {} frames; images: {}",
         opt.frames,
         s.refits,
         s.rebuilds,
         s.sight_checks,
+        s.secondary_rays,
         s.turret_hits,
         s.bumps,
         s.grounded_frames,

@@ -34,6 +34,12 @@ fn crowd_runs_120_frames_and_writes_pngs() {
         "the ground probe found the ground under everyone every frame"
     );
     assert_eq!(s.sight_checks, 8 * 2 * 120);
+    // Two shadow rays and a reflection ray per probe hit, the ground filling most of the probe.
+    let per_frame = s.secondary_rays / 120;
+    assert!(
+        s.secondary_rays.is_multiple_of(3) && per_frame > 3 * 48 * 27 / 2,
+        "{per_frame}"
+    );
     assert!(
         s.refits >= 8 * 100,
         "characters were refitted: {}",

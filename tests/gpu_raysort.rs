@@ -227,3 +227,73 @@ fn layouts_over_32_bits_are_errors() {
         Err(kinetrace::Error::InvalidOption(_))
     ));
 }
+
+/// A sphere of radius 1 and a folded sheet through it: one mesh, closed and open parts.
+fn crsh_scene() -> kinetrace::raysort::RayScene {
+    use kinetrace::scenes::{folded_sheet, icosphere};
+    let (a, b) = (icosphere(3), folded_sheet(10, 0.4));
+    let mut pos = a.positions().to_vec();
+    pos.extend(b.positions().iter().map(|p| *p * 1.5));
+    let base = a.positions().len() as u32;
+    let mut idx = a.indices().to_vec();
+    idx.extend(b.indices().iter().map(|&i| i + base));
+    let mesh = kinetrace::Mesh::new(pos, idx).unwrap();
+    kinetrace::raysort::RayScene::build(&mesh, &kinetrace::bvh::BuildOptions::default()).unwrap()
+}
+
+/// WGSL division may be 2.5 ulp off: `t = T · (1 / det)` and `u`, `v` likewise, within 4 ulp.
+fn close(a: f32, b: f32) -> bool {
+    (a - b).abs() <= 4.0 * f32::EPSILON * a.abs().max(b.abs())
+}
+
+#[test]
+fn gpu_crsh_answers_equal_cpu_crsh() {
+    use kinetrace::raysort::{Answer, Strategy, trace_crsh_gpu};
+    let Some(g) = gpu_or_skip() else { return };
+    let scene = crsh_scene();
+    let layout = KeyLayout::default();
+    for (n, branching, depth) in [
+        (3000, 8, 2),
+        (3000, 16, 3),
+        (1000, 3, 1),
+        (5, 8, 4),
+        (0, 8, 2),
+    ] {
+        let rays = batch(n, n as u64 + branching as u64, 41);
+        let crsh = Strategy::Crsh { branching, depth };
+        let cpu = scene.trace(&rays, crsh, &layout, true).unwrap().answers;
+        let gpu = trace_crsh_gpu(&g, &scene, &rays, &layout, branching, depth).unwrap();
+        assert_eq!(gpu.len(), n);
+        let (mut hits, mut occluded) = (0, 0);
+        for (i, (c, d)) in cpu.iter().zip(&gpu).enumerate() {
+            let what = format!("s{branching} D{depth} ray {i}: cpu {c:?} gpu {d:?}");
+            match (c, d) {
+                (Answer::Hit(c), Answer::Hit(d)) => {
+                    assert_eq!((c.primitive, c.normal), (d.primitive, d.normal), "{what}");
+                    assert!(
+                        close(c.t, d.t) && close(c.u, d.u) && close(c.v, d.v),
+                        "{what}"
+                    );
+                    hits += 1;
+                }
+                _ => assert_eq!(c, d, "{what}"),
+            }
+            occluded += (*c == Answer::Occluded) as usize;
+        }
+        if n >= 1000 {
+            assert!(
+                hits > n / 10 && occluded > n / 10,
+                "{hits} hits, {occluded} occluded"
+            );
+        }
+    }
+}
+
+#[test]
+fn gpu_crsh_rejects_wide_nodes() {
+    let Some(g) = gpu_or_skip() else { return };
+    let rays = batch(100, 3, 0);
+    let got =
+        kinetrace::raysort::trace_crsh_gpu(&g, &crsh_scene(), &rays, &KeyLayout::default(), 65, 1);
+    assert!(matches!(got, Err(kinetrace::Error::InvalidOption(_))));
+}

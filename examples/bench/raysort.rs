@@ -1,7 +1,8 @@
 //! Suite `raysort`: the crowd's secondary rays (one shadow ray per primary hit toward one light, toward one
 //! of four lights chosen per pixel, and one reflection ray per hit) through the BVH in pixel order, the BVH
 //! in key order, CRSH (s and D swept) and RAH: intersection tests per ray and Mrays/s on one thread; with an
-//! adapter, the GPU sort with its transfers (lavapipe on the dev VM: a CPU figure, not a GPU one).
+//! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
+//! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
 
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
@@ -10,7 +11,7 @@ use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::gpu::GpuContext;
 use kinetrace::raysort::{
-    KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu,
+    KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu, trace_crsh_gpu,
 };
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Mesh, Ray};
@@ -43,6 +44,7 @@ pub fn run(rec: &mut Records) {
             shuffled(rec, &scene, &name, &rays);
             if let Some(g) = &gpu {
                 gpu_sort(rec, g, &name, &rays);
+                gpu_crsh(rec, g, &scene, &name, &rays);
             }
         }
     }
@@ -114,21 +116,51 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
     );
 }
 
+/// The GPU CRSH traversal (s = 8, D = 2: the best shadow shape on the CPU) of the batch's first 16 384
+/// rays (4 096 with `--quick`), with the CPU sort and hierarchy build, uploads and read-back, blocking.
+/// The prefix keeps a lavapipe run short: its cost grows with rays × triangles.
+fn gpu_crsh(
+    rec: &mut Records,
+    g: &GpuContext,
+    scene: &RayScene,
+    name: &str,
+    rays: &[SecondaryRay],
+) {
+    let layout = KeyLayout::default();
+    let prefix = if rec.quick { 4_096 } else { 16_384 };
+    let rays = &rays[..rays.len().min(prefix)];
+    let (t, _) = best_of(rec.reps(), || {
+        trace_crsh_gpu(g, scene, rays, &layout, 8, 2).unwrap()
+    });
+    gpu_row(
+        rec,
+        g,
+        name,
+        &format!("GPU CRSH s8 D2, first {} rays", rays.len()),
+        rays.len(),
+        t,
+    );
+}
+
 /// The GPU sort (keys, two radix sorts) with its upload and read-back, blocking: on the dev VM this is
 /// lavapipe, a CPU rasteriser, so the row says what the path costs there, not on a GPU.
 fn gpu_sort(rec: &mut Records, g: &GpuContext, name: &str, rays: &[SecondaryRay]) {
     let layout = KeyLayout::default();
     let (t, _) = best_of(rec.reps(), || sort_rays_gpu(g, rays, &layout).unwrap());
-    let label = format!(
-        "GPU sort only, {}",
-        g.adapter_name().split(" (").next().unwrap_or("GPU")
-    );
+    gpu_row(rec, g, name, "GPU sort only", rays.len(), t);
+}
+
+/// Records a GPU row: `what` on the adapter, `n` rays in `t` seconds, transfers included.
+fn gpu_row(rec: &mut Records, g: &GpuContext, name: &str, what: &str, n: usize, t: f64) {
+    let adapter = g.adapter_name().split(" (").next().unwrap_or("GPU");
+    let label = format!("{what}, {adapter}");
+    let speed = n as f64 / t / 1e6;
     rec.add(
         SUITE,
         name,
         &label,
         "Mrays/s with transfers",
-        rays.len() as f64 / t / 1e6,
+        speed,
         "Mrays/s",
     );
 }

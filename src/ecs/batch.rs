@@ -1,7 +1,7 @@
 //! Batched queries: gameplay systems push requests, [`TraceSystems::Queries`](super::TraceSystems::Queries) runs
 //! them all at once, on all threads, and publishes the answers.
 
-use super::{QueryFilter, RayHit};
+use super::{QueryFilter, RayHit, RequestKind};
 use crate::geometry::Ray;
 use bevy_ecs::prelude::*;
 use glam::Vec3;
@@ -16,6 +16,9 @@ pub struct RayRequest {
     pub ray: Ray,
     /// Which entities it may hit.
     pub filter: QueryFilter,
+    /// What kind of ray it is ([`RequestKind::Primary`] unless queued with
+    /// [`cast_kind`](RayQueue::cast_kind)): secondary kinds may be traced in sorted order.
+    pub kind: RequestKind,
 }
 
 /// An occlusion (shadow, line-of-sight) request between two world points.
@@ -29,6 +32,9 @@ pub struct ShadowRequest {
     pub to: Vec3,
     /// Which entities may block it.
     pub filter: QueryFilter,
+    /// What kind of ray it is ([`RequestKind::Primary`] unless queued with
+    /// [`shadow_kind`](RayQueue::shadow_kind)): secondary kinds may be traced in sorted order.
+    pub kind: RequestKind,
 }
 
 /// Requests queued this frame. Push from any system that runs before
@@ -47,16 +53,44 @@ pub struct RayQueue {
 impl RayQueue {
     /// Queues a closest-hit query.
     pub fn cast(&mut self, tag: u64, ray: Ray, filter: QueryFilter) {
-        self.rays.push(RayRequest { tag, ray, filter });
+        self.cast_kind(tag, ray, RequestKind::Primary, filter);
+    }
+
+    /// Queues a closest-hit query of the given kind: a [`RequestKind::Reflection`] ray (or any secondary
+    /// kind) joins the frame's batch of secondary closest-hit rays, which is traced in the order the
+    /// [`SecondaryRays`](super::SecondaryRays) planner picks. Answers are the same either way.
+    pub fn cast_kind(&mut self, tag: u64, ray: Ray, kind: RequestKind, filter: QueryFilter) {
+        self.rays.push(RayRequest {
+            tag,
+            ray,
+            filter,
+            kind,
+        });
     }
 
     /// Queues an occlusion query from `from` to `to`.
     pub fn shadow(&mut self, tag: u64, from: Vec3, to: Vec3, filter: QueryFilter) {
+        self.shadow_kind(tag, from, to, RequestKind::Primary, filter);
+    }
+
+    /// Queues an occlusion query of the given kind: a [`RequestKind::Shadow`] segment (or any secondary
+    /// kind) joins the frame's batch of secondary occlusion rays (see [`cast_kind`](Self::cast_kind)).
+    /// Put `from` at the light: segments of one light then share their origin, which keeps the ray
+    /// hierarchy's spheres small.
+    pub fn shadow_kind(
+        &mut self,
+        tag: u64,
+        from: Vec3,
+        to: Vec3,
+        kind: RequestKind,
+        filter: QueryFilter,
+    ) {
         self.shadows.push(ShadowRequest {
             tag,
             from,
             to,
             filter,
+            kind,
         });
     }
 

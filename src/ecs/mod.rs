@@ -67,6 +67,8 @@ mod gpu_queries;
 mod maintain;
 mod params;
 mod plugin;
+mod ray_crsh;
+mod ray_kinds;
 mod shape_batch;
 mod shape_queries;
 mod sound;
@@ -108,6 +110,7 @@ pub use stats::{
 // Structure choice (issue 12): which structure answers a mesh's rays.
 pub use crate::grid::{ChoiceReason, StructureKind};
 pub use config::{Structure, TraceStructure};
+pub use ray_kinds::{RayBatch, RequestKind, SecondaryRays, SecondaryStrategy};
 pub use stats::{OptionStats, PlannedOption, StructureStats, StructureWhy};
 pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

@@ -90,6 +90,9 @@ pub enum PlannedOption {
     /// Queued packet requests meet the mesh as packets (`true`) or ray by ray: a packet shares its node
     /// visits among coherent rays and repays its lane bookkeeping only when they stay together.
     Packets(bool),
+    /// How this frame's batch of secondary rays was traced ([`SecondaryRays`](super::SecondaryRays)). A
+    /// choice per batch, not per mesh: its [`OptionStats::entity`] is `Entity::PLACEHOLDER`.
+    Secondary(super::RayBatch, super::SecondaryStrategy),
 }
 
 /// Why a mesh is kept in its structure.
@@ -159,7 +162,8 @@ pub struct TraceStats {
     /// Per mesh maintained this frame, which structure answers its rays and why (meshes not maintained keep
     /// last frame's).
     pub structures: Vec<StructureStats>,
-    /// Per mesh maintained this frame under the adaptive policy, the options the planner picked.
+    /// Per mesh maintained this frame under the adaptive policy, the options the planner picked; and per
+    /// secondary batch answered this frame, how it was traced ([`PlannedOption::Secondary`]).
     pub options: Vec<OptionStats>,
     /// Time spent characterising.
     pub characterize_time: Duration,

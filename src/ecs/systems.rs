@@ -196,8 +196,11 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
                 *o = (r.tag, *h);
             }
         } else {
+            // Secondary kinds are their batch's ([`super::ray_kinds`]), answered after this pass.
             for (o, r) in out.iter_mut().zip(rays) {
-                *o = (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter));
+                if r.kind == RequestKind::Primary {
+                    *o = (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter));
+                }
             }
         }
     });
@@ -221,7 +224,9 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
                 }
             } else {
                 for (o, s) in out.iter_mut().zip(shadows) {
-                    *o = (s.tag, world.occluded(s.from, s.to, &s.filter));
+                    if s.kind == RequestKind::Primary {
+                        *o = (s.tag, world.occluded(s.from, s.to, &s.filter));
+                    }
                 }
             }
         },
@@ -259,8 +264,10 @@ fn answer_units<T: Send>(
 }
 
 /// [`TraceSystems::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all
-/// CPU threads — and publishes them now ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`],
-/// when a GPU batch is collected without having stalled the frame that submitted it).
+/// CPU threads, secondary kinds batch by batch ([`SecondaryRays`]) — and publishes them now
+/// ([`Latency::SameFrame`]) or next frame ([`Latency::NextFrame`], when a GPU batch is collected without
+/// having stalled the frame that submitted it).
+#[allow(clippy::too_many_arguments)] // a system: each parameter is one thing it reads
 pub(crate) fn queries_system(
     mut world: ResMut<TraceWorld>,
     config: Res<TraceConfig>,
@@ -269,6 +276,7 @@ pub(crate) fn queries_system(
     mut pending: Local<RayResults>,
     gpu: Option<ResMut<GpuQueries>>,
     mut stats: ResMut<TraceStats>,
+    mut secondary: ResMut<SecondaryRays>,
 ) {
     let t = Instant::now();
     let frame = stats.frame;
@@ -302,13 +310,15 @@ pub(crate) fn queries_system(
     }
     #[cfg(not(feature = "gpu"))]
     let _ = gpu;
-    if next_frame {
+    let out = if next_frame {
         // Publish last frame's answers, compute this frame's for the next.
         std::mem::swap(&mut *results, &mut *pending);
-        answer_on_cpu(&world, &queue, frame, &mut pending);
+        &mut *pending
     } else {
-        answer_on_cpu(&world, &queue, frame, &mut results);
-    }
+        &mut *results
+    };
+    answer_on_cpu(&world, &queue, frame, out);
+    super::ray_kinds::answer_secondary(&world, &queue, &mut secondary, out, &mut stats);
     finish(&mut queue, &mut stats, t);
     attribute(&mut world, &config, &stats);
 }

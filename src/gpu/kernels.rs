@@ -116,6 +116,7 @@ pub(crate) struct Kernels {
     pub sah: Module,
     pub ploc: Module,
     pub raysort: Module,
+    pub raysort_crsh: Module,
 }
 
 impl Kernels {
@@ -256,6 +257,13 @@ impl Kernels {
                 shader!("raysort_keys.wgsl"),
                 &[Read, Write, Write, Write, Write, Uniform],
                 &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
+            ),
+            raysort_crsh: Module::new(
+                device,
+                "raysort_crsh",
+                shader!(rays "raysort_crsh.wgsl"),
+                &[Read, Read, Read, Read, Read, Write],
+                &["crsh_trace"],
             ),
         }
     }

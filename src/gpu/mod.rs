@@ -38,7 +38,7 @@ mod scan;
 pub(crate) mod scene;
 mod skin;
 pub(crate) mod sort;
-mod trace;
+pub(crate) mod trace;
 mod tree;
 
 pub use buffers::Readback;

@@ -75,6 +75,11 @@ impl RayNode {
         )
     }
 
+    /// The cone's cosine and sine of [`spread`](Self::spread), as the sphere test reads them.
+    pub(crate) fn spread_cos_sin(&self) -> (f32, f32) {
+        (self.cos_spread, self.sin_spread)
+    }
+
     /// False only when no ray of the node can meet the sphere (`center`, `radius`) at any `t >= 0`.
     ///
     /// The rays lie in the cone from `self.center` widened by `self.radius`; the test compares the exact

@@ -6,6 +6,8 @@
 
 use super::RayNode;
 use crate::{Error, Ray, Result, parallel};
+use glam::Vec3;
+use std::ops::Range;
 
 /// The levels of sphere–cone nodes over a ray sequence.
 #[derive(Clone, Debug, PartialEq)]
@@ -65,10 +67,40 @@ impl RayHierarchy {
     pub fn level(&self, k: usize) -> &[RayNode] {
         &self.levels[k - 1]
     }
+
+    /// What lies under node `j` of level `k`: nodes of level `k - 1`, or at level 1 the positions of
+    /// the hierarchy's `rays` rays.
+    pub(crate) fn children(&self, k: usize, j: usize, rays: usize) -> Range<usize> {
+        let below = if k == 1 {
+            rays
+        } else {
+            self.level(k - 1).len()
+        };
+        let s = self.branching;
+        j * s..((j + 1) * s).min(below)
+    }
+
+    /// The triangles among `candidates` whose sphere (`sphere(t)`: centre, radius) node `j` of level `k`
+    /// may reach, in candidate order.
+    pub(crate) fn survivors(
+        &self,
+        k: usize,
+        j: usize,
+        candidates: &[u32],
+        sphere: impl Fn(u32) -> (Vec3, f32),
+    ) -> Vec<u32> {
+        let node = &self.level(k)[j];
+        (candidates.iter().copied())
+            .filter(|&t| {
+                let (c, r) = sphere(t);
+                node.hits_sphere(c, r)
+            })
+            .collect()
+    }
 }
 
 /// `Error::InvalidOption` unless `s >= 2`, `D >= 1` and `s^D <= 2^24`.
-fn check_shape(branching: usize, depth: usize) -> Result<()> {
+pub(crate) fn check_shape(branching: usize, depth: usize) -> Result<()> {
     let rays_per_top = u32::try_from(depth)
         .ok()
         .and_then(|d| (branching as u64).checked_pow(d));

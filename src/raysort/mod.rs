@@ -15,13 +15,17 @@
 //! - [`hierarchy`]: the bottom-up build over sorted rays.
 //! - [`trace`]: the strategies and their answers in request order.
 //! - `gpu` (feature `gpu`): the same sorted order computed on the GPU.
+//! - `gpu_crsh` (feature `gpu`): the CRSH traversal on the GPU, answers equal to the CPU's.
 //!
-//! The CRSH traversal is CPU only; ECS ray kinds and the planner's sorted/unsorted choice are not
-//! implemented.
+//! In the ECS, requests queued with a secondary [`RequestKind`](crate::ecs::RequestKind) form per-frame
+//! batches traced by these strategies through the two-level world, picked per batch by the planner
+//! ([`SecondaryRays`](crate::ecs::SecondaryRays)), on the CPU.
 
 pub mod cone;
 #[cfg(feature = "gpu")]
 pub mod gpu;
+#[cfg(feature = "gpu")]
+pub mod gpu_crsh;
 pub mod hierarchy;
 pub mod key;
 pub mod sort;
@@ -30,6 +34,8 @@ pub mod trace;
 pub use cone::RayNode;
 #[cfg(feature = "gpu")]
 pub use gpu::sort_rays_gpu;
+#[cfg(feature = "gpu")]
+pub use gpu_crsh::trace_crsh_gpu;
 pub use hierarchy::RayHierarchy;
 pub use key::KeyLayout;
 pub use sort::{SortedRays, sort_rays};

@@ -85,9 +85,10 @@ pub struct Traced {
 #[derive(Clone, Debug)]
 pub struct RayScene {
     bvh: MeshBvh,
-    sphere: (Vec3, f32),
+    /// The mesh's bounding sphere.
+    pub(super) sphere: (Vec3, f32),
     /// Triangles of non-zero area: mesh index, corners and bounding sphere.
-    tris: Vec<(u32, [Vec3; 3], Vec3, f32)>,
+    pub(super) tris: Vec<(u32, [Vec3; 3], Vec3, f32)>,
 }
 
 impl RayScene {
@@ -242,27 +243,16 @@ struct Walk<'a> {
 impl Walk<'_> {
     /// Tests node `j` of level `k` against the triangles `candidates` and takes the survivors down.
     fn descend(&mut self, k: usize, j: usize, candidates: &[u32]) {
-        let node = &self.h.level(k)[j];
         let tris = &self.scene.tris;
         self.stats.node_tests += candidates.len() as u64;
-        let survivors: Vec<u32> = candidates
-            .iter()
-            .copied()
-            .filter(|&t| {
-                let (_, _, c, r) = tris[t as usize];
-                node.hits_sphere(c, r)
-            })
-            .collect();
+        let survivors = (self.h).survivors(k, j, candidates, |t| {
+            let (_, _, c, r) = tris[t as usize];
+            (c, r)
+        });
         if survivors.is_empty() {
             return;
         }
-        let s = self.h.branching();
-        let below = if k == 1 {
-            self.rays.len()
-        } else {
-            self.h.level(k - 1).len()
-        };
-        for child in j * s..((j + 1) * s).min(below) {
+        for child in self.h.children(k, j, self.rays.len()) {
             if k == 1 {
                 self.out[child - self.base] = self.exact(child, &survivors);
             } else {
@@ -278,29 +268,52 @@ impl Walk<'_> {
             self.kinds[self.order[i] as usize].kind,
             RayKind::Shadow { .. }
         );
-        let tr = TriangleRay::new(ray);
-        let mut best: Option<Hit> = None;
-        let mut tmax = ray.tmax;
-        for &t in candidates {
-            let (p, [a, b, c], ..) = self.scene.tris[t as usize];
-            self.stats.triangle_tests += 1;
-            let Some(h) = tr.intersect(a, b, c, ray.tmin, tmax) else {
-                continue;
-            };
-            if shadow {
-                return Answer::Occluded;
-            }
-            if best.is_none_or(|o| h.t < o.t || (h.t == o.t && p < o.primitive)) {
-                tmax = h.t;
-                best = Some(Hit {
-                    t: h.t,
-                    primitive: p,
-                    u: h.u,
-                    v: h.v,
-                    normal: (b - a).cross(c - a).normalize_or_zero(),
-                });
+        let tests = &mut self.stats.triangle_tests;
+        let tris = &self.scene.tris;
+        let found = exact_hit(ray, ray.tmax, candidates, shadow, tests, |t| {
+            let (p, corners, ..) = tris[t as usize];
+            (p, corners)
+        });
+        match found {
+            None => Answer::Miss,
+            Some(_) if shadow => Answer::Occluded,
+            Some(h) => Answer::Hit(h),
+        }
+    }
+}
+
+/// The exact watertight tests of `ray` within `[ray.tmin, tmax]` against `candidates`, whose mesh index
+/// and corners `tri(t)` gives: the first hit for `any`, else the closest (smallest `t`, then lowest mesh
+/// index). Counts the tests into `tests`. The hierarchies' last step, on one mesh or per world entity.
+pub(crate) fn exact_hit(
+    ray: &crate::Ray,
+    mut tmax: f32,
+    candidates: &[u32],
+    any: bool,
+    tests: &mut u64,
+    tri: impl Fn(u32) -> (u32, [Vec3; 3]),
+) -> Option<Hit> {
+    let tr = TriangleRay::new(ray);
+    let mut best: Option<Hit> = None;
+    for &t in candidates {
+        let (p, [a, b, c]) = tri(t);
+        *tests += 1;
+        let Some(h) = tr.intersect(a, b, c, ray.tmin, tmax) else {
+            continue;
+        };
+        if best.is_none_or(|o| h.t < o.t || (h.t == o.t && p < o.primitive)) {
+            tmax = h.t;
+            best = Some(Hit {
+                t: h.t,
+                primitive: p,
+                u: h.u,
+                v: h.v,
+                normal: (b - a).cross(c - a).normalize_or_zero(),
+            });
+            if any {
+                break;
             }
         }
-        best.map_or(Answer::Miss, Answer::Hit)
     }
+    best
 }

@@ -1,0 +1,290 @@
+//! Ray kinds in the batched queries (seed 002 in the ECS): requests queued as shadow rays toward a light or
+//! as reflection rays form the frame's secondary batches — one of closest-hit rays, one of occlusion
+//! segments — and each batch is traced in the way its planner picks: plain BVH traversal in request order,
+//! the same traversal in key order ([`crate::raysort`]), or the coherent ray-space hierarchy through the
+//! world ([`super::ray_crsh`]). Answers are the same whichever way; only the time differs.
+//!
+//! Primary requests (the default kind, what [`RayQueue::cast`] and [`RayQueue::shadow`] queue) never join a
+//! batch: they are answered as before, packets included, and a frame without secondary requests pays
+//! nothing here.
+
+use super::stats::{OptionStats, PlannedOption};
+use super::{RayHit, RayQueue, RayResults, TraceStats, TraceWorld};
+use crate::adaptive::Choice;
+use crate::geometry::Ray;
+use crate::raysort::{KeyLayout, RayKind, SecondaryRay, sort_rays};
+use crate::{Result, parallel};
+use bevy_ecs::prelude::*;
+use std::time::Instant;
+
+/// What a queued ray is for, which decides whether it joins a secondary batch and how it is keyed there.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RequestKind {
+    /// A camera ray or any request without a kind: answered in queue order, never re-ordered.
+    #[default]
+    Primary,
+    /// A shadow ray toward light `light` (keyed by light and direction, see [`KeyLayout`]).
+    Shadow {
+        /// The light's index; only its low [`KeyLayout::light_bits`] bits enter the key.
+        light: u32,
+    },
+    /// A reflection (or refraction) ray, keyed by quantised origin and direction.
+    Reflection,
+}
+
+impl RequestKind {
+    /// The key kind of a secondary request; `None` for a primary one.
+    fn secondary(self) -> Option<RayKind> {
+        match self {
+            RequestKind::Primary => None,
+            RequestKind::Shadow { light } => Some(RayKind::Shadow { light }),
+            RequestKind::Reflection => Some(RayKind::Reflection),
+        }
+    }
+}
+
+/// The two secondary batches of a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RayBatch {
+    /// Secondary closest-hit requests ([`RayQueue::cast_kind`]).
+    Closest,
+    /// Secondary occlusion requests ([`RayQueue::shadow_kind`]).
+    Occlusion,
+}
+
+/// How a secondary batch is traced.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SecondaryStrategy {
+    /// Each ray through the two-level BVH, in request order: no sort.
+    Bvh,
+    /// The same traversal in key order: costs the keys and the sort (a few ns per ray), pays where
+    /// request order is incoherent.
+    SortedBvh,
+    /// The coherent ray-space hierarchy over the sorted rays, culled against every mesh's world sphere
+    /// and then its triangles' spheres; one sphere test per triangle of every mesh a top node reaches,
+    /// so on the CPU far slower than the BVH on meshes of more than a few hundred triangles.
+    Crsh,
+}
+
+/// Priors of the secondary planners (ours, from `bench raysort` on the crowd's secondary rays, 2-core
+/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. The sorted BVH at 0.8,
+/// optimistic so that it is tried (it measured 0.61–1.12× the BVH's speed on shuffled rays, slower on
+/// rays in pixel order); CRSH at 4 (it runs at 0.04–0.25× the BVH's rays per second), so the planner
+/// never tries it on its own on the CPU; [`SecondaryRays::fixed`] forces it.
+const PRIORS: [(SecondaryStrategy, f64, f64); 3] = [
+    (SecondaryStrategy::Bvh, 1.0, 1.0),
+    (SecondaryStrategy::SortedBvh, 0.8, 1.0),
+    (SecondaryStrategy::Crsh, 4.0, 1.0),
+];
+
+/// How secondary batches are traced: a fixed strategy, or (the default) the strategy each batch's
+/// planner ([`Choice`]) learns is cheapest from the measured seconds per ray of each, whatever the
+/// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
+/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorted BVH is tried (at
+/// most three frames unless it measures cheaper), the sort. The plugin inserts the default; replace
+/// the resource to change it. CPU query path only: when a GPU mode answers the batched queries, the GPU
+/// answers secondary requests too, in request order, and nothing is planned.
+#[derive(Resource, Clone, Debug)]
+pub struct SecondaryRays {
+    fixed: Option<SecondaryStrategy>,
+    layout: KeyLayout,
+    branching: usize,
+    depth: usize,
+    /// The planners of [`RayBatch::Closest`] and [`RayBatch::Occlusion`].
+    planners: [Choice<SecondaryStrategy>; 2],
+}
+
+impl Default for SecondaryRays {
+    /// Planned, the default key layout, CRSH with `s = 8`, `D = 2` (the best shadow shape of
+    /// `bench raysort`).
+    fn default() -> Self {
+        Self::new(None, KeyLayout::default(), 8, 2).expect("the defaults are valid")
+    }
+}
+
+impl SecondaryRays {
+    /// A fixed strategy (`Some`) or the planner (`None`), the key layout of the sorting strategies, and
+    /// CRSH's branching `s` and depth `D`. [`Error::InvalidOption`](crate::Error::InvalidOption) for a layout over 32 bits or a
+    /// hierarchy shape outside `s >= 2, D >= 1, s^D <= 2^24`.
+    pub fn new(
+        fixed: Option<SecondaryStrategy>,
+        layout: KeyLayout,
+        branching: usize,
+        depth: usize,
+    ) -> Result<Self> {
+        layout.validate()?;
+        crate::raysort::hierarchy::check_shape(branching, depth)?;
+        let planner = Choice::new(&PRIORS).expect("three options");
+        Ok(Self {
+            fixed,
+            layout,
+            branching,
+            depth,
+            planners: [planner.clone(), planner],
+        })
+    }
+
+    /// Always `strategy`, planner or not.
+    pub fn fixed(strategy: SecondaryStrategy) -> Self {
+        Self {
+            fixed: Some(strategy),
+            ..Self::default()
+        }
+    }
+
+    /// The strategy for a batch of `units` rays, and whether it is being tried.
+    fn pick(&mut self, batch: RayBatch, units: usize) -> (SecondaryStrategy, bool) {
+        if let Some(s) = self.fixed {
+            return (s, false);
+        }
+        let planner = &mut self.planners[batch as usize];
+        (planner.decide(units as f64), planner.explored())
+    }
+}
+
+/// Answers the secondary requests of `queue` into `out` (already sized by the primary pass, which skips
+/// them), batch by batch, with each batch's strategy; unless the strategy is fixed, teaches the batch's
+/// planner its time and records the pick in `stats`. Allocates per batch (indices, keys, the answers in trace order).
+pub(super) fn answer_secondary(
+    world: &TraceWorld,
+    queue: &RayQueue,
+    config: &mut SecondaryRays,
+    out: &mut RayResults,
+    stats: &mut TraceStats,
+) {
+    let closest: Vec<SecondaryRay> = (queue.rays.iter().enumerate())
+        .filter_map(|(i, r)| secondary(r.ray, r.kind, i))
+        .collect();
+    let occlusion: Vec<SecondaryRay> = (queue.shadows.iter().enumerate())
+        .filter_map(|(i, s)| secondary(Ray::segment(s.from, s.to), s.kind, i))
+        .collect();
+    for (batch, rays) in [
+        (RayBatch::Closest, closest),
+        (RayBatch::Occlusion, occlusion),
+    ] {
+        if rays.is_empty() {
+            continue;
+        }
+        let (strategy, tried) = config.pick(batch, rays.len());
+        let start = Instant::now();
+        let answers = match trace_batch(world, queue, batch, &rays, strategy, config) {
+            Ok(a) => a,
+            Err(e) => {
+                // Unreachable with a validated config; answered in request order rather than lost.
+                log::error!("kinetrace: secondary batch: {e}");
+                trace_batch(world, queue, batch, &rays, SecondaryStrategy::Bvh, config)
+                    .expect("the BVH path does not fail")
+            }
+        };
+        for (r, a) in rays.iter().zip(answers) {
+            let i = r.tag as usize;
+            match batch {
+                RayBatch::Closest => {
+                    let hit = match a {
+                        Answer::Hit(h) => Some(h),
+                        Answer::Miss | Answer::Occluded => None,
+                    };
+                    out.hits[i] = (queue.rays[i].tag, hit);
+                }
+                RayBatch::Occlusion => {
+                    out.shadows[i] = (queue.shadows[i].tag, !matches!(a, Answer::Miss));
+                }
+            }
+        }
+        if config.fixed.is_none() {
+            let seconds = start.elapsed().as_secs_f64();
+            config.planners[batch as usize].served(strategy, rays.len() as f64, seconds);
+            stats.options.push(OptionStats {
+                entity: Entity::PLACEHOLDER,
+                option: PlannedOption::Secondary(batch, strategy),
+                tried,
+            });
+        }
+    }
+}
+
+/// The secondary ray of a queued request with index `index` (its tag here), if its kind is secondary.
+fn secondary(ray: Ray, kind: RequestKind, index: usize) -> Option<SecondaryRay> {
+    Some(SecondaryRay {
+        ray,
+        kind: kind.secondary()?,
+        tag: index as u32,
+    })
+}
+
+/// The answer to one secondary request.
+#[derive(Clone, Debug, Default)]
+enum Answer {
+    #[default]
+    Miss,
+    Occluded,
+    Hit(RayHit),
+}
+
+/// One batch's answers in batch order: closest hits, or occlusion.
+fn trace_batch(
+    world: &TraceWorld,
+    queue: &RayQueue,
+    batch: RayBatch,
+    rays: &[SecondaryRay],
+    strategy: SecondaryStrategy,
+    config: &SecondaryRays,
+) -> Result<Vec<Answer>> {
+    let filter = |j: usize| {
+        let i = rays[j].tag as usize;
+        match batch {
+            RayBatch::Closest => &queue.rays[i].filter,
+            RayBatch::Occlusion => &queue.shadows[i].filter,
+        }
+    };
+    let single = |j: usize| {
+        let i = rays[j].tag as usize;
+        match batch {
+            RayBatch::Closest => (world.cast_ray(&rays[j].ray, f32::INFINITY, filter(j)))
+                .map_or(Answer::Miss, Answer::Hit),
+            RayBatch::Occlusion => {
+                let s = &queue.shadows[i];
+                if world.occluded(s.from, s.to, filter(j)) {
+                    Answer::Occluded
+                } else {
+                    Answer::Miss
+                }
+            }
+        }
+    };
+    let order: Vec<u32> = match strategy {
+        SecondaryStrategy::Bvh => (0..rays.len() as u32).collect(),
+        SecondaryStrategy::SortedBvh => sort_rays(rays, &config.layout, true)?.order,
+        SecondaryStrategy::Crsh => {
+            let sorted = sort_rays(rays, &config.layout, true)?;
+            let valid = &sorted.order[..sorted.valid()];
+            let ordered: Vec<Ray> = valid.iter().map(|&j| rays[j as usize].ray).collect();
+            let filters: Vec<_> = valid.iter().map(|&j| filter(j as usize)).collect();
+            let any = batch == RayBatch::Occlusion;
+            let found = super::ray_crsh::trace(
+                world,
+                &ordered,
+                &filters,
+                any,
+                config.branching,
+                config.depth,
+            )?;
+            let mut answers = vec![Answer::Miss; rays.len()];
+            for ((&j, f), r) in valid.iter().zip(found).zip(&ordered) {
+                answers[j as usize] = match f {
+                    None => Answer::Miss,
+                    Some(_) if any => Answer::Occluded,
+                    Some((e, h)) => Answer::Hit(world.instances[&e].world_hit(e, r, &h)),
+                };
+            }
+            return Ok(answers);
+        }
+    };
+    let mut done = vec![Answer::Miss; rays.len()];
+    parallel::fill(true, &mut done, 64, |k| single(order[k] as usize));
+    let mut answers = vec![Answer::Miss; rays.len()];
+    for (&j, a) in order.iter().zip(done) {
+        answers[j as usize] = a;
+    }
+    Ok(answers)
+}
