@@ -8,7 +8,8 @@
 //! use. An option not measured yet is predicted from a measured one through the priors' ratio, with a 25%
 //! spread, and tried when that prediction, optimistic by one spread (what is unknown may be better than
 //! assumed), beats the option in use — for up to three frames, until its spread is measured: trying
-//! costs at most three frames of the difference, and a frame with no work (`units` = 0) tries nothing.
+//! costs at most three frames of the difference (three tries per option at most, also where a tried
+//! frame measured nothing), and a frame with no work (`units` = 0) tries nothing.
 
 use super::Estimate;
 use super::rank::{Candidate, choose};
@@ -29,6 +30,8 @@ struct Arm<T> {
     prior: (f64, f64),
     per_unit: Estimate,
     overhead: Estimate,
+    /// Frames the option was tried in (at most [`TRIES`]).
+    tries: u32,
 }
 
 /// The planner of one per-mesh choice among a few options (see the module docs). Keep one per mesh and
@@ -60,6 +63,7 @@ impl<T: Copy + PartialEq> Choice<T> {
                     prior: (per_unit, overhead),
                     per_unit: Estimate::default(),
                     overhead: Estimate::default(),
+                    tries: 0,
                 })
                 .collect(),
             settled: current,
@@ -165,12 +169,15 @@ impl<T: Copy + PartialEq> Choice<T> {
         self.settled = chosen;
         let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
         let tried = (self.arms.iter())
-            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES)
+            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES && a.tries < TRIES)
             .find_map(|a| {
                 let (c, _) = self.predict(a.option, units)?;
                 (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
             });
         self.explored = tried.is_some();
+        if let Some(arm) = tried.and_then(|t| self.arm_mut(t)) {
+            arm.tries += 1;
+        }
         self.current = tried.unwrap_or(chosen);
         self.current
     }

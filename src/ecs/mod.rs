@@ -65,6 +65,7 @@ mod filter;
 mod gpu_queries;
 mod maintain;
 mod params;
+mod planned;
 mod plugin;
 mod shape_batch;
 mod shape_queries;
@@ -91,6 +92,8 @@ pub use config::{
 pub use filter::{QueryFilter, RayHit};
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
+#[doc(hidden)]
+pub use planned::{CostScript, ScriptedCost};
 #[allow(deprecated)] // the old name, re-exported until it is removed
 pub use plugin::TraceSet;
 pub use plugin::{KinetracePlugin, Plugin, TraceSystems};

@@ -90,6 +90,10 @@ pub enum PlannedOption {
     /// Queued packet requests meet the mesh as packets (`true`) or ray by ray: a packet shares its node
     /// visits among coherent rays and repays its lane bookkeeping only when they stay together.
     Packets(bool),
+    /// The structure that answers the mesh's rays, for a mesh under [`Structure::Auto`](super::Structure):
+    /// the grid costs a rebuild every frame and repays it only where it answers rays faster than the
+    /// BVH (why it was picked: [`TraceStats::structures`]).
+    Structure(StructureKind),
 }
 
 /// Why a mesh is kept in its structure.
