@@ -17,25 +17,6 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-/// `n` triangles spread evenly over the unit cube, sizes spread over `decades` decades from `s`: what
-/// the profile's rule keeps in a grid (mixed sizes, no empty space).
-fn even_soup(n: usize, s: f32, decades: f32) -> Mesh {
-    let mut r = rng(3);
-    let k = (n as f32).cbrt().ceil() as usize;
-    let mut pos = Vec::with_capacity(3 * n);
-    for i in 0..n {
-        let cell = Vec3::new((i % k) as f32, ((i / k) % k) as f32, (i / (k * k)) as f32);
-        let c = (cell + Vec3::splat(0.5) + rand_vec(&mut r, -0.3, 0.3)) / k as f32;
-        let e = s * 10f32.powf(decades * rand_vec(&mut r, 0.0, 1.0).x);
-        pos.extend([
-            c,
-            c + Vec3::new(e, 0.0, 0.2 * e),
-            c + Vec3::new(0.0, e, 0.5 * e),
-        ]);
-    }
-    Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
-}
-
 /// The option kinds a mesh reports, as indices.
 fn kind(o: PlannedOption) -> usize {
     match o {

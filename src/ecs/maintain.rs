@@ -332,9 +332,7 @@ fn start_from_sibling(
 }
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
-/// first call: the wide tree first, as without the planner; priors, ours: 0.7 × the binary tree's
-/// seconds per ray, and the binary tree's maintenance 0.7 × the wide one's, which has a collapse per
-/// build and a second refit pass): the option is applied (a collapse when the tree comes back) and
+/// first call, [`Choice::wide`]): the option is applied (a collapse when the tree comes back) and
 /// charged this frame's maintenance of the mesh since `start`, its rays are charged by
 /// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
@@ -343,9 +341,7 @@ fn plan_wide<'a>(
     script: Option<&CostScript>,
     e: Entity,
 ) -> &'a Choice<bool> {
-    let wide = (inst.kept.wide).get_or_insert_with(|| {
-        Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
-    });
+    let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
     let on = wide.decide(inst.rays);
     inst.bvh.set_wide(on);
     let measured = start.elapsed().as_secs_f64();
@@ -359,13 +355,10 @@ fn plan_wide<'a>(
 }
 
 /// Whether packet requests meet the mesh as packets from this frame on, decided by its [`Choice`] (made
-/// at its first call: packets first, as without the planner; priors, ours: 0.8 × single rays' seconds
-/// per ray, no overhead either way). Its rays are charged by [`TraceWorld::attribute_queries`] to the
+/// at its first call, [`Choice::packets`]). Its rays are charged by [`TraceWorld::attribute_queries`] to the
 /// option in use. O(1).
 fn plan_packets(inst: &mut Instance) -> &Choice<bool> {
-    let packets = (inst.kept.packets).get_or_insert_with(|| {
-        Choice::new(&[(true, 0.8, 1.0), (false, 1.0, 1.0)]).expect("two options")
-    });
+    let packets = (inst.kept.packets).get_or_insert_with(Choice::packets);
     packets.decide(inst.rays);
     packets
 }
