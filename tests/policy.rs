@@ -9,6 +9,9 @@ mod grid_rows;
 #[allow(dead_code)] // the report's harness: only the adaptive strategy runs here
 #[path = "../examples/report/harness.rs"]
 mod harness;
+#[allow(dead_code)] // the report's option rows: the harness names them
+#[path = "../examples/report/option_rows.rs"]
+mod option_rows;
 #[allow(dead_code)]
 #[path = "../examples/report/scenes.rs"]
 mod scenes;

@@ -189,25 +189,6 @@ fn documented_rule(p: &SceneProfile) -> StructureKind {
     }
 }
 
-/// `n` triangles in the unit cube, centres on a jittered lattice (evenly spread), edges `s` times `10^x`
-/// with `x` uniform in `[0, decades]`: alike triangles for 0 decades, mixed sizes for more.
-fn even_soup(n: usize, s: f32, decades: f32) -> Mesh {
-    let mut r = rng(3);
-    let k = (n as f32).cbrt().ceil() as usize;
-    let mut pos = Vec::with_capacity(3 * n);
-    for i in 0..n {
-        let cell = Vec3::new((i % k) as f32, ((i / k) % k) as f32, (i / (k * k)) as f32);
-        let c = (cell + Vec3::splat(0.5) + rand_vec(&mut r, -0.3, 0.3)) / k as f32;
-        let e = s * 10f32.powf(decades * rand_vec(&mut r, 0.0, 1.0).x);
-        pos.extend([
-            c,
-            c + Vec3::new(e, 0.0, 0.2 * e),
-            c + Vec3::new(0.0, e, 0.5 * e),
-        ]);
-    }
-    Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
-}
-
 /// A teapot in a stadium: two huge floor triangles and a tight cluster of tiny ones in a corner.
 fn stadium(n: usize) -> Mesh {
     let mut pos = vec![

@@ -27,11 +27,11 @@ use super::harness::{
     Frame, FrameRecord, Settings, Strategy, Traced, mismatches, query, run_strategy,
 };
 use glam::Vec3;
-use kinetrace::Ray;
 use kinetrace::bvh::{Hit, TraversalStats};
 use kinetrace::characterize::profile_mesh;
 use kinetrace::grid::choice::empty_bin_fraction;
 use kinetrace::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
+use kinetrace::{MeshBvh, Ray};
 use std::time::Instant;
 
 /// The structure strategies, in their rows' order.
@@ -166,25 +166,56 @@ impl Traced for UniformGrid {
     }
 }
 
+/// A structure that answers the report's ray load in packets too (the grid's and the BVH's packet
+/// traversals).
+pub trait PacketTraced: Traced {
+    fn closest_hits_packet(&self, rays: &[Ray], out: &mut [Option<Hit>], s: &mut TraversalStats);
+    fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], s: &mut TraversalStats);
+}
+
+impl PacketTraced for UniformGrid {
+    fn closest_hits_packet(&self, rays: &[Ray], out: &mut [Option<Hit>], s: &mut TraversalStats) {
+        UniformGrid::closest_hits_packet(self, rays, out, s)
+    }
+    fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], s: &mut TraversalStats) {
+        UniformGrid::any_hits_packet(self, rays, out, s)
+    }
+}
+
+impl PacketTraced for MeshBvh {
+    fn closest_hits_packet(&self, rays: &[Ray], out: &mut [Option<Hit>], s: &mut TraversalStats) {
+        MeshBvh::closest_hits_packet(self, rays, out, s)
+    }
+    fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], s: &mut TraversalStats) {
+        MeshBvh::any_hits_packet(self, rays, out, s)
+    }
+}
+
 /// Buffers of the packet queries, grown once.
 #[derive(Default)]
-struct Scratch {
-    hits: Vec<Option<Hit>>,
+pub struct Scratch {
+    /// The closest hits of the last [`query_packets`](Self::query_packets), one per ray.
+    pub hits: Vec<Option<Hit>>,
     shadows: Vec<Ray>,
     blocked: Vec<bool>,
 }
 
 impl Scratch {
-    /// The report's ray load through the grid in packets of [`PACKET`]: the closest hits, then the shadow
-    /// rays of the hits toward the light.
-    fn query_packets(&mut self, grid: &UniformGrid, rays: &[Ray], light: Vec3) -> (f64, u64) {
+    /// The report's ray load through `structure` in packets of [`PACKET`]: the closest hits, then the
+    /// shadow rays of the hits toward the light.
+    pub fn query_packets<T: PacketTraced>(
+        &mut self,
+        structure: &T,
+        rays: &[Ray],
+        light: Vec3,
+    ) -> (f64, u64) {
         self.hits.resize(rays.len(), None);
         self.shadows.reserve(rays.len());
         self.blocked.reserve(rays.len());
         let mut stats = TraversalStats::default();
         let start = Instant::now();
         for (r, out) in rays.chunks(PACKET).zip(self.hits.chunks_mut(PACKET)) {
-            grid.closest_hits_packet(r, out, &mut stats);
+            structure.closest_hits_packet(r, out, &mut stats);
         }
         self.shadows.clear();
         self.shadows
@@ -198,8 +229,8 @@ impl Scratch {
             .chunks(PACKET)
             .zip(self.blocked.chunks_mut(PACKET))
         {
-            grid.any_hits_packet(r, out, &mut stats);
+            structure.any_hits_packet(r, out, &mut stats);
         }
-        (start.elapsed().as_secs_f64(), UniformGrid::steps(&stats))
+        (start.elapsed().as_secs_f64(), T::steps(&stats))
     }
 }

@@ -3,6 +3,7 @@
 //! frame (SAH cost and traversal steps per ray), and sampled rays checked against brute force.
 
 use super::grid_rows::{self, StructureStrategy};
+use super::option_rows::{self, OptionStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, TreeCost};
@@ -41,6 +42,8 @@ pub enum Strategy {
     },
     /// A grid instead of a maintained BVH, or the structure rule's choice (see `grid_rows`).
     Structure(StructureStrategy),
+    /// A per-mesh option fixed, or the planner's picks (see `option_rows`).
+    Options(OptionStrategy),
 }
 
 impl Strategy {
@@ -69,9 +72,11 @@ impl Strategy {
     pub fn all(gpu: bool) -> Vec<Strategy> {
         let extra = if gpu { &Self::GPU[..] } else { &[] };
         let structures = grid_rows::STRATEGIES.map(Strategy::Structure);
+        let options = option_rows::STRATEGIES.map(Strategy::Options);
         Self::CPU
             .iter()
             .chain(&structures)
+            .chain(&options)
             .chain(extra)
             .copied()
             .collect()
@@ -87,6 +92,7 @@ impl Strategy {
             Strategy::Adaptive { gpu: false } => "adaptive".into(),
             Strategy::Adaptive { gpu: true } => "adaptive-gpu".into(),
             Strategy::Structure(s) => s.name().into(),
+            Strategy::Options(s) => s.name().into(),
         }
     }
 
@@ -94,6 +100,7 @@ impl Strategy {
         match self {
             Strategy::Adaptive { .. } => false,
             Strategy::Structure(s) => s.is_fixed(),
+            Strategy::Options(s) => s.is_fixed(),
             _ => true,
         }
     }
@@ -339,6 +346,9 @@ pub fn run_strategy(
     if let Strategy::Structure(s) = strategy {
         return grid_rows::run(s, frames, settings);
     }
+    if let Strategy::Options(s) = strategy {
+        return option_rows::run(s, frames, settings);
+    }
     let (mesh0, ..) = &frames[0];
     let mut adaptive = adaptive_policy(strategy, &CostTable::new(), mesh0);
     let first = match strategy {
@@ -396,6 +406,7 @@ pub fn run_strategy(
                     d > t
                 }
                 Strategy::Structure(_) => unreachable!("run by grid_rows"),
+                Strategy::Options(_) => unreachable!("run by option_rows"),
                 Strategy::Adaptive { .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
                     if adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64) {

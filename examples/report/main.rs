@@ -13,6 +13,7 @@
 
 mod grid_rows;
 mod harness;
+mod option_rows;
 mod output;
 mod planner;
 mod plots;

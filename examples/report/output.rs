@@ -4,6 +4,7 @@
 //! `SCENE-frames.png` (per-frame curves of time and error); the figures are drawn in [`super::plots`].
 
 use super::harness::{FrameRecord, Settings, Strategy, find_gpu, run_scene};
+use super::option_rows;
 use super::planner;
 use super::plots;
 use super::scenes::Scene;
@@ -89,6 +90,7 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
     );
     let (mut rows, mut files) = (Vec::new(), Vec::new());
     let mut cold = Vec::new();
+    let mut picks = Vec::new();
     for scene in &scenes {
         let runs = (0..settings.runs.max(1))
             .map(|_| run_scene(scene, settings, &strategies, gpu.as_ref()))
@@ -118,6 +120,11 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
             }
             rows.push(row(scene.name, s, recs));
         }
+        let totals: Vec<(String, f64)> = (rows[first..].iter())
+            .map(|r: &Row| (r.strategy.clone(), r.total_ms))
+            .collect();
+        let taken = option_rows::take_picks();
+        picks.push(option_rows::picks_row(scene.name, &taken, &totals));
         let png = out.join(format!("{}.png", scene.name));
         plots::error_vs_time(&png, scene.name, &rows[first..], &looks, settings.frames)?;
         files.push(png);
@@ -126,8 +133,9 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         files.push(png);
     }
     let crowds = [true, false].map(|shared| planner::instance_crowd(settings, 256, shared));
-    let planner_sections =
-        planner::cold_start_table(&cold) + &planner::instance_crowd_table(&crowds);
+    let planner_sections = planner::cold_start_table(&cold)
+        + &planner::instance_crowd_table(&crowds)
+        + &option_rows::picks_table(&picks);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);

@@ -74,6 +74,8 @@ pub fn looks(strategies: &[Strategy]) -> Vec<Look> {
                 Strategy::Lauterbach(_) => Shape::Triangle,
                 Strategy::Adaptive { .. } => Shape::Diamond,
                 Strategy::Structure(_) => Shape::Square,
+                Strategy::Options(o) if !o.is_fixed() => Shape::Diamond,
+                Strategy::Options(_) => Shape::Triangle,
             },
         })
         .collect()

@@ -8,10 +8,16 @@
 //! use. An option not measured yet is predicted from a measured one through the priors' ratio, with a 25%
 //! spread, and tried when that prediction, optimistic by one spread (what is unknown may be better than
 //! assumed), beats the option in use — for up to three frames, until its spread is measured: trying
-//! costs at most three frames of the difference, and a frame with no work (`units` = 0) tries nothing.
+//! costs at most three frames of the difference (three tries per option at most, also where a tried
+//! frame measured nothing), and a frame with no work (`units` = 0) tries nothing.
+//!
+//! Hysteresis, in numbers: with costs that jitter around equal ones (±10% in `tests/options.rs`), the
+//! option in use changes at most twice per other option — to a try and back — and never once both are
+//! measured, since the margin is `z` standard deviations of the difference of two frames' predictions.
 
 use super::Estimate;
 use super::rank::{Candidate, choose};
+use crate::grid::StructureKind;
 
 /// Relative spread of a prediction made from a prior.
 const PRIOR_SPREAD: f64 = 0.25;
@@ -29,6 +35,8 @@ struct Arm<T> {
     prior: (f64, f64),
     per_unit: Estimate,
     overhead: Estimate,
+    /// Frames the option was tried in (at most [`TRIES`]).
+    tries: u32,
 }
 
 /// The planner of one per-mesh choice among a few options (see the module docs). Keep one per mesh and
@@ -60,6 +68,7 @@ impl<T: Copy + PartialEq> Choice<T> {
                     prior: (per_unit, overhead),
                     per_unit: Estimate::default(),
                     overhead: Estimate::default(),
+                    tries: 0,
                 })
                 .collect(),
             settled: current,
@@ -165,12 +174,15 @@ impl<T: Copy + PartialEq> Choice<T> {
         self.settled = chosen;
         let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
         let tried = (self.arms.iter())
-            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES)
+            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES && a.tries < TRIES)
             .find_map(|a| {
                 let (c, _) = self.predict(a.option, units)?;
                 (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
             });
         self.explored = tried.is_some();
+        if let Some(arm) = tried.and_then(|t| self.arm_mut(t)) {
+            arm.tries += 1;
+        }
         self.current = tried.unwrap_or(chosen);
         self.current
     }
@@ -181,5 +193,34 @@ impl<T: Copy + PartialEq> Choice<T> {
 
     fn arm_mut(&mut self, option: T) -> Option<&mut Arm<T>> {
         self.arms.iter_mut().find(|a| a.option == option)
+    }
+}
+
+/// The per-mesh choices the ECS plans, with our priors (replaced by measurements at once).
+impl Choice<StructureKind> {
+    /// A mesh's structure: `prior` (the profile rule's pick, [`crate::grid::choose_structure`]) in use
+    /// first; the other with 1.2 × its seconds per ray and an overhead of 2 × the BVH's for the grid (a
+    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Why: `ecs::planned`.
+    pub fn structure(prior: StructureKind) -> Self {
+        let (other, overhead) = match prior {
+            StructureKind::Bvh => (StructureKind::Grid, 2.0),
+            StructureKind::Grid => (StructureKind::Bvh, 0.5),
+        };
+        Choice::new(&[(prior, 1.0, 1.0), (other, 1.2, overhead)]).expect("two options")
+    }
+}
+
+impl Choice<bool> {
+    /// Whether a mesh keeps the wide query tree: on first, as without the planner; 0.7 × the binary
+    /// tree's seconds per ray, and the binary tree's maintenance 0.7 × the wide one's (a collapse per
+    /// build and a second refit pass).
+    pub fn wide() -> Self {
+        Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
+    }
+
+    /// Whether packet requests meet a mesh as packets: on first, as without the planner; 0.8 × single
+    /// rays' seconds per ray, no overhead either way.
+    pub fn packets() -> Self {
+        Choice::new(&[(true, 0.8, 1.0), (false, 1.0, 1.0)]).expect("two options")
     }
 }

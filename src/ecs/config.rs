@@ -175,9 +175,11 @@ impl Default for RebuildPolicy {
 /// queries the grid does not answer read it — [`ray_hits`](super::TraceWorld::ray_hits), collisions, the
 /// shape queries (casts, closest points, overlaps, containment), `world_triangles` and batches answered on
 /// the GPU — as does the entity's world box; on exploding geometry those queries slow down as the
-/// never-rebuilt BVH degrades. Under [`Auto`](Self::Auto) the ECS decides from the profile alone (no
-/// per-mesh query times are measured yet); the decision and its reason are in
-/// [`TraceStats::structures`](super::TraceStats). A change of structure takes effect the next time the mesh
+/// never-rebuilt BVH degrades. Under [`Auto`](Self::Auto) the profile's rule decides; with
+/// [`RebuildPolicy::Adaptive`] it is only the prior, and the mesh's measured costs (maintenance, grid
+/// rebuild included, and its share of the batched query time) decide through the planner, which tries
+/// the other structure for at most three frames (module `planned`); the decision and its reason are in
+/// [`TraceStats::structures`](super::TraceStats), the planner's pick in `TraceStats::options`. A change of structure takes effect the next time the mesh
 /// is maintained: at once for a changed [`TraceStructure`], at the mesh's next deformation for a changed
 /// [`TraceConfig::structure`] — so a static mesh under [`Auto`](Self::Auto) keeps the BVH it was first built
 /// with (its profile arrives a frame later).
@@ -188,7 +190,8 @@ pub enum Structure {
     Bvh,
     /// A uniform grid ([`UniformGrid`](crate::grid::UniformGrid)) rebuilt every frame the mesh changes.
     Grid,
-    /// The rule of [`grid::choice`](crate::grid::choice) on the mesh's current profile.
+    /// The rule of [`grid::choice`](crate::grid::choice) on the mesh's current profile; under
+    /// [`RebuildPolicy::Adaptive`], the planner's pick from measured costs with that rule as the prior.
     Auto,
 }
 

@@ -2,6 +2,7 @@
 //! on the chosen device — and feed the adaptive policy what it measured.
 
 use super::config::lauterbach;
+use super::planned::{CostScript, plan_structure, scripted, structure_for};
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
@@ -9,7 +10,7 @@ use crate::adaptive::{
     AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost,
 };
 use crate::bvh::{BuildOptions, MeshBvh, PartialOptions};
-use crate::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
+use crate::grid::{GridOptions, StructureKind, UniformGrid};
 use crate::{Error, Mesh};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -88,6 +89,7 @@ pub(crate) fn maintain_system(
         }
         world.remove(e);
     }
+    let script = world.script.clone();
     let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
     let mut rebuilder = Rebuilder {
         config: &config,
@@ -118,7 +120,12 @@ pub(crate) fn maintain_system(
                 }
             }
         }
-        let (structure, why) = structure_for(wanted, world.instances.get(&e));
+        let planned =
+            wanted == Structure::Auto && matches!(config.policy, RebuildPolicy::Adaptive { .. });
+        let (structure, why) = match world.instances.get_mut(&e) {
+            Some(inst) if planned => plan_structure(inst),
+            inst => structure_for(wanted, inst.map(|i| &*i)),
+        };
         if let Some(inst) = world
             .instances
             .get_mut(&e)
@@ -206,8 +213,21 @@ pub(crate) fn maintain_system(
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
+        if let Some(choice) = inst.kept.structure.as_mut() {
+            let option = PlannedOption::Structure(structure);
+            let measured = t.elapsed().as_secs_f64();
+            choice.kept(
+                structure,
+                scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
+            );
+            stats.options.push(OptionStats {
+                entity: e,
+                option,
+                tried: choice.explored(),
+            });
+        }
         if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
-            let wide = plan_wide(inst, t);
+            let wide = plan_wide(inst, t, script.as_ref(), e);
             stats.options.push(OptionStats {
                 entity: e,
                 option: PlannedOption::Wide(wide.current()),
@@ -284,13 +304,14 @@ fn start_from_sibling(
         return Ok(false);
     }
     let topology = topology_id(&mesh.0);
-    let Some((bvh, policy, wide, packets)) = world.instances.values().find_map(|i| {
+    let Some((bvh, policy, wide, packets, structure)) = world.instances.values().find_map(|i| {
         let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
         Some((
             i.bvh.clone(),
             policy.sibling(),
             i.kept.wide.clone(),
             i.kept.packets.clone(),
+            i.kept.structure.clone(),
         ))
     }) else {
         return Ok(false);
@@ -300,6 +321,7 @@ fn start_from_sibling(
         adaptive: Some(policy),
         wide,
         packets,
+        structure,
         ..Kept::default()
     };
     let mut inst = Instance::new(bvh, topology, kept);
@@ -311,48 +333,35 @@ fn start_from_sibling(
 }
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
-/// first call: the wide tree first, as without the planner; priors, ours: 0.7 × the binary tree's
-/// seconds per ray, and the binary tree's maintenance 0.7 × the wide one's, which has a collapse per
-/// build and a second refit pass): the option is applied (a collapse when the tree comes back) and
+/// first call, [`Choice::wide`]): the option is applied (a collapse when the tree comes back) and
 /// charged this frame's maintenance of the mesh since `start`, its rays are charged by
 /// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
-fn plan_wide(inst: &mut Instance, start: Instant) -> &Choice<bool> {
-    let wide = (inst.kept.wide).get_or_insert_with(|| {
-        Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
-    });
+fn plan_wide<'a>(
+    inst: &'a mut Instance,
+    start: Instant,
+    script: Option<&CostScript>,
+    e: Entity,
+) -> &'a Choice<bool> {
+    let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
     let on = wide.decide(inst.rays);
     inst.bvh.set_wide(on);
-    wide.kept(on, start.elapsed().as_secs_f64());
+    let measured = start.elapsed().as_secs_f64();
+    wide.kept(
+        on,
+        scripted(script, e, PlannedOption::Wide(on), measured, |c| {
+            c.overhead_s
+        }),
+    );
     wide
 }
 
 /// Whether packet requests meet the mesh as packets from this frame on, decided by its [`Choice`] (made
-/// at its first call: packets first, as without the planner; priors, ours: 0.8 × single rays' seconds
-/// per ray, no overhead either way). Its rays are charged by [`TraceWorld::attribute_queries`] to the
+/// at its first call, [`Choice::packets`]). Its rays are charged by [`TraceWorld::attribute_queries`] to the
 /// option in use. O(1).
 fn plan_packets(inst: &mut Instance) -> &Choice<bool> {
-    let packets = (inst.kept.packets).get_or_insert_with(|| {
-        Choice::new(&[(true, 0.8, 1.0), (false, 1.0, 1.0)]).expect("two options")
-    });
+    let packets = (inst.kept.packets).get_or_insert_with(Choice::packets);
     packets.decide(inst.rays);
     packets
-}
-
-/// The structure a mesh is to be kept in under `wanted`, and why; under [`Structure::Auto`] the rule of
-/// [`crate::grid::choice`] on the instance's profile (none yet for a new mesh: the BVH).
-fn structure_for(wanted: Structure, inst: Option<&Instance>) -> (StructureKind, StructureWhy) {
-    match wanted {
-        Structure::Bvh => (StructureKind::Bvh, StructureWhy::Fixed),
-        Structure::Grid => (StructureKind::Grid, StructureWhy::Fixed),
-        Structure::Auto => {
-            let choice = choose_structure(&ChoiceInput {
-                profile: inst.and_then(|i| i.profile.as_deref()),
-                costs: None,
-                current: inst.map(|i| i.structure),
-            });
-            (choice.structure, StructureWhy::Rule(choice.reason))
-        }
-    }
 }
 
 impl Instance {

@@ -66,6 +66,7 @@ pub mod gpu_frame;
 mod gpu_queries;
 mod maintain;
 mod params;
+mod planned;
 mod plugin;
 mod ray_crsh;
 mod ray_kinds;
@@ -95,6 +96,8 @@ pub use filter::{QueryFilter, RayHit};
 pub use gpu_frame::GpuOnly;
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
+#[doc(hidden)]
+pub use planned::{CostScript, ScriptedCost};
 #[allow(deprecated)] // the old name, re-exported until it is removed
 pub use plugin::TraceSet;
 pub use plugin::{KinetracePlugin, Plugin, TraceSystems};

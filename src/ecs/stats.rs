@@ -93,6 +93,10 @@ pub enum PlannedOption {
     /// How this frame's batch of secondary rays was traced ([`SecondaryRays`](super::SecondaryRays)). A
     /// choice per batch, not per mesh: its [`OptionStats::entity`] is `Entity::PLACEHOLDER`.
     Secondary(super::RayBatch, super::SecondaryStrategy),
+    /// The structure that answers the mesh's rays, for a mesh under [`Structure::Auto`](super::Structure):
+    /// the grid costs a rebuild every frame and repays it only where it answers rays faster than the
+    /// BVH (why it was picked: [`TraceStats::structures`]).
+    Structure(StructureKind),
 }
 
 /// Why a mesh is kept in its structure.

@@ -1,8 +1,9 @@
 //! The acceleration structures of a world: one BLAS per entity in object space, a TLAS over the entities'
 //! world boxes, and the two-level queries.
 
+use super::planned::{CostScript, scripted};
 use super::top_level::TopLevelState;
-use super::{QueryFilter, RayHit, StructureWhy};
+use super::{PlannedOption, QueryFilter, RayHit, StructureWhy};
 use crate::Mesh;
 use crate::bvh::{Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
@@ -54,6 +55,9 @@ pub(crate) struct Kept {
     /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy): whether packet requests meet the mesh as
     /// packets (`true`) or ray by ray, decided from the measured seconds per ray of each way.
     pub packets: Option<crate::adaptive::Choice<bool>>,
+    /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy) and [`Structure::Auto`](super::Structure):
+    /// whether the mesh's rays meet its BVH or its grid (see `planned`).
+    pub structure: Option<crate::adaptive::Choice<StructureKind>>,
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
@@ -247,6 +251,8 @@ pub struct TraceWorld {
     pub(crate) membership_changed: bool,
     /// Incremented whenever anything a query reads changed (for GPU uploads).
     pub(crate) version: u64,
+    /// Test hook: scripted costs for the option planners (see [`script_costs`](Self::script_costs)).
+    pub(crate) script: Option<CostScript>,
 }
 
 impl TraceWorld {
@@ -301,6 +307,14 @@ impl TraceWorld {
         self.tlas_entities[prim as usize]
     }
 
+    /// Test hook: from now on the per-mesh option planners (structure, wide tree, packets) learn the
+    /// seconds `script` gives for the option in use instead of what they measure (`None`: measure again).
+    /// For tests of the planners' decisions with known costs; not for production use.
+    #[doc(hidden)]
+    pub fn script_costs(&mut self, script: Option<CostScript>) {
+        self.script = script;
+    }
+
     pub(crate) fn remove(&mut self, e: Entity) -> bool {
         let gone = self.instances.remove(&e).is_some();
         if gone {
@@ -316,7 +330,8 @@ impl TraceWorld {
     /// ray enters it), and each mesh's, `p_i · C_i` with `p_i` the mesh's world-box area over the scene
     /// box's (the chance that a ray through the scene reaches it) and `C_i` its SAH cost; each mesh is told
     /// it received `rays · p_i` rays, the top level all of them (meshes kept as grids take no share: their
-    /// time is not BVH time). The shares add up to the measured time;
+    /// time is not BVH time; except where the planner chooses the structure, whose grid takes the share its
+    /// BVH would, `C_i` its BVH's last cost, and teaches only that choice). The shares add up to the measured time;
     /// how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
     /// no allocation.
     pub(crate) fn attribute_queries(&mut self, rays: usize, seconds: f64) {
@@ -331,8 +346,8 @@ impl TraceWorld {
         // A mesh kept as a grid is answered by its grid: its BVH's SAH cost says nothing of its query time,
         // and its time must not teach the planner's shared BVH rates. It gets no share of the work.
         let bvh_sah = |i: &Instance| match i.structure {
-            StructureKind::Bvh => i.sah,
-            StructureKind::Grid => 0.0,
+            StructureKind::Grid if i.kept.structure.is_none() => 0.0,
+            _ => i.sah,
         };
         let work = self.top.sah
             + self
@@ -341,20 +356,31 @@ impl TraceWorld {
                 .map(|i| share(i) * bvh_sah(i))
                 .sum::<f64>();
         self.attribute_top_level(rays, seconds, work);
-        for inst in self.instances.values_mut() {
+        let script = self.script.as_ref();
+        for (&e, inst) in self.instances.iter_mut() {
             let p = share(inst);
             inst.rays = rays as f64 * p;
+            if work <= 0.0 || inst.kept.adaptive.is_none() {
+                continue;
+            }
+            let share = seconds * p * bvh_sah(inst) / work;
+            let rays = inst.rays;
+            let learned = |option| scripted(script, e, option, share, |c| c.per_ray_s * rays);
+            if let Some(structure) = inst.kept.structure.as_mut() {
+                let kind = inst.structure;
+                structure.served(kind, rays, learned(PlannedOption::Structure(kind)));
+            }
             if let Some(policy) = inst.kept.adaptive.as_mut()
                 && inst.structure == StructureKind::Bvh
-                && work > 0.0
             {
-                let share = seconds * p * inst.sah / work;
-                policy.queried(inst.rays, inst.sah, share);
+                policy.queried(rays, inst.sah, share);
                 if let Some(wide) = inst.kept.wide.as_mut() {
-                    wide.served(inst.bvh.wide().is_some(), inst.rays, share);
+                    let on = inst.bvh.wide().is_some();
+                    wide.served(on, rays, learned(PlannedOption::Wide(on)));
                 }
                 if let Some(packets) = inst.kept.packets.as_mut() {
-                    packets.served(packets.current(), inst.rays, share);
+                    let on = packets.current();
+                    packets.served(on, rays, learned(PlannedOption::Packets(on)));
                 }
             }
         }

@@ -6,6 +6,10 @@
 //! **The rule is ours.** The seeds give none: seed 001 (the grid) assumes the grid, seed 003 (the
 //! characteriser) profiles a scene but decides nothing. The rule, in order:
 //!
+//! Under the ECS's adaptive policy this rule is only the prior: rules 2 and 3 pick the structure a mesh
+//! starts in, and the planner (`ecs::planned`, [`Choice`](crate::adaptive::Choice)) decides from what
+//! each structure measured, with the planner's margin instead of rule 1's.
+//!
 //! 1. **Measured costs decide when there are any.** With [`StructureCosts`] for both structures (seconds per
 //!    frame: update plus the frame's queries), the cheaper one answers; the structure in use is kept unless
 //!    the other is cheaper by more than [`SWITCH_MARGIN`] (10%), so that noise in the timings does not flip

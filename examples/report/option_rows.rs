@@ -1,0 +1,231 @@
+//! The report's planned-option rows: the per-mesh options the ECS's planner picks under the adaptive
+//! policy ([`Choice`]: structure, wide query tree, packets), each fixed alternative as a row beside the
+//! planner's pick. All on `lauterbach-0.4` maintenance (the ECS's default; that row is the BVH with the
+//! wide tree on and single rays):
+//! - `bvh-packets`: the BVH's queries in packets of 16 consecutive rays (the report's rays are incoherent:
+//!   see `grid_rows`), shadow rays too;
+//! - `wide-off`: the binary tree only (no collapse per build, no wide refit);
+//! - `planned-options`: per frame, the structure (`Choice::structure`, the profile rule's pick of the
+//!   first frame as prior; the BVH is refitted under the grid as in the ECS), then for the BVH the wide
+//!   tree and packets (`Choice::wide`, `Choice::packets`), each learning the frame's measured update and
+//!   query seconds. Its picks (frames per option) are in the summary's planned-options section.
+//!
+//! Same error terms and brute-force checks as every row: the answers checked are those the timed run gave.
+
+use super::grid_rows::Scratch;
+use super::harness::{Frame, FrameRecord, Settings, mismatches, query};
+use kinetrace::adaptive::Choice;
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::characterize::profile_mesh;
+use kinetrace::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
+use kinetrace::{MeshBvh, Ray};
+use std::fmt::Write as _;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// The option strategies, in their rows' order.
+pub const STRATEGIES: [OptionStrategy; 3] = [
+    OptionStrategy::BvhPackets,
+    OptionStrategy::WideOff,
+    OptionStrategy::Planned,
+];
+
+/// An option strategy.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OptionStrategy {
+    BvhPackets,
+    WideOff,
+    Planned,
+}
+
+impl OptionStrategy {
+    pub fn name(&self) -> &'static str {
+        match self {
+            OptionStrategy::BvhPackets => "bvh-packets",
+            OptionStrategy::WideOff => "wide-off",
+            OptionStrategy::Planned => "planned-options",
+        }
+    }
+
+    pub fn is_fixed(&self) -> bool {
+        *self != OptionStrategy::Planned
+    }
+}
+
+/// Frames of `planned-options` on each option: grid, wide off, packets on (of `frames`; wide and
+/// packets counted over the BVH's frames, `bvh_frames`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Picks {
+    pub frames: usize,
+    pub grid: usize,
+    pub bvh_frames: usize,
+    pub wide_off: usize,
+    pub packets: usize,
+}
+
+/// The picks of every `planned-options` run since the last [`take_picks`], in run order.
+static PICKS: Mutex<Vec<Picks>> = Mutex::new(Vec::new());
+
+/// The picks of the `planned-options` runs since the last call, summed (one scene's runs).
+pub fn take_picks() -> Picks {
+    let runs = std::mem::take(&mut *PICKS.lock().expect("not poisoned"));
+    runs.iter().fold(Picks::default(), |a, p| Picks {
+        frames: a.frames + p.frames,
+        grid: a.grid + p.grid,
+        bvh_frames: a.bvh_frames + p.bvh_frames,
+        wide_off: a.wide_off + p.wide_off,
+        packets: a.packets + p.packets,
+    })
+}
+
+/// The per-mesh planners of `planned-options`.
+struct Planners {
+    structure: Choice<StructureKind>,
+    wide: Choice<bool>,
+    packets: Choice<bool>,
+}
+
+/// Runs `strategy` over a scene's `frames`.
+pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> Vec<FrameRecord> {
+    let mut planners = (strategy == OptionStrategy::Planned).then(|| {
+        let prior = choose_structure(&ChoiceInput {
+            profile: Some(&profile_mesh(&frames[0].0)),
+            ..Default::default()
+        });
+        Planners {
+            structure: Choice::structure(prior.structure),
+            wide: Choice::wide(),
+            packets: Choice::packets(),
+        }
+    });
+    let build = |mesh, wide| {
+        let options = BuildOptions::new(Builder::LBVH).wide(wide);
+        MeshBvh::build(mesh, &options).expect("scene meshes are valid")
+    };
+    let options = GridOptions {
+        parallel: false,
+        ..Default::default()
+    };
+    let mut grid = UniformGrid::new(options).expect("λ 5, macrocells of 6: valid");
+    let mut bvh = build(&frames[0].0, strategy != OptionStrategy::WideOff);
+    let mut scratch = Scratch::default();
+    let mut picks = Picks::default();
+    let mut records = Vec::with_capacity(frames.len());
+    for (f, (mesh, rays, light, reference)) in frames.iter().enumerate() {
+        let n = rays.len() as f64;
+        let (kind, wide, packets) = match (&mut planners, strategy) {
+            (Some(p), _) => match p.structure.decide(n) {
+                StructureKind::Bvh => (StructureKind::Bvh, p.wide.decide(n), p.packets.decide(n)),
+                StructureKind::Grid => (StructureKind::Grid, p.wide.current(), false),
+            },
+            (None, s) => (
+                StructureKind::Bvh,
+                s != OptionStrategy::WideOff,
+                s == OptionStrategy::BvhPackets,
+            ),
+        };
+        let start = Instant::now();
+        let mut rebuilt = f == 0;
+        if f > 0 && bvh.refit(mesh.positions()).expect("same topology") > 0.4 {
+            bvh = build(mesh, wide);
+            rebuilt = true;
+        }
+        bvh.set_wide(wide);
+        if kind == StructureKind::Grid {
+            grid.rebuild(mesh).expect("scene meshes are valid");
+            rebuilt = true;
+        }
+        let update_s = if f == 0 {
+            0.0
+        } else {
+            start.elapsed().as_secs_f64()
+        };
+        let (query_s, steps) = match (kind, packets) {
+            (StructureKind::Grid, _) => query(&grid, rays, *light),
+            (StructureKind::Bvh, true) => scratch.query_packets(&bvh, rays, *light),
+            (StructureKind::Bvh, false) => query(&bvh, rays, *light),
+        };
+        if let Some(p) = &mut planners {
+            p.structure.kept(kind, update_s);
+            p.structure.served(kind, n, query_s);
+            picks.frames += 1;
+            picks.grid += (kind == StructureKind::Grid) as usize;
+            if kind == StructureKind::Bvh {
+                p.wide.kept(wide, update_s);
+                p.wide.served(wide, n, query_s);
+                p.packets.served(packets, n, query_s);
+                picks.bvh_frames += 1;
+                picks.wide_off += !wide as usize;
+                picks.packets += packets as usize;
+            }
+        }
+        let checked = &rays[..settings.checked_rays.min(rays.len())];
+        let answer = |r: &Ray| match (kind, packets) {
+            (StructureKind::Grid, _) => grid.closest_hit(r).map(|h| h.t),
+            (StructureKind::Bvh, true) => {
+                // The timed run's answer for this ray.
+                let i = checked.iter().position(|c| std::ptr::eq(c, r))?;
+                scratch.hits[i].map(|h| h.t)
+            }
+            (StructureKind::Bvh, false) => bvh.closest_hit(r).map(|h| h.t),
+        };
+        records.push(FrameRecord {
+            frame: f as u32,
+            update_s,
+            query_s,
+            rebuilt,
+            sah_ratio: match kind {
+                StructureKind::Bvh => bvh.bvh().sah_cost() / reference.sah.max(1e-30),
+                StructureKind::Grid => f64::NAN,
+            },
+            steps_ratio: steps as f64 / n.max(1.0) / reference.steps.max(1e-30),
+            mismatches: mismatches(answer, mesh, checked),
+        });
+    }
+    if planners.is_some() {
+        PICKS.lock().expect("not poisoned").push(picks);
+    }
+    records
+}
+
+/// One scene's line of the planned-options section: the picks, and the planner's mean ms per frame
+/// against each fixed alternative's, from the scene's `rows` (strategy name, mean total ms).
+pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
+    let ms = |name: &str| {
+        (rows.iter())
+            .find(|(n, _)| n == name)
+            .map_or(f64::NAN, |r| r.1)
+    };
+    let planned = ms("planned-options");
+    let mut s = format!(
+        "| {scene} | grid {}/{} | wide off {}/{} | packets {}/{} | {planned:.3} |",
+        picks.grid, picks.frames, picks.wide_off, picks.bvh_frames, picks.packets, picks.bvh_frames
+    );
+    for alt in ALTERNATIVES {
+        let _ = write!(s, " {:.3} ({:.2}) |", ms(alt), planned / ms(alt));
+    }
+    s
+}
+
+/// The fixed alternatives of the planned options, in the section's columns.
+const ALTERNATIVES: [&str; 4] = ["lauterbach-0.4", "grid-single", "wide-off", "bvh-packets"];
+
+/// The planned-options section of the summary, around the scenes' [`picks_row`]s.
+pub fn picks_table(lines: &[String]) -> String {
+    let mut s = String::from(
+        "\n## Planned options\n\nThe ECS planner's per-mesh options (`planned-options`: structure, wide \
+         tree, packets, each a `Choice` learning measured seconds) against each fixed alternative, all on \
+         lauterbach-0.4 maintenance. Picks in frames (wide and packets over the BVH's frames); mean ms \
+         per frame, the planner's over the alternative's in parentheses.\n\n\
+         | scene | structure | wide | packets | planned ms |",
+    );
+    for alt in ALTERNATIVES {
+        let _ = write!(s, " {alt} ms (planned /) |");
+    }
+    s.push_str("\n|---|---|---|---|---|---|---|---|---|\n");
+    for l in lines {
+        s.push_str(l);
+        s.push('\n');
+    }
+    s
+}

@@ -1,0 +1,275 @@
+//! The per-mesh options the planner picks in the ECS (structure under `Structure::Auto`, wide tree,
+//! packets), with scripted costs (`TraceWorld::script_costs`, the test hook): whichever option is picked,
+//! batched answers equal world-space brute force; the cheaper scripted option is taken and shows in
+//! `TraceStats::options`, also against the profile rule's prior; with ±10% noise around equal costs no
+//! option changes more often than `Choice` documents (a try and a return per other option). No timing is
+//! asserted: every cost the planners learn here is scripted.
+
+mod common;
+use bevy_ecs::prelude::*;
+use common::ecs::{agree, app_with, brute};
+use common::*;
+use glam::{Affine3A, Vec3};
+use kinetrace::ecs::*;
+use kinetrace::scenes::bumpy_torus;
+use kinetrace::{Mesh, Ray};
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The option kinds a mesh reports, as indices.
+fn kind(o: PlannedOption) -> usize {
+    match o {
+        PlannedOption::Structure(_) => 0,
+        PlannedOption::Wide(_) => 1,
+        PlannedOption::Packets(_) => 2,
+    }
+}
+
+/// A world under the adaptive policy and `Structure::Auto` with deforming meshes at 3 units apart: a
+/// bumpy torus (the rule's prior: the BVH) and an even soup of mixed sizes (the prior: the grid), each
+/// twice.
+fn scene() -> (World, Schedule, Vec<(Entity, Mesh)>) {
+    let (mut world, schedule) = app_with(TraceConfig {
+        structure: Structure::Auto,
+        policy: RebuildPolicy::ADAPTIVE,
+        ..Default::default()
+    });
+    let meshes = [
+        bumpy_torus(1200),
+        even_soup(1500, 0.002, 2.5),
+        bumpy_torus(1200),
+        even_soup(1500, 0.002, 2.5),
+    ];
+    let entities = (meshes.iter().enumerate())
+        .map(|(i, m)| {
+            let at = Vec3::new(3.0 * i as f32 - 4.5, 0.0, 0.0);
+            let e = world
+                .spawn((
+                    TraceMesh(m.clone()),
+                    VertexPositions(m.positions().to_vec()),
+                    TraceTransform(Affine3A::from_translation(at)),
+                ))
+                .id();
+            (e, m.clone())
+        })
+        .collect();
+    (world, schedule, entities)
+}
+
+/// Deforms every mesh for frame `f`, queues single rays and camera packets, runs the frame, checks
+/// every answer against brute force, and returns each mesh's options from `TraceStats::options`.
+fn frame(
+    world: &mut World,
+    schedule: &mut Schedule,
+    meshes: &[(Entity, Mesh)],
+    f: u32,
+    check: bool,
+) -> HashMap<Entity, [Option<PlannedOption>; 3]> {
+    for (e, m) in meshes {
+        let mut vp = world.get_mut::<VertexPositions>(*e).unwrap();
+        for (p, q) in vp.0.iter_mut().zip(m.positions()) {
+            *p = *q * (1.0 + 0.05 * (f as f32 * 0.3 + q.y * 3.0).sin());
+        }
+    }
+    let mut r = rng(100 + f as u64);
+    // Toward points in and around the meshes.
+    let singles: Vec<Ray> = (0..64)
+        .map(|i| {
+            let to = Vec3::new(3.0 * (i % 4) as f32 - 4.5, 0.0, 0.0) + rand_vec(&mut r, -0.8, 0.8);
+            let from = Vec3::new(0.0, 2.0, -8.0) + rand_vec(&mut r, -1.0, 1.0);
+            Ray::new(from, to - from)
+        })
+        .collect();
+    let tiles = camera(Vec3::new(0.0, 1.5, -9.0), Vec3::ZERO, 16, 4, 1.0);
+    {
+        let mut q = world.resource_mut::<RayQueue>();
+        for (i, ray) in singles.iter().enumerate() {
+            q.cast(i as u64, *ray, QueryFilter::default());
+        }
+        q.cast_packet(1000, &tiles, QueryFilter::default());
+    }
+    schedule.run(world);
+    world.clear_trackers();
+    let results = world.resource::<RayResults>().clone();
+    let expect: Vec<&Ray> = singles.iter().chain(&tiles).collect();
+    assert_eq!(results.hits.len(), expect.len());
+    let mut hits = 0;
+    for (k, ((_, got), ray)) in results.hits.iter().zip(expect).enumerate() {
+        if !check {
+            hits = usize::MAX;
+            break;
+        }
+        let b = brute(world, ray, &QueryFilter::default());
+        agree(got.as_ref(), b, &format!("frame {f} request {k}"));
+        hits += got.is_some() as usize;
+    }
+    assert!(hits > 40, "frame {f}: {hits} hits");
+    let stats = world.resource::<TraceStats>();
+    let mut picks: HashMap<Entity, [Option<PlannedOption>; 3]> = HashMap::new();
+    for o in &stats.options {
+        let slot = &mut picks.entry(o.entity).or_default()[kind(o.option)];
+        assert!(slot.is_none(), "frame {f}: {:?} reported twice", o.option);
+        *slot = Some(o.option);
+    }
+    picks
+}
+
+/// A deterministic number in [−1, 1] per call.
+fn noise(counter: &AtomicU64) -> f64 {
+    let mut x = counter
+        .fetch_add(1, Ordering::Relaxed)
+        .wrapping_add(0x9e37_79b9_7f4a_7c15);
+    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    x ^= x >> 31;
+    (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+}
+
+#[test]
+fn scripted_costs_pick_the_cheaper_option_and_answers_stay_exact() {
+    let (mut world, mut schedule, meshes) = scene();
+    // Mesh i prefers: the structure its prior did *not* pick for i < 2 (the planner must overturn the
+    // rule), the prior's for the others; the wide tree off for odd i; single rays for i ≥ 2.
+    let cheap: Vec<(Entity, [PlannedOption; 3])> = (meshes.iter().enumerate())
+        .map(|(i, (e, _))| {
+            let torus = i % 2 == 0;
+            let grid = torus == (i < 2);
+            let structure = if grid {
+                StructureKind::Grid
+            } else {
+                StructureKind::Bvh
+            };
+            (
+                *e,
+                [
+                    PlannedOption::Structure(structure),
+                    PlannedOption::Wide(i % 2 == 0),
+                    PlannedOption::Packets(i < 2),
+                ],
+            )
+        })
+        .collect();
+    let table = cheap.clone();
+    world
+        .resource_mut::<TraceWorld>()
+        .script_costs(Some(Arc::new(move |e, option| {
+            let (_, cheap) = table.iter().find(|(c, _)| *c == e)?;
+            let cheap = cheap.contains(&option);
+            // The cheaper structure or packet mode costs half per ray; the cheaper wide mode a hundredth
+            // of the overhead (a wide tree's collapse and refit): costs within reach of each option's
+            // prior, so that the other option is tried.
+            Some(match option {
+                PlannedOption::Wide(_) => ScriptedCost {
+                    overhead_s: if cheap { 1e-6 } else { 1e-4 },
+                    per_ray_s: 1e-6,
+                },
+                _ => ScriptedCost {
+                    overhead_s: 1e-6,
+                    per_ray_s: if cheap { 0.5e-6 } else { 1e-6 },
+                },
+            })
+        })));
+    let mut used = [[false; 2]; 4];
+    let mut last = HashMap::new();
+    for f in 0..24 {
+        last = frame(&mut world, &mut schedule, &meshes, f, true);
+        let stats = world.resource::<TraceStats>();
+        for (i, (e, _)) in meshes.iter().enumerate() {
+            if let Some(s) = stats.structures.iter().find(|s| s.entity == *e) {
+                used[i][(s.structure == StructureKind::Grid) as usize] = true;
+            }
+        }
+    }
+    for (i, (e, options)) in cheap.iter().enumerate() {
+        let picks = &last[e];
+        let stats = world.resource::<TraceStats>();
+        let tried = |o: PlannedOption| {
+            let row = stats
+                .options
+                .iter()
+                .find(|r| r.entity == *e && r.option == o);
+            row.is_some_and(|r| r.tried)
+        };
+        assert_eq!(picks[0], Some(options[0]), "mesh {i}: {picks:?}");
+        assert!(!tried(options[0]), "mesh {i} picks on measurements");
+        if options[0] == PlannedOption::Structure(StructureKind::Bvh) {
+            // Wide and packets are planned only for a mesh whose BVH answers.
+            assert_eq!(picks[1], Some(options[1]), "mesh {i}: {picks:?}");
+            assert_eq!(picks[2], Some(options[2]), "mesh {i}: {picks:?}");
+        }
+        let (_, why) = world.resource::<TraceWorld>().structure(*e).unwrap();
+        let StructureWhy::Rule(ChoiceReason::Measured { bvh, grid }) = why else {
+            panic!("mesh {i}: {why:?}");
+        };
+        assert_eq!(
+            grid < bvh,
+            options[0] == PlannedOption::Structure(StructureKind::Grid),
+            "mesh {i}: {bvh} vs {grid}"
+        );
+        // Both structures answered some frame (tried, then chosen or left).
+        assert_eq!(used[i], [true, true], "mesh {i}");
+    }
+}
+
+#[test]
+fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_back() {
+    let (mut world, mut schedule, meshes) = scene();
+    let counter = Arc::new(AtomicU64::new(0));
+    let c = counter.clone();
+    world
+        .resource_mut::<TraceWorld>()
+        .script_costs(Some(Arc::new(move |_, _| {
+            Some(ScriptedCost {
+                overhead_s: 1e-6 * (1.0 + 0.1 * noise(&c)),
+                per_ray_s: 1e-6 * (1.0 + 0.1 * noise(&c)),
+            })
+        })));
+    let mut previous: HashMap<Entity, [Option<PlannedOption>; 3]> = HashMap::new();
+    let mut changes: HashMap<(Entity, usize), u32> = HashMap::new();
+    let mut tries = 0;
+    // Frames each mesh's rays met the structure its prior did not pick (the torus's grid, the soup's BVH).
+    let mut other = [0u32; 4];
+    for f in 0..40 {
+        let picks = frame(&mut world, &mut schedule, &meshes, f, f % 8 == 0);
+        let stats = world.resource::<TraceStats>();
+        tries += stats.options.iter().filter(|o| o.tried).count();
+        for (i, (e, _)) in meshes.iter().enumerate() {
+            let prior = [StructureKind::Bvh, StructureKind::Grid][i % 2];
+            // Planned frames only: before its profile (the first frame) a mesh starts on the BVH.
+            let planned = stats.options.iter().find_map(|o| match o.option {
+                PlannedOption::Structure(s) if o.entity == *e => Some(s),
+                _ => None,
+            });
+            other[i] += planned.is_some_and(|s| s != prior) as u32;
+        }
+        for (e, now) in picks {
+            let before = previous.entry(e).or_default();
+            for k in 0..3 {
+                if let (Some(a), Some(b)) = (before[k], now[k])
+                    && a != b
+                {
+                    *changes.entry((e, k)).or_default() += 1;
+                }
+                if now[k].is_some() {
+                    before[k] = now[k];
+                }
+            }
+        }
+    }
+    // The scenario must exercise the hysteresis: options were tried, and measured side by side.
+    assert!(tries > 0);
+    // Nothing to gain, little paid: the other structure answered only while it was tried.
+    for (i, n) in other.iter().enumerate() {
+        assert!(
+            (1..=3).contains(n),
+            "mesh {i}: {n} frames on the other structure"
+        );
+    }
+    for ((e, k), n) in changes {
+        // Choice: with two options, a try and a return at most.
+        assert!(n <= 2, "{e} option kind {k} changed {n} times");
+    }
+    let counted = counter.load(Ordering::Relaxed);
+    assert!(counted > 0, "the script was read");
+}
