@@ -50,7 +50,9 @@ fn point_triangle(p: DVec3, t: [DVec3; 3]) -> f64 {
 }
 
 /// [`point_triangle`] with a bound on its rounding error: the Gram solve loses `κ = g11·g22 / det` ulp of
-/// the coordinates' magnitude (large for needles), the edge distances a few.
+/// the coordinates' magnitude (large for needles), the edge distances a few. The solve also decides face
+/// or edges, so a point whose projection lies within its error of an edge may be answered from the edges
+/// when it is on the face: the edge answer carries the same `κ` bound whenever the solve ran.
 fn point_triangle_bounded(p: DVec3, [a, b, c]: [DVec3; 3]) -> (f64, f64) {
     let mag = [a, b, c, p]
         .iter()
@@ -59,22 +61,20 @@ fn point_triangle_bounded(p: DVec3, [a, b, c]: [DVec3; 3]) -> (f64, f64) {
     let (e1, e2, w) = (b - a, c - a, p - a);
     let (g11, g12, g22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
     let det = g11 * g22 - g12 * g12;
+    let mut err = mag * f64::EPSILON * 8.0;
     if det > 0.0 {
         let (r1, r2) = (w.dot(e1), w.dot(e2));
         let u = (r1 * g22 - r2 * g12) / det;
         let v = (g11 * r2 - g12 * r1) / det;
-        let kappa = g11 * g22 / det;
+        err *= g11 * g22 / det;
         if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
-            return (
-                (w - e1 * u - e2 * v).length(),
-                mag * f64::EPSILON * 8.0 * kappa,
-            );
+            return ((w - e1 * u - e2 * v).length(), err);
         }
     }
     let edges = point_segment(p, a, b)
         .min(point_segment(p, b, c))
         .min(point_segment(p, c, a));
-    (edges, mag * f64::EPSILON * 8.0)
+    (edges, err)
 }
 
 /// The distance from `p` to the mesh's present triangles.
@@ -228,10 +228,8 @@ fn check_closest(m: &Mesh, bvh: &MeshBvh, p: Vec3, what: &str) {
         "{what}: barycentrics {on:?} vs {:?}",
         h.point
     );
-    assert!(
-        point_triangle(d(h.point), t) <= pt_tol,
-        "{what}: point not on its triangle"
-    );
+    let (off, off_err) = point_triangle_bounded(d(h.point), t);
+    assert!(off <= pt_tol + off_err, "{what}: point not on its triangle");
     assert!(
         ((d(h.point) - d(p)).length() - h.distance as f64).abs() <= pt_tol + tol,
         "{what}"
@@ -323,6 +321,77 @@ fn max_distance_limits_the_answer() {
     )
     .unwrap();
     assert!(empty.closest_point(Vec3::ZERO, f32::INFINITY).is_none());
+}
+
+/// A fan of `n` triangles around the shared corner `c` (corner 0 of each), on a wavy cone of radius `r`:
+/// every third a needle (its far corners 1e-6 of `r` apart), every fifth exactly degenerate.
+fn fan(c: Vec3, r: f32, n: usize) -> Mesh {
+    let mut pos = Vec::new();
+    for i in 0..n {
+        let rim = |k: f32| {
+            let a = k * std::f32::consts::TAU / n as f32;
+            c + Vec3::new(a.cos(), a.sin(), 0.3 * (3.0 * a).sin()) * r
+        };
+        let (b, far) = (rim(i as f32), rim(i as f32 + 1.0));
+        let far = match i % 15 {
+            0 | 5 | 10 => c,
+            3 | 6 | 9 | 12 => b + (far - b) * 1e-6,
+            _ => far,
+        };
+        pos.extend([c, b, far]);
+    }
+    Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
+}
+
+/// The pruning of both walks (the wide tree's `f32` box bounds, the binary tree's `f64` ones) on inputs
+/// made to tie: fans of needles and degenerate triangles sharing one corner, at tiny and huge scales and a
+/// 1e5 offset. A point on the shared corner is at distance 0 from every present triangle, so the answer is
+/// the analytic one: the lowest present index, at that corner. Points on edges and just off the fan are
+/// checked against the brute force, and every tree (SAH, LBVH; wide or not) must give the same answer
+/// bit for bit, as all of them compute the same exact distances and break ties by index.
+#[test]
+fn closest_point_pruning_keeps_ties_and_needles() {
+    for (offset, r) in [
+        (0.0, 1.0),
+        (0.0, 1e-4),
+        (0.0, 1e4),
+        (1e5, 1.0),
+        (1e5, 100.0),
+    ] {
+        let c = Vec3::new(offset, -offset, 0.5 * offset);
+        let m = fan(c, r, 60);
+        let trees: Vec<MeshBvh> = [Builder::SAH, Builder::LBVH]
+            .into_iter()
+            .flat_map(|b| [true, false].map(|w| BuildOptions::new(b).wide(w)))
+            .map(|o| MeshBvh::build(&m, &o).unwrap())
+            .collect();
+        let first = (0..m.triangle_count())
+            .find(|&i| !absent(m.triangle(i)))
+            .unwrap() as u32;
+        let mut r_ = rng(17);
+        let mut queries = vec![c];
+        for i in 0..m.triangle_count() {
+            let t = m.triangle(i);
+            queries.extend([t[1], (t[0] + t[1]) * 0.5, (t[1] + t[2]) * 0.5]);
+            queries.push(t[1] + rand_vec(&mut r_, -1.0, 1.0) * r * 1e-3);
+        }
+        queries.extend((0..100).map(|_| c + rand_vec(&mut r_, -2.0, 2.0) * r));
+        for (k, &p) in queries.iter().enumerate() {
+            let what = format!("offset {offset} r {r} query {k}");
+            let hits: Vec<_> = trees
+                .iter()
+                .map(|t| t.closest_point(p, f32::INFINITY))
+                .collect();
+            assert!(hits.iter().all(|h| *h == hits[0]), "{what}: {hits:?}");
+            check_closest(&m, &trees[0], p, &what);
+        }
+        let at_corner = trees[0].closest_point(c, f32::INFINITY).unwrap();
+        assert_eq!(
+            (at_corner.distance, at_corner.primitive, at_corner.feature),
+            (0.0, first, Feature::Vertex(0)),
+            "offset {offset} r {r}"
+        );
+    }
 }
 
 #[test]

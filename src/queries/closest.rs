@@ -206,7 +206,7 @@ impl MeshBvh {
         };
         match (frame, self.wide()) {
             // In the mesh's frame the wide tree's lanes are the boxes as stored: four at a time.
-            (Frame::Mesh, Some(wide)) => wide.walk_nearest(p, limit, visit),
+            (Frame::Mesh, Some(wide)) => wide.walk_nearest(p, limit, tris, visit),
             _ => traverse_by(
                 self.bvh().nodes(),
                 limit,
