@@ -55,7 +55,7 @@ mod trace;
 
 pub use material::{AcousticMaterial, BAND_HZ, BANDS};
 pub use paths::SoundPath;
-pub use scene::SoundScene;
+pub use scene::{SoundInstance, SoundScene};
 
 use crate::{Error, Result, parallel};
 use frustum::Frustum;
