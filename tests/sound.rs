@@ -597,30 +597,21 @@ fn two_level_scene_equals_one_copied_tree() {
         partial.triangle_count(),
         mesh.triangle_count() - body.triangle_count()
     );
-    let bad = SoundInstance {
-        material: 3,
-        ..instances[0].unwrap()
-    };
-    assert!(
-        SoundScene::instanced(
-            &top,
-            &[Some(bad), None, None, None],
-            vec![wall_material(0); 3]
-        )
-        .is_err()
-    );
-    let singular = SoundInstance {
-        transform: Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
-        ..instances[0].unwrap()
-    };
-    assert!(
-        SoundScene::instanced(
-            &top,
-            &[Some(singular), None, None, None],
-            vec![wall_material(0); 3]
-        )
-        .is_err()
-    );
+    // A material that does not exist, a transform that cannot be inverted.
+    let first = instances[0].unwrap();
+    for wrong in [
+        SoundInstance {
+            material: 3,
+            ..first
+        },
+        SoundInstance {
+            transform: Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+            ..first
+        },
+    ] {
+        let listed = [Some(wrong), None, None, None];
+        assert!(SoundScene::instanced(&top, &listed, vec![wall_material(0); 3]).is_err());
+    }
     assert!(SoundScene::instanced(&top, &instances[1..], vec![wall_material(0); 3]).is_err());
 }
 

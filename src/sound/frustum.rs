@@ -175,7 +175,7 @@ impl Cull {
 
     /// The same planes in the object space of an instance placed by `to_world` (`p = M q + t`), whose
     /// inverse is `to_object`: a plane `n · p = c` becomes `(Mᵀn) · q = c − n · t`, so inside stays inside.
-    pub fn to_object(&self, to_world: &Affine3A, to_object: &Affine3A) -> Cull {
+    pub fn in_object_space(&self, to_world: &Affine3A, to_object: &Affine3A) -> Cull {
         let mt = to_world.matrix3.transpose();
         Cull {
             apex: to_object.transform_point3(self.apex),

@@ -6,8 +6,8 @@ use super::frustum::{Cull, box_distance};
 use super::material::AcousticMaterial;
 use crate::bvh::{Bvh, traverse, traverse_by};
 use crate::geometry::{TriangleHit, TriangleRay, checked_inverse};
-use crate::{Error, MeshBvh, Ray, Result};
-use glam::{Affine3A, Vec3};
+use crate::{Aabb, Error, MeshBvh, Ray, Result};
+use glam::{Affine3A, Mat3A, Vec3};
 use std::collections::HashMap;
 
 /// No surface: a zero-area triangle, which neither reflects nor occludes.
@@ -49,27 +49,32 @@ struct Placed<'a> {
 struct Xf {
     to_world: Affine3A,
     to_object: Affine3A,
-    /// A lower bound on how much the transform stretches any distance (`1 / ‖M⁻¹‖₂`, a little less):
-    /// object-space distances times this never exceed the world distances.
-    shrink: f32,
+    /// `|M|`, the linear part's entries made non-negative: maps a box's half-extents to its world box's.
+    abs: Mat3A,
 }
 
 impl Xf {
     fn new(to_world: Affine3A) -> Result<Self> {
-        let to_object = checked_inverse(&to_world)?;
-        // ‖A‖₂² is the largest eigenvalue of AᵀA, at most its largest absolute row sum (Gershgorin).
-        let a = to_object.matrix3;
-        let ata = a.transpose() * a;
-        let rows = [ata.row(0), ata.row(1), ata.row(2)];
-        let bound = rows
-            .iter()
-            .map(|r| r.abs().element_sum())
-            .fold(0.0f32, f32::max);
+        let m = to_world.matrix3;
         Ok(Self {
             to_world,
-            to_object,
-            shrink: (1.0 - 1e-4) / bound.sqrt(),
+            to_object: checked_inverse(&to_world)?,
+            abs: Mat3A::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs()),
         })
+    }
+
+    /// A lower bound of the world distance from `p` to the object-space box `b`: the distance to the world
+    /// box around the transformed box (its centre mapped, its half-extents through `|M|`; exact for a
+    /// transform without rotation), less a relative 1e-6 for rounding. About 40 flops, against 8 corners.
+    #[inline]
+    fn distance(&self, p: Vec3, b: &Aabb) -> f32 {
+        let centre = self.to_world.transform_point3((b.min + b.max) * 0.5);
+        let half = self.abs * ((b.max - b.min) * 0.5);
+        let world = Aabb {
+            min: centre - half,
+            max: centre + half,
+        };
+        box_distance(p, &world) * (1.0 - 1e-6)
     }
 }
 
@@ -264,7 +269,7 @@ impl<'a> SoundScene<'a> {
     fn instances_by<K: PartialOrd + Copy + Default>(
         &self,
         bound: K,
-        enter: impl Fn(&crate::Aabb, K) -> Option<K>,
+        enter: impl Fn(&Aabb, K) -> Option<K>,
         mut f: impl FnMut(&Placed<'a>, K) -> (K, bool),
     ) {
         let Some(top) = self.top else {
@@ -310,9 +315,9 @@ impl<'a> SoundScene<'a> {
                 (e <= d && cull.may_overlap(b)).then_some(e)
             },
             |p, d| {
-                let (local, shrink) = match p.xf {
-                    None => (*cull, 1.0),
-                    Some(x) => (cull.to_object(&x.to_world, &x.to_object), x.shrink),
+                let local = match p.xf {
+                    None => *cull,
+                    Some(x) => cull.in_object_space(&x.to_world, &x.to_object),
                 };
                 traverse_by(
                     p.bvh.bvh().nodes(),
@@ -320,7 +325,10 @@ impl<'a> SoundScene<'a> {
                     &mut (),
                     |n, d| {
                         let b = n.aabb();
-                        let e = box_distance(local.apex, &b) * shrink;
+                        let e = match p.xf {
+                            None => box_distance(local.apex, &b),
+                            Some(x) => x.distance(cull.apex, &b),
+                        };
                         (e <= d && local.may_overlap(&b)).then_some(e)
                     },
                     |slots, d| {
