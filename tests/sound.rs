@@ -6,12 +6,15 @@
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, DVec3, Quat, Vec3};
 use kinetrace::bvh::BuildOptions;
+use kinetrace::bvh::Bvh;
 use kinetrace::ecs::{
     AcousticSurface, KinetracePlugin, Listener, Plugin, SoundPaths, SoundSettings, SoundSource,
     TraceMesh, TraceStats, TraceTransform, VertexPositions,
 };
-use kinetrace::sound::{AcousticMaterial, BANDS, Propagation, SoundConfig, SoundScene, propagate};
-use kinetrace::{Mesh, MeshBvh, scenes};
+use kinetrace::sound::{
+    AcousticMaterial, BANDS, Propagation, SoundConfig, SoundInstance, SoundScene, propagate,
+};
+use kinetrace::{Aabb, Mesh, MeshBvh, scenes};
 
 const ROOM: Vec3 = Vec3::new(5.0, 3.7, 2.9);
 
@@ -458,26 +461,158 @@ fn ecs_paths_equal_the_direct_call_on_the_same_world_geometry() {
         assert_eq!(sound.triangles, mesh.triangle_count());
         let ecs = sound.between(source, listener).expect("one pair");
         assert!(direct.paths.iter().any(|p| p.order == 3), "frame {frame}");
-        assert_eq!(ecs.len(), direct.paths.len(), "frame {frame}");
-        // Surface ids depend on the tree's leaf order; the paths themselves must agree.
-        for p in ecs {
-            let q = direct
-                .paths
-                .iter()
-                .find(|q| {
-                    q.order == p.order
-                        && (q.length - p.length).abs() <= 1e-5 * q.length
-                        && q.direction.cross(p.direction).length() <= 1e-5
-                })
-                .unwrap_or_else(|| panic!("frame {frame}: {p:?} not found directly"));
-            for b in 0..BANDS {
-                assert!(
-                    (q.attenuation[b] - p.attenuation[b]).abs() <= 1e-5 * q.attenuation[b],
-                    "band {b} of {p:?}"
-                );
-            }
+        assert_same_paths(ecs, &direct.paths, &format!("frame {frame}"));
+    }
+}
+
+/// The same paths in both lists: equal counts, and each path of `found` has one in `oracle` of its order
+/// with the same length, direction and attenuation to float rounding. Surface ids depend on the trees'
+/// leaf order, and a merged surface's plane on which of its triangles came first (rounding), so they are
+/// not compared.
+fn assert_same_paths(
+    found: &[kinetrace::sound::SoundPath],
+    oracle: &[kinetrace::sound::SoundPath],
+    what: &str,
+) {
+    assert_eq!(found.len(), oracle.len(), "{what}");
+    for p in found {
+        let q = oracle
+            .iter()
+            .find(|q| {
+                q.order == p.order
+                    && (q.length - p.length).abs() <= 1e-5 * q.length
+                    && q.direction.cross(p.direction).length() <= 1e-5
+            })
+            .unwrap_or_else(|| panic!("{what}: {p:?} not in the oracle"));
+        for b in 0..BANDS {
+            assert!(
+                (q.attenuation[b] - p.attenuation[b]).abs() <= 1e-5 * q.attenuation[b],
+                "{what}: band {b} of {p:?}"
+            );
         }
     }
+}
+
+#[test]
+fn two_level_scene_equals_one_copied_tree() {
+    // A room, a scaled and turned body, a mirrored one (negative determinant) and a sheared blob, each with
+    // its own tree and transform, against one tree over the same triangles transformed to world space.
+    let room = scenes::shoebox(Vec3::ZERO, ROOM);
+    let body = scenes::cube_sphere(6);
+    let blob = scenes::bumpy_torus(600);
+    let placed = [
+        (&room, Affine3A::IDENTITY, 0u32),
+        (
+            &body,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::new(0.3, 0.2, 0.8),
+                Quat::from_rotation_z(0.7),
+                Vec3::new(2.2, 1.4, 0.9),
+            ),
+            1,
+        ),
+        (
+            &body,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::new(-0.25, 0.3, 0.6),
+                Quat::from_rotation_y(0.3),
+                Vec3::new(1.2, 2.6, 1.5),
+            ),
+            2,
+        ),
+        (
+            &blob,
+            Affine3A::from_cols(
+                Vec3::new(0.5, 0.1, 0.0).into(),
+                Vec3::new(0.0, 0.4, 0.2).into(),
+                Vec3::new(0.1, 0.0, 0.5).into(),
+                Vec3::new(3.6, 2.3, 1.6).into(),
+            ),
+            1,
+        ),
+    ];
+    let palette: Vec<_> = (0..3).map(wall_material).collect();
+    let trees: Vec<MeshBvh> = placed
+        .iter()
+        .map(|(m, _, _)| MeshBvh::build(m, &BuildOptions::default()).unwrap())
+        .collect();
+    let boxes: Vec<Aabb> = placed
+        .iter()
+        .map(|(m, t, _)| {
+            moved(m, *t).iter().fold(Aabb::EMPTY, |mut b, p| {
+                b.grow(*p);
+                b
+            })
+        })
+        .collect();
+    let top = Bvh::build(&boxes, &BuildOptions::default()).unwrap();
+    let instances: Vec<_> = placed
+        .iter()
+        .zip(&trees)
+        .map(|((_, t, m), bvh)| {
+            Some(SoundInstance {
+                bvh,
+                transform: *t,
+                material: *m,
+            })
+        })
+        .collect();
+    let two_level = SoundScene::instanced(&top, &instances, palette.clone()).unwrap();
+
+    let world: Vec<Mesh> = placed
+        .iter()
+        .map(|(m, t, _)| m.with_positions(moved(m, *t)).unwrap())
+        .collect();
+    let mesh = concat(&world);
+    let mats: Vec<u32> = placed
+        .iter()
+        .flat_map(|(m, _, k)| std::iter::repeat_n(*k, m.triangle_count()))
+        .collect();
+    let bvh = MeshBvh::build(&mesh, &BuildOptions::default()).unwrap();
+    let copied = SoundScene::new(&bvh, &mats, palette).unwrap();
+    assert_eq!(two_level.triangle_count(), mesh.triangle_count());
+    assert_eq!(two_level.surface_count(), copied.surface_count());
+
+    let cfg = config(true);
+    for (s, l) in [
+        (Vec3::new(0.6, 0.7, 1.6), Vec3::new(4.3, 3.0, 1.1)),
+        (Vec3::new(4.1, 0.5, 0.4), Vec3::new(0.4, 3.1, 2.3)),
+    ] {
+        let a = propagate(&two_level, s, l, &cfg).unwrap();
+        let b = propagate(&copied, s, l, &cfg).unwrap();
+        assert!(
+            b.paths
+                .iter()
+                .any(|p| p.order == 3 && !p.surfaces.is_empty())
+        );
+        assert_eq!(a.frusta, b.frusta, "{s} → {l}");
+        assert_same_paths(&a.paths, &b.paths, &format!("{s} → {l}"));
+    }
+    // One instance left out: it neither reflects nor occludes, as if it were not there.
+    let mut without = instances.clone();
+    without[1] = None;
+    let partial =
+        SoundScene::instanced(&top, &without, (0..3).map(wall_material).collect()).unwrap();
+    assert_eq!(
+        partial.triangle_count(),
+        mesh.triangle_count() - body.triangle_count()
+    );
+    // A material that does not exist, a transform that cannot be inverted.
+    let first = instances[0].unwrap();
+    for wrong in [
+        SoundInstance {
+            material: 3,
+            ..first
+        },
+        SoundInstance {
+            transform: Affine3A::from_scale(Vec3::new(1.0, 0.0, 1.0)),
+            ..first
+        },
+    ] {
+        let listed = [Some(wrong), None, None, None];
+        assert!(SoundScene::instanced(&top, &listed, vec![wall_material(0); 3]).is_err());
+    }
+    assert!(SoundScene::instanced(&top, &instances[1..], vec![wall_material(0); 3]).is_err());
 }
 
 #[test]

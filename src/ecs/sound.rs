@@ -2,21 +2,23 @@
 //! [`AcousticSurface`] materials, and the [`SoundPaths`] resource the plugin refreshes every
 //! [`SoundSettings::every`] frames during [`TraceSystems::Queries`](super::TraceSystems::Queries).
 //!
-//! What an update does: it gathers the world-space triangles of every traceable entity the settings' layer
-//! mask accepts from the trees the ray queries use ([`TraceWorld`], so moved entities and deformed,
-//! refitted meshes are current), refits a world-space tree over them (rebuilt when the triangle count
-//! changes or the refit degraded it past the thesis's 0.40), merges coplanar surfaces and traces each
+//! What an update does: it traces through the two-level scene the ray queries use ([`TraceWorld`]: the
+//! top-level tree over the entities and each entity's own tree with its transform, so moved entities and
+//! deformed, refitted meshes are current) with [`SoundScene::instanced`], copying no triangle and building
+//! no tree; it merges coplanar surfaces of the entities the settings' layer mask accepts and traces each
 //! source–listener pair with [`propagate`](crate::sound::propagate) on all threads. The answer is the
-//! direct call's on the same world-space geometry.
+//! direct call's on one world-space tree of the same triangles (up to float rounding of the merged
+//! surfaces' planes; tested).
 //!
-//! Cost per update: O(triangles) to gather, refit and merge surfaces (about 1 ms per 20k triangles), plus
-//! the propagation itself, which dominates (see [`crate::sound`]). Frames between updates cost nothing.
-//! The gather and refit reuse their buffers once warm; propagation allocates its frusta.
+//! Cost per update: O(triangles) to merge surfaces (a world transform and a hash per triangle), plus the
+//! propagation itself, which dominates (see [`crate::sound`]). Frames between updates cost nothing.
+//! Propagation allocates its frusta.
 
 use super::{QueryFilter, TraceErrorMessage, TraceStats, TraceWorld};
-use crate::bvh::BuildOptions;
-use crate::sound::{AcousticMaterial, SoundConfig, SoundPath, SoundScene, propagate};
-use crate::{Mesh, MeshBvh, Result};
+use crate::Result;
+use crate::sound::{
+    AcousticMaterial, SoundConfig, SoundInstance, SoundPath, SoundScene, propagate,
+};
 use bevy_ecs::prelude::*;
 use glam::Vec3;
 
@@ -96,63 +98,51 @@ impl SoundPaths {
     }
 }
 
-/// The world-space tree kept between updates, and its buffers.
+/// The materials of the last update, kept so a warm update reuses their buffers.
 #[derive(Default)]
 pub(crate) struct SoundState {
-    bvh: Option<MeshBvh>,
-    /// Three vertices per triangle, world space.
-    positions: Vec<Vec3>,
-    /// Material index per triangle, into `palette`.
-    materials: Vec<u32>,
     palette: Vec<AcousticMaterial>,
 }
 
-/// The thesis's rebuild threshold on the refit degradation metric (§4.1.5).
-const REBUILD_ABOVE: f32 = 0.40;
-
 impl SoundState {
-    /// Gathers the accepted entities' world triangles and materials, and refits or rebuilds the tree.
-    fn update(
+    /// The two-level scene over the traceable entities the settings accept: one instance per top-level
+    /// primitive (`None` for those left out), each entity's tree with its transform and material.
+    fn scene<'w>(
         &mut self,
-        world: &TraceWorld,
+        world: &'w TraceWorld,
         settings: &SoundSettings,
         material_of: impl Fn(Entity) -> Option<AcousticMaterial>,
-    ) -> Result<()> {
-        let (positions, materials, palette) =
-            (&mut self.positions, &mut self.materials, &mut self.palette);
-        positions.clear();
-        materials.clear();
+    ) -> Result<SoundScene<'w>> {
+        let palette = &mut self.palette;
         palette.clear();
         let filter = QueryFilter {
             layers: settings.layers,
             ..Default::default()
         };
-        world.for_each_world_mesh(&filter, |e, tris| {
-            let m = material_of(e).unwrap_or(settings.default_material);
-            let index = match palette.iter().position(|p| *p == m) {
-                Some(i) => i,
-                None => {
-                    palette.push(m);
-                    palette.len() - 1
-                }
-            } as u32;
-            for t in tris {
-                positions.extend(t);
-                materials.push(index);
-            }
-        });
-        let refitted = match self.bvh.as_mut() {
-            Some(bvh) if 3 * bvh.slot_triangles().len() == self.positions.len() => {
-                bvh.refit(&self.positions)? <= REBUILD_ABOVE
-            }
-            _ => false,
-        };
-        if !refitted {
-            let indices: Vec<u32> = (0..self.positions.len() as u32).collect();
-            let mesh = Mesh::new(self.positions.clone(), indices)?;
-            self.bvh = Some(MeshBvh::build(&mesh, &BuildOptions::default())?);
-        }
-        Ok(())
+        // Top-level primitive `i` is entity `tlas_entities[i]`.
+        let instances: Vec<Option<SoundInstance>> = world
+            .tlas_entities
+            .iter()
+            .map(|&e| {
+                let inst = &world.instances[&e];
+                filter.accepts(e, inst.layers).then(|| {
+                    let m = material_of(e).unwrap_or(settings.default_material);
+                    let material = match palette.iter().position(|p| *p == m) {
+                        Some(i) => i,
+                        None => {
+                            palette.push(m);
+                            palette.len() - 1
+                        }
+                    } as u32;
+                    SoundInstance {
+                        bvh: &inst.bvh,
+                        transform: inst.transform,
+                        material,
+                    }
+                })
+            })
+            .collect();
+        SoundScene::instanced(&world.tlas, &instances, palette.clone())
     }
 }
 
@@ -184,13 +174,8 @@ pub(crate) fn sound_system(
     out.updates += 1;
     out.pairs.clear();
     let state = &mut *state;
-    let scene = state
-        .update(&world, &settings, |e| surfaces.get(e).ok().map(|s| s.0))
-        .and_then(|()| {
-            let bvh = state.bvh.as_ref().expect("updated");
-            out.triangles = bvh.slot_triangles().len();
-            SoundScene::new(bvh, &state.materials, state.palette.clone())
-        });
+    let scene = state.scene(&world, &settings, |e| surfaces.get(e).ok().map(|s| s.0));
+    out.triangles = scene.as_ref().map_or(0, SoundScene::triangle_count);
     let mut report = |entity, error| {
         errors.write(TraceErrorMessage { entity, error });
     };

@@ -3,7 +3,7 @@
 
 use super::material::BANDS;
 use crate::geometry::Aabb;
-use glam::Vec3;
+use glam::{Affine3A, Vec3};
 
 /// A plane `n · x = c`; the positive side is `n · x > c`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,16 +102,13 @@ impl Frustum {
             && self.near.is_none_or(|pl| pl.signed(p) > 0.0)
     }
 
-    /// Conservative frustum–box test: false only when the box lies wholly outside one side plane or wholly
-    /// behind the near plane.
-    pub fn may_overlap(&self, sides: &[Vec3; 4], b: &Aabb) -> bool {
-        let far_corner = |n: Vec3| Vec3::select(n.cmpge(Vec3::ZERO), b.max, b.min);
-        sides
-            .iter()
-            .all(|&n| n.dot(far_corner(n) - self.apex) >= 0.0)
-            && self
-                .near
-                .is_none_or(|pl| pl.signed(far_corner(pl.n)) >= 0.0)
+    /// What culling needs of the frustum.
+    pub fn cull(&self) -> Cull {
+        Cull {
+            apex: self.apex,
+            sides: self.side_normals(),
+            near: self.near,
+        }
     }
 
     /// The sub-frustum over the parameter rectangle `[u0, u1] × [v0, v1]`, reflected in `plane` (unit
@@ -150,6 +147,43 @@ impl Frustum {
             near: Some(near),
             chain,
             gain,
+        }
+    }
+}
+
+/// The planes bounding a frustum, for culling boxes: the apex, the inward normals of the four side planes
+/// through it, and the near plane.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Cull {
+    pub apex: Vec3,
+    pub sides: [Vec3; 4],
+    pub near: Option<Plane>,
+}
+
+impl Cull {
+    /// Conservative frustum–box test: false only when the box lies wholly outside one side plane or wholly
+    /// behind the near plane.
+    pub fn may_overlap(&self, b: &Aabb) -> bool {
+        let far_corner = |n: Vec3| Vec3::select(n.cmpge(Vec3::ZERO), b.max, b.min);
+        self.sides
+            .iter()
+            .all(|&n| n.dot(far_corner(n) - self.apex) >= 0.0)
+            && self
+                .near
+                .is_none_or(|pl| pl.signed(far_corner(pl.n)) >= 0.0)
+    }
+
+    /// The same planes in the object space of an instance placed by `to_world` (`p = M q + t`), whose
+    /// inverse is `to_object`: a plane `n · p = c` becomes `(Mᵀn) · q = c − n · t`, so inside stays inside.
+    pub fn in_object_space(&self, to_world: &Affine3A, to_object: &Affine3A) -> Cull {
+        let mt = to_world.matrix3.transpose();
+        Cull {
+            apex: to_object.transform_point3(self.apex),
+            sides: self.sides.map(|n| mt * n),
+            near: self.near.map(|pl| Plane {
+                n: mt * pl.n,
+                c: pl.c - pl.n.dot(Vec3::from(to_world.translation)),
+            }),
         }
     }
 }

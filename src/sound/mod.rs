@@ -1,6 +1,8 @@
 //! Frustum-traced sound propagation (Lauterbach's thesis §6.1): specular paths from a point source to a
-//! listener, with per-band absorption, through the same [`MeshBvh`](crate::MeshBvh) the ray queries use —
-//! so moving and deforming meshes occlude and reflect once their tree is refitted.
+//! listener, with per-band absorption, through the same trees the ray queries use — one
+//! [`MeshBvh`](crate::MeshBvh) ([`SoundScene::new`]) or a two-level scene of instances with transforms
+//! ([`SoundScene::instanced`], what the ECS uses) — so moving and deforming meshes occlude and reflect once
+//! their tree is refitted or their transform set.
 //!
 //! How it works: frusta with four corner rays cover every direction around the source (each cube face split
 //! into [`SoundConfig::primary`]² frusta). Each frustum is traced through the tree (`trace.rs`) with
@@ -55,7 +57,7 @@ mod trace;
 
 pub use material::{AcousticMaterial, BAND_HZ, BANDS};
 pub use paths::SoundPath;
-pub use scene::SoundScene;
+pub use scene::{SoundInstance, SoundScene};
 
 use crate::{Error, Result, parallel};
 use frustum::Frustum;

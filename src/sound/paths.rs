@@ -62,13 +62,12 @@ pub(crate) fn path_to(
     let mut arrival = None;
     for (k, &s) in f.chain.iter().enumerate().rev() {
         let to = images[k + 1];
-        let hit = scene
-            .bvh
-            .closest_hit(&Ray::with_range(at, to - at, LEG_START, 1.0))?;
+        let found = scene.hit(&Ray::with_range(at, to - at, LEG_START, 1.0), false)?;
+        let hit = found.hit;
         // The named reflector, hit inside a triangle: a leg through a triangle's edge may be entering a
         // closed mesh through its edge (measure zero, but exactly what symmetric scenes produce).
         let inside = hit.u.min(hit.v).min(1.0 - hit.u - hit.v) > EDGE_MARGIN;
-        if scene.prim_surface[hit.primitive as usize] != s || !inside {
+        if found.surface != s || !inside {
             return None;
         }
         let p = at + (to - at) * hit.t;
@@ -77,8 +76,8 @@ pub(crate) fn path_to(
     }
     let start = if f.chain.is_empty() { 0.0 } else { LEG_START };
     if scene
-        .bvh
-        .any_hit(&Ray::with_range(at, source - at, start, 1.0))
+        .hit(&Ray::with_range(at, source - at, start, 1.0), true)
+        .is_some()
     {
         return None;
     }

@@ -1,8 +1,13 @@
-//! The geometry sound is traced through: a [`MeshBvh`] plus, per triangle, its acoustic surface.
+//! The geometry sound is traced through: one [`MeshBvh`], or the two-level scene the ray queries use (a
+//! top-level tree over instances, each a mesh tree with a transform), plus each triangle's acoustic
+//! surface.
 
+use super::frustum::{Cull, box_distance};
 use super::material::AcousticMaterial;
-use crate::{Error, MeshBvh, Result};
-use glam::Vec3;
+use crate::bvh::{Bvh, traverse, traverse_by};
+use crate::geometry::{TriangleHit, TriangleRay, checked_inverse};
+use crate::{Aabb, Error, MeshBvh, Ray, Result};
+use glam::{Affine3A, Mat3A, Vec3};
 use std::collections::HashMap;
 
 /// No surface: a zero-area triangle, which neither reflects nor occludes.
@@ -18,24 +23,137 @@ pub(crate) struct Surface {
     pub material: u32,
 }
 
-/// A scene ready for [`propagate`](super::propagate): the tree the ray queries use, each triangle's
+/// One mesh placed in a two-level [`SoundScene`]: its object-space tree, the transform to world space and
+/// the index of its material (every triangle of an instance shares it).
+#[derive(Clone, Copy, Debug)]
+pub struct SoundInstance<'a> {
+    /// The mesh's tree, in object space.
+    pub bvh: &'a MeshBvh,
+    /// Object to world space; finite and invertible.
+    pub transform: Affine3A,
+    /// Index of the instance's material in the scene's materials.
+    pub material: u32,
+}
+
+/// An instance as traversal needs it.
+struct Placed<'a> {
+    bvh: &'a MeshBvh,
+    /// `None`: the identity (world triangles are the tree's own, untouched).
+    xf: Option<Xf>,
+    /// Index of the instance's slot 0 in [`SoundScene::slot_surface`].
+    first: usize,
+}
+
+/// A transform with what traversing its tree needs.
+#[derive(Clone, Copy)]
+struct Xf {
+    to_world: Affine3A,
+    to_object: Affine3A,
+    /// `|M|`, the linear part's entries made non-negative: maps a box's half-extents to its world box's.
+    abs: Mat3A,
+}
+
+impl Xf {
+    fn new(to_world: Affine3A) -> Result<Self> {
+        let m = to_world.matrix3;
+        Ok(Self {
+            to_world,
+            to_object: checked_inverse(&to_world)?,
+            abs: Mat3A::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs()),
+        })
+    }
+
+    /// A lower bound of the world distance from `p` to the object-space box `b`: the distance to the world
+    /// box around the transformed box (its centre mapped, its half-extents through `|M|`; exact for a
+    /// transform without rotation), less a relative 1e-6 for rounding. About 40 flops, against 8 corners.
+    #[inline]
+    fn distance(&self, p: Vec3, b: &Aabb) -> f32 {
+        let centre = self.to_world.transform_point3((b.min + b.max) * 0.5);
+        let half = self.abs * ((b.max - b.min) * 0.5);
+        let world = Aabb {
+            min: centre - half,
+            max: centre + half,
+        };
+        box_distance(p, &world) * (1.0 - 1e-6)
+    }
+}
+
+impl Placed<'_> {
+    /// Triangle `slot` in world space: the same arithmetic as transforming the mesh's vertices, so a
+    /// copy of the world triangles gives bit-identical corners.
+    #[inline]
+    fn world_triangle(&self, slot: usize) -> [Vec3; 3] {
+        let t = self.bvh.slot_triangles()[slot];
+        match self.xf {
+            None => t,
+            Some(x) => t.map(|p| x.to_world.transform_point3(p)),
+        }
+    }
+}
+
+/// Where a ray meets a scene: the hit and the surface hit.
+pub(crate) struct SceneHit {
+    pub hit: TriangleHit,
+    pub surface: u32,
+}
+
+/// A scene ready for [`propagate`](super::propagate): the trees the ray queries use, each triangle's
 /// material, and the coplanar surfaces.
 ///
-/// Building one groups the triangles into surfaces in O(n) (a hash on the quantised plane and the
-/// material); make a new one after the tree is refitted or rebuilt. Triangles whose unit normals agree to
-/// about 1e-4 and whose plane offsets agree to 1e-4 of the scene's size share a surface.
+/// Make one from a single world-space tree ([`new`](Self::new)) or, without copying any triangle, from
+/// the top-level tree and the instances of a two-level scene ([`instanced`](Self::instanced)); both trace
+/// the same world triangles with the same arithmetic, so they find the same paths. Building one groups the
+/// triangles into surfaces in O(n) (a hash on the quantised world plane and the material); make a new one
+/// after a tree is refitted, rebuilt or moved. Triangles whose unit normals agree to about 1e-4 and whose
+/// plane offsets agree to 1e-4 of the scene's size share a surface.
 pub struct SoundScene<'a> {
-    pub(crate) bvh: &'a MeshBvh,
-    /// Surface of each slot (leaf order), [`NO_SURFACE`] for zero-area triangles.
-    pub(crate) slot_surface: Vec<u32>,
-    /// Surface of each mesh triangle.
-    pub(crate) prim_surface: Vec<u32>,
+    /// The top-level tree (primitive `i` is `instances[i]`); `None`: one instance, traversed directly.
+    top: Option<&'a Bvh>,
+    /// `None`: an instance left out (it neither reflects nor occludes).
+    instances: Vec<Option<Placed<'a>>>,
+    /// Surface of each slot of every instance (leaf order, instance after instance), [`NO_SURFACE`] for
+    /// zero-area triangles.
+    slot_surface: Vec<u32>,
     pub(crate) surfaces: Vec<Surface>,
     pub(crate) materials: Vec<AcousticMaterial>,
 }
 
+/// Groups triangles into [`Surface`]s by quantised plane and material.
+struct Grouping {
+    size: f32,
+    keys: HashMap<(i32, i32, i32, i32, u32), u32>,
+    surfaces: Vec<Surface>,
+}
+
+impl Grouping {
+    fn surface(&mut self, [a, b, c]: [Vec3; 3], material: u32) -> u32 {
+        let normal = (b - a).cross(c - a).normalize_or_zero();
+        if normal == Vec3::ZERO {
+            return NO_SURFACE;
+        }
+        let offset = normal.dot(a);
+        let q = |x: f32| (x * 1e4).round() as i32;
+        let key = (
+            q(normal.x),
+            q(normal.y),
+            q(normal.z),
+            q(offset / self.size),
+            material,
+        );
+        let surfaces = &mut self.surfaces;
+        *self.keys.entry(key).or_insert_with(|| {
+            surfaces.push(Surface {
+                normal,
+                offset,
+                material,
+            });
+            surfaces.len() as u32 - 1
+        })
+    }
+}
+
 impl<'a> SoundScene<'a> {
-    /// Wraps `bvh`; `triangle_materials[i]` is the index in `materials` of mesh triangle `i`.
+    /// Wraps `bvh` (world space); `triangle_materials[i]` is the index in `materials` of mesh triangle `i`.
     ///
     /// Errors: [`Error::InvalidOption`] when `triangle_materials` is not one entry per triangle or names a
     /// material that does not exist.
@@ -62,44 +180,76 @@ impl<'a> SoundScene<'a> {
                 materials.len()
             )));
         }
-        let size = bvh.bvh().bounds().extent().max_element().max(1e-6);
-        let mut keys: HashMap<(i32, i32, i32, i32, u32), u32> = HashMap::new();
-        let mut surfaces = Vec::new();
-        let mut slot_surface = Vec::with_capacity(prims.len());
-        let mut prim_surface = vec![NO_SURFACE; prims.len()];
-        for (slot, [a, b, c]) in bvh.slot_triangles().iter().enumerate() {
-            let normal = (*b - *a).cross(*c - *a).normalize_or_zero();
-            let prim = prims[slot] as usize;
-            if normal == Vec3::ZERO {
-                slot_surface.push(NO_SURFACE);
+        let mut group = Grouping::new(bvh.bvh().bounds().extent().max_element());
+        let slot_surface = bvh
+            .slot_triangles()
+            .iter()
+            .zip(prims)
+            .map(|(t, &p)| group.surface(*t, triangle_materials[p as usize]))
+            .collect();
+        Ok(Self {
+            top: None,
+            instances: vec![Some(Placed {
+                bvh,
+                xf: None,
+                first: 0,
+            })],
+            slot_surface,
+            surfaces: group.surfaces,
+            materials,
+        })
+    }
+
+    /// A two-level scene: `top` is a tree over the instances' world boxes whose primitive `i` is
+    /// `instances[i]` (`None` leaves that primitive out). Nothing is copied: frusta and rays descend from
+    /// `top` into each instance's tree with the inverse transform, as the ray queries do, and meet the
+    /// triangles in world space. Cost: O(triangles) once to group the surfaces.
+    ///
+    /// Errors: [`Error::InvalidOption`] when `instances` is not one entry per primitive of `top` or an
+    /// instance names a material that does not exist; [`Error::InvalidTransform`] for a transform that is
+    /// not finite or not invertible.
+    pub fn instanced(
+        top: &'a Bvh,
+        instances: &[Option<SoundInstance<'a>>],
+        materials: Vec<AcousticMaterial>,
+    ) -> Result<Self> {
+        if instances.len() != top.prim_indices().len() {
+            return Err(Error::InvalidOption(format!(
+                "{} instances for a top-level tree over {}",
+                instances.len(),
+                top.prim_indices().len()
+            )));
+        }
+        let mut group = Grouping::new(top.bounds().extent().max_element());
+        let mut slot_surface = Vec::new();
+        let mut placed = Vec::with_capacity(instances.len());
+        for inst in instances {
+            let Some(inst) = inst else {
+                placed.push(None);
                 continue;
+            };
+            if inst.material as usize >= materials.len() {
+                return Err(Error::InvalidOption(format!(
+                    "an instance names material {}, but there are {}",
+                    inst.material,
+                    materials.len()
+                )));
             }
-            let offset = normal.dot(*a);
-            let material = triangle_materials[prim];
-            let q = |x: f32| (x * 1e4).round() as i32;
-            let key = (
-                q(normal.x),
-                q(normal.y),
-                q(normal.z),
-                q(offset / size),
-                material,
-            );
-            let id = *keys.entry(key).or_insert_with(|| {
-                surfaces.push(Surface {
-                    normal,
-                    offset,
-                    material,
-                });
-                surfaces.len() as u32 - 1
-            });
-            slot_surface.push(id);
-            prim_surface[prim] = id;
+            let p = Placed {
+                bvh: inst.bvh,
+                xf: Some(Xf::new(inst.transform)?),
+                first: slot_surface.len(),
+            };
+            let slots = inst.bvh.slot_triangles().len();
+            slot_surface
+                .extend((0..slots).map(|s| group.surface(p.world_triangle(s), inst.material)));
+            placed.push(Some(p));
         }
         Ok(Self {
-            bvh,
+            top: Some(top),
+            instances: placed,
             slot_surface,
-            prim_surface,
-            surfaces,
+            surfaces: group.surfaces,
             materials,
         })
     }
@@ -107,5 +257,150 @@ impl<'a> SoundScene<'a> {
     /// Number of coplanar surfaces the triangles were merged into.
     pub fn surface_count(&self) -> usize {
         self.surfaces.len()
+    }
+
+    /// Number of triangles traced (zero-area ones included).
+    pub fn triangle_count(&self) -> usize {
+        self.slot_surface.len()
+    }
+
+    /// Calls `f(placed)` for every instance whose world box `enter(box, bound)` accepts, nearest key first;
+    /// `f` returns the new bound and whether to stop.
+    fn instances_by<K: PartialOrd + Copy + Default>(
+        &self,
+        bound: K,
+        enter: impl Fn(&Aabb, K) -> Option<K>,
+        mut f: impl FnMut(&Placed<'a>, K) -> (K, bool),
+    ) {
+        let Some(top) = self.top else {
+            if let Some(p) = &self.instances[0] {
+                f(p, bound);
+            }
+            return;
+        };
+        traverse_by(
+            top.nodes(),
+            bound,
+            &mut (),
+            |n, b| enter(&n.aabb(), b),
+            |slots, b| {
+                for s in slots {
+                    if let Some(p) = &self.instances[top.prim_indices()[s] as usize] {
+                        let (nb, stop) = f(p, *b);
+                        *b = nb;
+                        if stop {
+                            return true;
+                        }
+                    }
+                }
+                false
+            },
+        );
+    }
+
+    /// Frustum traversal: calls `tri(state, world triangle, surface)` for every triangle with a surface in
+    /// a leaf the frustum may overlap within `bound(state)` of its apex (re-read after every leaf).
+    pub(crate) fn frustum_leaves<S>(
+        &self,
+        cull: &Cull,
+        state: &mut S,
+        mut tri: impl FnMut(&mut S, [Vec3; 3], u32),
+        bound: impl Fn(&S) -> f32,
+    ) {
+        let start = bound(state);
+        self.instances_by(
+            start,
+            |b, d| {
+                let e = box_distance(cull.apex, b);
+                (e <= d && cull.may_overlap(b)).then_some(e)
+            },
+            |p, d| {
+                let local = match p.xf {
+                    None => *cull,
+                    Some(x) => cull.in_object_space(&x.to_world, &x.to_object),
+                };
+                traverse_by(
+                    p.bvh.bvh().nodes(),
+                    d,
+                    &mut (),
+                    |n, d| {
+                        let b = n.aabb();
+                        let e = match p.xf {
+                            None => box_distance(local.apex, &b),
+                            Some(x) => x.distance(cull.apex, &b),
+                        };
+                        (e <= d && local.may_overlap(&b)).then_some(e)
+                    },
+                    |slots, d| {
+                        for s in slots {
+                            let surface = self.slot_surface[p.first + s];
+                            if surface != NO_SURFACE {
+                                tri(state, p.world_triangle(s), surface);
+                            }
+                        }
+                        *d = bound(state);
+                        false
+                    },
+                );
+                (bound(state), false)
+            },
+        );
+    }
+
+    /// The nearest triangle with a surface within the ray's range, or, with `any`, the first one found.
+    pub(crate) fn hit(&self, ray: &Ray, any: bool) -> Option<SceneHit> {
+        if !ray.is_valid() {
+            return None;
+        }
+        let tr = TriangleRay::new(ray);
+        let mut best: Option<SceneHit> = None;
+        self.instances_by(
+            ray.tmax,
+            |b, t| ray.intersect_aabb(b, t),
+            |p, tmax| {
+                let local = match p.xf {
+                    None => *ray,
+                    Some(x) => Ray::with_range(
+                        x.to_object.transform_point3(ray.origin),
+                        x.to_object.transform_vector3(ray.dir()),
+                        ray.tmin,
+                        tmax,
+                    ),
+                };
+                let mut stop = false;
+                let mut t = tmax;
+                traverse(p.bvh.bvh().nodes(), &local, &mut (), |slots, tmax| {
+                    for s in slots {
+                        let surface = self.slot_surface[p.first + s];
+                        if surface == NO_SURFACE {
+                            continue;
+                        }
+                        let [a, b, c] = p.world_triangle(s);
+                        if let Some(hit) = tr.intersect(a, b, c, ray.tmin, *tmax) {
+                            *tmax = hit.t;
+                            best = Some(SceneHit { hit, surface });
+                            if any {
+                                stop = true;
+                                return true;
+                            }
+                        }
+                    }
+                    t = *tmax;
+                    false
+                });
+                (t, stop)
+            },
+        );
+        best
+    }
+}
+
+impl Grouping {
+    fn new(size: f32) -> Self {
+        Self {
+            size: size.max(1e-6),
+            keys: HashMap::new(),
+            surfaces: Vec::new(),
+        }
     }
 }

@@ -10,9 +10,8 @@
 //! bilinear blends and no ray–triangle test; triangles sharing an edge get exactly negated edge values, so
 //! no sample slips between them.
 
-use super::frustum::{Frustum, bilerp, box_distance};
+use super::frustum::{Frustum, bilerp};
 use super::scene::{NO_SURFACE, SoundScene};
-use crate::bvh::traverse_by;
 use glam::Vec3;
 
 /// What the frustum's samples hit so far.
@@ -50,33 +49,19 @@ fn centre(i: usize, n: usize) -> f32 {
 
 /// Traces `f` with `n × n` sub-frusta; returns the surface each sub-frustum's centre ray hits first.
 pub(crate) fn trace(scene: &SoundScene, f: &Frustum, n: usize) -> Traced {
-    let o = f.apex;
-    let sides = f.side_normals();
     // The reflector a reflected frustum starts on: hits must lie beyond it, and it cannot be hit again.
-    let near_inv = f.near.map(|pl| pl.n / (pl.c - pl.n.dot(o)));
+    let near_inv = f.near.map(|pl| pl.n / (pl.c - pl.n.dot(f.apex)));
     let reflector = f.chain.last().copied().unwrap_or(NO_SURFACE);
-    let tris = scene.bvh.slot_triangles();
     let mut cov = Coverage::Empty;
-    traverse_by(
-        scene.bvh.bvh().nodes(),
-        f32::INFINITY,
-        &mut (),
-        |node, bound| {
-            let b = node.aabb();
-            let d = box_distance(o, &b);
-            (d <= bound && f.may_overlap(&sides, &b)).then_some(d)
-        },
-        |slots, bound| {
-            for s in slots {
-                let surface = scene.slot_surface[s];
-                if surface == NO_SURFACE || surface == reflector {
-                    continue;
-                }
-                triangle(f, n, &mut cov, tris[s], surface, near_inv);
+    scene.frustum_leaves(
+        &f.cull(),
+        &mut cov,
+        |cov, tri, surface| {
+            if surface != reflector {
+                triangle(f, n, cov, tri, surface, near_inv);
             }
-            *bound = far_bound(&cov);
-            false
         },
+        far_bound,
     );
     match cov {
         Coverage::Empty => Traced::Empty,
