@@ -115,6 +115,7 @@ pub(crate) struct Kernels {
     pub sah: Module,
     pub ploc: Module,
     pub raysort: Module,
+    pub taskpool: Module,
 }
 
 impl Kernels {
@@ -248,6 +249,13 @@ impl Kernels {
                 shader!("raysort_keys.wgsl"),
                 &[Read, Write, Write, Write, Write, Uniform],
                 &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
+            ),
+            taskpool: Module::new(
+                device,
+                "taskpool",
+                shader!("taskpool.wgsl"),
+                &[Read, Write, Write, Write, Write, Uniform, Write],
+                &["pool_plan", "pool_work", "pool_advance", "pool_finish"],
             ),
         }
     }

@@ -37,6 +37,7 @@ mod scan;
 pub(crate) mod scene;
 mod skin;
 pub(crate) mod sort;
+pub mod taskpool;
 mod trace;
 mod tree;
 
