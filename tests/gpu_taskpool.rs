@@ -10,14 +10,17 @@ use common::*;
 use kinetrace::Error;
 use kinetrace::gpu::taskpool::{SumTask, sum_tree};
 
-/// The CPU oracle: the same halving by recursion, tasks as (range, parent range, depth, sum).
+/// A task as the oracle sees it: (range, parent range, depth, sum).
+type Task = ((u32, u32), Option<(u32, u32)>, u32, u32);
+
+/// The CPU oracle: the same halving by recursion.
 fn cpu_tree(
     values: &[u32],
     range: (u32, u32),
     parent: Option<(u32, u32)>,
     depth: u32,
     leaf: u32,
-    out: &mut Vec<((u32, u32), Option<(u32, u32)>, u32, u32)>,
+    out: &mut Vec<Task>,
 ) {
     let (lo, hi) = range;
     let sum = values[lo as usize..hi as usize]
@@ -43,7 +46,7 @@ fn values(n: usize) -> Vec<u32> {
 }
 
 /// GPU tasks in the oracle's terms, sorted; also checks the child links the GPU wrote.
-fn as_oracle(tasks: &[SumTask]) -> Vec<((u32, u32), Option<(u32, u32)>, u32, u32)> {
+fn as_oracle(tasks: &[SumTask]) -> Vec<Task> {
     for (id, t) in tasks.iter().enumerate() {
         if let Some(c) = t.first_child {
             for child in [c, c + 1] {

@@ -17,6 +17,13 @@
 //! pool is empty, so surplus rounds of a batch cost only empty dispatches. After each batch the host reads
 //! three words and records another batch only while tasks are live.
 //!
+//! # Status
+//!
+//! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
+//! built with that feature alone until a BVH build and DACRT land on it. Known bug: past 32768 elements
+//! with one-element leaves (about 2^16 tasks) a few tasks end with a wrong sum although every chunk ran
+//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction).
+//!
 //! # Bounds
 //!
 //! A pool holds at most `capacity` tasks over a whole run (task records are kept so that results can be read
@@ -26,9 +33,7 @@
 //! retires or advances every live task and tasks are finite, so a run ends after at most `capacity` rounds
 //! with live tasks.
 
-#[cfg(feature = "testing")]
 mod sum_tree;
-#[cfg(feature = "testing")]
 pub use sum_tree::{SumTask, sum_tree};
 
 use super::GpuContext;
