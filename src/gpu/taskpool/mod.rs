@@ -22,7 +22,11 @@
 //! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
 //! built with that feature alone until a BVH build and DACRT land on it. Known bug: past 32768 elements
 //! with one-element leaves (about 2^16 tasks) a few tasks end with a wrong sum although every chunk ran
-//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction).
+//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction). Instrumenting `pool_work` showed 8
+//! chunks (one run of 8 consecutive live slots) mapped to a slot whose scanned offsets do not hold them:
+//! the offsets the work kernel reads disagree with the chunk counts `pool_plan` wrote, so the fault lies in
+//! plan → scan → work (the indirect 3-level scan, or the visibility between those dispatches), not in the
+//! chunk claims.
 //!
 //! # Bounds
 //!
