@@ -26,8 +26,8 @@
 //! chunks (one run of 8 consecutive live slots) mapped to a slot whose scanned offsets do not hold them:
 //! the offsets the work kernel reads disagree with the chunk counts `pool_plan` wrote, so the fault lies in
 //! plan → scan → work (the indirect 3-level scan, or the visibility between those dispatches), not in the
-//! chunk claims. All 8 happen in round 15, the last round of the second batch; with one round per
-//! submission the reproduction passes, and a compute pass per round does not help.
+//! chunk claims. All 8 happen in one round (round 15); a compute pass per round does not help, and one
+//! round per submission made the reproduction pass alone but not beside the other tests.
 //!
 //! # Bounds
 //!
