@@ -78,6 +78,14 @@ pub enum Error {
     /// A build option is out of its range.
     #[error("invalid build option: {0}")]
     InvalidOption(String),
+    /// A GPU task pool run asked for more tasks than the pool holds (`capacity`); make a larger pool.
+    #[error("task pool full: {asked} tasks asked for, the pool holds {capacity}")]
+    TaskPoolFull {
+        /// Tasks the pool holds.
+        capacity: usize,
+        /// Tasks the run asked for when it stopped inserting.
+        asked: usize,
+    },
     /// A shadow pass was given unusable settings or a G-buffer of the wrong size.
     #[error("invalid shadow pass input: {0}")]
     InvalidShadowInput(String),

@@ -116,7 +116,13 @@ pub(crate) struct Kernels {
     pub sah: Module,
     pub ploc: Module,
     pub raysort: Module,
+<<<<<<< HEAD
     pub raysort_crsh: Module,
+=======
+    /// The task pool: only its test hook uses it until a task kind beyond the toy lands.
+    #[cfg(feature = "testing")]
+    pub taskpool: Module,
+>>>>>>> taskpool
 }
 
 impl Kernels {
@@ -258,12 +264,22 @@ impl Kernels {
                 &[Read, Write, Write, Write, Write, Uniform],
                 &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
             ),
+<<<<<<< HEAD
             raysort_crsh: Module::new(
                 device,
                 "raysort_crsh",
                 shader!(rays "raysort_crsh.wgsl"),
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
+=======
+            #[cfg(feature = "testing")]
+            taskpool: Module::new(
+                device,
+                "taskpool",
+                shader!("taskpool.wgsl"),
+                &[Read, Write, Write, Write, Write, Uniform, Write],
+                &["pool_plan", "pool_work", "pool_advance", "pool_finish"],
+>>>>>>> taskpool
             ),
         }
     }

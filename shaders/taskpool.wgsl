@@ -1,0 +1,151 @@
+// The task pool of seed 004 (src/gpu/taskpool/): tasks -> phases -> steps -> work chunks, run in rounds.
+//
+// A round is five dispatches: `pool_plan` lists the chunk count of every live task's current step, the
+// crate's scan (src/gpu/scan.rs) turns the counts into offsets, `pool_work` runs a fixed number of persistent
+// workgroups whose invocations claim chunks with one atomic counter until the round's chunks are gone,
+// `pool_advance` moves each live task to its next phase (inserting child tasks into the next round's live
+// list, or retiring it), and `pool_finish` (one invocation) swaps the live lists and writes the indirect
+// arguments of the next round (zero workgroups once the pool is empty).
+//
+// Why no invocation ever waits on another workgroup: the only cross-invocation operations inside a dispatch
+// are atomic increments that never retry (claiming a chunk, accumulating into a task, allocating task ids);
+// an invocation that finds no chunk left leaves the loop. Every read of another invocation's plain writes
+// (chunk counts, offsets, task records, accumulated results) happens in a later dispatch, and a dispatch
+// boundary makes all writes visible. So the pool needs no forward-progress guarantee between workgroups,
+// which WGSL does not give. The persistent loop is bounded: the claim cursor only grows and the round's
+// chunk total is fixed before the dispatch starts.
+//
+// Task record (8 words, all atomic so that accumulation and reads share one type):
+//   0 lo, 1 hi (the element range), 2 phase, 3 chunks of the current step, 4 parent (NONE for the root),
+//   5 depth, 6 accumulator, 7 unused.
+// State words: 0 live count, 1 next live count, 2 tasks allocated, 3 chunk cursor, 4 tasks asked for past
+//   the capacity (0 when none were), 5 rounds with live tasks, 6 live-list parity, 7 chunks run.
+// Indirect arguments (u32): 0..3 per-live-task kernels, 3..6 the work kernel, 6..15 scan levels 0..2.
+
+struct PoolParams { capacity: u32, leaf: u32, chunk: u32, work_groups: u32 }
+
+const NONE: u32 = 0xffffffffu;
+const STRIDE: u32 = 8u;
+const PHASE_SUM: u32 = 0u;
+
+@group(0) @binding(0) var<storage, read> values: array<u32>;
+@group(0) @binding(1) var<storage, read_write> tasks: array<atomic<u32>>;
+@group(0) @binding(2) var<storage, read_write> live: array<u32>;
+@group(0) @binding(3) var<storage, read_write> offsets: array<u32>;
+@group(0) @binding(4) var<storage, read_write> state: array<atomic<u32>>;
+@group(0) @binding(5) var<uniform> params: PoolParams;
+@group(0) @binding(6) var<storage, read_write> args: array<u32>;
+
+fn field(t: u32, f: u32) -> u32 { return atomicLoad(&tasks[t * STRIDE + f]); }
+fn set_field(t: u32, f: u32, v: u32) { atomicStore(&tasks[t * STRIDE + f], v); }
+
+fn live_task(i: u32) -> u32 {
+    return live[atomicLoad(&state[6]) * params.capacity + i];
+}
+
+// Writes a new task record; its first step's chunk count comes from its range.
+fn init_task(t: u32, lo: u32, hi: u32, parent: u32, depth: u32) {
+    set_field(t, 0u, lo);
+    set_field(t, 1u, hi);
+    set_field(t, 2u, PHASE_SUM);
+    set_field(t, 3u, (hi - lo + params.chunk - 1u) / params.chunk);
+    set_field(t, 4u, parent);
+    set_field(t, 5u, depth);
+    set_field(t, 6u, 0u);
+    set_field(t, 7u, 0u);
+}
+
+// Puts task t on the next round's live list.
+fn push_next(t: u32) {
+    let slot = atomicAdd(&state[1], 1u);
+    live[(1u - atomicLoad(&state[6])) * params.capacity + slot] = t;
+}
+
+@compute @workgroup_size(256)
+fn pool_plan(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i == 0u {
+        atomicStore(&state[3], 0u);
+        atomicStore(&state[1], 0u);
+    }
+    if i < atomicLoad(&state[0]) {
+        offsets[i] = field(live_task(i), 3u);
+    }
+}
+
+// One work chunk: the toy task sums `chunk` elements of its range into its accumulator.
+fn run_chunk(t: u32, c: u32) {
+    let lo = field(t, 0u) + c * params.chunk;
+    let hi = min(lo + params.chunk, field(t, 1u));
+    var s = 0u;
+    for (var k = lo; k < hi; k++) { s += values[k]; }
+    atomicAdd(&tasks[t * STRIDE + 6u], s);
+}
+
+@compute @workgroup_size(64)
+fn pool_work() {
+    let n = atomicLoad(&state[0]);
+    if n == 0u { return; }
+    let total = offsets[n - 1u] + field(live_task(n - 1u), 3u);
+    // Bounded: the cursor only grows, and there are `total` chunks this round.
+    loop {
+        let c = atomicAdd(&state[3], 1u);
+        if c >= total { break; }
+        // The last live slot whose offset is <= c (slots with no chunks share their successor's offset).
+        var a = 0u;
+        var b = n - 1u;
+        while a < b {
+            let m = (a + b + 1u) / 2u;
+            if offsets[m] <= c { a = m; } else { b = m - 1u; }
+        }
+        run_chunk(live_task(a), c - offsets[a]);
+        atomicAdd(&state[7], 1u);
+    }
+}
+
+@compute @workgroup_size(256)
+fn pool_advance(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let i = gid.x;
+    if i >= atomicLoad(&state[0]) { return; }
+    let t = live_task(i);
+    // The toy task has one phase; when it ends, a range larger than a leaf splits into two child tasks.
+    let lo = field(t, 0u);
+    let hi = field(t, 1u);
+    set_field(t, 3u, 0u);
+    if hi - lo <= params.leaf { return; }
+    let first = atomicAdd(&state[2], 2u);
+    if first + 2u > params.capacity {
+        atomicMax(&state[4], first + 2u);
+        return;
+    }
+    let mid = lo + (hi - lo) / 2u;
+    let depth = field(t, 5u) + 1u;
+    init_task(first, lo, mid, t, depth);
+    init_task(first + 1u, mid, hi, t, depth);
+    set_field(t, 7u, first);
+    push_next(first);
+    push_next(first + 1u);
+}
+
+fn groups(n: u32, size: u32) -> u32 { return (n + size - 1u) / size; }
+
+@compute @workgroup_size(1)
+fn pool_finish() {
+    let n = atomicLoad(&state[1]);
+    atomicStore(&state[0], n);
+    atomicStore(&state[6], 1u - atomicLoad(&state[6]));
+    if n > 0u { atomicAdd(&state[5], 1u); }
+    args[0] = groups(n, 256u);
+    args[1] = 1u;
+    args[2] = 1u;
+    args[3] = select(0u, params.work_groups, n > 0u);
+    args[4] = 1u;
+    args[5] = 1u;
+    var level = n;
+    for (var l = 0u; l < 3u; l++) {
+        args[6u + 3u * l] = groups(level, WG);
+        args[7u + 3u * l] = 1u;
+        args[8u + 3u * l] = 1u;
+        level = groups(level, WG);
+    }
+}

@@ -1,0 +1,222 @@
+//! The persistent task pool of seed 004 (shaders/taskpool.wgsl): tasks → phases → steps → work chunks.
+//!
+//! A task owns a range of elements and walks through phases; each phase runs steps, and a step is cut into
+//! work chunks that any invocation may run. The pool keeps a compact task record (8 words) per task in one
+//! array, two live lists of task ids (this round's and the next's), and a word of chunk offsets per live
+//! task. Atomics hand out chunks (one claim counter per round), accumulate chunk results into their task, and
+//! allocate ids for child tasks that a finishing phase inserts.
+//!
+//! # The bounded persistent loop
+//!
+//! WGSL promises no forward progress between workgroups, so no invocation here ever waits for another: a
+//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), work, advance, finish),
+//! and `work` runs a fixed number of persistent workgroups whose invocations claim chunks until the round's
+//! chunks — counted before the dispatch started — are gone, then leave. Phase changes and child insertion
+//! read chunk results only in the next dispatch, after the boundary that makes them visible. Rounds are
+//! recorded in batches; `finish` writes the next round's indirect workgroup counts, which are zero once the
+//! pool is empty, so surplus rounds of a batch cost only empty dispatches. After each batch the host reads
+//! three words and records another batch only while tasks are live.
+//!
+//! # Status
+//!
+//! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
+//! built with that feature alone until a BVH build and DACRT land on it. Known bug: past 32768 elements
+//! with one-element leaves (about 2^16 tasks) a few tasks end with a wrong sum although every chunk ran
+//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction). Instrumenting `pool_work` showed 8
+//! chunks (one run of 8 consecutive live slots) mapped to a slot whose scanned offsets do not hold them:
+//! the offsets the work kernel reads disagree with the chunk counts `pool_plan` wrote, so the fault lies in
+//! plan → scan → work (the indirect 3-level scan, or the visibility between those dispatches), not in the
+//! chunk claims. All 8 happen in one round (round 15); a compute pass per round does not help, and one
+//! round per submission made the reproduction pass alone but not beside the other tests.
+//!
+//! # Bounds
+//!
+//! A pool holds at most `capacity` tasks over a whole run (task records are kept so that results can be read
+//! back), and at most [`MAX_TASK_CAPACITY`] (2^22, 32 MiB of records: the indirect dispatches over live
+//! tasks then stay within 16384 workgroups of 256). A run that asks for more tasks stops inserting, finishes
+//! the tasks it has, and returns [`Error::TaskPoolFull`] with the number of tasks it asked for. Every round
+//! retires or advances every live task and tasks are finite, so a run ends after at most `capacity` rounds
+//! with live tasks.
+
+mod sum_tree;
+pub use sum_tree::{SumTask, sum_tree};
+
+use super::GpuContext;
+use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
+use super::scan::Scan;
+use crate::{Error, Result};
+
+/// The most tasks a pool can hold.
+pub const MAX_TASK_CAPACITY: u32 = 1 << 22;
+/// Words per task record.
+const TASK_WORDS: u64 = 8;
+/// Words of the pool state.
+const STATE_WORDS: usize = 8;
+/// Indirect argument words: per-task kernels, the work kernel, three scan levels.
+const ARG_WORDS: usize = 15;
+/// Persistent workgroups (of 64 invocations) of the work kernel.
+const WORK_GROUPS: u32 = 32;
+/// Rounds recorded per submission.
+const ROUNDS_PER_BATCH: u32 = 8;
+/// Dispatches per round besides the scan's.
+const POOL_DISPATCHES: u32 = 4;
+
+/// What one pool run did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PoolCounts {
+    /// Rounds that had live tasks.
+    pub rounds: u32,
+    /// Tasks created, the root included.
+    pub tasks: u32,
+    /// Work chunks run.
+    pub chunks: u32,
+    /// Compute dispatches recorded (empty ones of finished rounds included).
+    pub dispatches: u32,
+    /// Queue submissions, each followed by a blocking read of the pool state.
+    pub submissions: u32,
+}
+
+/// Buffers of one pool: task records, live lists, offsets and their scan, state and indirect arguments.
+/// Memory: 32 bytes per task of records, 12 bytes per task of lists and offsets, plus the scan's scratch.
+pub(crate) struct TaskPool {
+    capacity: u32,
+    chunk: u32,
+    tasks: GpuBuffer,
+    live: GpuBuffer,
+    state: GpuBuffer,
+    args: GpuBuffer,
+    scan: Scan,
+    _params: ParamSlots,
+    /// [0] binds the indirect arguments (the `finish` kernel), [1] a stand-in (indirect dispatches).
+    groups: [wgpu::BindGroup; 2],
+    _scratch: Vec<GpuBuffer>,
+}
+
+impl TaskPool {
+    /// A pool of `capacity` tasks over `values` whose tasks split down to `leaf` elements, `chunk` elements
+    /// per work chunk. Errors: [`Error::InvalidOption`] for a capacity outside `1..=MAX_TASK_CAPACITY` or a
+    /// zero chunk.
+    pub fn new(
+        ctx: &GpuContext,
+        values: &GpuBuffer,
+        capacity: u32,
+        leaf: u32,
+        chunk: u32,
+    ) -> Result<Self> {
+        if !(1..=MAX_TASK_CAPACITY).contains(&capacity) || chunk == 0 {
+            return Err(Error::InvalidOption(format!(
+                "task pool capacity {capacity} is outside 1..={MAX_TASK_CAPACITY} or chunk {chunk} is 0"
+            )));
+        }
+        let c = capacity as u64;
+        let tasks = GpuBuffer::storage(ctx, "pool tasks", c * TASK_WORDS * 4);
+        let live = GpuBuffer::storage(ctx, "pool live lists", 2 * c * 4);
+        let offsets = GpuBuffer::storage(ctx, "pool offsets", c * 4);
+        let state = GpuBuffer::storage(ctx, "pool state", STATE_WORDS as u64 * 4);
+        let args = GpuBuffer::new(
+            ctx,
+            "pool dispatch args",
+            ARG_WORDS as u64 * 4,
+            STORAGE | wgpu::BufferUsages::INDIRECT,
+        );
+        let stand_in = GpuBuffer::storage(ctx, "pool stand-in", ARG_WORDS as u64 * 4);
+        let scan = Scan::new(ctx, &offsets, capacity);
+        let params = ParamSlots::new(ctx, &[[capacity, leaf, chunk, WORK_GROUPS]]);
+        let with = |a: &GpuBuffer| {
+            bind_group(
+                ctx,
+                &ctx.kernels.taskpool.layout,
+                &[
+                    values.binding(),
+                    tasks.binding(),
+                    live.binding(),
+                    offsets.binding(),
+                    state.binding(),
+                    params.binding(),
+                    a.binding(),
+                ],
+            )
+        };
+        let groups = [with(&args), with(&stand_in)];
+        Ok(Self {
+            capacity,
+            chunk,
+            tasks,
+            live,
+            state,
+            args,
+            scan,
+            _params: params,
+            groups,
+            _scratch: vec![offsets, stand_in],
+        })
+    }
+
+    /// Starts a run with one root task over `0..n` and runs rounds until the pool is empty. Blocking: one
+    /// submission per batch of rounds. Errors: [`Error::TaskPoolFull`] when tasks asked for more room than
+    /// the capacity, or a GPU error.
+    pub fn run(&self, ctx: &GpuContext, n: u32) -> Result<PoolCounts> {
+        // The root's record, its chunk count as the shader's `init_task` computes it for other tasks.
+        let root = [0, n, 0, n.div_ceil(self.chunk), u32::MAX, 0, 0, 0];
+        self.tasks.write(ctx, &root);
+        self.live.write(ctx, &[0u32]);
+        self.state.write(ctx, &[1u32, 0, 1, 0, 0, 0, 0, 0]);
+        let first = [1u32, 1, 1, WORK_GROUPS, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1];
+        ctx.write_buffer(self.args.buffer(), 0, bytemuck::cast_slice(&first));
+        let mut counts = PoolCounts::default();
+        loop {
+            let mut enc = ctx.encoder();
+            self.record_rounds(ctx, &mut enc, ROUNDS_PER_BATCH);
+            counts.dispatches += ROUNDS_PER_BATCH * (POOL_DISPATCHES + self.scan.dispatches());
+            let state = Readback::<u32>::record(ctx, &mut enc, self.state.buffer(), STATE_WORDS);
+            ctx.submit(enc);
+            counts.submissions += 1;
+            let s = state.wait(ctx)?;
+            counts.rounds = s[5] + 1;
+            counts.tasks = s[2].min(self.capacity);
+            counts.chunks = s[7];
+            if s[4] > 0 {
+                return Err(Error::TaskPoolFull {
+                    capacity: self.capacity as usize,
+                    asked: s[4] as usize,
+                });
+            }
+            if s[0] == 0 {
+                return Ok(counts);
+            }
+        }
+    }
+
+    /// Records `rounds` rounds; a round without live tasks dispatches zero workgroups.
+    fn record_rounds(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, rounds: u32) {
+        let k = &ctx.kernels.taskpool;
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("kinetrace task pool rounds"),
+            timestamp_writes: None,
+        });
+        let [direct, indirect] = &self.groups;
+        let args = self.args.buffer();
+        for _ in 0..rounds {
+            pass.set_bind_group(0, indirect, &[0]);
+            pass.set_pipeline(k.pipeline("pool_plan"));
+            pass.dispatch_workgroups_indirect(args, 0);
+            self.scan.record(ctx, &mut pass, Some((args, 24)));
+            pass.set_bind_group(0, indirect, &[0]);
+            pass.set_pipeline(k.pipeline("pool_work"));
+            pass.dispatch_workgroups_indirect(args, 12);
+            pass.set_pipeline(k.pipeline("pool_advance"));
+            pass.dispatch_workgroups_indirect(args, 0);
+            pass.set_bind_group(0, direct, &[0]);
+            pass.set_pipeline(k.pipeline("pool_finish"));
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+    }
+
+    /// Reads back the first `count` task records (blocking).
+    pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<[u32; 8]>> {
+        let mut enc = ctx.encoder();
+        let r = Readback::<[u32; 8]>::record(ctx, &mut enc, self.tasks.buffer(), count as usize);
+        ctx.submit(enc);
+        r.wait(ctx)
+    }
+}
