@@ -116,13 +116,10 @@ pub(crate) struct Kernels {
     pub sah: Module,
     pub ploc: Module,
     pub raysort: Module,
-<<<<<<< HEAD
     pub raysort_crsh: Module,
-=======
     /// The task pool: only its test hook uses it until a task kind beyond the toy lands.
     #[cfg(feature = "testing")]
     pub taskpool: Module,
->>>>>>> taskpool
 }
 
 impl Kernels {
@@ -264,14 +261,13 @@ impl Kernels {
                 &[Read, Write, Write, Write, Write, Uniform],
                 &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
             ),
-<<<<<<< HEAD
             raysort_crsh: Module::new(
                 device,
                 "raysort_crsh",
                 shader!(rays "raysort_crsh.wgsl"),
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
-=======
+            ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(
                 device,
@@ -279,7 +275,6 @@ impl Kernels {
                 shader!("taskpool.wgsl"),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
                 &["pool_plan", "pool_work", "pool_advance", "pool_finish"],
->>>>>>> taskpool
             ),
         }
     }

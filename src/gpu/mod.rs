@@ -38,14 +38,10 @@ mod scan;
 pub(crate) mod scene;
 mod skin;
 pub(crate) mod sort;
-<<<<<<< HEAD
-pub(crate) mod trace;
-=======
 // Only the toy task runs on the pool so far: the module is built with the test hook until a BVH build lands.
 #[cfg(feature = "testing")]
 pub mod taskpool;
-mod trace;
->>>>>>> taskpool
+pub(crate) mod trace;
 mod tree;
 
 pub use buffers::Readback;
