@@ -23,6 +23,9 @@ fn kind(o: PlannedOption) -> usize {
         PlannedOption::Structure(_) => 0,
         PlannedOption::Wide(_) => 1,
         PlannedOption::Packets(_) => 2,
+        PlannedOption::Secondary(..) => {
+            panic!("only primary rays are queued: no secondary batch to plan")
+        }
     }
 }
 
