@@ -648,7 +648,10 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
             skip(s);
         }
         assert!(scenes.len() >= 6);
-        let adaptive = [harness::Strategy::Adaptive { gpu: false }];
+        let adaptive = [harness::Strategy::Adaptive {
+            gpu: false,
+            partial: false,
+        }];
         for scene in &scenes {
             let records = harness::run_scene(scene, &settings, &adaptive, None);
             for r in &records[0] {
