@@ -301,8 +301,9 @@ impl MeshBvh {
     /// rebuilt subtrees are not re-collapsed: the wide nodes lie in the order the collapse found them,
     /// with leaf sizes planned over the whole tree, and a rebuilt subtree may collapse into another
     /// number of wide nodes, so splicing it in would move the rest. `bench cpu --quick` (2-core VM,
-    /// loaded) puts the re-collapse at 0.16–0.21 of a partial rebuild's time on its 100k-triangle
-    /// scenes. The tree gets a new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    /// loaded) puts the re-collapse at 0.21–0.24 of a partial rebuild's time on its scattered 100k
+    /// scene (its surface pose rebuilds nothing). The tree gets a new [`topology_id`](Self::topology_id)
+    /// when anything was rebuilt.
     ///
     /// Errors: [`Error::InvalidOption`], [`Error::VertexCountMismatch`], [`Error::NonFiniteVertex`]; the
     /// tree is unchanged then.
