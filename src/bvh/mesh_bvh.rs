@@ -297,8 +297,8 @@ impl MeshBvh {
     /// the refitted tree's cost.
     ///
     /// Cost: a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when anything
-    /// was rebuilt, a new collapse of the whole wide tree (O(n), the price of a derived tree). Only the
-    /// rebuilt subtrees are not re-collapsed: the wide nodes lie in the order the collapse found them,
+    /// was rebuilt, a new collapse of the whole wide tree (O(n), the price of a derived tree). Collapsing
+    /// only the rebuilt subtrees again is not done: the wide nodes lie in the order the collapse found them,
     /// with leaf sizes planned over the whole tree, and a rebuilt subtree may collapse into another
     /// number of wide nodes, so splicing it in would move the rest. `bench cpu --quick` (2-core VM,
     /// loaded) puts the re-collapse at 0.21–0.24 of a partial rebuild's time on its scattered 100k
