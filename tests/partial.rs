@@ -341,11 +341,10 @@ fn the_planner_takes_a_partial_rebuild_when_it_is_cheaper_beyond_the_margin() {
             policy.queried(20_000.0, 55.0, 0.010);
         }
         let frame = (1..20)
-            .find(|_| {
-                policy.offer_partial(k);
-                policy.after_refit(60.0, 20_000.0)
-            })
+            .find(|_| policy.after_refit(60.0, 20_000.0))
             .unwrap();
+        assert_eq!(policy.prediction().verdict, Verdict::Rent);
+        policy.prefer_partial(k);
         (frame, policy)
     };
     let unit = |n: f64| n * n.log2();
@@ -361,8 +360,8 @@ fn the_planner_takes_a_partial_rebuild_when_it_is_cheaper_beyond_the_margin() {
     );
     // After the partial rebuild the rent starts again from nothing.
     policy.partially_rebuilt(500, 0.0007, 56.0);
-    policy.offer_partial(500);
     assert!(!policy.after_refit(56.0, 20_000.0));
+    assert!(!policy.prefer_partial(500), "a kept tree is not rebuilt");
     assert_eq!(policy.prediction().verdict, Verdict::Keep);
     // 2000 triangles: 3.3 ms against 4 ms, within the margin: the full rebuild stays.
     let (frame, policy) = run(2000);

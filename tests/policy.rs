@@ -20,7 +20,9 @@ use common::ecs::{agree, app_with, brute};
 use common::*;
 use glam::Vec3;
 use kinetrace::Ray;
-use kinetrace::adaptive::{AdaptivePolicy, Asset, Choice, CostTable, DEFAULT_SAH_BOUND, DEFAULT_Z};
+use kinetrace::adaptive::{
+    AdaptivePolicy, Asset, Choice, CostTable, DEFAULT_SAH_BOUND, DEFAULT_Z, Verdict,
+};
 use kinetrace::bvh::Builder;
 use kinetrace::ecs::*;
 use rand::Rng;
@@ -54,6 +56,25 @@ impl Walk {
             entity,
             rng: rng(seed),
             step,
+        }
+    }
+
+    /// One corner of the soup churns: each triangle whose centroid lies below 0.4 on every axis moves
+    /// by up to `step` per axis, its centroid kept within `[-0.2, 0.4)³`. The corner's triangles stir
+    /// among themselves, so a refitted tree's corner subtrees degrade while a fresh tree's cost stays
+    /// level, and the rest of the mesh is left alone.
+    fn churn_corner(&mut self, world: &mut World, step: f32) {
+        let mesh = world.get::<TraceMesh>(self.entity).unwrap().0.clone();
+        let mut vp = world.get_mut::<VertexPositions>(self.entity).unwrap();
+        for tri in mesh.indices().chunks(3) {
+            let c = tri.iter().map(|&i| vp.0[i as usize]).sum::<Vec3>() / 3.0;
+            if c.max_element() < 0.4 {
+                let to = (c + rand_vec(&mut self.rng, -step, step))
+                    .clamp(Vec3::splat(-0.2), Vec3::splat(0.399));
+                for &i in tri {
+                    vp.0[i as usize] += to - c;
+                }
+            }
         }
     }
 
@@ -630,7 +651,10 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
             skip(s);
         }
         assert!(scenes.len() >= 6);
-        let adaptive = [harness::Strategy::Adaptive { gpu: false }];
+        let adaptive = [harness::Strategy::Adaptive {
+            gpu: false,
+            partial: false,
+        }];
         for scene in &scenes {
             let records = harness::run_scene(scene, &settings, &adaptive, None);
             for r in &records[0] {
@@ -915,7 +939,7 @@ fn always_partial(_: &PolicyInput<'_>) -> Decision {
     Decision::PartialRebuild
 }
 
-/// A custom policy may ask for partial rebuilds: while one corner of a soup explodes and the rest barely
+/// A custom policy may ask for partial rebuilds: while one corner of a soup churns and the rest barely
 /// moves, the plugin rebuilds only degraded subtrees (counted in `TraceStats` and the mesh's action, fewer
 /// triangles than the mesh), and every batched and immediate answer equals brute force each frame.
 #[test]
@@ -928,20 +952,7 @@ fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
     let (mut partial_frames, mut rebuilt) = (0, 0);
     for _ in 0..10 {
         walk.advance(&mut world);
-        {
-            // The corner explodes: each triangle whose centroid lies in [0, 0.4)³ flies off by up to 0.5.
-            let mesh = world.get::<TraceMesh>(walk.entity).unwrap().0.clone();
-            let mut vp = world.get_mut::<VertexPositions>(walk.entity).unwrap();
-            for tri in mesh.indices().chunks(3) {
-                let [a, b, c] = [0, 1, 2].map(|k| vp.0[tri[k] as usize]);
-                if ((a + b + c) / 3.0).max_element() < 0.4 {
-                    let d = rand_dir(&mut walk.rng) * walk.rng.random_range(0.0..0.5);
-                    for &i in tri {
-                        vp.0[i as usize] += d;
-                    }
-                }
-            }
-        }
+        walk.churn_corner(&mut world, 0.5);
         let m = frame(&mut world, &mut schedule, &walk, &mut r, 256, 64);
         let stats = world.resource::<TraceStats>();
         match m.action {
@@ -958,7 +969,74 @@ fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
     }
     assert!(
         partial_frames > 0,
-        "the exploding corner degraded no subtree"
+        "the churning corner degraded no subtree"
     );
     eprintln!("{partial_frames} partial rebuilds, {rebuilt} triangles rebuilt in all");
+}
+
+/// The adaptive policy's third update: while one corner of a soup churns and the rest barely moves, a
+/// rebuild due by the rent becomes a partial rebuild of fewer triangles than the mesh (counted in
+/// `TraceStats` and the mesh's action), every batched and immediate answer equals brute force each frame,
+/// and the pass that counts the degraded triangles runs exactly in the frames whose rent made a rebuild
+/// due (`Rent` or `Partial`): never in a frame that keeps the tree, explores or guards.
+#[test]
+fn the_adaptive_policy_rebuilds_a_churning_corner_partially() {
+    const N: usize = 4000;
+    let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
+    let mut walk = Walk::spawn(&mut world, N, 43, 0.0005);
+    let mut r = rng(44);
+    frame(&mut world, &mut schedule, &walk, &mut r, 64, 8);
+    let (mut partial_frames, mut checks, mut verdicts) = (0, 0, Vec::new());
+    for _ in 0..60 {
+        walk.advance(&mut world);
+        walk.churn_corner(&mut world, 0.05);
+        let m = frame(&mut world, &mut schedule, &walk, &mut r, 8192, 32);
+        let stats = world.resource::<TraceStats>();
+        let verdict = m.prediction.map(|p| p.verdict);
+        verdicts.push(verdict);
+        let due = matches!(verdict, Some(Verdict::Rent | Verdict::Partial));
+        assert_eq!(stats.partial_checks, due as usize, "{verdict:?}");
+        checks += stats.partial_checks;
+        match m.action {
+            MeshAction::PartialRebuild { triangles } => {
+                assert_eq!(verdict, Some(Verdict::Partial));
+                assert!(triangles > 0 && triangles < N, "{triangles} of {N}");
+                assert_eq!(stats.partial_rebuilds, 1);
+                assert_eq!(stats.partial_triangles, triangles);
+                partial_frames += 1;
+            }
+            _ => {
+                assert_ne!(verdict, Some(Verdict::Partial), "{:?}", m.action);
+                assert_eq!(stats.partial_rebuilds, 0);
+            }
+        }
+    }
+    assert!(partial_frames > 0, "no partial rebuild: {verdicts:?}");
+    eprintln!("{partial_frames} partial rebuilds, {checks} checks in 60 frames: {verdicts:?}");
+}
+
+/// A rigid scene pays no partial-rebuild check: meshes that only move never reach the planner's rebuild
+/// decision, so no frame counts the degraded triangles (`TraceStats::partial_checks` stays 0 every
+/// frame while rays keep the rent's measurements coming).
+#[test]
+fn a_rigid_scene_never_checks_for_a_partial_rebuild() {
+    let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
+    let walk = Walk::spawn(&mut world, 2000, 45, 0.0);
+    let mut r = rng(46);
+    frame(&mut world, &mut schedule, &walk, &mut r, 64, 8);
+    for k in 1..=40 {
+        let angle = 0.05 * k as f32;
+        world.get_mut::<TraceTransform>(walk.entity).unwrap().0 =
+            glam::Affine3A::from_rotation_translation(
+                glam::Quat::from_rotation_y(angle),
+                Vec3::new(0.01 * k as f32, 0.0, 0.0),
+            );
+        let m = frame(&mut world, &mut schedule, &walk, &mut r, 256, 16);
+        assert_eq!(m.action, MeshAction::Moved);
+        assert_eq!(
+            world.resource::<TraceStats>().partial_checks,
+            0,
+            "frame {k}"
+        );
+    }
 }

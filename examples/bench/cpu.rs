@@ -304,8 +304,10 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
 /// Partial rebuilds, one thread, on a pose where the triangles within a sixteenth of the box's diagonal
 /// of one triangle's centroid fly apart (up to a tenth of the diagonal) and the rest stays: the time of
 /// [`MeshBvh::refit_partial`] against a refit alone and a full binned-SAH rebuild of the same pose, the
-/// triangles it rebuilt, and the SAH cost it reaches against both. Only the calls are timed (each starts
-/// from its own clone of the built tree).
+/// triangles it rebuilt, and the SAH cost it reaches against both; the dry run that counts the degraded
+/// triangles ([`kinetrace::bvh::Bvh::degraded_primitives`]) against the refit, and the share of the
+/// partial call spent re-collapsing the wide tree. Only the calls are timed (each starts from its own
+/// clone of the built tree).
 fn partial_rows(rec: &mut Records, name: &str, mesh: &Mesh) {
     let reps = rec.reps();
     let n = mesh.triangle_count() as f64;
@@ -357,6 +359,14 @@ fn partial_rows(rec: &mut Records, name: &str, mesh: &Mesh) {
         t.refit(&pos).unwrap();
         0
     });
+    // What the adaptive policy pays to weigh a partial rebuild (the selection's dry run, on the refitted
+    // tree) and the share of the partial call that re-collapses the whole wide tree.
+    let (t_check, _) = one_thread(|| {
+        best_of(reps * 4, || {
+            refit.bvh().degraded_primitives(&options).unwrap()
+        })
+    });
+    let (t_collapse, _) = one_thread(|| best_of(reps, || WideBvh::collapse(part.bvh().nodes())));
     let moved = mesh.with_positions(pos.clone()).unwrap();
     let (t_full, fresh) = one_thread(|| {
         best_of(reps, || {
@@ -395,6 +405,30 @@ fn partial_rows(rec: &mut Records, name: &str, mesh: &Mesh) {
         "triangles rebuilt",
         rebuilt as f64,
         "tris",
+    );
+    rec.add(
+        SUITE,
+        name,
+        subject,
+        "partial check 1 thread",
+        n / t_check / 1e6,
+        "Mtris/s",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "partial check/refit time",
+        t_check / t_refit,
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "ratio",
+        "wide re-collapse/partial time",
+        t_collapse / t_partial,
+        "x",
     );
     let sah = part.bvh().sah_cost();
     rec.add(

@@ -6,7 +6,7 @@ use super::grid_rows::{self, StructureStrategy};
 use super::option_rows::{self, OptionStrategy};
 use super::scenes::Scene;
 use glam::Vec3;
-use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, TreeCost};
+use kinetrace::adaptive::{AdaptivePolicy, Asset, Build, CostTable, Device, TreeCost, Verdict};
 use kinetrace::bvh::{BuildOptions, Builder, Hit, PartialOptions, TraversalStats};
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
@@ -36,9 +36,11 @@ pub enum Strategy {
     RefitPartial,
     RefitEvery(u32),
     Lauterbach(f32),
-    /// The adaptive policy over CPU LBVH, hybrid and SAH, and GPU LBVH when `gpu`.
+    /// The adaptive policy over CPU LBVH, hybrid and SAH, and GPU LBVH when `gpu`; with `partial`, a
+    /// rebuild due by the rent may rebuild only the degraded subtrees, as the plugin does (issue 17).
     Adaptive {
         gpu: bool,
+        partial: bool,
     },
     /// A grid instead of a maintained BVH, or the structure rule's choice (see `grid_rows`).
     Structure(StructureStrategy),
@@ -48,7 +50,7 @@ pub enum Strategy {
 
 impl Strategy {
     /// The strategies that run everywhere.
-    pub const CPU: [Strategy; 10] = [
+    pub const CPU: [Strategy; 11] = [
         Strategy::Rebuild(Build::cpu(Builder::LBVH)),
         Strategy::Rebuild(Build::cpu(Builder::HYBRID)),
         Strategy::Rebuild(Build::cpu(Builder::SAH)),
@@ -58,14 +60,24 @@ impl Strategy {
         Strategy::Lauterbach(0.2),
         Strategy::Lauterbach(0.4),
         Strategy::Lauterbach(0.8),
-        Strategy::Adaptive { gpu: false },
+        Strategy::Adaptive {
+            gpu: false,
+            partial: false,
+        },
+        Strategy::Adaptive {
+            gpu: false,
+            partial: true,
+        },
     ];
 
     /// The strategies that need a GPU: LBVH rebuilt on it every frame (and read back for the CPU's
     /// queries), and the adaptive policy that may choose it.
     pub const GPU: [Strategy; 2] = [
         Strategy::Rebuild(Build::GPU_LBVH),
-        Strategy::Adaptive { gpu: true },
+        Strategy::Adaptive {
+            gpu: true,
+            partial: false,
+        },
     ];
 
     /// The strategies to run: the GPU ones too when there is a GPU.
@@ -89,8 +101,11 @@ impl Strategy {
             Strategy::RefitPartial => "refit-partial".into(),
             Strategy::RefitEvery(k) => format!("refit-rebuild-every-{k}"),
             Strategy::Lauterbach(t) => format!("lauterbach-{t}"),
-            Strategy::Adaptive { gpu: false } => "adaptive".into(),
-            Strategy::Adaptive { gpu: true } => "adaptive-gpu".into(),
+            Strategy::Adaptive { gpu, partial } => {
+                let gpu = if *gpu { "-gpu" } else { "" };
+                let partial = if *partial { "-partial" } else { "" };
+                format!("adaptive{gpu}{partial}")
+            }
             Strategy::Structure(s) => s.name().into(),
             Strategy::Options(s) => s.name().into(),
         }
@@ -301,7 +316,7 @@ impl Rebuilder {
 pub fn adaptive_policy(strategy: Strategy, costs: &CostTable, mesh: &Mesh) -> AdaptivePolicy {
     let cpu = [Builder::LBVH, Builder::HYBRID, Builder::SAH].map(Build::cpu);
     let builds = match strategy {
-        Strategy::Adaptive { gpu: true } => vec![cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]],
+        Strategy::Adaptive { gpu: true, .. } => vec![cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]],
         _ => cpu.to_vec(),
     };
     AdaptivePolicy::shared(&builds, costs, Asset::of_indices(mesh.indices()))
@@ -407,9 +422,23 @@ pub fn run_strategy(
                 }
                 Strategy::Structure(_) => unreachable!("run by grid_rows"),
                 Strategy::Options(_) => unreachable!("run by option_rows"),
-                Strategy::Adaptive { .. } => {
+                Strategy::Adaptive { partial, .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
-                    if adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64) {
+                    let due = adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64);
+                    // As the plugin: the degraded triangles are counted only when the rent made a
+                    // rebuild due.
+                    let options = PartialOptions::default();
+                    if partial
+                        && adaptive.prediction().verdict == Verdict::Rent
+                        && adaptive.prefer_partial(bvh.bvh().degraded_primitives(&options).unwrap())
+                    {
+                        let t = Instant::now();
+                        let done = (bvh.rebuild_degraded(mesh.positions(), &options))
+                            .expect("same topology, default options");
+                        let sah = bvh.bvh().sah_cost();
+                        adaptive.partially_rebuilt(done.primitives, t.elapsed().as_secs_f64(), sah);
+                        done.subtrees > 0
+                    } else if due {
                         let b = adaptive.prediction().build;
                         let t = Instant::now();
                         bvh = builder.build(mesh, b);

@@ -68,9 +68,10 @@
 //!   a tree deviates from its build's mean by less than `z` such errors.
 //!   Builds whose fresh trees sit more than 90% of the way to the bound are not chosen.
 //!   With no rays, the rent stays 0 and nothing is worth exploring: only the guard rebuilds.
-//! - **Partial rebuild (a third update)**: where the caller offers one
-//!   ([`AdaptivePolicy::offer_partial`], the triangles [`crate::bvh::Bvh::degraded_primitives`] counts),
-//!   a rebuild due by the rent is ranked against it with [`rank::choose`] (the full rebuild as the option
+//! - **Partial rebuild (a third update)**: after a rebuild due by the rent ([`Verdict::Rent`]) the caller
+//!   may offer one ([`AdaptivePolicy::prefer_partial`], the triangles
+//!   [`crate::bvh::Bvh::degraded_primitives`] counts, a pass over the nodes paid only in such frames);
+//!   the rebuild due is ranked against it with [`rank::choose`] (the full rebuild as the option
 //!   in use, so the partial one must be cheaper beyond the margin); its time is learned per mesh, its
 //!   prior is the binned-SAH rate at the rebuilt size ([`Verdict::Partial`]). The guard always rebuilds
 //!   the whole tree.

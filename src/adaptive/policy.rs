@@ -59,10 +59,9 @@ pub enum Verdict {
     /// Rebuild: the extra query time paid since the last rebuild exceeds the rebuild's predicted time by
     /// the margin.
     Rent,
-    /// Rebuild only the degraded subtrees ([`Bvh::rebuild_degraded`]): a rebuild is due by the rent, and
-    /// the partial rebuild offered with [`AdaptivePolicy::offer_partial`] is predicted cheaper than the
-    /// full one by the margin ([`choose`] with the full rebuild as the option in use). Report it with
-    /// [`AdaptivePolicy::partially_rebuilt`].
+    /// Rebuild only the degraded subtrees ([`Bvh::rebuild_degraded`]): a rebuild was due by the rent, and
+    /// [`AdaptivePolicy::prefer_partial`] found the partial rebuild cheaper than the full one by the
+    /// margin. Report it with [`AdaptivePolicy::partially_rebuilt`].
     Partial,
 }
 
@@ -137,8 +136,6 @@ pub struct AdaptivePolicy {
     age: u32,
     last_ratio: f64,
     last: Prediction,
-    /// Triangles a partial rebuild would redo this frame, offered before [`Self::after_refit`].
-    partial: Option<usize>,
     /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
     partial_rate: Estimate,
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
@@ -191,7 +188,6 @@ impl AdaptivePolicy {
             age: 0,
             last_ratio: 1.0,
             last: Prediction::default(),
-            partial: None,
             partial_rate: Estimate::default(),
             explores: true,
             sah_bound: DEFAULT_SAH_BOUND,
@@ -398,31 +394,7 @@ impl AdaptivePolicy {
             p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
                 Verdict::Guard
             } else if rent > 0.0 && pays(rent, rebuild_s, p.margin_s / self.z, self.z) {
-                match self.partial.and_then(|k| v.partial_time(k)) {
-                    Some((s, spread))
-                        if choose(
-                            [
-                                Candidate {
-                                    option: Update::Full,
-                                    cost_s: rebuild_s,
-                                    spread_s: rebuild_spread,
-                                },
-                                Candidate {
-                                    option: Update::Partial,
-                                    cost_s: s,
-                                    spread_s: spread,
-                                },
-                            ]
-                            .into_iter(),
-                            Some(Update::Full),
-                            self.z,
-                        ) == Some(Update::Partial) =>
-                    {
-                        p.rebuild_s = s;
-                        Verdict::Partial
-                    }
-                    _ => Verdict::Rent,
-                }
+                Verdict::Rent
             } else {
                 match v.plan(false) {
                     (b, true) => {
@@ -435,7 +407,6 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
-        self.partial = None;
         self.guard_factor = guard_factor;
         self.rent = rent;
         self.last_ratio = ratio;
@@ -443,14 +414,46 @@ impl AdaptivePolicy {
         p.verdict != Verdict::Keep
     }
 
-    /// Offers a partial rebuild for the next [`after_refit`](Self::after_refit): it would redo `triangles`
-    /// triangles ([`Bvh::degraded_primitives`]). When a rebuild is due by the rent and the partial one is
-    /// predicted cheaper beyond the margin, the verdict is [`Verdict::Partial`]. The guard always rebuilds
-    /// the whole tree (a partial rebuild leaves the nodes above the rebuilt subtrees as refitted). Its time
-    /// is predicted from partial rebuilds measured on this mesh, else from the binned-SAH build rate at
-    /// `triangles` (what a partial rebuild mostly is), with the prior's spread.
-    pub fn offer_partial(&mut self, triangles: usize) {
-        self.partial = (triangles > 0 && triangles < self.triangles).then_some(triangles);
+    /// After an [`after_refit`](Self::after_refit) whose verdict is [`Verdict::Rent`], weighs rebuilding
+    /// only the degraded subtrees instead: a partial rebuild of `triangles` triangles
+    /// ([`Bvh::degraded_primitives`]) is ranked against the full rebuild with [`choose`], the full one as
+    /// the option in use, so the partial one must be cheaper beyond the margin. If it is, the verdict
+    /// becomes [`Verdict::Partial`] (its predicted seconds in the [`prediction`](Self::prediction)) and
+    /// the answer is true; report it with [`partially_rebuilt`](Self::partially_rebuilt). After any other
+    /// verdict the answer is false: the guard always rebuilds the whole tree (a partial rebuild leaves the
+    /// nodes above the rebuilt subtrees as refitted), and a kept tree needs no count. So ask only after a
+    /// `Rent` verdict: counting the triangles is a pass over the nodes, cheap beside the rebuild due in
+    /// that frame and wasted in any other. Its time is predicted from partial rebuilds measured on this
+    /// mesh, else from the binned-SAH build rate at `triangles` (what a partial rebuild mostly is), with
+    /// the prior's spread. O(1).
+    pub fn prefer_partial(&mut self, triangles: usize) -> bool {
+        if self.last.verdict != Verdict::Rent || triangles == 0 || triangles >= self.triangles {
+            return false;
+        }
+        let t = self.costs.lock();
+        let v = self.view(&t);
+        let (Some((partial_s, partial_spread)), Some((full_s, full_spread))) =
+            (v.partial_time(triangles), v.time(self.last.build))
+        else {
+            return false;
+        };
+        let full = Candidate {
+            option: Update::Full,
+            cost_s: full_s,
+            spread_s: full_spread,
+        };
+        let partial = Candidate {
+            option: Update::Partial,
+            cost_s: partial_s,
+            spread_s: partial_spread,
+        };
+        if choose([full, partial].into_iter(), Some(Update::Full), self.z) != Some(Update::Partial)
+        {
+            return false;
+        }
+        self.last.rebuild_s = partial_s;
+        self.last.verdict = Verdict::Partial;
+        true
     }
 
     /// Records a partial rebuild of `triangles` triangles that took `seconds` (the whole call, refit

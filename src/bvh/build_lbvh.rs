@@ -66,7 +66,7 @@ pub(crate) fn sorted_codes(input: &BuildInput, prims: &mut [u32], bits: MortonBi
                 let p = prims[i];
                 ((morton30(input.centroids[p as usize], &cb) as u64) << 32) | p as u64
             });
-            radix_sort::sort_by_bits(&mut codes, 30, |&x| x >> 32);
+            radix_sort::sort_by_bits(&mut codes, 30, input.parallel, |&x| x >> 32);
             for (p, c) in prims.iter_mut().zip(codes.iter_mut()) {
                 (*p, *c) = (*c as u32, *c >> 32);
             }

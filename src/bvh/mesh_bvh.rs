@@ -296,9 +296,14 @@ impl MeshBvh {
     /// [`refit`](Self::refit) to these `positions` — the planner's [`Verdict::Partial`] once it has seen
     /// the refitted tree's cost.
     ///
-    /// Cost: a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when anything
-    /// was rebuilt, a new collapse of the wide tree (O(n), the price of a derived tree). The tree gets a
-    /// new [`topology_id`](Self::topology_id) when anything was rebuilt.
+    /// Cost: a pass over the nodes, a binned SAH build over the rebuilt triangles only, and, when
+    /// anything was rebuilt, a new collapse of the whole wide tree (O(n), the price of a derived tree).
+    /// Collapsing only the rebuilt subtrees again is not done: the wide nodes lie in the order the
+    /// collapse found them, with leaf sizes planned over the whole tree, and a rebuilt subtree may
+    /// collapse into another number of wide nodes, so splicing it in would move the rest. `bench cpu
+    /// --quick` (2-core VM, loaded) puts the re-collapse at 0.21–0.24 of a partial rebuild's time on
+    /// its scattered 100k scene (its surface pose rebuilds nothing). The tree gets a new
+    /// [`topology_id`](Self::topology_id) when anything was rebuilt.
     ///
     /// Errors: [`Error::InvalidOption`], [`Error::VertexCountMismatch`], [`Error::NonFiniteVertex`]; the
     /// tree is unchanged then.

@@ -7,7 +7,7 @@ use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
 use crate::adaptive::{
-    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost,
+    AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost, Verdict,
 };
 use crate::bvh::{BuildOptions, MeshBvh, PartialOptions};
 use crate::grid::{GridOptions, StructureKind, UniformGrid};
@@ -149,7 +149,7 @@ pub(crate) fn maintain_system(
                     });
                     (decision, prediction) = match asked {
                         Some(asked) => {
-                            let (d, p) = asked.decide(inst);
+                            let (d, p) = asked.decide(inst, &mut stats.partial_checks);
                             (Some(d), p)
                         }
                         None => (Some(Decision::Keep), None),
@@ -626,8 +626,10 @@ struct Asked<'a> {
 }
 
 impl Asked<'_> {
-    /// The policy's decision for the refitted `inst`, with the adaptive policy's grounds.
-    fn decide(&self, inst: &mut Instance) -> (Decision, Option<Prediction>) {
+    /// The policy's decision for the refitted `inst`, with the adaptive policy's grounds. Under the
+    /// adaptive policy a rebuild due by the rent may become a partial rebuild; `checks` counts the
+    /// passes that weighed one ([`crate::bvh::Bvh::degraded_primitives`]).
+    fn decide(&self, inst: &mut Instance, checks: &mut usize) -> (Decision, Option<Prediction>) {
         let d = self.degradation;
         match self.policy {
             RebuildPolicy::Lauterbach { threshold } => (lauterbach(d, threshold), None),
@@ -659,13 +661,19 @@ impl Asked<'_> {
                 let cost = TreeCost::of(inst.bvh.bvh());
                 inst.sah = cost.sah;
                 let rebuild = policy.after_refit(cost, inst.rays);
+                // Only a rebuild due by the rent weighs the partial one: a mesh that is kept pays no
+                // pass over its nodes for it.
+                let partial = policy.prediction().verdict == Verdict::Rent && {
+                    *checks += 1;
+                    let options = PartialOptions::default();
+                    let degraded = inst.bvh.bvh().degraded_primitives(&options);
+                    policy.prefer_partial(degraded.unwrap_or(0))
+                };
                 let why = policy.prediction();
-                // Not offered a partial rebuild yet: with the offer, the sibling test in tests/policy.rs
-                // saw an Explore verdict after a partial rebuild in 1 of 4 runs (issue 17, open).
-                let decision = if rebuild {
-                    Decision::Rebuild(why.build)
-                } else {
-                    Decision::Keep
+                let decision = match rebuild {
+                    _ if partial => Decision::PartialRebuild,
+                    true => Decision::Rebuild(why.build),
+                    false => Decision::Keep,
                 };
                 (decision, Some(why))
             }

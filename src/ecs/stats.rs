@@ -180,6 +180,10 @@ pub struct TraceStats {
     pub partial_rebuilds: usize,
     /// Triangles rebuilt by this frame's partial rebuilds, all meshes together.
     pub partial_triangles: usize,
+    /// Meshes whose adaptive policy weighed a partial rebuild this frame: a pass over the mesh's nodes
+    /// ([`Bvh::degraded_primitives`](crate::bvh::Bvh::degraded_primitives)), paid only where the rent
+    /// made a rebuild due.
+    pub partial_checks: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
     /// New meshes that started from a copy of a sibling's tree (another entity of the same mesh),
