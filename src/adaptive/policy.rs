@@ -123,6 +123,11 @@ pub struct AdaptivePolicy {
     interval: Estimate,
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
     reference: f64,
+    /// Whether [`reference`](Self::reference) was assumed (carried forward by the guard's factor when a
+    /// build nobody had measured was anchored) rather than measured: the next anchor then learns neither
+    /// a drift nor an anchor error from it, as both would hold the assumption's conservatism, not the
+    /// scene's motion.
+    assumed: bool,
     triangles: usize,
     /// The root's half area at the last rebuild, if told, and the tree's SAH cost then.
     area_built: Option<f64>,
@@ -180,6 +185,7 @@ impl AdaptivePolicy {
             rays: Estimate::default(),
             interval: Estimate::default(),
             reference: 0.0,
+            assumed: false,
             triangles: asset.triangles,
             area_built: None,
             sah_built: 0.0,
@@ -269,7 +275,12 @@ impl AdaptivePolicy {
                 // Before a drift was learned the error is the drift itself (learned as such).
                 let drift_known = t.drift.get(&self.asset).is_some_and(|d| d.samples() > 0);
                 v.relative(build)
-                    .filter(|r| r.2 && drift_known && self.reference > 0.0 && self.frames > 0)
+                    .filter(|r| {
+                        r.2 && drift_known
+                            && self.reference > 0.0
+                            && self.frames > 0
+                            && !self.assumed
+                    })
                     .map(|r| {
                         let walk = self.frames as f64 * v.drift_spread().powi(2);
                         (self.reference * r.0 * v.mean_drift(self.frames), walk)
@@ -307,7 +318,8 @@ impl AdaptivePolicy {
         match known {
             Some(rel) if rel > 0.0 => {
                 self.reference = sah_cost / rel;
-                if old > 0.0 && self.frames > 0 {
+                let assumed = std::mem::replace(&mut self.assumed, false);
+                if old > 0.0 && self.frames > 0 && !assumed {
                     self.costs
                         .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
                 }
@@ -322,6 +334,7 @@ impl AdaptivePolicy {
                     sah_cost
                 };
                 self.costs.learn_quality(self.asset, build, sah_cost / now);
+                self.assumed = old > 0.0;
                 self.reference = now;
             }
         }
