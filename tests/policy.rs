@@ -636,7 +636,6 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
 /// by `z` RMS errors of its rebuild predictions (`AnchorError` in `src/adaptive/policy.rs`). The
 /// planner's decisions follow measured timings, so runs differ: run it several times under load.
 #[test]
-#[ignore = "1 of 6 loaded runs still passed 1.5 (rigid, 1.53 at frame 31): the anchor error rests on too few rebuilds early on"]
 fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
     for triangles in [1000, 2000, 4000] {
         let settings = harness::Settings {

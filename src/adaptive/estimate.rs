@@ -48,8 +48,14 @@ impl Estimate {
     /// The standard deviation of the mean itself: [`spread`](Self::spread) over the square root of the
     /// samples it rests on (at most `(2 − w) / w` = 9 once old samples are forgotten at weight `w` = 0.2).
     pub fn mean_spread(&self) -> f64 {
-        let effective = (self.n as f64).clamp(1.0, (2.0 - LEARN) / LEARN);
-        self.spread() / effective.sqrt()
+        self.spread() / self.effective_samples().max(1.0).sqrt()
+    }
+
+    /// The number of equally weighted samples the mean is worth: the samples seen, at most
+    /// `(2 − w) / w` = 9 once old samples are forgotten at weight `w` = 0.2 (the variance of an
+    /// exponentially weighted mean is `w / (2 − w)` of one sample's).
+    pub fn effective_samples(&self) -> f64 {
+        (self.n as f64).min((2.0 - LEARN) / LEARN)
     }
 
     /// The standard deviation of one sample: the measured one, and while fewer than three samples were
