@@ -156,15 +156,18 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
         let any = kind == "shadow";
         let mut out = vec![None; rays.len()];
         let mut occ = vec![false; rays.len()];
-        let (t_grid, _) = best_of(reps, || {
-            if any {
-                rays.iter().filter(|r| grid.any_hit(r)).count()
-            } else {
-                rays.iter()
-                    .filter(|r| grid.closest_hit(r).is_some())
-                    .count()
-            }
-        });
+        // Best time of single rays through a grid: any hits for shadow rays, closest hits otherwise.
+        let single_grid = |g: &UniformGrid| {
+            best_of(reps, || {
+                if any {
+                    rays.iter().filter(|r| g.any_hit(r)).count()
+                } else {
+                    rays.iter().filter(|r| g.closest_hit(r).is_some()).count()
+                }
+            })
+            .0
+        };
+        let (t_grid, t_exact) = (single_grid(&grid), single_grid(&exact));
         let (t_bvh, _) = best_of(reps, || {
             if any {
                 rays.iter().filter(|r| bvh.any_hit(r)).count()
@@ -172,39 +175,21 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
                 rays.iter().filter(|r| bvh.closest_hit(r).is_some()).count()
             }
         });
-        rec.add(
-            SUITE,
-            name,
-            &format!("grid single ray, {kind}"),
-            "Mrays/s 1 thread",
-            m(rays, t_grid),
-            "Mrays/s",
-        );
-        let (t_exact, _) = best_of(reps, || {
-            if any {
-                rays.iter().filter(|r| exact.any_hit(r)).count()
-            } else {
-                rays.iter()
-                    .filter(|r| exact.closest_hit(r).is_some())
-                    .count()
-            }
-        });
-        rec.add(
-            SUITE,
-            name,
-            &format!("grid overlap test single ray, {kind}"),
-            "Mrays/s 1 thread",
-            m(rays, t_exact),
-            "Mrays/s",
-        );
-        rec.add(
-            SUITE,
-            name,
-            &format!("BVH single ray, {kind}"),
-            "Mrays/s 1 thread",
-            m(rays, t_bvh),
-            "Mrays/s",
-        );
+        for (who, t) in [
+            ("grid", t_grid),
+            ("grid overlap test", t_exact),
+            ("BVH", t_bvh),
+        ] {
+            let subject = format!("{who} single ray, {kind}");
+            rec.add(
+                SUITE,
+                name,
+                &subject,
+                "Mrays/s 1 thread",
+                m(rays, t),
+                "Mrays/s",
+            );
+        }
         // Work per ray behind the times: cells (grid) or nodes (BVH) visited and triangle tests, one by
         // one and as 64-ray packets (a packet's cell visit counts once for all its rays).
         let mut single = [TraversalStats::default(); 2];
