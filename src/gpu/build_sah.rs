@@ -3,14 +3,18 @@
 //!
 //! Each level of the tree is one round of fixed passes over a queue of nodes: centroid bounds and 16 bins
 //! per axis filled in parallel over the primitives, 45 split candidates per node evaluated in parallel and
-//! min-reduced, and the primitives of every node partitioned stably by a flag and a prefix sum. Subtrees of
-//! at most 32 triangles go, when [`GpuSahOptions::small_split`] is on, to one workgroup each that finishes
-//! them in workgroup memory (§5.2.3); the tree is the same either way. Leaves hold one triangle, so the
-//! tree can be refitted and traced on the GPU like an LBVH build, and read back for CPU queries.
+//! min-reduced, and the primitives of every node partitioned stably by a flag and a prefix sum. Nodes of at
+//! most [`SWEEP_MAX`] triangles are not binned but swept exactly, as the CPU binned SAH sweeps its small
+//! nodes: every cut between the primitives sorted along each axis (§5.2.2's "as many candidates as
+//! primitives"). Subtrees of at most 32 triangles go, when [`GpuSahOptions::small_split`] is on, to one
+//! workgroup each that finishes them in workgroup memory (§5.2.3); the tree is the same either way. Leaves
+//! hold one triangle, so the tree can be refitted and traced on the GPU like an LBVH build, and read back
+//! for CPU queries.
 //!
 //! The tree does not depend on float rounding: centroids and boxes are quantised to a 16-bit grid by a
-//! power-of-two scale, bins are integer ratios and SAH costs 64-bit integers, ties go to the more balanced
-//! cut, then the lower axis, then the lower bin. Where no cut separates the centroids (all coincide on
+//! power-of-two scale (per axis for centroids, one for all axes for boxes, so that grid areas are
+//! proportional to true areas), bins are integer ratios and SAH costs 64-bit integers, ties go to the more
+//! balanced cut, then the lower axis, then the lower bin (the fewer on the left for a sweep). Where no cut separates the centroids (all coincide on
 //! the grid), and from depth 36 on, a node is halved in slot order. The grid spans the whole mesh, so
 //! triangles whose centroids lie closer than 1/65536 of its extent (a 10⁻⁶ teapot in a 10⁴ stadium) are
 //! not told apart: such a cluster is split in slot order (as GPU LBVH's 10-bit grid splits it by index). `tests/gpu_sah.rs` holds a CPU
@@ -33,6 +37,9 @@ const LEVELS: usize = crate::bvh::MAX_DEPTH;
 const BALANCED: u32 = 36;
 /// Subtrees of at most this many triangles go to the small-split kernel.
 pub const SMALL_SPLIT_MAX: u32 = 32;
+/// Nodes of at most this many triangles are swept exactly instead of binned (the shader's SWEEP): up to
+/// 93 cuts of one workgroup, each costing a pass over the node's boxes in workgroup memory.
+pub const SWEEP_MAX: u32 = 32;
 /// Words of the bins of one queue entry: 3 axes × 16 bins × (count, 3 minima, 3 maxima).
 const ENTRY_BIN_WORDS: u64 = 3 * 16 * 7;
 /// `state` words: entries per level, the small-subtree count, the scene's centroid and box bounds.
