@@ -34,7 +34,7 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 @group(0) @binding(3) var<storage, read_write> slots: array<u32>;
 @group(0) @binding(4) var<storage, read_write> flags: array<u32>;
 // vec4 words: [0, 2 cap) entries (first, count, node, descendants) of even / odd levels; [2 cap, 4 cap)
-// split records, two per entry; [4 cap, ...) small subtrees, two per entry (entry, (depth, 0, 0, 0)).
+// split records, two per entry; [4 cap, ...) small subtrees (first, count | depth << 16, node, descendants).
 @group(0) @binding(5) var<storage, read_write> queues: array<vec4<u32>>;
 // [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz); [336 cap, 342 cap) centroid bounds.
 @group(0) @binding(6) var<storage, read_write> bins: array<atomic<u32>>;
@@ -218,7 +218,6 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
             depths[0] = 0u;
         } else if small_root {
             queues[4u * params.cap] = vec4<u32>(0u, n, 0u, 1u);
-            queues[4u * params.cap + 1u] = vec4<u32>(0u);
             atomicStore(&state[SMALL_COUNT], 1u);
         } else {
             queues[0] = vec4<u32>(0u, n, 0u, 1u);
@@ -523,8 +522,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     }
     if small_on() && c.y <= SMALL {
         let k = atomicAdd(&state[SMALL_COUNT], 1u);
-        queues[4u * params.cap + 2u * k] = c;
-        queues[4u * params.cap + 2u * k + 1u] = vec4<u32>(depth, 0u, 0u, 0u);
+        queues[4u * params.cap + k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
         return NONE;
     }
     let k = atomicAdd(&state[params.level + 1u], 1u);
@@ -644,12 +642,13 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }
-    let root = queues[4u * params.cap + 2u * k];
+    let packed = queues[4u * params.cap + k];
+    let root = vec4<u32>(packed.x, packed.y & 0xffffu, packed.z, packed.w);
     let first = root.x;
     if t < root.y { wids[t] = slots[first + t]; }
     if t == 0u {
         wstack[0] = vec4<u32>(0u, root.y, root.z, root.w);
-        wdepth[0] = queues[4u * params.cap + 2u * k + 1u].x;
+        wdepth[0] = packed.y >> 16u;
         wsp = 1u;
     }
     loop {

@@ -158,10 +158,11 @@ pub struct GpuBuildCounts {
 /// Builds a [`GpuMeshBvh`]'s tree with binned SAH on the GPU. Make one per mesh size (buffers are sized for
 /// its triangle count) and record builds with [`record`](Self::record).
 ///
-/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]): quantised primitives 20 B per
-/// triangle (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of 1 368 B per
-/// queued node (`n / 33` of them with the small-split kernel, `n / 2` without), queues 16 B per small
-/// subtree (`n / 2`). See [`memory_bytes`](Self::memory_bytes).
+/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]), per triangle: quantised
+/// primitives 20 B (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of
+/// 1 368 B per queued node (`n / 33` of them with the small-split kernel, about 41 B per triangle; `n / 2`
+/// without), queues 16 B per small subtree (`n / 2`: 8 B) and 64 B per queued node (2 B). About 72 B per
+/// triangle in all. See [`memory_bytes`](Self::memory_bytes).
 pub struct GpuSahBuilder {
     tris: u32,
     options: GpuSahOptions,
@@ -199,7 +200,9 @@ impl GpuSahBuilder {
         let prims = GpuBuffer::storage(ctx, "sah primitives", n * 20);
         // Slot order and links (16 B) and flags (4 B per triangle) live in the tree's LBVH scratch.
         let [slots, flags] = bvh.lbvh_scratch();
-        let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n) * 16);
+        // Entries and split records of two levels (4 per queued node), then one per small subtree (at
+        // most n / 2 of them).
+        let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n / 2 + 1) * 16);
         let bins = GpuBuffer::storage(ctx, "sah bins", cap as u64 * (ENTRY_BIN_WORDS + 6) * 4);
         let state = GpuBuffer::storage(ctx, "sah state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -272,11 +275,7 @@ impl GpuSahBuilder {
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.scan.memory_bytes()
-            + self.params_bytes()
-    }
-
-    fn params_bytes(&self) -> u64 {
-        (LEVELS as u64 + 1) * 256
+            + self._params.memory_bytes()
     }
 
     /// Queue levels recorded: enough for every node of two or more triangles. Below depth 36 (the shader's

@@ -31,8 +31,12 @@ pub enum BuildPhase {
 /// [`positions`](Self::positions) with no CPU round trip. Both record into the caller's encoder, so a
 /// frame's work for all meshes goes into one submission. Buffers are allocated once per mesh size.
 ///
-/// Memory: about 112 bytes per triangle during construction including the tree (nodes 64, sort keys and
-/// values with scratch 16, radix-tree links 16, depths and level order 16), plus the mesh itself.
+/// Memory ([`memory_bytes`](Self::memory_bytes), per triangle, `n` triangles, `2n - 1` nodes): the mesh
+/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot triangles 16, sorted ids 4, Morton
+/// codes 4), refit's level schedule (node depths 8, level order 8), and LBVH build scratch: centroids 16
+/// (later the degradation terms of a refit, 8), radix-tree links 8 + 8 (children and parents, first the
+/// radix sort's ping-pong keys and ids) and range starts 4. About 158 bytes per triangle for a closed
+/// mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH builder adds its own scratch.
 pub struct GpuMeshBvh {
     tris: u32,
     vertices: u32,
@@ -124,7 +128,9 @@ impl GpuMeshBvh {
         );
         let stand_in = GpuBuffer::storage(ctx, "stand-in", 16);
         let order = GpuBuffer::storage(ctx, "level order", node_count as u64 * 4);
-        let terms = GpuBuffer::storage(ctx, "degradation terms", node_count as u64 * 4);
+        // A refit's degradation terms (4 bytes per node) live in the centroids (16 per triangle), which
+        // only a build's first two passes use.
+        let terms = &centroids;
         let sum_blocks = node_count.div_ceil(256);
         let sums = GpuBuffer::storage(ctx, "degradation sums", sum_blocks as u64 * 8);
         if tris == 1 {
@@ -191,7 +197,8 @@ impl GpuMeshBvh {
             &k.histogram.layout,
             &[keys.binding(), histogram.binding(), params.binding()],
         );
-        let sort = RadixSort::new(ctx, &keys, &vals, tris, 30);
+        // The sort ping-pongs through the radix-tree links, which the tree phase writes after it.
+        let sort = RadixSort::with_scratch(ctx, &keys, &vals, [&children, &parents], tris, 30);
         Ok(Self {
             tris,
             vertices,
@@ -217,7 +224,7 @@ impl GpuMeshBvh {
             refittable: true,
             height: MAX_DEPTH as u32,
             aliased: [centroids, first],
-            _scratch: vec![partials, children, parents, order, terms, levels, stand_in],
+            _scratch: vec![partials, children, parents, order, levels, stand_in],
         })
     }
 
@@ -282,6 +289,7 @@ impl GpuMeshBvh {
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.sort.memory_bytes()
+            + self.params.memory_bytes()
     }
 
     /// Number of triangles.
