@@ -18,7 +18,7 @@
 //   sah_flag     per primitive: 1 when it goes to the left child; scan.wgsl makes exclusive prefix sums
 //   sah_scatter  per primitive: stable partition by the prefix sums into the scratch order
 //   sah_copy     scratch order back
-// Then sah_small builds each queued subtree of 2..=32 triangles in one workgroup (§5.2.3), sweeping every
+// Then sah_small builds each queued subtree of 2..=64 triangles in one workgroup (§5.2.3), sweeping every
 // node, and sah_finish
 // writes the leaves' triangles. Minima are stored as 0xffff - q under atomicMax, so zero is the identity of
 // every accumulator and buffers are cleared by zeroing.
@@ -57,7 +57,7 @@ const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
 const BIN_WORDS: u32 = 7u;
 const ENTRY_BINS: u32 = 336u; // 3 · BINS · BIN_WORDS
 const QMAX: u32 = 0xffffu;
-const SMALL: u32 = 32u;
+const SMALL: u32 = 64u;
 const NONE: u32 = 0xffffffffu;
 const LEVELS: u32 = 64u;
 const SMALL_COUNT: u32 = 64u;
@@ -419,16 +419,16 @@ fn reduce_key(lid: u32, key: vec4<u32>) {
 
 // ---- the exact sweep for nodes of at most SWEEP primitives (as the CPU builder sweeps small nodes) ----
 
-const SWEEP: u32 = 32u;
+const SWEEP: u32 = 64u;
 // The node's primitives by local position: quantised centroids and boxes; per axis the positions sorted by
 // (centroid, position).
-var<workgroup> wq: array<vec3<u32>, 32>;
-var<workgroup> wlo: array<vec3<u32>, 32>;
-var<workgroup> whi: array<vec3<u32>, 32>;
-var<workgroup> worder: array<u32, 96>;
+var<workgroup> wq: array<vec3<u32>, 64>;
+var<workgroup> wlo: array<vec3<u32>, 64>;
+var<workgroup> whi: array<vec3<u32>, 64>;
+var<workgroup> worder: array<u32, 192>;
 
 // Every cut of the m primitives wids[base .. base + m] in (centroid, position) order on each axis: the winner
-// in wkey[0] as (cost high, cost low, |N_L - N_R|, axis · 32 + N_L), all ones when m > SWEEP. Its barriers
+// in wkey[0] as (cost high, cost low, |N_L - N_R|, axis · SWEEP + N_L), all ones when m > SWEEP. Its barriers
 // are unconditional: call it in uniform control flow.
 fn best_sweep(lid: u32, base: u32, m: u32) {
     let mine = lid < m && m <= SWEEP;
@@ -623,13 +623,13 @@ fn sah_copy(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     slots[2u * n + s] = slots[3u * n + s];
 }
 
-// ---- the small-split kernel: a subtree of 2..=32 triangles in one workgroup ----
+// ---- the small-split kernel: a subtree of 2..=64 triangles in one workgroup ----
 
-var<workgroup> wids: array<u32, 32>;
-var<workgroup> wnext: array<u32, 32>;
+var<workgroup> wids: array<u32, 64>;
+var<workgroup> wnext: array<u32, 64>;
 // Pending nodes (first within the subtree, count, node, descendants) and their depths.
-var<workgroup> wstack: array<vec4<u32>, 32>;
-var<workgroup> wdepth: array<u32, 32>;
+var<workgroup> wstack: array<vec4<u32>, 64>;
+var<workgroup> wdepth: array<u32, 64>;
 var<workgroup> wsp: u32;
 var<workgroup> wnode: vec4<u32>;
 var<workgroup> wnode_depth: u32;
@@ -660,7 +660,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         }
         workgroupBarrier();
         let nd = wnode;
-        let q = centroid_q(wids[min(nd.x + t, 31u)]);
+        let q = centroid_q(wids[min(nd.x + t, SMALL - 1u)]);
         let mine = t < nd.y;
         best_sweep(t, nd.x, nd.y);
         if t == 0u {

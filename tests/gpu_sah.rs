@@ -11,11 +11,11 @@ use kinetrace::bvh::{BuildOptions, Builder, Bvh, LEAF_BIT};
 use kinetrace::geometry::morton30;
 use kinetrace::gpu::{
     CLUSTERED_HYBRID_LEVELS, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
-    SWEEP_MAX,
+    SMALL_SPLIT_MAX, SWEEP_MAX,
 };
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 
-const SIZES: [usize; 9] = [0, 1, 2, 3, 31, 32, 33, 1023, 1025];
+const SIZES: [usize; 11] = [0, 1, 2, 3, 31, 32, 33, 64, 65, 1023, 1025];
 /// The largest size run by default (well under 20 s on lavapipe); 2^20 + 7 is the ignored test below.
 const LARGE: usize = (1 << 16) + 7;
 const HUGE: usize = (1 << 20) + 7;
@@ -445,7 +445,7 @@ fn gpu_sah_on_extreme_scenes() {
 #[test]
 fn small_split_kernel_makes_the_same_tree() {
     let Some(g) = gpu_or_skip() else { return };
-    for n in [2, 31, 32, 33, 1025, 5000] {
+    for n in [2, 31, 32, 33, 64, 65, 1025, 5000] {
         let m = soup(n as u64 * 3, n);
         let (_, on_b, on) = build(&g, &m, GpuSahOptions::SAH);
         let (_, off_b, off) = build(&g, &m, GpuSahOptions::SAH.small_split(false));
@@ -509,7 +509,7 @@ fn gpu_sah_cost_against_cpu_binned_sah() {
         assert!(hybrid_ratio <= 1.15, "{name}: hybrid {hybrid_ratio}");
         // Issue 14's target (the thesis's 91–101% of full SAH). Measured 0.998–1.000 on these three since
         // box areas are taken on one grid for all axes (per-axis grids had weighted the torus's thin axis
-        // 4×: 1.104) and nodes of ≤ 32 triangles are swept exactly.
+        // 4×: 1.104) and nodes of ≤ 64 triangles are swept exactly.
         assert!(ratio <= 1.10, "{name}: {ratio}");
     }
 }
@@ -569,9 +569,11 @@ fn clustered_meshes_get_fewer_lbvh_levels() {
 #[test]
 fn small_meshes_record_no_queue_levels() {
     let Some(g) = gpu_or_skip() else { return };
-    // With the small-split kernel a mesh of at most 32 triangles is one workgroup's work: no queue rounds.
-    let (_, small, _) = build(&g, &soup(1, 32), GpuSahOptions::SAH);
-    let (_, big, _) = build(&g, &soup(1, 33), GpuSahOptions::SAH);
+    // With the small-split kernel a mesh of at most SMALL_SPLIT_MAX triangles is one workgroup's work: no
+    // queue rounds.
+    let n = SMALL_SPLIT_MAX as usize;
+    let (_, small, _) = build(&g, &soup(1, n), GpuSahOptions::SAH);
+    let (_, big, _) = build(&g, &soup(1, n + 1), GpuSahOptions::SAH);
     let (s, b) = (small.dispatches_recorded(), big.dispatches_recorded());
-    assert!(s + 30 * 10 <= b, "32 triangles: {s}, 33: {b}");
+    assert!(s + 30 * 10 <= b, "{n} triangles: {s}, {}: {b}", n + 1);
 }

@@ -6,7 +6,7 @@
 //! min-reduced, and the primitives of every node partitioned stably by a flag and a prefix sum. Nodes of at
 //! most [`SWEEP_MAX`] triangles are not binned but swept exactly, as the CPU binned SAH sweeps its small
 //! nodes: every cut between the primitives sorted along each axis (§5.2.2's "as many candidates as
-//! primitives"). Subtrees of at most 32 triangles go, when [`GpuSahOptions::small_split`] is on, to one
+//! primitives"). Subtrees of at most 64 triangles go, when [`GpuSahOptions::small_split`] is on, to one
 //! workgroup each that finishes them in workgroup memory (§5.2.3); the tree is the same either way. Leaves
 //! hold one triangle, so the tree can be refitted and traced on the GPU like an LBVH build, and read back
 //! for CPU queries.
@@ -35,11 +35,13 @@ use crate::{Error, Mesh, Result};
 const LEVELS: usize = crate::bvh::MAX_DEPTH;
 /// From this depth on the shader halves nodes in slot order (as the CPU builders' balanced depth).
 const BALANCED: u32 = 36;
-/// Subtrees of at most this many triangles go to the small-split kernel.
-pub const SMALL_SPLIT_MAX: u32 = 32;
+/// Subtrees of at most this many triangles go to the small-split kernel: twice the thesis's 32 (§5.2.3),
+/// so that only nodes of 65 or more triangles are queued and binned, which halves the bins' memory (one
+/// entry per 65 triangles, about 21 B per triangle); a node's triangles fill the 64 invocations.
+pub const SMALL_SPLIT_MAX: u32 = 64;
 /// Nodes of at most this many triangles are swept exactly instead of binned (the shader's SWEEP): up to
-/// 93 cuts of one workgroup, each costing a pass over the node's boxes in workgroup memory.
-pub const SWEEP_MAX: u32 = 32;
+/// 189 cuts of one workgroup, each costing a pass over the node's boxes in workgroup memory.
+pub const SWEEP_MAX: u32 = 64;
 /// Words of the bins of one queue entry: 3 axes × 16 bins × (count, 3 minima, 3 maxima).
 const ENTRY_BIN_WORDS: u64 = 3 * 16 * 7;
 /// `state` words: entries per level, the small-subtree count, the scene's centroid and box bounds.
@@ -60,7 +62,7 @@ pub struct GpuSahOptions {
     pub lbvh_levels: u32,
     /// Finish subtrees of at most [`SMALL_SPLIT_MAX`] triangles in one workgroup each (default on). Off,
     /// they go through the level queues like larger nodes: the same tree, more dispatched levels, and bins
-    /// for up to `n / 2` nodes per level instead of `n / 33` (much more memory). For measuring the kernel.
+    /// for up to `n / 2` nodes per level instead of `n / 65` (much more memory). For measuring the kernel.
     pub small_split: bool,
 }
 
@@ -160,8 +162,8 @@ pub struct GpuBuildCounts {
 ///
 /// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]), per triangle: quantised
 /// primitives 20 B (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of
-/// 1 368 B per queued node (`n / 33` of them with the small-split kernel, about 41 B per triangle; `n / 2`
-/// without), queues 16 B per small subtree (`n / 2`: 8 B) and 64 B per queued node (2 B). About 72 B per
+/// 1 368 B per queued node (`n / 65` of them with the small-split kernel, about 21 B per triangle; `n / 2`
+/// without), queues 16 B per small subtree (`n / 2`: 8 B) and 64 B per queued node (1 B). About 50 B per
 /// triangle in all. See [`memory_bytes`](Self::memory_bytes).
 pub struct GpuSahBuilder {
     tris: u32,
