@@ -5,18 +5,21 @@
 //
 // Every quantity that decides the tree is an integer, so the tree does not depend on the device's float
 // rounding: centroids and triangle boxes are quantised once to a 16-bit grid whose scale is a power of two
-// (exact products, no division), bins are integer ratios, SAH costs are 64-bit integers (two u32 words).
+// (exact products, no division; one scale for the boxes' three axes, so grid areas are true areas scaled),
+// bins are integer ratios, SAH costs are 64-bit integers (two u32 words).
 // Steps per level L (each its own dispatch; indirect, sized from the level's queue count, so levels
 // past the tree's depth cost empty dispatches only):
 //   sah_args     indirect arguments of the level's passes from the queue count
 //   sah_bounds   per primitive: the quantised centroid bounds of its node (atomic max)
 //   sah_bin      per primitive: count and quantised box of its bin on each axis (atomic add / max)
-//   sah_split    per node (64 invocations): 45 candidate cuts evaluated in parallel, min-reduction, children
-//                written (leaf / small queue / next level's queue), the node's bins zeroed for reuse
+//   sah_split    per node (64 invocations): 45 candidate cuts evaluated in parallel, min-reduction (nodes
+//                of at most SWEEP primitives: every cut of an exact sweep instead), children written
+//                (leaf / small queue / next level's queue), the node's bins zeroed for reuse
 //   sah_flag     per primitive: 1 when it goes to the left child; scan.wgsl makes exclusive prefix sums
 //   sah_scatter  per primitive: stable partition by the prefix sums into the scratch order
 //   sah_copy     scratch order back
-// Then sah_small builds each queued subtree of 2..=32 triangles in one workgroup (§5.2.3), and sah_finish
+// Then sah_small builds each queued subtree of 2..=64 triangles in one workgroup (§5.2.3), sweeping every
+// node, and sah_finish
 // writes the leaves' triangles. Minima are stored as 0xffff - q under atomicMax, so zero is the identity of
 // every accumulator and buffers are cleared by zeroing.
 
@@ -31,7 +34,7 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 @group(0) @binding(3) var<storage, read_write> slots: array<u32>;
 @group(0) @binding(4) var<storage, read_write> flags: array<u32>;
 // vec4 words: [0, 2 cap) entries (first, count, node, descendants) of even / odd levels; [2 cap, 4 cap)
-// split records, two per entry; [4 cap, ...) small subtrees, two per entry (entry, (depth, 0, 0, 0)).
+// split records, two per entry; [4 cap, ...) small subtrees (first, count | depth << 16, node, descendants).
 @group(0) @binding(5) var<storage, read_write> queues: array<vec4<u32>>;
 // [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz); [336 cap, 342 cap) centroid bounds.
 @group(0) @binding(6) var<storage, read_write> bins: array<atomic<u32>>;
@@ -54,7 +57,7 @@ const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
 const BIN_WORDS: u32 = 7u;
 const ENTRY_BINS: u32 = 336u; // 3 · BINS · BIN_WORDS
 const QMAX: u32 = 0xffffu;
-const SMALL: u32 = 32u;
+const SMALL: u32 = 64u;
 const NONE: u32 = 0xffffffffu;
 const LEVELS: u32 = 64u;
 const SMALL_COUNT: u32 = 64u;
@@ -192,7 +195,8 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let ce = chi - clo;
     let be = bhi - blo;
     let cs = vec3<f32>(pow2_scale(ce.x), pow2_scale(ce.y), pow2_scale(ce.z));
-    let bs = vec3<f32>(pow2_scale(be.x), pow2_scale(be.y), pow2_scale(be.z));
+    // One scale for all axes: box areas in grid units are then proportional to the true areas.
+    let bs = vec3<f32>(pow2_scale(max(be.x, max(be.y, be.z))));
     let b = tri_box(i);
     let c = (b[0] + b[1]) * 0.5;
     let qc = (c - clo) * cs;
@@ -214,7 +218,6 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
             depths[0] = 0u;
         } else if small_root {
             queues[4u * params.cap] = vec4<u32>(0u, n, 0u, 1u);
-            queues[4u * params.cap + 1u] = vec4<u32>(0u);
             atomicStore(&state[SMALL_COUNT], 1u);
         } else {
             queues[0] = vec4<u32>(0u, n, 0u, 1u);
@@ -399,7 +402,12 @@ fn left_count(c: u32) -> u32 {
 
 // Min-reduction of every invocation's candidate over the 64 invocations; the winner is in wkey[0].
 fn best_candidate(lid: u32) {
-    wkey[lid] = select(vec4<u32>(NONE), candidate(lid), lid < CANDIDATES);
+    reduce_key(lid, select(vec4<u32>(NONE), candidate(lid), lid < CANDIDATES));
+}
+
+// Min-reduction of the 64 invocations' keys into wkey[0].
+fn reduce_key(lid: u32, key: vec4<u32>) {
+    wkey[lid] = key;
     for (var off = 32u; off > 0u; off = off >> 1u) {
         workgroupBarrier();
         if lid < off && key_less(wkey[lid + off], wkey[lid]) {
@@ -409,26 +417,95 @@ fn best_candidate(lid: u32) {
     workgroupBarrier();
 }
 
-// The split of a node of m primitives at `depth` from the winner: (code, N_L) with code = axis | cut << 2,
-// or MEDIAN for a cut of the slot order: LBVH's in a hybrid's top levels (slots first ..), else in halves
-// (no cut between centroids, or past BALANCED).
-const MEDIAN: u32 = 0x100u;
+// ---- the exact sweep for nodes of at most SWEEP primitives (as the CPU builder sweeps small nodes) ----
 
-fn choose(first: u32, m: u32, depth: u32) -> vec2<u32> {
+const SWEEP: u32 = 64u;
+// The node's primitives by local position: quantised centroids and boxes; per axis the positions sorted by
+// (centroid, position).
+var<workgroup> wq: array<vec3<u32>, 64>;
+var<workgroup> wlo: array<vec3<u32>, 64>;
+var<workgroup> whi: array<vec3<u32>, 64>;
+var<workgroup> worder: array<u32, 192>;
+
+// Every cut of the m primitives wids[base .. base + m] in (centroid, position) order on each axis: the winner
+// in wkey[0] as (cost high, cost low, |N_L - N_R|, axis · SWEEP + N_L), all ones when m > SWEEP. Its barriers
+// are unconditional: call it in uniform control flow.
+fn best_sweep(lid: u32, base: u32, m: u32) {
+    let mine = lid < m && m <= SWEEP;
+    if mine {
+        let t = wids[base + lid];
+        wq[lid] = centroid_q(t);
+        let b = box_q(t);
+        wlo[lid] = b[0];
+        whi[lid] = b[1];
+    }
+    workgroupBarrier();
+    if mine {
+        for (var a = 0u; a < 3u; a++) {
+            let q = wq[lid][a];
+            var rank = 0u;
+            for (var j = 0u; j < m; j++) {
+                let o = wq[j][a];
+                rank += select(0u, 1u, o < q || (o == q && j < lid));
+            }
+            worder[a * SWEEP + rank] = lid;
+        }
+    }
+    workgroupBarrier();
+    var key = vec4<u32>(NONE);
+    for (var c = lid; c < 3u * SWEEP && m <= SWEEP; c += 64u) {
+        let a = c / SWEEP;
+        let cut = c % SWEEP;
+        if cut == 0u || cut >= m { continue; }
+        var lo = array<vec3<u32>, 2>(vec3<u32>(QMAX), vec3<u32>(QMAX));
+        var hi = array<vec3<u32>, 2>(vec3<u32>(0u), vec3<u32>(0u));
+        for (var r = 0u; r < m; r++) {
+            let p = worder[a * SWEEP + r];
+            let side = select(1u, 0u, r < cut);
+            lo[side] = min(lo[side], wlo[p]);
+            hi[side] = max(hi[side], whi[p]);
+        }
+        let cost = add64(times(half_area(lo[0], hi[0]), cut), times(half_area(lo[1], hi[1]), m - cut));
+        let k = vec4<u32>(cost.y, cost.x, max(cut, m - cut) - min(cut, m - cut), c);
+        if key_less(k, key) { key = k; }
+    }
+    reduce_key(lid, key);
+}
+
+// The split of a node of m primitives at `depth` as its record (code, N_L, a, b), from the winner in wkey[0]
+// (the sweep's for m <= SWEEP, else the bins') and, for bins, the node's centroid bounds lo, hi:
+// code = axis | cut << 2 with (a, b) the bounds on the axis; SWEEP_CODE | axis with (a, b) the centroid and
+// position of the last primitive on the left; or MEDIAN for a cut of the slot order: LBVH's in a hybrid's
+// top levels (slots first ..), else in halves (no cut between centroids, or past BALANCED).
+const MEDIAN: u32 = 0x100u;
+const SWEEP_CODE: u32 = 0x200u;
+
+fn choose(first: u32, m: u32, depth: u32, lo: vec3<u32>, hi: vec3<u32>) -> vec4<u32> {
     if radix_level(depth) {
-        return vec2<u32>(MEDIAN, radix_cut(first, m));
+        return vec4<u32>(MEDIAN, radix_cut(first, m), 0u, 0u);
     }
     let w = wkey[0];
     if w.x == NONE || depth >= BALANCED {
-        return vec2<u32>(MEDIAN, m / 2u);
+        return vec4<u32>(MEDIAN, m / 2u, 0u, 0u);
     }
-    return vec2<u32>((w.w / 15u) | ((w.w % 15u + 1u) << 2u), left_count(w.w));
+    if m <= SWEEP {
+        let a = w.w / SWEEP;
+        let cut = w.w % SWEEP;
+        let p = worder[a * SWEEP + cut - 1u];
+        return vec4<u32>(SWEEP_CODE | a, cut, wq[p][a], p);
+    }
+    let a = w.w / 15u;
+    return vec4<u32>(a | ((w.w % 15u + 1u) << 2u), left_count(w.w), lo[a], hi[a]);
 }
 
 // Whether a primitive with centroid q (or at position `at` of its node) goes left.
-fn goes_left(code: u32, left: u32, at: u32, q: vec3<u32>, lo: u32, hi: u32) -> bool {
+fn goes_left(code: u32, left: u32, at: u32, q: vec3<u32>, a: u32, b: u32) -> bool {
     if code == MEDIAN { return at < left; }
-    return bin_of(q[code & 3u], lo, hi) < (code >> 2u);
+    if (code & SWEEP_CODE) != 0u {
+        let c = q[code & 3u];
+        return c < a || (c == a && at <= b);
+    }
+    return bin_of(q[code & 3u], a, b) < (code >> 2u);
 }
 
 // ---- the queue path ----
@@ -445,8 +522,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     }
     if small_on() && c.y <= SMALL {
         let k = atomicAdd(&state[SMALL_COUNT], 1u);
-        queues[4u * params.cap + 2u * k] = c;
-        queues[4u * params.cap + 2u * k + 1u] = vec4<u32>(depth, 0u, 0u, 0u);
+        queues[4u * params.cap + k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
         return NONE;
     }
     let k = atomicAdd(&state[params.level + 1u], 1u);
@@ -454,30 +530,38 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     return k;
 }
 
+var<workgroup> wm: u32;
+
 @compute @workgroup_size(64)
 fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
     let e = linear_group(wid, nwg);
     if lid.x == 0u { wcount = atomicLoad(&state[params.level]); }
     if e >= workgroupUniformLoad(&wcount) { return; }
+    let ent = queues[in_base() + e];
+    if lid.x == 0u { wm = ent.y; }
     let base = e * ENTRY_BINS;
-    for (var w = lid.x; w < ENTRY_BINS; w += 64u) {
-        atomicStore(&wbins[w], atomicLoad(&bins[base + w]));
+    // Nodes of at most SWEEP primitives are swept exactly, larger ones choose among the bins' cuts.
+    if workgroupUniformLoad(&wm) <= SWEEP {
+        if lid.x < ent.y { wids[lid.x] = slots[ent.x + lid.x]; }
+        best_sweep(lid.x, 0u, ent.y);
+    } else {
+        for (var w = lid.x; w < ENTRY_BINS; w += 64u) {
+            atomicStore(&wbins[w], atomicLoad(&bins[base + w]));
+        }
+        workgroupBarrier();
+        best_candidate(lid.x);
     }
-    workgroupBarrier();
-    best_candidate(lid.x);
     if lid.x == 0u {
-        let ent = queues[in_base() + e];
         let f = node_frame(e);
-        let ch = choose(ent.x, ent.y, params.level);
-        let axis = ch.x & 3u;
+        let sp = choose(ent.x, ent.y, params.level, f[0], f[1]);
         nodes[ent.z] = inner_node(ent.w);
         depths[ent.z] = params.level;
-        let l = vec4<u32>(ent.x, ch.y, ent.w, ent.w + 2u);
-        let r = vec4<u32>(ent.x + ch.y, ent.y - ch.y, ent.w + 1u, ent.w + 2u * ch.y);
+        let l = vec4<u32>(ent.x, sp.y, ent.w, ent.w + 2u);
+        let r = vec4<u32>(ent.x + sp.y, ent.y - sp.y, ent.w + 1u, ent.w + 2u * sp.y);
         let le = place_child(l, params.level + 1u);
         let re = place_child(r, params.level + 1u);
-        queues[2u * params.cap + 2u * e] = vec4<u32>(ch.x, ch.y, f[0][axis], f[1][axis]);
+        queues[2u * params.cap + 2u * e] = sp;
         queues[2u * params.cap + 2u * e + 1u] = vec4<u32>(le, re, ent.x, ent.y);
     }
     workgroupBarrier();
@@ -539,14 +623,13 @@ fn sah_copy(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     slots[2u * n + s] = slots[3u * n + s];
 }
 
-// ---- the small-split kernel: a subtree of 2..=32 triangles in one workgroup ----
+// ---- the small-split kernel: a subtree of 2..=64 triangles in one workgroup ----
 
-var<workgroup> wids: array<u32, 32>;
-var<workgroup> wnext: array<u32, 32>;
-var<workgroup> wbounds: array<atomic<u32>, 6>;
+var<workgroup> wids: array<u32, 64>;
+var<workgroup> wnext: array<u32, 64>;
 // Pending nodes (first within the subtree, count, node, descendants) and their depths.
-var<workgroup> wstack: array<vec4<u32>, 32>;
-var<workgroup> wdepth: array<u32, 32>;
+var<workgroup> wstack: array<vec4<u32>, 64>;
+var<workgroup> wdepth: array<u32, 64>;
 var<workgroup> wsp: u32;
 var<workgroup> wnode: vec4<u32>;
 var<workgroup> wnode_depth: u32;
@@ -559,12 +642,13 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }
-    let root = queues[4u * params.cap + 2u * k];
+    let packed = queues[4u * params.cap + k];
+    let root = vec4<u32>(packed.x, packed.y & 0xffffu, packed.z, packed.w);
     let first = root.x;
     if t < root.y { wids[t] = slots[first + t]; }
     if t == 0u {
         wstack[0] = vec4<u32>(0u, root.y, root.z, root.w);
-        wdepth[0] = queues[4u * params.cap + 2u * k + 1u].x;
+        wdepth[0] = packed.y >> 16u;
         wsp = 1u;
     }
     loop {
@@ -574,42 +658,13 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
             wnode = wstack[wsp];
             wnode_depth = wdepth[wsp];
         }
-        if t < 6u { atomicStore(&wbounds[t], 0u); }
-        for (var w = t; w < ENTRY_BINS; w += 64u) { atomicStore(&wbins[w], 0u); }
         workgroupBarrier();
         let nd = wnode;
-        let q = centroid_q(wids[min(nd.x + t, 31u)]);
+        let q = centroid_q(wids[min(nd.x + t, SMALL - 1u)]);
         let mine = t < nd.y;
-        if mine {
-            for (var a = 0u; a < 3u; a++) {
-                atomicMax(&wbounds[a], QMAX - q[a]);
-                atomicMax(&wbounds[3u + a], q[a]);
-            }
-        }
-        workgroupBarrier();
-        var lo: vec3<u32>;
-        var hi: vec3<u32>;
-        for (var a = 0u; a < 3u; a++) {
-            lo[a] = QMAX - atomicLoad(&wbounds[a]);
-            hi[a] = atomicLoad(&wbounds[3u + a]);
-        }
-        if mine {
-            let b = box_q(wids[nd.x + t]);
-            for (var a = 0u; a < 3u; a++) {
-                let at = (a * BINS + bin_of(q[a], lo[a], hi[a])) * BIN_WORDS;
-                atomicAdd(&wbins[at], 1u);
-                for (var j = 0u; j < 3u; j++) {
-                    atomicMax(&wbins[at + 1u + j], QMAX - b[0][j]);
-                    atomicMax(&wbins[at + 4u + j], b[1][j]);
-                }
-            }
-        }
-        workgroupBarrier();
-        best_candidate(t);
+        best_sweep(t, nd.x, nd.y);
         if t == 0u {
-            let ch = choose(first + nd.x, nd.y, wnode_depth);
-            let axis = ch.x & 3u;
-            wsplit = vec4<u32>(ch.x, ch.y, lo[axis], hi[axis]);
+            wsplit = choose(first + nd.x, nd.y, wnode_depth, vec3<u32>(0u), vec3<u32>(0u));
         }
         workgroupBarrier();
         let sp = wsplit;

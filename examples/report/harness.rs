@@ -70,10 +70,13 @@ impl Strategy {
         },
     ];
 
-    /// The strategies that need a GPU: LBVH rebuilt on it every frame (and read back for the CPU's
-    /// queries), and the adaptive policy that may choose it.
-    pub const GPU: [Strategy; 2] = [
+    /// The strategies that need a GPU: LBVH, binned SAH, the hybrid (k = 6) and PLOC rebuilt on it every
+    /// frame (and read back for the CPU's queries), and the adaptive policy that may choose GPU LBVH.
+    pub const GPU: [Strategy; 5] = [
         Strategy::Rebuild(Build::GPU_LBVH),
+        Strategy::Rebuild(Build::GPU_SAH),
+        Strategy::Rebuild(Build::gpu_hybrid(6)),
+        Strategy::Rebuild(Build::GPU_PLOC),
         Strategy::Adaptive {
             gpu: true,
             partial: false,
@@ -273,26 +276,50 @@ fn build(mesh: &Mesh, builder: Builder) -> MeshBvh {
     MeshBvh::build(mesh, &BuildOptions::new(builder)).expect("scene meshes are valid")
 }
 
-/// Builds a scene's trees: on the CPU, or LBVH on the GPU read back for the CPU's queries (its buffers
-/// made once per strategy and scene, outside the timings).
+/// A GPU builder's buffers for one mesh: the tree's own (LBVH), with the SAH builder's scratch for SAH and
+/// the hybrid; or PLOC's.
+#[cfg(feature = "gpu")]
+enum GpuBuilder {
+    Tree(
+        kinetrace::gpu::GpuMeshBvh,
+        Option<kinetrace::gpu::GpuSahBuilder>,
+    ),
+    Ploc(kinetrace::gpu::GpuPloc),
+}
+
+/// Builds a scene's trees: on the CPU, or with one GPU builder read back for the CPU's queries (its
+/// buffers made once per strategy and scene, outside the timings).
 struct Rebuilder {
     #[cfg(feature = "gpu")]
-    gpu: Option<(Gpu, kinetrace::gpu::GpuMeshBvh)>,
+    gpu: Option<(Gpu, Build, GpuBuilder)>,
 }
 
 impl Rebuilder {
-    fn new(gpu: Option<&Gpu>, mesh: &Mesh) -> Self {
+    /// For `on_gpu`, the one GPU build the strategy runs (a hybrid keeps its k: the report's scenes are
+    /// not treated as clustered).
+    fn new(gpu: Option<&Gpu>, mesh: &Mesh, on_gpu: Build) -> Self {
         #[cfg(feature = "gpu")]
         return Rebuilder {
             gpu: gpu.map(|g| {
-                let tree =
-                    kinetrace::gpu::GpuMeshBvh::new(g, mesh).expect("scene meshes fit the GPU");
-                (g.clone(), tree)
+                let fits = "scene meshes fit the GPU";
+                let made = match on_gpu.builder {
+                    Builder::Ploc { radius } => {
+                        GpuBuilder::Ploc(kinetrace::gpu::GpuPloc::new(g, mesh, radius).expect(fits))
+                    }
+                    b => {
+                        let tree = kinetrace::gpu::GpuMeshBvh::new(g, mesh).expect(fits);
+                        let sah = kinetrace::gpu::GpuSahOptions::for_builder(b, false)
+                            .expect("a builder the GPU runs")
+                            .map(|o| kinetrace::gpu::GpuSahBuilder::new(g, &tree, o).expect(fits));
+                        GpuBuilder::Tree(tree, sah)
+                    }
+                };
+                (g.clone(), on_gpu, made)
             }),
         };
         #[cfg(not(feature = "gpu"))]
         {
-            let _ = (gpu, mesh);
+            let _ = (gpu, mesh, on_gpu);
             Rebuilder {}
         }
     }
@@ -300,11 +327,17 @@ impl Rebuilder {
     fn build(&mut self, mesh: &Mesh, b: Build) -> MeshBvh {
         #[cfg(feature = "gpu")]
         if b.device == Device::Gpu {
-            let (g, tree) = self
+            let (g, on_gpu, made) = self
                 .gpu
                 .as_mut()
                 .expect("GPU strategies run only with a GPU");
-            return tree.build_for_cpu(g, mesh).expect("a GPU build");
+            assert_eq!(b, *on_gpu, "one GPU builder per strategy");
+            return match made {
+                GpuBuilder::Tree(tree, None) => tree.build_for_cpu(g, mesh),
+                GpuBuilder::Tree(tree, Some(sah)) => sah.build_for_cpu(g, tree, mesh),
+                GpuBuilder::Ploc(ploc) => ploc.build_for_cpu(g, mesh),
+            }
+            .expect("a GPU build");
         }
         assert_eq!(b.device, Device::Cpu, "GPU strategies run only with a GPU");
         build(mesh, b.builder)
@@ -371,7 +404,11 @@ pub fn run_strategy(
         Strategy::Adaptive { .. } => adaptive.next_build(),
         _ => Build::cpu(Builder::LBVH),
     };
-    let mut builder = Rebuilder::new(gpu, mesh0);
+    let on_gpu = match strategy {
+        Strategy::Rebuild(b) => b,
+        _ => Build::GPU_LBVH,
+    };
+    let mut builder = Rebuilder::new(gpu, mesh0, on_gpu);
     let start = Instant::now();
     let mut bvh = builder.build(mesh0, first);
     adaptive.built(

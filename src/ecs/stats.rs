@@ -206,8 +206,9 @@ pub struct TraceStats {
     pub top_level_time: Duration,
     /// Batched queries.
     pub query_time: Duration,
-    /// This frame's GPU traffic: bytes uploaded and read back, submissions, blocking waits (all zero
-    /// without a GPU context).
+    /// This frame's GPU traffic: bytes uploaded and read back, submissions, blocking waits, and bytes of
+    /// device buffers allocated (nonzero in a frame that made or grew a tree's or builder's buffers; all
+    /// zero without a GPU context).
     #[cfg(feature = "gpu")]
     pub gpu: crate::gpu::GpuCounters,
 }

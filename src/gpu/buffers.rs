@@ -87,9 +87,11 @@ fn create(
     bytes: u64,
     usage: wgpu::BufferUsages,
 ) -> wgpu::Buffer {
+    let size = bytes.max(256).next_multiple_of(256);
+    ctx.count_allocated(size);
     ctx.device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
-        size: bytes.max(256).next_multiple_of(256),
+        size,
         usage,
         mapped_at_creation: false,
     })
@@ -120,6 +122,11 @@ impl ParamSlots {
             ctx.write_buffer(&buffer, 0, &bytes);
         }
         Self { buffer }
+    }
+
+    /// Bytes of the uniform buffer.
+    pub fn memory_bytes(&self) -> u64 {
+        self.buffer.size()
     }
 
     /// The binding (one slot wide); pick the slot with [`offset`](Self::offset).

@@ -3,14 +3,18 @@
 //!
 //! Each level of the tree is one round of fixed passes over a queue of nodes: centroid bounds and 16 bins
 //! per axis filled in parallel over the primitives, 45 split candidates per node evaluated in parallel and
-//! min-reduced, and the primitives of every node partitioned stably by a flag and a prefix sum. Subtrees of
-//! at most 32 triangles go, when [`GpuSahOptions::small_split`] is on, to one workgroup each that finishes
-//! them in workgroup memory (§5.2.3); the tree is the same either way. Leaves hold one triangle, so the
-//! tree can be refitted and traced on the GPU like an LBVH build, and read back for CPU queries.
+//! min-reduced, and the primitives of every node partitioned stably by a flag and a prefix sum. Nodes of at
+//! most [`SWEEP_MAX`] triangles are not binned but swept exactly, as the CPU binned SAH sweeps its small
+//! nodes: every cut between the primitives sorted along each axis (§5.2.2's "as many candidates as
+//! primitives"). Subtrees of at most 64 triangles go, when [`GpuSahOptions::small_split`] is on, to one
+//! workgroup each that finishes them in workgroup memory (§5.2.3); the tree is the same either way. Leaves
+//! hold one triangle, so the tree can be refitted and traced on the GPU like an LBVH build, and read back
+//! for CPU queries.
 //!
 //! The tree does not depend on float rounding: centroids and boxes are quantised to a 16-bit grid by a
-//! power-of-two scale, bins are integer ratios and SAH costs 64-bit integers, ties go to the more balanced
-//! cut, then the lower axis, then the lower bin. Where no cut separates the centroids (all coincide on
+//! power-of-two scale (per axis for centroids, one for all axes for boxes, so that grid areas are
+//! proportional to true areas), bins are integer ratios and SAH costs 64-bit integers, ties go to the more
+//! balanced cut, then the lower axis, then the lower bin (the fewer on the left for a sweep). Where no cut separates the centroids (all coincide on
 //! the grid), and from depth 36 on, a node is halved in slot order. The grid spans the whole mesh, so
 //! triangles whose centroids lie closer than 1/65536 of its extent (a 10⁻⁶ teapot in a 10⁴ stadium) are
 //! not told apart: such a cluster is split in slot order (as GPU LBVH's 10-bit grid splits it by index). `tests/gpu_sah.rs` holds a CPU
@@ -31,8 +35,13 @@ use crate::{Error, Mesh, Result};
 const LEVELS: usize = crate::bvh::MAX_DEPTH;
 /// From this depth on the shader halves nodes in slot order (as the CPU builders' balanced depth).
 const BALANCED: u32 = 36;
-/// Subtrees of at most this many triangles go to the small-split kernel.
-pub const SMALL_SPLIT_MAX: u32 = 32;
+/// Subtrees of at most this many triangles go to the small-split kernel: twice the thesis's 32 (§5.2.3),
+/// so that only nodes of 65 or more triangles are queued and binned, which halves the bins' memory (one
+/// entry per 65 triangles, about 21 B per triangle); a node's triangles fill the 64 invocations.
+pub const SMALL_SPLIT_MAX: u32 = 64;
+/// Nodes of at most this many triangles are swept exactly instead of binned (the shader's SWEEP): up to
+/// 189 cuts of one workgroup, each costing a pass over the node's boxes in workgroup memory.
+pub const SWEEP_MAX: u32 = 64;
 /// Words of the bins of one queue entry: 3 axes × 16 bins × (count, 3 minima, 3 maxima).
 const ENTRY_BIN_WORDS: u64 = 3 * 16 * 7;
 /// `state` words: entries per level, the small-subtree count, the scene's centroid and box bounds.
@@ -53,7 +62,7 @@ pub struct GpuSahOptions {
     pub lbvh_levels: u32,
     /// Finish subtrees of at most [`SMALL_SPLIT_MAX`] triangles in one workgroup each (default on). Off,
     /// they go through the level queues like larger nodes: the same tree, more dispatched levels, and bins
-    /// for up to `n / 2` nodes per level instead of `n / 33` (much more memory). For measuring the kernel.
+    /// for up to `n / 2` nodes per level instead of `n / 65` (much more memory). For measuring the kernel.
     pub small_split: bool,
 }
 
@@ -151,10 +160,11 @@ pub struct GpuBuildCounts {
 /// Builds a [`GpuMeshBvh`]'s tree with binned SAH on the GPU. Make one per mesh size (buffers are sized for
 /// its triangle count) and record builds with [`record`](Self::record).
 ///
-/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]): quantised primitives 20 B per
-/// triangle (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of 1 368 B per
-/// queued node (`n / 33` of them with the small-split kernel, `n / 2` without), queues 16 B per small
-/// subtree (`n / 2`). See [`memory_bytes`](Self::memory_bytes).
+/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]), per triangle: quantised
+/// primitives 20 B (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of
+/// 1 368 B per queued node (`n / 65` of them with the small-split kernel, about 21 B per triangle; `n / 2`
+/// without), queues 16 B per small subtree (`n / 2`: 8 B) and 64 B per queued node (1 B). About 50 B per
+/// triangle in all. See [`memory_bytes`](Self::memory_bytes).
 pub struct GpuSahBuilder {
     tris: u32,
     options: GpuSahOptions,
@@ -192,7 +202,9 @@ impl GpuSahBuilder {
         let prims = GpuBuffer::storage(ctx, "sah primitives", n * 20);
         // Slot order and links (16 B) and flags (4 B per triangle) live in the tree's LBVH scratch.
         let [slots, flags] = bvh.lbvh_scratch();
-        let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n) * 16);
+        // Entries and split records of two levels (4 per queued node), then one per small subtree (at
+        // most n / 2 of them).
+        let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n / 2 + 1) * 16);
         let bins = GpuBuffer::storage(ctx, "sah bins", cap as u64 * (ENTRY_BIN_WORDS + 6) * 4);
         let state = GpuBuffer::storage(ctx, "sah state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -265,11 +277,7 @@ impl GpuSahBuilder {
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.scan.memory_bytes()
-            + self.params_bytes()
-    }
-
-    fn params_bytes(&self) -> u64 {
-        (LEVELS as u64 + 1) * 256
+            + self._params.memory_bytes()
     }
 
     /// Queue levels recorded: enough for every node of two or more triangles. Below depth 36 (the shader's

@@ -31,8 +31,13 @@ pub enum BuildPhase {
 /// [`positions`](Self::positions) with no CPU round trip. Both record into the caller's encoder, so a
 /// frame's work for all meshes goes into one submission. Buffers are allocated once per mesh size.
 ///
-/// Memory: about 112 bytes per triangle during construction including the tree (nodes 64, sort keys and
-/// values with scratch 16, radix-tree links 16, depths and level order 16), plus the mesh itself.
+/// Memory ([`memory_bytes`](Self::memory_bytes), per triangle, `n` triangles, `2n - 1` nodes): the mesh
+/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot triangles 16, sorted ids 4, Morton
+/// codes 4), refit's level schedule (node depths 8, level order 8, during a build the radix tree's range
+/// starts), and LBVH build scratch: centroids 16 (later the degradation terms of a refit, 8) and
+/// radix-tree links 8 + 8 (children and parents, first the radix sort's ping-pong keys and ids). About
+/// 154 bytes per triangle for a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH
+/// builder adds its own scratch.
 pub struct GpuMeshBvh {
     tris: u32,
     vertices: u32,
@@ -64,8 +69,10 @@ pub struct GpuMeshBvh {
     refittable: bool,
     /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
     height: u32,
-    /// LBVH scratch (centroids 16 B and radix-tree range starts 4 B per triangle) that the SAH builder
-    /// reuses for its slot order and partition flags: no build needs both at once.
+    /// LBVH scratch (centroids 16 B per triangle, and the level order 8 B, whose first 4 B hold the
+    /// radix-tree range starts during an LBVH build) that the SAH builder reuses for its slot order and
+    /// partition flags: no build needs both at once, and the schedule rewrites the order after every
+    /// build.
     aliased: [GpuBuffer; 2],
     _scratch: Vec<GpuBuffer>,
 }
@@ -111,7 +118,6 @@ impl GpuMeshBvh {
         let vals = GpuBuffer::storage(ctx, "sorted ids", n * 4);
         let children = GpuBuffer::storage(ctx, "children", n * 8);
         let parents = GpuBuffer::storage(ctx, "parents", 2 * n * 4);
-        let first = GpuBuffer::storage(ctx, "first", n * 4);
         let nodes = GpuBuffer::storage(ctx, "nodes", node_count as u64 * 32);
         let depths = GpuBuffer::storage(ctx, "depths", node_count as u64 * 4);
         let slot_tris = GpuBuffer::storage(ctx, "slot triangles", n * 16);
@@ -124,7 +130,12 @@ impl GpuMeshBvh {
         );
         let stand_in = GpuBuffer::storage(ctx, "stand-in", 16);
         let order = GpuBuffer::storage(ctx, "level order", node_count as u64 * 4);
-        let terms = GpuBuffer::storage(ctx, "degradation terms", node_count as u64 * 4);
+        // The radix tree's range starts (4 bytes per triangle) live in the level order, which the
+        // schedule rewrites after the tree phase.
+        let first = &order;
+        // A refit's degradation terms (4 bytes per node) live in the centroids (16 per triangle), which
+        // only a build's first two passes use.
+        let terms = &centroids;
         let sum_blocks = node_count.div_ceil(256);
         let sums = GpuBuffer::storage(ctx, "degradation sums", sum_blocks as u64 * 8);
         if tris == 1 {
@@ -191,7 +202,8 @@ impl GpuMeshBvh {
             &k.histogram.layout,
             &[keys.binding(), histogram.binding(), params.binding()],
         );
-        let sort = RadixSort::new(ctx, &keys, &vals, tris, 30);
+        // The sort ping-pongs through the radix-tree links, which the tree phase writes after it.
+        let sort = RadixSort::with_scratch(ctx, &keys, &vals, [&children, &parents], tris, 30);
         Ok(Self {
             tris,
             vertices,
@@ -216,8 +228,8 @@ impl GpuMeshBvh {
             coded: false,
             refittable: true,
             height: MAX_DEPTH as u32,
-            aliased: [centroids, first],
-            _scratch: vec![partials, children, parents, order, terms, levels, stand_in],
+            aliased: [centroids, order],
+            _scratch: vec![partials, children, parents, levels, stand_in],
         })
     }
 
@@ -282,6 +294,7 @@ impl GpuMeshBvh {
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.sort.memory_bytes()
+            + self.params.memory_bytes()
     }
 
     /// Number of triangles.
@@ -443,8 +456,9 @@ impl GpuMeshBvh {
         self.built = true;
     }
 
-    /// LBVH scratch free between builds, for another builder's scratch: 16 and 4 bytes per triangle
-    /// (at least 256 bytes each). An LBVH build overwrites them.
+    /// LBVH scratch free during another builder's build: 16 and 8 bytes per triangle (at least 256 bytes
+    /// each). An LBVH build overwrites them, and every build's schedule ([`record_boxes`](Self::record_boxes))
+    /// the second.
     pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 2] {
         [&self.aliased[0], &self.aliased[1]]
     }

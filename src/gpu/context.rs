@@ -284,7 +284,13 @@ impl GpuContext {
             read_back_bytes: c.read_back.load(Relaxed),
             submissions: c.submissions.load(Relaxed),
             blocking_waits: c.waits.load(Relaxed),
+            allocated_bytes: c.allocated.load(Relaxed),
         }
+    }
+
+    /// Counts a device buffer of `bytes` created.
+    pub(crate) fn count_allocated(&self, bytes: u64) {
+        self.counters.allocated.fetch_add(bytes, Relaxed);
     }
 
     /// Queues a write of `data` into `buffer` at `offset`, counted as uploaded.
@@ -336,6 +342,11 @@ pub struct GpuCounters {
     /// Times the CPU blocked until the GPU finished (a [`GpuContext::wait`], a `Readback::wait` that found
     /// its results not yet there).
     pub blocking_waits: u64,
+    /// Bytes of device buffers created (trees, build scratch, staging), at their allocated sizes: what
+    /// the `memory_bytes` of the GPU trees and builders add up, checked against it in
+    /// `tests/gpu_memory.rs`. A frame's share is nonzero when it made or grew buffers (a first build, a
+    /// mesh that grew, a larger ray batch); buffers dropped are not subtracted.
+    pub allocated_bytes: u64,
 }
 
 impl GpuCounters {
@@ -346,6 +357,7 @@ impl GpuCounters {
             read_back_bytes: self.read_back_bytes - earlier.read_back_bytes,
             submissions: self.submissions - earlier.submissions,
             blocking_waits: self.blocking_waits - earlier.blocking_waits,
+            allocated_bytes: self.allocated_bytes - earlier.allocated_bytes,
         }
     }
 }
@@ -356,6 +368,7 @@ struct CounterCells {
     read_back: AtomicU64,
     submissions: AtomicU64,
     waits: AtomicU64,
+    allocated: AtomicU64,
 }
 
 /// A Vulkan-only wgpu instance for compute.

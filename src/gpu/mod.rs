@@ -47,7 +47,7 @@ mod tree;
 pub use buffers::Readback;
 pub use build_sah::{
     CLUSTERED_HYBRID_LEVELS, GPU_BINS, GpuBuildCounts, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
-    SMALL_SPLIT_MAX, hybrid_levels,
+    SMALL_SPLIT_MAX, SWEEP_MAX, hybrid_levels,
 };
 pub use bvh::{BuildPhase, DegradationReadback, GpuMeshBvh, MAX_HISTOGRAM_BINS};
 pub use collide::{GpuPairs, PairsReadback, PairsResult};

@@ -134,6 +134,7 @@ impl GpuPloc {
             .chain(&self._scratch)
             .map(|b| b.buffer().size())
             .sum::<u64>()
+            + self._params.memory_bytes()
             + self.lbvh.memory_bytes()
     }
 

@@ -48,7 +48,7 @@ impl Scan {
 
     /// Scratch memory held, in bytes.
     pub fn memory_bytes(&self) -> u64 {
-        self._sums.iter().map(|b| b.buffer().size()).sum()
+        self._sums.iter().map(|b| b.buffer().size()).sum::<u64>() + self._params.memory_bytes()
     }
 
     /// Dispatches recorded per scan.

@@ -21,11 +21,26 @@ pub(crate) struct RadixSort {
 }
 
 impl RadixSort {
-    /// A sorter for `n` pairs in `keys`/`vals` by their low `bits` bits.
+    /// A sorter for `n` pairs in `keys`/`vals` by their low `bits` bits, with ping-pong buffers of its own.
     pub fn new(ctx: &GpuContext, keys: &GpuBuffer, vals: &GpuBuffer, n: u32, bits: u32) -> Self {
-        let blocks = n.div_ceil(256).max(1);
         let keys2 = GpuBuffer::storage(ctx, "sort keys scratch", n as u64 * 4);
         let vals2 = GpuBuffer::storage(ctx, "sort vals scratch", n as u64 * 4);
+        let mut sorter = Self::with_scratch(ctx, keys, vals, [&keys2, &vals2], n, bits);
+        sorter._scratch.extend([keys2, vals2]);
+        sorter
+    }
+
+    /// The same, ping-ponging through the caller's `scratch` (at least `4 n` bytes each, overwritten by
+    /// every sort): buffers another phase of a build uses, so that the sort adds only its histogram.
+    pub fn with_scratch(
+        ctx: &GpuContext,
+        keys: &GpuBuffer,
+        vals: &GpuBuffer,
+        [keys2, vals2]: [&GpuBuffer; 2],
+        n: u32,
+        bits: u32,
+    ) -> Self {
+        let blocks = n.div_ceil(256).max(1);
         let passes = bits.div_ceil(4);
         // The histogram: 16 counts per block.
         let hist = GpuBuffer::storage(ctx, "sort histogram", 16 * blocks as u64 * 4);
@@ -59,7 +74,7 @@ impl RadixSort {
                 ],
             ),
         ];
-        let scratch = vec![hist, keys2, vals2];
+        let scratch = vec![hist];
         Self {
             n,
             bits,
@@ -71,9 +86,11 @@ impl RadixSort {
         }
     }
 
-    /// Scratch memory held, in bytes.
+    /// Scratch memory held, in bytes (not the caller's scratch of [`with_scratch`](Self::with_scratch)).
     pub fn memory_bytes(&self) -> u64 {
-        self._scratch.iter().map(|b| b.buffer().size()).sum::<u64>() + self.scan.memory_bytes()
+        self._scratch.iter().map(|b| b.buffer().size()).sum::<u64>()
+            + self.scan.memory_bytes()
+            + self._params.memory_bytes()
     }
 
     /// Dispatches [`record`](Self::record) makes.

@@ -1,0 +1,49 @@
+//! The GPU builders' memory figures (`memory_bytes`, reported as bytes per triangle by `bench gpu`) against
+//! the device bytes actually allocated, as the context counts them at every buffer creation; and the
+//! aliased scratch keeps the LBVH tree within the per-buffer budget its docs state. One test in this
+//! binary, so no other test allocates on the shared device while it counts. On lavapipe in CI
+//! (`KINETRACE_REQUIRE_GPU=1`); without an adapter it skips and says so.
+#![cfg(feature = "gpu")]
+
+mod common;
+use common::*;
+use kinetrace::gpu::{
+    GpuContext, GpuMeshBvh, GpuPloc, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
+};
+
+/// Device bytes allocated while `make` runs, and what it made.
+fn allocated<T>(g: &GpuContext, make: impl FnOnce() -> T) -> (u64, T) {
+    let before = g.counters().allocated_bytes;
+    let made = make();
+    (g.counters().allocated_bytes - before, made)
+}
+
+#[test]
+fn memory_bytes_are_the_allocated_buffers() {
+    let Some(g) = gpu_or_skip() else { return };
+    for (name, m) in [
+        ("one triangle", soup(1, 1)),
+        ("soup of 1025", soup(2, 1025)),
+        ("bumpy torus", kinetrace::scenes::bumpy_torus(20_000)),
+    ] {
+        let (n, v) = (m.triangle_count() as u64, m.positions().len() as u64);
+        let (bytes, bvh) = allocated(&g, || GpuMeshBvh::new(&g, &m).unwrap());
+        assert_eq!(bvh.memory_bytes(), bytes, "{name}: LBVH");
+        // The documented budget (src/gpu/bvh.rs): mesh 12 per vertex + 12, tree 64 + 16 + 4 + 4, schedule
+        // 8 + 8, scratch 16 + 8 + 8 per triangle; plus per-buffer rounding to 256 bytes (at most 32
+        // buffers), per-block partial bounds, degradation sums, the sort's histogram and scans (under 160
+        // bytes per 256 triangles) and at most 40 KiB of parameter slots.
+        let budget = 12 * v + 148 * n + n.div_ceil(256) * 160 + 32 * 256 + (40 << 10);
+        assert!(bytes <= budget, "{name}: {bytes} > {budget}");
+        for options in [
+            GpuSahOptions::SAH,
+            GpuSahOptions::hybrid(HYBRID_LEVELS),
+            GpuSahOptions::SAH.small_split(false),
+        ] {
+            let (bytes, sah) = allocated(&g, || GpuSahBuilder::new(&g, &bvh, options).unwrap());
+            assert_eq!(sah.memory_bytes(), bytes, "{name}: {options:?}");
+        }
+        let (bytes, ploc) = allocated(&g, || GpuPloc::new(&g, &m, 16).unwrap());
+        assert_eq!(ploc.memory_bytes(), bytes, "{name}: PLOC");
+    }
+}
