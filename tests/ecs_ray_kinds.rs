@@ -261,6 +261,7 @@ fn every_secondary_strategy_answers_as_brute_force() {
         for strategy in [
             SecondaryStrategy::Bvh,
             SecondaryStrategy::SortedBvh,
+            SecondaryStrategy::SortedPackets,
             SecondaryStrategy::Crsh,
         ] {
             world.insert_resource(SecondaryRays::fixed(strategy));
@@ -335,11 +336,11 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
         assert!(batches.iter().all(|b| b.2 == Entity::PLACEHOLDER));
         picked.extend(batches.iter().map(|b| (b.1, b.3)));
     }
-    // The sorted BVH is predicted cheaper than the BVH by its prior, so it is tried.
+    // Sorted packets are predicted cheapest by their prior, so they are tried.
     assert!(
         picked
             .iter()
-            .any(|&(s, tried)| s == SecondaryStrategy::SortedBvh && tried),
+            .any(|&(s, tried)| s == SecondaryStrategy::SortedPackets && tried),
         "{picked:?}"
     );
 }

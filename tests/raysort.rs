@@ -20,6 +20,9 @@ use std::path::Path;
 /// Every strategy, hierarchies at the seed's shapes and one odd shape.
 fn strategies() -> Vec<Strategy> {
     let mut v = vec![Strategy::Bvh, Strategy::SortedBvh];
+    for size in [1, 3, 16, 64, 100] {
+        v.push(Strategy::SortedPackets { size });
+    }
     for (branching, depth) in [(8, 2), (8, 3), (8, 4), (16, 2), (16, 3), (16, 4), (3, 1)] {
         v.push(Strategy::Crsh { branching, depth });
         v.push(Strategy::Rah { branching, depth });

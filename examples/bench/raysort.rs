@@ -1,6 +1,7 @@
 //! Suite `raysort`: the crowd's secondary rays (one shadow ray per primary hit toward one light, toward one
 //! of four lights chosen per pixel, and one reflection ray per hit) through the BVH in pixel order, the BVH
-//! in key order, CRSH (s and D swept) and RAH: intersection tests per ray and Mrays/s on one thread; with an
+//! in key order, packets of sorted rays (8, 16, 64 rays; 16 also unsorted, in pixel order), CRSH (s and D
+//! swept) and RAH: intersection tests per ray and Mrays/s on one thread; with an
 //! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
 
@@ -8,7 +9,8 @@ use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
 use crate::report_scenes::Scene;
 use glam::Vec3;
-use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::ecs::SORTED_PACKET;
 use kinetrace::gpu::GpuContext;
 use kinetrace::raysort::{
     KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu, trace_crsh_gpu,
@@ -79,11 +81,17 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
     for i in (1..random.len()).rev() {
         random.swap(i, (r.next_u64() % (i as u64 + 1)) as usize);
     }
-    let mut speed = [0.0; 2];
-    let mut time = [0.0; 2];
+    let mut speed = [0.0; 3];
+    let mut time = [0.0; 3];
     for (k, (label, s)) in [
         ("BVH, shuffled", Strategy::Bvh),
         ("sorted BVH, shuffled", Strategy::SortedBvh),
+        (
+            "sorted packets 16, shuffled",
+            Strategy::SortedPackets {
+                size: SORTED_PACKET,
+            },
+        ),
     ]
     .into_iter()
     .enumerate()
@@ -103,6 +111,14 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
         "sorted BVH / BVH, shuffled",
         "speed-up 1 thread",
         speed[1] / speed[0],
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
+        "sorted packets 16 / BVH, shuffled",
+        "speed-up 1 thread",
+        speed[2] / speed[0],
         "x",
     );
     // The sorted strategy's time less the sort alone: what key order saves in traversal, before its cost.
@@ -228,6 +244,9 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
     let mut strategies = vec![
         ("BVH", Strategy::Bvh),
         ("sorted BVH", Strategy::SortedBvh),
+        ("sorted packets 8", Strategy::SortedPackets { size: 8 }),
+        ("sorted packets 16", Strategy::SortedPackets { size: 16 }),
+        ("sorted packets 64", Strategy::SortedPackets { size: 64 }),
         (
             "RAH s8 D2",
             Strategy::Rah {
@@ -257,7 +276,10 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
     let mut speed = Vec::new();
     for (label, s) in strategies {
         // The hierarchies are slow on the CPU: one timed run in quick mode.
-        let reps = if matches!(s, Strategy::Bvh | Strategy::SortedBvh) {
+        let reps = if matches!(
+            s,
+            Strategy::Bvh | Strategy::SortedBvh | Strategy::SortedPackets { .. }
+        ) {
             rec.reps()
         } else {
             1
@@ -298,9 +320,52 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
     rec.add(
         SUITE,
         name,
+        "sorted packets 16 / BVH",
+        "speed-up 1 thread",
+        get(&speed, "sorted packets 16") / get(&speed, "BVH"),
+        "x",
+    );
+    let (t, _) = one_thread(|| best_of(rec.reps(), || request_order_packets(scene, rays)));
+    rec.add(
+        SUITE,
+        name,
+        "packets 16, request order / BVH",
+        "speed-up 1 thread",
+        n / t / 1e6 / get(&speed, "BVH"),
+        "x",
+    );
+    rec.add(
+        SUITE,
+        name,
         "CRSH s8 D2 / BVH",
         "speed-up 1 thread",
         get(&speed, "CRSH s8 D2") / get(&speed, "BVH"),
         "x",
     );
+}
+
+/// The rays in request order as packets of [`SORTED_PACKET`] through the scene's BVH, unsorted: what
+/// sorting adds to packets. Every set holds one kind of ray.
+fn request_order_packets(scene: &RayScene, rays: &[SecondaryRay]) -> usize {
+    let plain: Vec<Ray> = rays.iter().map(|r| r.ray).collect();
+    let mut stats = TraversalStats::default();
+    if matches!(rays.first().map(|r| r.kind), Some(RayKind::Shadow { .. })) {
+        let mut out = vec![false; plain.len()];
+        for (r, o) in plain
+            .chunks(SORTED_PACKET)
+            .zip(out.chunks_mut(SORTED_PACKET))
+        {
+            scene.bvh().any_hits_packet(r, o, &mut stats);
+        }
+        out.iter().filter(|&&h| h).count()
+    } else {
+        let mut out = vec![None; plain.len()];
+        for (r, o) in plain
+            .chunks(SORTED_PACKET)
+            .zip(out.chunks_mut(SORTED_PACKET))
+        {
+            scene.bvh().closest_hits_packet(r, o, &mut stats);
+        }
+        out.iter().flatten().count()
+    }
 }

@@ -36,6 +36,18 @@ impl std::fmt::Debug for QueryFilter {
 }
 
 impl QueryFilter {
+    /// Whether `other` accepts exactly the entities this one does by construction: the same layers, the
+    /// same excluded list and the same predicate object (compared by address, not by what it returns).
+    pub(crate) fn same_as(&self, other: &QueryFilter) -> bool {
+        self.layers == other.layers
+            && self.excluded == other.excluded
+            && match (&self.predicate, &other.predicate) {
+                (None, None) => true,
+                (Some(a), Some(b)) => Arc::ptr_eq(a, b),
+                _ => false,
+            }
+    }
+
     /// Only entities on these layers.
     pub fn layers(mut self, mask: u32) -> Self {
         self.layers = mask;

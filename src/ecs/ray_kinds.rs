@@ -60,20 +60,32 @@ pub enum SecondaryStrategy {
     /// The same traversal in key order: costs the keys and the sort (a few ns per ray), pays where
     /// request order is incoherent.
     SortedBvh,
+    /// The rays in key order, traced as packets of [`SORTED_PACKET`] consecutive rays with the same
+    /// filter ([`TraceWorld::cast_packet`], [`TraceWorld::occluded_packet`]): sorting makes neighbours in
+    /// key order start near each other and point the same way, so a packet shares most node visits. Costs
+    /// the sort; pays on shadow rays toward few lights and on reflection rays off smooth surfaces.
+    SortedPackets,
     /// The coherent ray-space hierarchy over the sorted rays, culled against every mesh's world sphere
     /// and then its triangles' spheres; one sphere test per triangle of every mesh a top node reaches,
     /// so on the CPU far slower than the BVH on meshes of more than a few hundred triangles.
     Crsh,
 }
 
+/// Rays per packet of [`SecondaryStrategy::SortedPackets`]: the fastest of 8, 16 and 64 on the crowd's
+/// shadow and reflection rays in `bench raysort` (16 rays of one key run share most node visits; 64 reach
+/// too far along the key order).
+pub const SORTED_PACKET: usize = 16;
+
 /// Priors of the secondary planners (ours, from `bench raysort` on the crowd's secondary rays, 2-core
-/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. The sorted BVH at 0.8,
-/// optimistic so that it is tried (it measured 0.61–1.12× the BVH's speed on shuffled rays, slower on
-/// rays in pixel order); CRSH at 4 (it runs at 0.04–0.25× the BVH's rays per second), so the planner
-/// never tries it on its own on the CPU; [`SecondaryRays::fixed`] forces it.
-const PRIORS: [(SecondaryStrategy, f64, f64); 3] = [
+/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. Sorted packets at 0.5
+/// (they measured 1.8–2.4× the BVH's rays per second there), so they are tried first; the sorted BVH at
+/// 0.8 (0.61–1.12× the BVH's speed on shuffled rays, slower on rays in pixel order); CRSH at 4 (it runs at
+/// 0.04–0.25× the BVH's rays per second), so the planner never tries it on its own on the CPU;
+/// [`SecondaryRays::fixed`] forces it.
+const PRIORS: [(SecondaryStrategy, f64, f64); 4] = [
     (SecondaryStrategy::Bvh, 1.0, 1.0),
     (SecondaryStrategy::SortedBvh, 0.8, 1.0),
+    (SecondaryStrategy::SortedPackets, 0.5, 1.0),
     (SecondaryStrategy::Crsh, 4.0, 1.0),
 ];
 
@@ -114,7 +126,7 @@ impl SecondaryRays {
     ) -> Result<Self> {
         layout.validate()?;
         crate::raysort::hierarchy::check_shape(branching, depth)?;
-        let planner = Choice::new(&PRIORS).expect("three options");
+        let planner = Choice::new(&PRIORS).expect("four options");
         Ok(Self {
             fixed,
             layout,
@@ -255,6 +267,37 @@ fn trace_batch(
     let order: Vec<u32> = match strategy {
         SecondaryStrategy::Bvh => (0..rays.len() as u32).collect(),
         SecondaryStrategy::SortedBvh => sort_rays(rays, &config.layout, true)?.order,
+        SecondaryStrategy::SortedPackets => {
+            let sorted = sort_rays(rays, &config.layout, true)?;
+            let valid = &sorted.order[..sorted.valid()];
+            let mut done = vec![Answer::Miss; valid.len()];
+            parallel::fill_chunks(true, &mut done, SORTED_PACKET, |c, out| {
+                let ids = &valid[c * SORTED_PACKET..c * SORTED_PACKET + out.len()];
+                let mut start = 0;
+                while start < ids.len() {
+                    // A packet is a run of one filter.
+                    let f = filter(ids[start] as usize);
+                    let end = (start + 1..ids.len())
+                        .find(|&k| !filter(ids[k] as usize).same_as(f))
+                        .unwrap_or(ids.len());
+                    trace_packet(
+                        world,
+                        queue,
+                        batch,
+                        rays,
+                        &ids[start..end],
+                        f,
+                        &mut out[start..end],
+                    );
+                    start = end;
+                }
+            });
+            let mut answers = vec![Answer::Miss; rays.len()];
+            for (&j, a) in valid.iter().zip(done) {
+                answers[j as usize] = a;
+            }
+            return Ok(answers);
+        }
         SecondaryStrategy::Crsh => {
             let sorted = sort_rays(rays, &config.layout, true)?;
             let valid = &sorted.order[..sorted.valid()];
@@ -287,4 +330,42 @@ fn trace_batch(
         answers[j as usize] = a;
     }
     Ok(answers)
+}
+
+/// The answers to the batch rays `ids` (at most [`SORTED_PACKET`], one filter), as one packet.
+fn trace_packet(
+    world: &TraceWorld,
+    queue: &RayQueue,
+    batch: RayBatch,
+    rays: &[SecondaryRay],
+    ids: &[u32],
+    filter: &super::QueryFilter,
+    out: &mut [Answer],
+) {
+    let n = ids.len();
+    match batch {
+        RayBatch::Closest => {
+            let mut packet = [Ray::new(glam::Vec3::ZERO, glam::Vec3::X); SORTED_PACKET];
+            for (p, &j) in packet.iter_mut().zip(ids) {
+                *p = rays[j as usize].ray;
+            }
+            let mut hits = [const { None }; SORTED_PACKET];
+            world.cast_packet(&packet[..n], f32::INFINITY, filter, &mut hits[..n]);
+            for (o, h) in out.iter_mut().zip(hits) {
+                *o = h.map_or(Answer::Miss, Answer::Hit);
+            }
+        }
+        RayBatch::Occlusion => {
+            let mut segments = [(glam::Vec3::ZERO, glam::Vec3::ZERO); SORTED_PACKET];
+            for (p, &j) in segments.iter_mut().zip(ids) {
+                let s = &queue.shadows[rays[j as usize].tag as usize];
+                *p = (s.from, s.to);
+            }
+            let mut hit = [false; SORTED_PACKET];
+            world.occluded_packet(&segments[..n], filter, &mut hit[..n]);
+            for (o, h) in out.iter_mut().zip(hit) {
+                *o = if h { Answer::Occluded } else { Answer::Miss };
+            }
+        }
+    }
 }

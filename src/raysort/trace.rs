@@ -3,6 +3,11 @@
 //! - [`Strategy::Bvh`]: each ray through the mesh's BVH, in request order.
 //! - [`Strategy::SortedBvh`]: the same traversal in key order ([`sort_rays`]); pays where request order is
 //!   incoherent, costs the sort (a few ns per ray).
+//! - [`Strategy::SortedPackets`]: the rays in key order, each kind apart, as packets of consecutive rays
+//!   ([`MeshBvh::closest_hits_packet`], [`MeshBvh::any_hits_packet`]): neighbours in key order start near
+//!   each other and point the same way, so a packet shares its node visits; the sort is what makes packets
+//!   of incoherent batches pay. Costs the sort and the packets' range scans; node tests count once per
+//!   packet.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
 //!   children, and each level-1 node's survivors to the exact watertight test of its rays. Cost per top node:
@@ -14,7 +19,7 @@
 use super::cone::bounding_sphere;
 use super::hierarchy::RayHierarchy;
 use super::{KeyLayout, RayKind, SecondaryRay, sort_rays};
-use crate::bvh::{BuildOptions, Hit, MeshBvh, TraversalStats, query_corners};
+use crate::bvh::{BuildOptions, Hit, MAX_PACKET, MeshBvh, TraversalStats, query_corners};
 use crate::geometry::TriangleRay;
 use crate::{Mesh, Result, parallel};
 use glam::Vec3;
@@ -27,6 +32,11 @@ pub enum Strategy {
     Bvh,
     /// The BVH, rays in key order.
     SortedBvh,
+    /// The BVH, rays in key order traced as packets of `size` consecutive rays of one kind.
+    SortedPackets {
+        /// Rays per packet (clamped to `1..=MAX_PACKET`).
+        size: usize,
+    },
     /// The coherent ray-space hierarchy: sorted rays, branching `s`, depth `D`, mesh-sphere cull.
     Crsh {
         /// Children per node `s` (the seed: 8 or 16).
@@ -133,6 +143,10 @@ impl RayScene {
                 let order = sort_rays(rays, layout, parallel)?.order;
                 Ok(self.trace_bvh(rays, order, parallel))
             }
+            Strategy::SortedPackets { size } => {
+                let sorted = sort_rays(rays, layout, parallel)?;
+                Ok(self.trace_packets(rays, &sorted.order[..sorted.valid()], size, parallel))
+            }
             Strategy::Crsh { branching, depth } => {
                 let sorted = sort_rays(rays, layout, parallel)?;
                 let mut order = sorted.order;
@@ -172,6 +186,52 @@ impl RayScene {
             answers[i as usize] = a;
             stats.node_tests += 2 * st.inner_visits;
             stats.triangle_tests += st.prim_tests;
+        }
+        Traced { answers, stats }
+    }
+
+    /// The valid rays of `order`, split by kind (keeping their order), as packets of `size` consecutive rays.
+    fn trace_packets(
+        &self,
+        rays: &[SecondaryRay],
+        order: &[u32],
+        size: usize,
+        parallel: bool,
+    ) -> Traced {
+        let size = size.clamp(1, MAX_PACKET);
+        let mut answers = vec![Answer::Miss; rays.len()];
+        let mut stats = RayTestStats::default();
+        let (shadow, reflect): (Vec<u32>, Vec<u32>) = order
+            .iter()
+            .partition(|&&i| matches!(rays[i as usize].kind, RayKind::Shadow { .. }));
+        for (ids, any) in [(shadow, true), (reflect, false)] {
+            let batch: Vec<crate::Ray> = ids.iter().map(|&i| rays[i as usize].ray).collect();
+            let mut done = vec![(Answer::Miss, TraversalStats::default()); batch.len()];
+            parallel::fill_chunks(parallel, &mut done, size, |p, out| {
+                let rays = &batch[p * size..p * size + out.len()];
+                let mut st = TraversalStats::default();
+                if any {
+                    let mut hit = [false; MAX_PACKET];
+                    self.bvh
+                        .any_hits_packet(rays, &mut hit[..rays.len()], &mut st);
+                    for (o, h) in out.iter_mut().zip(hit) {
+                        o.0 = if h { Answer::Occluded } else { Answer::Miss };
+                    }
+                } else {
+                    let mut hit = [None; MAX_PACKET];
+                    self.bvh
+                        .closest_hits_packet(rays, &mut hit[..rays.len()], &mut st);
+                    for (o, h) in out.iter_mut().zip(hit) {
+                        o.0 = h.map_or(Answer::Miss, Answer::Hit);
+                    }
+                }
+                out[0].1 = st;
+            });
+            for (&i, (a, st)) in ids.iter().zip(done) {
+                answers[i as usize] = a;
+                stats.node_tests += 2 * st.inner_visits;
+                stats.triangle_tests += st.prim_tests;
+            }
         }
         Traced { answers, stats }
     }
