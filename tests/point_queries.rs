@@ -295,6 +295,54 @@ fn closest_points_follow_refits() {
     }
 }
 
+/// Points on and near a torus's axis are almost equidistant from its whole inner ring, so the walk opens
+/// hundreds of leaves and filters their triangles four at a time with an `f32` bound before the exact test.
+/// The answer must still be the nearest triangle: its distance as in [`check_closest`], and where the
+/// oracle's nearest triangle beats every other by more than the oracles' error bounds, that very triangle
+/// (elsewhere the nearest point is on an edge or corner that triangles share, or symmetric bumps tie).
+#[test]
+fn closest_points_near_a_torus_axis_pick_the_nearest_triangle() {
+    let rest = kinetrace::scenes::bumpy_torus(3000);
+    let twisted = map_mesh(&rest, |p| {
+        let (s, c) = (0.4 * p.y).sin_cos();
+        Vec3::new(p.x * c - p.z * s, p.y, p.x * s + p.z * c)
+    });
+    let mut r = rng(23);
+    let mut decided = 0;
+    for m in [rest, twisted] {
+        let points: Vec<Vec3> = (0..200)
+            .map(|i| {
+                let off = rand_vec(&mut r, -1.0, 1.0) * [1e-3, 0.05, 0.15][i % 3];
+                Vec3::new(0.0, r.random_range(-0.6..0.6), 0.0) + off
+            })
+            .collect();
+        for wide in [true, false] {
+            let bvh = MeshBvh::build(&m, &BuildOptions::default().wide(wide)).unwrap();
+            for &p in &points {
+                check_closest(&m, &bvh, p, &format!("axis wide {wide}"));
+                let got = bvh.closest_point(p, f32::INFINITY).unwrap().primitive as usize;
+                let mut by_distance: Vec<(f64, f64, usize)> = (0..m.triangle_count())
+                    .filter(|&i| !absent(m.triangle(i)))
+                    .map(|i| {
+                        let (x, e) = point_triangle_bounded(d(p), m.triangle(i).map(d));
+                        (x, e, i)
+                    })
+                    .collect();
+                by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+                let [(x0, e0, i0), (x1, e1, _)] = [by_distance[0], by_distance[1]];
+                if x1 - e1 > x0 + e0 {
+                    assert_eq!(got, i0, "axis wide {wide}: {p:?}");
+                    decided += 1;
+                }
+            }
+        }
+    }
+    assert!(
+        decided >= 100,
+        "only {decided} of 800 answers have a clear nearest triangle"
+    );
+}
+
 #[test]
 fn max_distance_limits_the_answer() {
     let m = soup(21, 300);

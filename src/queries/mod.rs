@@ -39,6 +39,7 @@ mod closest;
 mod contains;
 mod frame;
 mod overlap;
+mod point_bound;
 mod shapes;
 
 pub(crate) use cast::Sweep;
