@@ -1,10 +1,13 @@
 //! The GPU-resident frame ([`TraceConfig::resident`]): in a GPU mode that found an adapter, one
 //! submission per frame skins every GPU-skinned mesh, refits or rebuilds every changed tree, builds the top
-//! level and answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]).
+//! level, answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]) and traverses the pairs
+//! of [`Collider`]s, whose exact tests run on the CPU when the answers come back (`gpu_collide`): contacts
+//! arrive with the ray answers, [`GpuOnly`] colliders included.
 //!
 //! What moves per frame: joint matrices of changed skins (64 bytes per joint), every instance (208 bytes:
-//! transform, inverse, offsets, layers) and the requests (96 bytes each) up; the answers (48 bytes each) and
-//! one degradation metric per refitted mesh (8 bytes) down. Vertices go up once, when a mesh is first
+//! transform, inverse, offsets, layers), the requests (96 bytes each) and one relative transform per
+//! candidate collider pair (80 bytes) up; the answers (48 bytes each), one degradation metric per refitted
+//! mesh (8 bytes) and each collider's tree and positions (36 bytes per triangle, 12 per vertex) down. Vertices go up once, when a mesh is first
 //! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
 //! with active blend shapes, which the GPU skin does not apply).
 //!
@@ -17,7 +20,7 @@
 //! and no SAH cost comes back.
 //!
 //! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
-//! predicate or several exclusions, collisions, shape and sound queries) read the CPU's trees. By default
+//! predicate or several exclusions, shape and sound queries) read the CPU's trees. By default
 //! every entity keeps a CPU mirror: the CPU skins and maintains it as in [`TraceMode::Cpu`], so those
 //! features see the same geometry as the GPU — at the CPU mode's cost of skinning and maintenance per
 //! frame, and no saving but the bus traffic. An entity with [`GpuOnly`] drops its mirror: the CPU neither
@@ -55,7 +58,18 @@ type ResidentData<'a> = (
     Option<Ref<'a, VertexPositions>>,
     &'a TraceTransform,
     &'a QueryLayers,
+    Option<&'a Collider>,
 );
+
+/// What the resident frame publishes besides the ray answers: the contacts and their messages.
+#[cfg(feature = "gpu")]
+#[derive(bevy_ecs::system::SystemParam)]
+pub(crate) struct ContactOutput<'w> {
+    contacts: ResMut<'w, Contacts>,
+    state: ResMut<'w, super::collide::CollisionState>,
+    started: MessageWriter<'w, CollisionStarted>,
+    ended: MessageWriter<'w, CollisionEnded>,
+}
 
 /// [`TraceSystems::Queries`] in the resident frame: records every mesh's update and maintenance, the top
 /// level and the batches into one encoder, submits it, and publishes answers (see [`Latency`]).
@@ -71,6 +85,7 @@ pub(crate) fn resident_frame_system(
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,
     mut errors: MessageWriter<TraceErrorMessage>,
+    mut contact_out: ContactOutput,
 ) {
     use super::systems::{attribute, checked_transform, fail, finish};
     use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
@@ -78,7 +93,7 @@ pub(crate) fn resident_frame_system(
     let next_frame = config.latency == Latency::NextFrame;
     if next_frame {
         let blocking = gpu.in_flight() >= IN_FLIGHT;
-        publish(gpu.collect(blocking), &mut results);
+        publish(gpu.collect_frame(blocking), &mut results, &mut contact_out);
     }
     let threshold = match config.policy {
         RebuildPolicy::Lauterbach { threshold } => threshold,
@@ -91,7 +106,8 @@ pub(crate) fn resident_frame_system(
     let resident = gpu.resident();
     let mut enc = ctx.encoder();
     let mut placed = Vec::with_capacity(meshes.iter().len());
-    for (e, mesh, skin, positions, transform, layers) in &meshes {
+    let mut colliders = Vec::new();
+    for (e, mesh, skin, positions, transform, layers, collider) in &meshes {
         // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
         let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
         let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
@@ -124,7 +140,19 @@ pub(crate) fn resident_frame_system(
                 Ok(tr)
             });
         match done {
-            Ok(tr) => placed.push((e, tr, layers.0)),
+            Ok(tr) => {
+                if let Some(&collider) = collider
+                    && mesh.0.triangle_count() > 0
+                {
+                    colliders.push(super::gpu_collide::Recorded {
+                        entity: e,
+                        collider,
+                        mesh: mesh.0.clone(),
+                        transform: tr,
+                    });
+                }
+                placed.push((e, tr, layers.0));
+            }
             Err(err) => {
                 resident.meshes.remove(&e);
                 fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
@@ -147,24 +175,64 @@ pub(crate) fn resident_frame_system(
         .collect();
     let (closest, any) = pending.requests();
     let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any);
+    let contacts = (!colliders.is_empty()).then(|| {
+        let meshes = &resident.meshes;
+        super::gpu_collide::record(&ctx, &mut enc, &mut resident.pairs, colliders, |e| {
+            &meshes[&e]
+        })
+    });
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);
+    let contacts = match contacts.transpose() {
+        Ok(c) => c,
+        Err(e) => {
+            log::error!("kinetrace: GPU-resident frame's collider pairs lost: {e}");
+            None
+        }
+    };
     match recorded {
-        Ok(readback) => gpu.push_pending(pending, readback),
+        Ok(readback) => gpu.push_pending(pending, readback, contacts),
         Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),
     }
     if !next_frame {
-        publish(gpu.collect(true), &mut results);
+        publish(gpu.collect_frame(true), &mut results, &mut contact_out);
     }
     finish(&mut queue, &mut stats, t);
     attribute(&mut world, &config, &stats);
 }
 
-/// Publishes collected answers; with none (nothing submitted, or not back yet) the results are empty.
+/// Publishes collected answers; with none (nothing submitted, or not back yet) the results are empty and
+/// the contacts stay as last published (their [`Contacts::frame`] says which frame they are of).
 #[cfg(feature = "gpu")]
-fn publish(r: Option<crate::Result<RayResults>>, results: &mut RayResults) {
+fn publish(
+    r: Option<crate::Result<super::gpu_queries::Answers>>,
+    results: &mut RayResults,
+    out: &mut ContactOutput,
+) {
     match r {
-        Some(Ok(r)) => *results = r,
+        Some(Ok(a)) => {
+            *results = a.rays;
+            // A frame without colliders ends the pairs of the last one that had some.
+            let found = match a.contacts {
+                Some(Ok(found)) => found,
+                Some(Err(e)) => {
+                    log::error!("kinetrace: GPU-resident frame's contacts lost: {e}");
+                    return;
+                }
+                None => Vec::new(),
+            };
+            let o = &mut *out;
+            let (contacts, state) = (&mut *o.contacts, &mut *o.state);
+            let frame = results.frame;
+            super::gpu_collide::publish(
+                frame,
+                &found,
+                contacts,
+                state,
+                &mut o.started,
+                &mut o.ended,
+            );
+        }
         Some(Err(e)) => log::error!("kinetrace: GPU batch lost: {e}"),
         None => {
             results.hits.clear();

@@ -10,8 +10,10 @@
 //! hundred boxes costs a handful of dispatches, less than tracking which boxes moved.
 
 mod mesh;
+mod pairs;
 
 pub use mesh::{Maintained, MeshUpdate, ResidentMesh};
+pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
 
 use super::buffers::{GpuBuffer, bind_group};
 use super::scene::{Batch, GpuInstance, SceneReadback, SceneRequest};
