@@ -383,3 +383,48 @@ fn colliders_and_queries_equal_the_cpu_mode_over_300_frames() {
         }
     }
 }
+
+/// `frames_since_rebuild` of every call of [`every_third_frame`], in call order.
+static CALLS: std::sync::Mutex<Vec<(u32, f32)>> = std::sync::Mutex::new(Vec::new());
+
+/// A custom policy that rebuilds a tree refitted twice since its build.
+fn every_third_frame(input: &PolicyInput<'_>) -> Decision {
+    CALLS
+        .lock()
+        .unwrap()
+        .push((input.frames_since_rebuild, input.degradation));
+    if input.frames_since_rebuild >= 2 {
+        Decision::Rebuild(kinetrace::ecs::Build::GPU_LBVH)
+    } else {
+        Decision::Keep
+    }
+}
+
+/// The resident frame consults a custom policy for every changed mesh and does what it says: trees that
+/// it keeps are refitted (their refit count rises to 2), trees it rebuilds start again from 0 (never 3),
+/// and a rebuilt tree's metric reads 0 until a refit's comes back; the answers still equal the CPU mode's.
+#[test]
+fn a_custom_policy_decides_refit_or_rebuild() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let cpu = run(TraceConfig::default(), Crowd::queries(600, false));
+    let config = TraceConfig {
+        policy: RebuildPolicy::Custom(every_third_frame),
+        ..resident(Latency::NextFrame)
+    };
+    let gpu = run(config, Crowd::queries(600, true));
+    assert_same_answers(&cpu, &gpu, "custom policy");
+    let calls = CALLS.lock().unwrap().clone();
+    // Every frame after the first, each character (the static ground is never asked).
+    assert!(
+        calls.len() >= CHARACTERS * (FRAMES as usize - 1),
+        "{calls:?}"
+    );
+    for k in 0..=2 {
+        assert!(calls.iter().any(|c| c.0 == k), "{calls:?}");
+    }
+    assert!(calls.iter().all(|c| c.0 <= 2), "{calls:?}");
+    assert!(calls.iter().all(|c| c.0 > 0 || c.1 == 0.0), "{calls:?}");
+    assert!(calls.iter().any(|c| c.1 > 0.0), "{calls:?}");
+}

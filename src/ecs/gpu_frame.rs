@@ -11,13 +11,18 @@
 //! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
 //! with active blend shapes, which the GPU skin does not apply).
 //!
-//! The rebuild rule is Lauterbach's at [`RebuildPolicy::Lauterbach`]'s threshold (0.40 under the other
-//! policies) on the metric of an earlier refit, read back without blocking: a mesh rebuilds one frame
-//! after its refit crossed the threshold, or later when the GPU is behind. Rebuilds use
-//! [`TraceConfig::builder`] where the GPU has it in one submission (LBVH over 30-bit codes, 16-bin SAH or
-//! hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per round). The adaptive policy's
-//! builders and costs are not consulted on this path (the CPU mirror still runs them for its own trees),
-//! and no SAH cost comes back.
+//! The rebuild rule is the configured policy's, on the metric of an earlier refit read back without
+//! blocking: a mesh rebuilds one frame after the refit whose metric made the policy ask for it, or later
+//! when the GPU is behind. [`RebuildPolicy::Lauterbach`] compares it with its threshold;
+//! [`RebuildPolicy::Custom`] is called per changed mesh per frame with a [`PolicyInput`] whose
+//! degradation and `frames_since_rebuild` are those of the resident tree as last read back, whose
+//! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; any
+//! rebuild it asks for (a partial one included) is a whole rebuild with the mesh's builder.
+//! [`RebuildPolicy::Adaptive`] needs the tree's SAH cost and per-mesh query times, which do not come back
+//! on this path: it falls back to the thesis's 0.40 (said once in the log; the CPU mirror still runs it
+//! for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one submission (LBVH
+//! over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per
+//! round).
 //!
 //! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
 //! predicate or several exclusions, shape and sound queries) read the CPU's trees. By default
@@ -59,7 +64,27 @@ type ResidentData<'a> = (
     &'a TraceTransform,
     &'a QueryLayers,
     Option<&'a Collider>,
+    Option<&'a MotionHint>,
 );
+
+/// Whether `policy` rebuilds a resident tree in the state `input` describes (see the module docs).
+#[cfg(feature = "gpu")]
+fn rebuild_due(policy: &RebuildPolicy, input: &PolicyInput<'_>) -> bool {
+    static FALLBACK_SAID: std::sync::Once = std::sync::Once::new();
+    match policy {
+        RebuildPolicy::Lauterbach { threshold } => input.degradation > *threshold,
+        RebuildPolicy::Custom(policy) => policy(input) != Decision::Keep,
+        RebuildPolicy::Adaptive { .. } => {
+            FALLBACK_SAID.call_once(|| {
+                log::warn!(
+                    "kinetrace: the GPU-resident frame has no SAH costs or query times per mesh for the \
+                     adaptive policy: its trees rebuild at degradation 0.40"
+                )
+            });
+            input.degradation > super::config::THESIS_THRESHOLD
+        }
+    }
+}
 
 /// What the resident frame publishes besides the ray answers: the contacts and their messages.
 #[cfg(feature = "gpu")]
@@ -95,10 +120,7 @@ pub(crate) fn resident_frame_system(
         let blocking = gpu.in_flight() >= IN_FLIGHT;
         publish(gpu.collect_frame(blocking), &mut results, &mut contact_out);
     }
-    let threshold = match config.policy {
-        RebuildPolicy::Lauterbach { threshold } => threshold,
-        _ => super::config::THESIS_THRESHOLD,
-    };
+    let rays_last_frame = stats.rays_last_frame;
     // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
     let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
     let ctx = gpu.context().clone();
@@ -107,7 +129,7 @@ pub(crate) fn resident_frame_system(
     let mut enc = ctx.encoder();
     let mut placed = Vec::with_capacity(meshes.iter().len());
     let mut colliders = Vec::new();
-    for (e, mesh, skin, positions, transform, layers, collider) in &meshes {
+    for (e, mesh, skin, positions, transform, layers, collider, hint) in &meshes {
         // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
         let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
         let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
@@ -136,7 +158,19 @@ pub(crate) fn resident_frame_system(
             .and_then(|tr| {
                 let state = state.expect("made above");
                 let update = update.unwrap_or(MeshUpdate::Unchanged);
-                state.record(&ctx, &mut enc, update, threshold)?;
+                let input = |refit: &crate::gpu::RefitState| PolicyInput {
+                    hint: hint.copied().unwrap_or_default(),
+                    triangles: mesh.0.triangle_count(),
+                    degradation: refit.degradation,
+                    frames_since_rebuild: refit.frames_since_rebuild,
+                    rays_last_frame,
+                    profile: None,
+                    motion_incoherence: refit.incoherence(),
+                    gpu: true,
+                };
+                let rule =
+                    |refit: &crate::gpu::RefitState| rebuild_due(&config.policy, &input(refit));
+                state.record(&ctx, &mut enc, update, rule)?;
                 Ok(tr)
             });
         match done {

@@ -60,7 +60,7 @@ pub(crate) use frame::{
     FrameCollider, FrameContacts, FrameInstance, FrameReadback, ReadTrees, ResidentPairs,
     ResidentScene,
 };
-pub use frame::{Maintained, MeshUpdate, ResidentMesh};
+pub use frame::{Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]

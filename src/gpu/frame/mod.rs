@@ -12,7 +12,7 @@
 mod mesh;
 mod pairs;
 
-pub use mesh::{Maintained, MeshUpdate, ResidentMesh};
+pub use mesh::{Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
 
 use super::buffers::{GpuBuffer, bind_group};
