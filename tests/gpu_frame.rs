@@ -428,3 +428,39 @@ fn a_custom_policy_decides_refit_or_rebuild() {
     assert!(calls.iter().all(|c| c.0 > 0 || c.1 == 0.0), "{calls:?}");
     assert!(calls.iter().any(|c| c.1 > 0.0), "{calls:?}");
 }
+
+/// Per-phase GPU durations come with every frame's answers on a device with timestamp queries, and are
+/// absent on one without (skipped cleanly); where present the timestamps were written (the frame's work
+/// took some GPU time).
+#[test]
+fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
+    let Some(ctx) = gpu_or_skip() else {
+        return;
+    };
+    let (mut world, mut schedule) = app_with(resident(Latency::SameFrame));
+    let asset = Arc::new(humanoid(600));
+    world
+        .spawn(AnimationPlayer::bundle(&asset, 0, 0.0))
+        .insert(Collider::default());
+    world
+        .spawn(AnimationPlayer::bundle(&asset, 0, 0.2))
+        .insert((
+            Collider::default(),
+            TraceTransform(Affine3A::from_translation(Vec3::X * 0.3)),
+        ));
+    eprintln!("timestamps: {}", ctx.has_timestamps());
+    for f in 1..=4 {
+        let (rays, _) = requests(f);
+        let mut queue = world.resource_mut::<RayQueue>();
+        for (i, ray) in rays.into_iter().enumerate() {
+            queue.cast(i as u64, ray, QueryFilter::default());
+        }
+        schedule.run(&mut world);
+        let phases = world.resource::<TraceStats>().gpu_phases;
+        assert_eq!(phases.is_some(), ctx.has_timestamps(), "frame {f}");
+        if let Some(p) = phases {
+            eprintln!("frame {f}: {p:?}");
+            assert!(p.maintain + p.top_level + p.queries + p.pairs > std::time::Duration::ZERO);
+        }
+    }
+}

@@ -24,6 +24,9 @@
 //! over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per
 //! round).
 //!
+//! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
+//! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
+//!
 //! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
 //! predicate or several exclusions, shape and sound queries) read the CPU's trees. By default
 //! every entity keeps a CPU mirror: the CPU skins and maintains it as in [`TraceMode::Cpu`], so those
@@ -118,7 +121,12 @@ pub(crate) fn resident_frame_system(
     let next_frame = config.latency == Latency::NextFrame;
     if next_frame {
         let blocking = gpu.in_flight() >= IN_FLIGHT;
-        publish(gpu.collect_frame(blocking), &mut results, &mut contact_out);
+        publish(
+            gpu.collect_frame(blocking),
+            &mut results,
+            &mut contact_out,
+            &mut stats,
+        );
     }
     let rays_last_frame = stats.rays_last_frame;
     // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
@@ -127,6 +135,9 @@ pub(crate) fn resident_frame_system(
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
     let resident = gpu.resident();
     let mut enc = ctx.encoder();
+    if let Some(timer) = &resident.timer {
+        timer.mark(&mut enc, 0);
+    }
     let mut placed = Vec::with_capacity(meshes.iter().len());
     let mut colliders = Vec::new();
     for (e, mesh, skin, positions, transform, layers, collider, hint) in &meshes {
@@ -208,13 +219,21 @@ pub(crate) fn resident_frame_system(
         })
         .collect();
     let (closest, any) = pending.requests();
-    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any);
+    let timer = resident.timer.as_ref();
+    if let Some(timer) = timer {
+        timer.mark(&mut enc, 1);
+    }
+    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any, timer);
+    if let Some(timer) = timer {
+        timer.mark(&mut enc, 3);
+    }
     let contacts = (!colliders.is_empty()).then(|| {
         let meshes = &resident.meshes;
         super::gpu_collide::record(&ctx, &mut enc, &mut resident.pairs, colliders, |e| {
             &meshes[&e]
         })
     });
+    let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);
     let contacts = match contacts.transpose() {
@@ -225,27 +244,42 @@ pub(crate) fn resident_frame_system(
         }
     };
     match recorded {
-        Ok(readback) => gpu.push_pending(pending, readback, contacts),
+        Ok(readback) => gpu.push_pending(pending, readback, contacts, phases),
         Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),
     }
     if !next_frame {
-        publish(gpu.collect_frame(true), &mut results, &mut contact_out);
+        publish(
+            gpu.collect_frame(true),
+            &mut results,
+            &mut contact_out,
+            &mut stats,
+        );
     }
     finish(&mut queue, &mut stats, t);
     attribute(&mut world, &config, &stats);
 }
 
-/// Publishes collected answers; with none (nothing submitted, or not back yet) the results are empty and
-/// the contacts stay as last published (their [`Contacts::frame`] says which frame they are of).
+/// Publishes collected answers and their frame's GPU phase times; with none (nothing submitted, or not
+/// back yet) the results are empty and the contacts stay as last published (their [`Contacts::frame`]
+/// says which frame they are of).
 #[cfg(feature = "gpu")]
 fn publish(
     r: Option<crate::Result<super::gpu_queries::Answers>>,
     results: &mut RayResults,
     out: &mut ContactOutput,
+    stats: &mut TraceStats,
 ) {
     match r {
         Some(Ok(a)) => {
             *results = a.rays;
+            stats.gpu_phases = match a.phases {
+                Some(Ok(p)) => Some(p),
+                Some(Err(e)) => {
+                    log::error!("kinetrace: GPU-resident frame's timestamps lost: {e}");
+                    None
+                }
+                None => None,
+            };
             // A frame without colliders ends the pairs of the last one that had some.
             let found = match a.contacts {
                 Some(Ok(found)) => found,

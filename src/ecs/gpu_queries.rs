@@ -32,7 +32,7 @@ mod imp {
     use crate::ecs::{RayHit, RayQueue, RayResults, TraceWorld};
     use crate::geometry::Ray;
     use crate::gpu::scene::{GpuScene, SceneInstance, SceneReadback, SceneRequest};
-    use crate::gpu::{GpuContext, ResidentMesh, ResidentPairs, ResidentScene};
+    use crate::gpu::{FrameTimer, GpuContext, ResidentMesh, ResidentPairs, ResidentScene};
     use std::collections::{HashMap, VecDeque};
 
     /// A batch submitted but not yet collected: the CPU-answered part is in `fresh`, the GPU answers
@@ -47,6 +47,8 @@ mod imp {
         shadows: Option<SceneReadback>,
         /// The resident frame's collider pairs.
         contacts: Option<crate::ecs::gpu_collide::PendingContacts>,
+        /// The resident frame's timestamps.
+        phases: Option<crate::gpu::PhasesReadback>,
     }
 
     /// A collected frame: the batch's answers and, from the resident frame with colliders, its contact
@@ -54,6 +56,7 @@ mod imp {
     pub(crate) struct Answers {
         pub(crate) rays: RayResults,
         pub(crate) contacts: Option<crate::Result<Vec<crate::ecs::gpu_collide::FoundPair>>>,
+        pub(crate) phases: Option<crate::Result<crate::gpu::GpuPhases>>,
     }
 
     /// The state of the GPU-resident frame (see [`TraceConfig::resident`](crate::ecs::TraceConfig)).
@@ -61,6 +64,8 @@ mod imp {
         pub(crate) meshes: HashMap<Entity, ResidentMesh>,
         pub(crate) scene: ResidentScene,
         pub(crate) pairs: ResidentPairs,
+        /// `None` where the device has no timestamp queries.
+        pub(crate) timer: Option<FrameTimer>,
     }
 
     pub(crate) struct Inner {
@@ -90,6 +95,7 @@ mod imp {
                 shadow_requests: vec![],
                 shadows: None,
                 contacts: None,
+                phases: None,
             };
             let gpu_ok =
                 |f: &super::super::QueryFilter| f.predicate.is_none() && f.excluded.len() <= 1;
@@ -130,7 +136,8 @@ mod imp {
         /// The answers, if both read-backs are there (or `blocking`, after waiting for them).
         fn answers(&mut self, ctx: &GpuContext, blocking: bool) -> Option<crate::Result<Answers>> {
             let (closest, shadows) = (self.closest.as_ref()?, self.shadows.as_ref()?);
-            let contacts_ready = self.contacts.as_ref().is_none_or(|c| c.ready(ctx));
+            let contacts_ready = self.contacts.as_ref().is_none_or(|c| c.ready(ctx))
+                && self.phases.as_ref().is_none_or(|p| p.ready(ctx));
             let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx) && contacts_ready);
             if !ready {
                 return None;
@@ -155,7 +162,12 @@ mod imp {
                 Ok(fresh)
             };
             let contacts = self.contacts.take().map(|c| c.finish(ctx));
-            Some(run().map(|rays| Answers { rays, contacts }))
+            let phases = self.phases.take().map(|p| p.wait(ctx));
+            Some(run().map(|rays| Answers {
+                rays,
+                contacts,
+                phases,
+            }))
         }
     }
 
@@ -211,10 +223,12 @@ mod imp {
             mut p: Pending,
             readback: crate::gpu::FrameReadback,
             contacts: Option<crate::ecs::gpu_collide::PendingContacts>,
+            phases: Option<crate::gpu::PhasesReadback>,
         ) {
             p.closest = Some(readback.closest);
             p.shadows = Some(readback.any);
             p.contacts = contacts;
+            p.phases = phases;
             self.inner.pending.push_back(p);
         }
 
@@ -225,6 +239,7 @@ mod imp {
                 meshes: Default::default(),
                 scene: ResidentScene::new(ctx),
                 pairs: ResidentPairs::default(),
+                timer: FrameTimer::new(ctx),
             })
         }
 

@@ -57,10 +57,10 @@ pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
 pub(crate) use frame::{
-    FrameCollider, FrameContacts, FrameInstance, FrameReadback, ReadTrees, ResidentPairs,
-    ResidentScene,
+    FrameCollider, FrameContacts, FrameInstance, FrameReadback, FrameTimer, PhasesReadback,
+    ReadTrees, ResidentPairs, ResidentScene,
 };
-pub use frame::{Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub use frame::{GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
