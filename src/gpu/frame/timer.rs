@@ -12,8 +12,8 @@ use crate::gpu::GpuContext;
 use crate::gpu::buffers::{GpuBuffer, Readback};
 use std::time::Duration;
 
-/// The phases of a resident frame, in recording order.
-pub const PHASES: [&str; 4] = ["maintain", "top level", "queries", "collider pairs"];
+/// The phases of a resident frame, in recording order ([`GpuPhases`]' fields).
+const PHASES: [&str; 4] = ["maintain", "top level", "queries", "collider pairs"];
 
 /// GPU durations of one resident frame's phases.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
