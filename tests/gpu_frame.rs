@@ -9,6 +9,10 @@
 //! depend on the characters' triangle counts and are exactly the joint matrices, instances and requests
 //! (no vertex data). Immediate queries read the CPU's world: it holds the mirrored characters, not those
 //! marked `GpuOnly`.
+//!
+//! Also: 300 frames of the crowd as colliders, whose contact pairs equal the CPU mode's; a custom rebuild
+//! policy's decisions carried out on the resident trees; per-phase GPU times where the device has
+//! timestamp queries.
 #![cfg(feature = "gpu")]
 
 mod common;
