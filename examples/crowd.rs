@@ -786,14 +786,14 @@ fn main() {
                     }
                 }
             }
-            "--gpu" => opt.gpu = true,
-            "--resident" => (opt.gpu, opt.resident) = (true, true),
+            // The GPU path is the GPU-resident frame; `--resident` is kept as its older name.
+            "--gpu" | "--resident" => (opt.gpu, opt.resident) = (true, true),
             "--out" => {
                 opt.out = PathBuf::from(args.next().unwrap_or_else(|| "target/crowd".into()))
             }
             _ => {
                 eprintln!(
-                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu|--resident] [--out DIR] [--shadows map|selective|traced]"
+                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR] [--shadows map|selective|traced]"
                 );
                 std::process::exit(2);
             }

@@ -247,12 +247,17 @@ fn main() {
     };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
+        if a == "--gpu" {
+            // Maintained and queried in the GPU-resident frame (the image is still ray traced on the CPU).
+            (opt.gpu, opt.resident) = (true, true);
+            continue;
+        }
         let value = args.next().and_then(|v| v.parse().ok());
         match (a.as_str(), value) {
             ("--characters", Some(v)) => opt.characters = v,
             ("--triangles", Some(v)) => opt.triangles = v,
             _ => {
-                eprintln!("usage: viewer [--characters N] [--triangles N]");
+                eprintln!("usage: viewer [--characters N] [--triangles N] [--gpu]");
                 std::process::exit(2);
             }
         }

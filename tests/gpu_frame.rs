@@ -9,6 +9,10 @@
 //! depend on the characters' triangle counts and are exactly the joint matrices, instances and requests
 //! (no vertex data). Immediate queries read the CPU's world: it holds the mirrored characters, not those
 //! marked `GpuOnly`.
+//!
+//! Also: 300 frames of the crowd as colliders, whose contact pairs equal the CPU mode's; a custom rebuild
+//! policy's decisions carried out on the resident trees; per-phase GPU times where the device has
+//! timestamp queries.
 #![cfg(feature = "gpu")]
 
 mod common;
@@ -66,7 +70,13 @@ struct Run {
     spawned: Vec<Entity>,
     /// Characters the CPU's world holds at the end (what immediate queries see).
     on_cpu: usize,
+    /// Per frame (the frame the contacts are of), the touching pairs as spawn indices with their
+    /// triangle pairs, sorted.
+    contacts: BTreeMap<u64, ContactPairs>,
 }
+
+/// A frame's touching pairs: (character a, character b, triangle pairs).
+type ContactPairs = Vec<(usize, usize, Vec<[u32; 2]>)>;
 
 impl Run {
     /// Which character `e` is.
@@ -78,9 +88,43 @@ impl Run {
     }
 }
 
-/// Runs `FRAMES` frames (then, for `NextFrame`, empty frames until the last answers are in) of the crowd
-/// under `config` with the same requests every time.
-fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
+/// The crowd a run animates.
+#[derive(Clone, Copy)]
+struct Crowd {
+    /// Triangles per character (about).
+    triangles: usize,
+    /// Characters without a CPU mirror.
+    gpu_only: bool,
+    /// Frames of requests.
+    frames: u64,
+    /// Distance between neighbours along x.
+    spacing: f32,
+    /// Characters are colliders (the first also with itself).
+    colliders: bool,
+}
+
+impl Crowd {
+    /// The queries-only crowd of the short tests.
+    const fn queries(triangles: usize, gpu_only: bool) -> Self {
+        Crowd {
+            triangles,
+            gpu_only,
+            frames: FRAMES,
+            spacing: 0.9,
+            colliders: false,
+        }
+    }
+}
+
+/// Runs `crowd.frames` frames (then, for `NextFrame`, empty frames until the last answers are in) of the
+/// crowd under `config` with the same requests every time.
+fn run(config: TraceConfig, crowd: Crowd) -> Run {
+    let Crowd {
+        triangles,
+        gpu_only,
+        frames,
+        ..
+    } = crowd;
     let next_frame = config.latency == Latency::NextFrame;
     let cpu = config.mode == TraceMode::Cpu;
     let (mut world, mut schedule) = app_with(config);
@@ -94,11 +138,17 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
     let mut spawned = vec![world.spawn((TraceMesh(ground), MotionHint::Static)).id()];
     for k in 0..CHARACTERS {
         let clip = k % asset.clips.len();
-        let at = Vec3::new(k as f32 * 0.9, 0.0, (k % 2) as f32 * 0.7);
+        let at = Vec3::new(k as f32 * crowd.spacing, 0.0, (k % 2) as f32 * 0.7);
         let mut e = world.spawn(AnimationPlayer::bundle(&asset, clip, 0.13 * k as f32));
         e.insert(TraceTransform(Affine3A::from_translation(at)));
         if gpu_only {
             e.insert(GpuOnly);
+        }
+        if crowd.colliders {
+            e.insert(Collider {
+                self_collision: k == 0,
+                ..Default::default()
+            });
         }
         spawned.push(e.id());
     }
@@ -108,13 +158,14 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
         triangles: BTreeMap::new(),
         spawned,
         on_cpu: 0,
+        contacts: BTreeMap::new(),
     };
     let mut frame = 0;
-    while frame < FRAMES
-        || (next_frame && !out.answers.contains_key(&FRAMES) && frame < FRAMES + 400)
+    while frame < frames
+        || (next_frame && !out.answers.contains_key(&frames) && frame < frames + 400)
     {
         frame += 1;
-        if frame <= FRAMES {
+        if frame <= frames {
             let (rays, shadows) = requests(frame);
             let mut queue = world.resource_mut::<RayQueue>();
             for (i, ray) in rays.into_iter().enumerate() {
@@ -133,7 +184,20 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
         if !results.hits.is_empty() || !results.shadows.is_empty() {
             out.answers.insert(results.frame, results);
         }
-        if frame <= FRAMES {
+        if crowd.colliders {
+            let c = world.resource::<Contacts>();
+            let pairs = (c.pairs().iter())
+                .map(|p| {
+                    let mut tris: Vec<[u32; 2]> = (c.contacts(p).iter())
+                        .map(|t| [t.triangle_a, t.triangle_b])
+                        .collect();
+                    tris.sort_unstable();
+                    (out.character(p.a), out.character(p.b), tris)
+                })
+                .collect();
+            out.contacts.insert(c.frame, pairs);
+        }
+        if frame <= frames {
             out.counters.push(world.resource::<TraceStats>().gpu);
             if cpu {
                 out.triangles
@@ -152,6 +216,7 @@ fn run(config: TraceConfig, triangles: usize, gpu_only: bool) -> Run {
 
 /// Every frame's GPU answers equal the CPU mode's, and the requests are not all misses or all hits.
 fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
+    let frames = cpu.counters.len();
     let hits: usize = (cpu.answers.values())
         .map(|a| a.hits.iter().filter(|h| h.1.is_some()).count())
         .sum();
@@ -159,13 +224,13 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
         .map(|a| a.shadows.iter().filter(|s| s.1).count())
         .sum();
     eprintln!("{what}: {hits} hits, {blocked} blocked");
-    let (rays, shadows) = (RAYS * FRAMES as usize, SHADOWS * FRAMES as usize);
+    let (rays, shadows) = (RAYS * frames, SHADOWS * frames);
     assert!(hits > rays / 5 && hits < rays, "{hits} of {rays} rays hit");
     assert!(
         blocked > shadows / 10 && blocked < shadows,
         "{blocked} of {shadows} blocked"
     );
-    for f in 1..=FRAMES {
+    for f in 1..=frames as u64 {
         let (c, g) = (&cpu.answers[&f], &gpu.answers[&f]);
         assert_eq!(c.hits.len(), RAYS, "{what} frame {f}");
         assert_eq!(g.hits.len(), RAYS, "{what} frame {f}");
@@ -210,8 +275,8 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     if gpu_or_skip().is_none() {
         return;
     }
-    let cpu = run(TraceConfig::default(), 600, false);
-    let gpu = run(resident(Latency::NextFrame), 600, true);
+    let cpu = run(TraceConfig::default(), Crowd::queries(600, false));
+    let gpu = run(resident(Latency::NextFrame), Crowd::queries(600, true));
     assert_same_answers(&cpu, &gpu, "next frame, GPU only");
     // Without their CPU mirror the characters are invisible to immediate queries; the ground has one.
     assert_eq!(gpu.on_cpu, 1);
@@ -220,7 +285,7 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
         assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
     }
     // After the first frame no vertex data goes up: uploads do not depend on the triangle count.
-    let big = run(resident(Latency::NextFrame), 1500, true);
+    let big = run(resident(Latency::NextFrame), Crowd::queries(1500, true));
     assert!(big.counters[0].uploaded_bytes > gpu.counters[0].uploaded_bytes);
     // Exactly: per character its joint matrices (64 bytes each); per instance (the characters and the
     // ground) 144 bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three
@@ -239,7 +304,7 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
     if gpu_or_skip().is_none() {
         return;
     }
-    let cpu = run(TraceConfig::default(), 600, false);
+    let cpu = run(TraceConfig::default(), Crowd::queries(600, false));
     // Threshold 0: every refit whose metric comes back rebuilds the next frame, so GPU rebuilds answer
     // about half the frames; binned SAH (the GPU's 16 bins) for them, LBVH in the other test.
     let config = TraceConfig {
@@ -247,12 +312,159 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
         builder: kinetrace::bvh::Builder::Sah { bins: 16 },
         ..resident(Latency::SameFrame)
     };
-    let gpu = run(config, 600, false);
+    let gpu = run(config, Crowd::queries(600, false));
     assert_same_answers(&cpu, &gpu, "same frame, mirrored, SAH rebuilds");
     // Mirrored, they are on the CPU as in the CPU mode, for immediate queries.
     assert_eq!(gpu.on_cpu, CHARACTERS + 1);
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
         assert!(c.blocking_waits <= 1, "frame {}: {c:?}", f + 1);
+    }
+}
+
+/// 300 frames of the crowd as colliders (one also against itself) with batched rays and shadow rays:
+/// `GpuOnly` characters in the resident frame give the CPU mode's answers and the CPU mode's contact pairs,
+/// frame by frame — the same touching entity pairs, with the same triangle pairs between two characters
+/// — with one submission,
+/// no blocking wait, and after the first frame uploads of exactly the joints, instances, requests and
+/// one 80-byte relative transform per candidate pair.
+#[test]
+fn colliders_and_queries_equal_the_cpu_mode_over_300_frames() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let crowd = Crowd {
+        triangles: 500,
+        gpu_only: true,
+        frames: 300,
+        spacing: 0.45,
+        colliders: true,
+    };
+    let cpu = run(
+        TraceConfig::default(),
+        Crowd {
+            gpu_only: false,
+            ..crowd
+        },
+    );
+    let gpu = run(resident(Latency::NextFrame), crowd);
+    assert_same_answers(&cpu, &gpu, "colliders, GPU only");
+    let touching = |r: &Run| r.contacts.values().filter(|p| !p.is_empty()).count();
+    let between = (cpu.contacts.values())
+        .filter(|p| p.iter().any(|(a, b, _)| a != b))
+        .count();
+    eprintln!(
+        "contacts in {} frames, between characters in {between}",
+        touching(&cpu)
+    );
+    // The crowd brushes together in some frames and not in others.
+    assert!(
+        between > 0 && between < 300,
+        "{between} frames with contacts between characters"
+    );
+    // The same touching pairs; between two characters, the same triangle pairs. A character against
+    // itself touches where its capsules meet at the joints, along coincident surfaces whose triangle pairs
+    // touch or not by the rounding of the skinning, which differs between the devices: there only the
+    // pair is compared.
+    let strip = |pairs: &ContactPairs| -> ContactPairs {
+        (pairs.iter())
+            .map(|(a, b, t)| (*a, *b, if a == b { Vec::new() } else { t.clone() }))
+            .collect()
+    };
+    for f in 1..=300 {
+        let (c, g) = (&cpu.contacts[&f], &gpu.contacts[&f]);
+        assert_eq!(strip(c), strip(g), "frame {f}");
+    }
+    let joints = humanoid(500).skeleton.joints.len();
+    let pairs = CHARACTERS * (CHARACTERS - 1) / 2 + 1;
+    let expected =
+        CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48 + pairs * 80;
+    for (f, c) in gpu.counters.iter().enumerate() {
+        assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
+        assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
+        if f > 0 {
+            assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
+        }
+    }
+}
+
+/// `frames_since_rebuild` of every call of [`every_third_frame`], in call order.
+static CALLS: std::sync::Mutex<Vec<(u32, f32)>> = std::sync::Mutex::new(Vec::new());
+
+/// A custom policy that rebuilds a tree refitted twice since its build.
+fn every_third_frame(input: &PolicyInput<'_>) -> Decision {
+    CALLS
+        .lock()
+        .unwrap()
+        .push((input.frames_since_rebuild, input.degradation));
+    if input.frames_since_rebuild >= 2 {
+        Decision::Rebuild(kinetrace::ecs::Build::GPU_LBVH)
+    } else {
+        Decision::Keep
+    }
+}
+
+/// The resident frame consults a custom policy for every changed mesh and does what it says: trees that
+/// it keeps are refitted (their refit count rises to 2), trees it rebuilds start again from 0 (never 3),
+/// and a rebuilt tree's metric reads 0 until a refit's comes back; the answers still equal the CPU mode's.
+#[test]
+fn a_custom_policy_decides_refit_or_rebuild() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let cpu = run(TraceConfig::default(), Crowd::queries(600, false));
+    let config = TraceConfig {
+        policy: RebuildPolicy::Custom(every_third_frame),
+        ..resident(Latency::NextFrame)
+    };
+    let gpu = run(config, Crowd::queries(600, true));
+    assert_same_answers(&cpu, &gpu, "custom policy");
+    let calls = CALLS.lock().unwrap().clone();
+    // Every frame after the first, each character (the static ground is never asked).
+    assert!(
+        calls.len() >= CHARACTERS * (FRAMES as usize - 1),
+        "{calls:?}"
+    );
+    for k in 0..=2 {
+        assert!(calls.iter().any(|c| c.0 == k), "{calls:?}");
+    }
+    assert!(calls.iter().all(|c| c.0 <= 2), "{calls:?}");
+    assert!(calls.iter().all(|c| c.0 > 0 || c.1 == 0.0), "{calls:?}");
+    assert!(calls.iter().any(|c| c.1 > 0.0), "{calls:?}");
+}
+
+/// Per-phase GPU durations come with every frame's answers on a device with timestamp queries, and are
+/// absent on one without (skipped cleanly); where present the timestamps were written (the frame's work
+/// took some GPU time).
+#[test]
+fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
+    let Some(ctx) = gpu_or_skip() else {
+        return;
+    };
+    let (mut world, mut schedule) = app_with(resident(Latency::SameFrame));
+    let asset = Arc::new(humanoid(600));
+    world
+        .spawn(AnimationPlayer::bundle(&asset, 0, 0.0))
+        .insert(Collider::default());
+    world
+        .spawn(AnimationPlayer::bundle(&asset, 0, 0.2))
+        .insert((
+            Collider::default(),
+            TraceTransform(Affine3A::from_translation(Vec3::X * 0.3)),
+        ));
+    eprintln!("timestamps: {}", ctx.has_timestamps());
+    for f in 1..=4 {
+        let (rays, _) = requests(f);
+        let mut queue = world.resource_mut::<RayQueue>();
+        for (i, ray) in rays.into_iter().enumerate() {
+            queue.cast(i as u64, ray, QueryFilter::default());
+        }
+        schedule.run(&mut world);
+        let phases = world.resource::<TraceStats>().gpu_phases;
+        assert_eq!(phases.is_some(), ctx.has_timestamps(), "frame {f}");
+        if let Some(p) = phases {
+            eprintln!("frame {f}: {p:?}");
+            assert!(p.maintain + p.top_level + p.queries + p.pairs > std::time::Duration::ZERO);
+        }
     }
 }

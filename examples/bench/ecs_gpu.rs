@@ -2,7 +2,10 @@
 //! marked `GpuOnly`) against the CPU mode, for crowds of animated humanoids queried with batched rays and
 //! shadow rays: per frame the bytes uploaded and read back, the submissions and blocking waits (means over
 //! the frames after the first, which uploads the meshes), and the time per frame. The full run measures
-//! 16, 64 and 256 characters of 10k triangles with 10k rays; `--quick` 4 and 16 of 2k with 1k. Where the
+//! 16, 64 and 256 characters of 10k triangles with 10k rays; `--quick` 4 and 16 of 2k with 1k. Crowds of at
+//! most 16 also run with every character a `Collider` (the resident frame traverses every pair on the GPU:
+//! O(n²) pairs, so not the larger crowds). On a device with timestamp queries the resident runs add the
+//! GPU's time per phase (means of `TraceStats::gpu_phases`). Where the
 //! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
 
 use crate::record::Records;
@@ -16,6 +19,13 @@ use std::sync::Arc;
 use std::time::Instant;
 
 const SUITE: &str = "ecs-gpu";
+/// The rows of `TraceStats::gpu_phases`' fields, in their order.
+const PHASE_METRICS: [&str; 4] = [
+    "GPU maintain / frame",
+    "GPU top level / frame",
+    "GPU queries / frame",
+    "GPU pairs / frame",
+];
 
 pub fn run(rec: &mut Records) {
     let adapter = match rec.gpu() {
@@ -39,18 +49,21 @@ pub fn run(rec: &mut Records) {
         let scene = format!("{n} characters x {triangles} tris + {rays} rays");
         println!("\n{scene}");
         for resident in [false, true] {
-            crowd(rec, &scene, &asset, n, rays, frames, resident);
+            crowd(rec, &scene, &asset, (n, false), rays, frames, resident);
+            if n <= 16 {
+                crowd(rec, &scene, &asset, (n, true), rays, frames, resident);
+            }
         }
     }
 }
 
-/// `frames` frames of `n` characters of `asset` on a grid, each queried with `rays` closest-hit rays and
-/// as many shadow rays; records the per-frame means.
+/// `frames` frames of `n` characters of `asset` on a grid (colliders when `colliders`), each queried with
+/// `rays` closest-hit rays and as many shadow rays; records the per-frame means.
 fn crowd(
     rec: &mut Records,
     scene: &str,
     asset: &Arc<kinetrace::anim::CharacterAsset>,
-    n: usize,
+    (n, colliders): (usize, bool),
     rays: usize,
     frames: usize,
     resident: bool,
@@ -88,6 +101,9 @@ fn crowd(
         if resident {
             e.insert(GpuOnly);
         }
+        if colliders {
+            e.insert(Collider::default());
+        }
     }
     let extent = side as f32 * 1.5;
     let mut r = SceneRng::new(3);
@@ -106,6 +122,8 @@ fn crowd(
         })
         .collect();
     let (mut up, mut down, mut submissions, mut waits, mut seconds) = (0, 0, 0, 0, 0.0);
+    // GPU seconds per phase and the frames that reported them.
+    let (mut phases, mut timed) = ([0.0; 4], 0);
     for frame in 0..frames {
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, (ray, to, light)) in requests.iter().enumerate() {
@@ -122,10 +140,22 @@ fn crowd(
             (up, down) = (up + c.uploaded_bytes, down + c.read_back_bytes);
             (submissions, waits) = (submissions + c.submissions, waits + c.blocking_waits);
             seconds += elapsed;
+            if let Some(p) = world.resource::<TraceStats>().gpu_phases {
+                let spans = [p.maintain, p.top_level, p.queries, p.pairs];
+                for (sum, d) in phases.iter_mut().zip(spans) {
+                    *sum += d.as_secs_f64();
+                }
+                timed += 1;
+            }
         }
     }
     let per = (frames - 1) as f64;
-    let subject = if resident { "GPU-resident" } else { "CPU mode" };
+    let subject = match (resident, colliders) {
+        (true, false) => "GPU-resident",
+        (true, true) => "GPU-resident + colliders",
+        (false, false) => "CPU mode",
+        (false, true) => "CPU mode + colliders",
+    };
     rec.add(
         SUITE,
         scene,
@@ -167,5 +197,17 @@ fn crowd(
             waits as f64 / per,
             "",
         );
+        for (metric, sum) in PHASE_METRICS.into_iter().zip(phases) {
+            if timed > 0 {
+                rec.add(
+                    SUITE,
+                    scene,
+                    subject,
+                    metric,
+                    sum / timed as f64 * 1e3,
+                    "ms",
+                );
+            }
+        }
     }
 }

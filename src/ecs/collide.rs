@@ -112,6 +112,9 @@ pub struct Contacts {
     pub candidate_pairs: usize,
     /// Time the collision pass took.
     pub time: Duration,
+    /// The frame ([`TraceStats::frame`](super::TraceStats)) these contacts are of: this one, or under
+    /// [`Latency::NextFrame`](super::Latency) in the GPU-resident frame an earlier one.
+    pub frame: u64,
 }
 
 impl Contacts {
@@ -133,6 +136,36 @@ impl Contacts {
     /// The impacts of a continuous pair.
     pub fn impacts(&self, pair: &ContactPair) -> &[Impact] {
         &self.impacts[pair.impacts.clone()]
+    }
+
+    /// Empties the results for a new frame's.
+    pub(crate) fn clear(&mut self, frame: u64) {
+        self.pairs.clear();
+        self.contacts.clear();
+        self.impacts.clear();
+        self.stats = PairStats::default();
+        self.frame = frame;
+    }
+
+    /// Adds the results of one entity pair (`a <= b`, pushed in order) if it touches.
+    pub(crate) fn push(
+        &mut self,
+        (a, b): (Entity, Entity),
+        contacts: &[Contact],
+        impacts: &[Impact],
+    ) {
+        if contacts.is_empty() && impacts.is_empty() {
+            return;
+        }
+        let (first, count) = (self.contacts.len(), self.impacts.len());
+        self.contacts.extend_from_slice(contacts);
+        self.impacts.extend_from_slice(impacts);
+        self.pairs.push(ContactPair {
+            a,
+            b,
+            contacts: first..self.contacts.len(),
+            impacts: count..self.impacts.len(),
+        });
     }
 
     /// The pair of two entities, in either order, when they touch.
@@ -263,12 +296,16 @@ fn swept_bounds(swept: &HashMap<Entity, Swept>, e: Entity) -> Option<Aabb> {
     swept.get(&e)?.mesh.as_ref().map(|(m, _)| m.bvh().bounds())
 }
 
-/// Run condition: some entity is a collider, or last frame's contacts must be ended.
+/// Run condition: some entity is a collider, or last frame's contacts must be ended — unless the
+/// GPU-resident frame answers collisions ([`gpu_collide`](super::gpu_collide)).
 pub(crate) fn collisions_needed(
     colliders: Query<(), With<Collider>>,
     contacts: Res<Contacts>,
+    config: Res<super::TraceConfig>,
+    gpu: Option<Res<super::GpuQueries>>,
 ) -> bool {
-    !colliders.is_empty() || !contacts.is_empty()
+    let resident = config.resident && gpu.is_some();
+    !resident && (!colliders.is_empty() || !contacts.is_empty())
 }
 
 /// Collects entity pairs of the top level's leaves whose boxes overlap.
@@ -302,6 +339,7 @@ impl Visit for TopPairs<'_> {
 }
 
 /// [`TraceSystems::Queries`](super::TraceSystems::Queries): the collision pass (see the module docs).
+#[allow(clippy::too_many_arguments)] // a system: each parameter is one thing it reads
 pub(crate) fn collide_system(
     colliders: Query<(Entity, &Collider, &TraceMesh, Option<&VertexPositions>)>,
     world: Res<TraceWorld>,
@@ -310,16 +348,14 @@ pub(crate) fn collide_system(
     mut contacts: ResMut<Contacts>,
     mut started: MessageWriter<CollisionStarted>,
     mut ended: MessageWriter<CollisionEnded>,
+    stats: Res<super::TraceStats>,
 ) {
     let t = Instant::now();
     let state = &mut *state;
     state.frame += 1;
     let frame = state.frame;
     let c = &mut *contacts;
-    c.pairs.clear();
-    c.contacts.clear();
-    c.impacts.clear();
-    c.stats = PairStats::default();
+    c.clear(stats.frame);
 
     state.colliders.clear();
     state.colliders.extend(
@@ -445,43 +481,46 @@ pub(crate) fn collide_system(
                 .insert((a, b), (std::mem::take(&mut job.front), frame));
         }
         c.stats.add(&job.stats);
-        let (first, count) = (c.contacts.len(), c.impacts.len());
-        c.contacts.extend_from_slice(&job.contacts);
-        c.impacts.extend_from_slice(&job.impacts);
-        if c.contacts.len() > first || c.impacts.len() > count {
-            c.pairs.push(ContactPair {
-                a,
-                b,
-                contacts: first..c.contacts.len(),
-                impacts: count..c.impacts.len(),
-            });
-        }
+        c.push((a, b), &job.contacts, &job.impacts);
     }
     state.jobs = jobs;
     state.candidates = candidates;
     state.colliders = cols;
     state.fronts.retain(|_, (_, used)| *used == frame);
 
-    // Messages: pairs that began or ended touching (both lists are sorted).
-    let (now, before) = (&c.pairs, &state.touching);
-    let (mut i, mut j) = (0, 0);
-    loop {
-        let x = now.get(i).map(|p| (p.a, p.b));
-        match (x, before.get(j).copied()) {
-            (None, None) => break,
-            (Some(x), Some(y)) if x == y => (i, j) = (i + 1, j + 1),
-            (Some(x), y) if y.is_none_or(|y| x < y) => {
-                started.write(CollisionStarted { a: x.0, b: x.1 });
-                i += 1;
-            }
-            (_, y) => {
-                let (a, b) = y.expect("x is none or greater");
-                ended.write(CollisionEnded { a, b });
-                j += 1;
+    state.send_changes(c, &mut started, &mut ended);
+    c.time = t.elapsed();
+}
+
+impl CollisionState {
+    /// Sends [`CollisionStarted`] and [`CollisionEnded`] for the pairs of `c` that began or ended touching
+    /// since the last contacts sent through here, and remembers `c`'s.
+    pub(crate) fn send_changes(
+        &mut self,
+        c: &Contacts,
+        started: &mut MessageWriter<CollisionStarted>,
+        ended: &mut MessageWriter<CollisionEnded>,
+    ) {
+        // Both lists are sorted.
+        let (now, before) = (&c.pairs, &self.touching);
+        let (mut i, mut j) = (0, 0);
+        loop {
+            let x = now.get(i).map(|p| (p.a, p.b));
+            match (x, before.get(j).copied()) {
+                (None, None) => break,
+                (Some(x), Some(y)) if x == y => (i, j) = (i + 1, j + 1),
+                (Some(x), y) if y.is_none_or(|y| x < y) => {
+                    started.write(CollisionStarted { a: x.0, b: x.1 });
+                    i += 1;
+                }
+                (_, y) => {
+                    let (a, b) = y.expect("x is none or greater");
+                    ended.write(CollisionEnded { a, b });
+                    j += 1;
+                }
             }
         }
+        self.touching.clear();
+        self.touching.extend(c.pairs.iter().map(|p| (p.a, p.b)));
     }
-    state.touching.clear();
-    state.touching.extend(c.pairs.iter().map(|p| (p.a, p.b)));
-    c.time = t.elapsed();
 }

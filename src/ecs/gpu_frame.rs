@@ -1,23 +1,34 @@
 //! The GPU-resident frame ([`TraceConfig::resident`]): in a GPU mode that found an adapter, one
 //! submission per frame skins every GPU-skinned mesh, refits or rebuilds every changed tree, builds the top
-//! level and answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]).
+//! level, answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]) and traverses the pairs
+//! of [`Collider`]s, whose exact tests run on the CPU when the answers come back (`gpu_collide`): contacts
+//! arrive with the ray answers, [`GpuOnly`] colliders included.
 //!
 //! What moves per frame: joint matrices of changed skins (64 bytes per joint), every instance (208 bytes:
-//! transform, inverse, offsets, layers) and the requests (96 bytes each) up; the answers (48 bytes each) and
-//! one degradation metric per refitted mesh (8 bytes) down. Vertices go up once, when a mesh is first
+//! transform, inverse, offsets, layers), the requests (96 bytes each) and one relative transform per
+//! candidate collider pair (80 bytes) up; the answers (48 bytes each), one degradation metric per refitted
+//! mesh (8 bytes) and each collider's tree and positions (36 bytes per triangle, 12 per vertex) down. Vertices go up once, when a mesh is first
 //! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
 //! with active blend shapes, which the GPU skin does not apply).
 //!
-//! The rebuild rule is Lauterbach's at [`RebuildPolicy::Lauterbach`]'s threshold (0.40 under the other
-//! policies) on the metric of an earlier refit, read back without blocking: a mesh rebuilds one frame
-//! after its refit crossed the threshold, or later when the GPU is behind. Rebuilds use
-//! [`TraceConfig::builder`] where the GPU has it in one submission (LBVH over 30-bit codes, 16-bin SAH or
-//! hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per round). The adaptive policy's
-//! builders and costs are not consulted on this path (the CPU mirror still runs them for its own trees),
-//! and no SAH cost comes back.
+//! The rebuild rule is the configured policy's, on the metric of an earlier refit read back without
+//! blocking: a mesh rebuilds one frame after the refit whose metric made the policy ask for it, or later
+//! when the GPU is behind. [`RebuildPolicy::Lauterbach`] compares it with its threshold;
+//! [`RebuildPolicy::Custom`] is called per changed mesh per frame with a [`PolicyInput`] whose
+//! degradation and `frames_since_rebuild` are those of the resident tree as last read back, whose
+//! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; any
+//! rebuild it asks for (a partial one included) is a whole rebuild with the mesh's builder.
+//! [`RebuildPolicy::Adaptive`] needs the tree's SAH cost and per-mesh query times, which do not come back
+//! on this path: it falls back to the thesis's 0.40 (said once in the log; the CPU mirror still runs it
+//! for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one submission (LBVH
+//! over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per
+//! round).
+//!
+//! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
+//! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
 //!
 //! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
-//! predicate or several exclusions, collisions, shape and sound queries) read the CPU's trees. By default
+//! predicate or several exclusions, shape and sound queries) read the CPU's trees. By default
 //! every entity keeps a CPU mirror: the CPU skins and maintains it as in [`TraceMode::Cpu`], so those
 //! features see the same geometry as the GPU — at the CPU mode's cost of skinning and maintenance per
 //! frame, and no saving but the bus traffic. An entity with [`GpuOnly`] drops its mirror: the CPU neither
@@ -55,7 +66,38 @@ type ResidentData<'a> = (
     Option<Ref<'a, VertexPositions>>,
     &'a TraceTransform,
     &'a QueryLayers,
+    Option<&'a Collider>,
+    Option<&'a MotionHint>,
 );
+
+/// Whether `policy` rebuilds a resident tree in the state `input` describes (see the module docs).
+#[cfg(feature = "gpu")]
+fn rebuild_due(policy: &RebuildPolicy, input: &PolicyInput<'_>) -> bool {
+    static FALLBACK_SAID: std::sync::Once = std::sync::Once::new();
+    match policy {
+        RebuildPolicy::Lauterbach { threshold } => input.degradation > *threshold,
+        RebuildPolicy::Custom(policy) => policy(input) != Decision::Keep,
+        RebuildPolicy::Adaptive { .. } => {
+            FALLBACK_SAID.call_once(|| {
+                log::warn!(
+                    "kinetrace: the GPU-resident frame has no SAH costs or query times per mesh for the \
+                     adaptive policy: its trees rebuild at degradation 0.40"
+                )
+            });
+            input.degradation > super::config::THESIS_THRESHOLD
+        }
+    }
+}
+
+/// What the resident frame publishes besides the ray answers: the contacts and their messages.
+#[cfg(feature = "gpu")]
+#[derive(bevy_ecs::system::SystemParam)]
+pub(crate) struct ContactOutput<'w> {
+    contacts: ResMut<'w, Contacts>,
+    state: ResMut<'w, super::collide::CollisionState>,
+    started: MessageWriter<'w, CollisionStarted>,
+    ended: MessageWriter<'w, CollisionEnded>,
+}
 
 /// [`TraceSystems::Queries`] in the resident frame: records every mesh's update and maintenance, the top
 /// level and the batches into one encoder, submits it, and publishes answers (see [`Latency`]).
@@ -71,6 +113,7 @@ pub(crate) fn resident_frame_system(
     mut stats: ResMut<TraceStats>,
     mut commands: Commands,
     mut errors: MessageWriter<TraceErrorMessage>,
+    mut contact_out: ContactOutput,
 ) {
     use super::systems::{attribute, checked_transform, fail, finish};
     use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
@@ -78,20 +121,26 @@ pub(crate) fn resident_frame_system(
     let next_frame = config.latency == Latency::NextFrame;
     if next_frame {
         let blocking = gpu.in_flight() >= IN_FLIGHT;
-        publish(gpu.collect(blocking), &mut results);
+        publish(
+            gpu.collect_frame(blocking),
+            &mut results,
+            &mut contact_out,
+            &mut stats,
+        );
     }
-    let threshold = match config.policy {
-        RebuildPolicy::Lauterbach { threshold } => threshold,
-        _ => super::config::THESIS_THRESHOLD,
-    };
+    let rays_last_frame = stats.rays_last_frame;
     // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
     let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
     let ctx = gpu.context().clone();
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
     let resident = gpu.resident();
     let mut enc = ctx.encoder();
+    if let Some(timer) = &resident.timer {
+        timer.mark(&mut enc, 0);
+    }
     let mut placed = Vec::with_capacity(meshes.iter().len());
-    for (e, mesh, skin, positions, transform, layers) in &meshes {
+    let mut colliders = Vec::new();
+    for (e, mesh, skin, positions, transform, layers, collider, hint) in &meshes {
         // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
         let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
         let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
@@ -120,11 +169,35 @@ pub(crate) fn resident_frame_system(
             .and_then(|tr| {
                 let state = state.expect("made above");
                 let update = update.unwrap_or(MeshUpdate::Unchanged);
-                state.record(&ctx, &mut enc, update, threshold)?;
+                let input = |refit: &crate::gpu::RefitState| PolicyInput {
+                    hint: hint.copied().unwrap_or_default(),
+                    triangles: mesh.0.triangle_count(),
+                    degradation: refit.degradation,
+                    frames_since_rebuild: refit.frames_since_rebuild,
+                    rays_last_frame,
+                    profile: None,
+                    motion_incoherence: refit.incoherence(),
+                    gpu: true,
+                };
+                let rule =
+                    |refit: &crate::gpu::RefitState| rebuild_due(&config.policy, &input(refit));
+                state.record(&ctx, &mut enc, update, rule)?;
                 Ok(tr)
             });
         match done {
-            Ok(tr) => placed.push((e, tr, layers.0)),
+            Ok(tr) => {
+                if let Some(&collider) = collider
+                    && mesh.0.triangle_count() > 0
+                {
+                    colliders.push(super::gpu_collide::Recorded {
+                        entity: e,
+                        collider,
+                        mesh: mesh.0.clone(),
+                        transform: tr,
+                    });
+                }
+                placed.push((e, tr, layers.0));
+            }
             Err(err) => {
                 resident.meshes.remove(&e);
                 fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
@@ -146,25 +219,88 @@ pub(crate) fn resident_frame_system(
         })
         .collect();
     let (closest, any) = pending.requests();
-    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any);
+    let timer = resident.timer.as_ref();
+    if let Some(timer) = timer {
+        timer.mark(&mut enc, 1);
+    }
+    let recorded = (resident.scene).record(&ctx, &mut enc, &instances, closest, any, timer);
+    if let Some(timer) = timer {
+        timer.mark(&mut enc, 3);
+    }
+    let contacts = (!colliders.is_empty()).then(|| {
+        let meshes = &resident.meshes;
+        super::gpu_collide::record(&ctx, &mut enc, &mut resident.pairs, colliders, |e| {
+            &meshes[&e]
+        })
+    });
+    let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);
+    let contacts = match contacts.transpose() {
+        Ok(c) => c,
+        Err(e) => {
+            log::error!("kinetrace: GPU-resident frame's collider pairs lost: {e}");
+            None
+        }
+    };
     match recorded {
-        Ok(readback) => gpu.push_pending(pending, readback),
+        Ok(readback) => gpu.push_pending(pending, readback, contacts, phases),
         Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),
     }
     if !next_frame {
-        publish(gpu.collect(true), &mut results);
+        publish(
+            gpu.collect_frame(true),
+            &mut results,
+            &mut contact_out,
+            &mut stats,
+        );
     }
     finish(&mut queue, &mut stats, t);
     attribute(&mut world, &config, &stats);
 }
 
-/// Publishes collected answers; with none (nothing submitted, or not back yet) the results are empty.
+/// Publishes collected answers and their frame's GPU phase times; with none (nothing submitted, or not
+/// back yet) the results are empty and the contacts stay as last published (their [`Contacts::frame`]
+/// says which frame they are of).
 #[cfg(feature = "gpu")]
-fn publish(r: Option<crate::Result<RayResults>>, results: &mut RayResults) {
+fn publish(
+    r: Option<crate::Result<super::gpu_queries::Answers>>,
+    results: &mut RayResults,
+    out: &mut ContactOutput,
+    stats: &mut TraceStats,
+) {
     match r {
-        Some(Ok(r)) => *results = r,
+        Some(Ok(a)) => {
+            *results = a.rays;
+            stats.gpu_phases = match a.phases {
+                Some(Ok(p)) => Some(p),
+                Some(Err(e)) => {
+                    log::error!("kinetrace: GPU-resident frame's timestamps lost: {e}");
+                    None
+                }
+                None => None,
+            };
+            // A frame without colliders ends the pairs of the last one that had some.
+            let found = match a.contacts {
+                Some(Ok(found)) => found,
+                Some(Err(e)) => {
+                    log::error!("kinetrace: GPU-resident frame's contacts lost: {e}");
+                    return;
+                }
+                None => Vec::new(),
+            };
+            let o = &mut *out;
+            let (contacts, state) = (&mut *o.contacts, &mut *o.state);
+            let frame = results.frame;
+            super::gpu_collide::publish(
+                frame,
+                &found,
+                contacts,
+                state,
+                &mut o.started,
+                &mut o.ended,
+            );
+        }
         Some(Err(e)) => log::error!("kinetrace: GPU batch lost: {e}"),
         None => {
             results.hits.clear();

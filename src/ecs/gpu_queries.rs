@@ -24,7 +24,7 @@ impl GpuQueries {
 }
 
 #[cfg(feature = "gpu")]
-pub(crate) use imp::Pending;
+pub(crate) use imp::{Answers, Pending};
 
 #[cfg(feature = "gpu")]
 mod imp {
@@ -32,7 +32,7 @@ mod imp {
     use crate::ecs::{RayHit, RayQueue, RayResults, TraceWorld};
     use crate::geometry::Ray;
     use crate::gpu::scene::{GpuScene, SceneInstance, SceneReadback, SceneRequest};
-    use crate::gpu::{GpuContext, ResidentMesh, ResidentScene};
+    use crate::gpu::{FrameTimer, GpuContext, ResidentMesh, ResidentPairs, ResidentScene};
     use std::collections::{HashMap, VecDeque};
 
     /// A batch submitted but not yet collected: the CPU-answered part is in `fresh`, the GPU answers
@@ -45,12 +45,27 @@ mod imp {
         shadow_at: Vec<usize>,
         shadow_requests: Vec<SceneRequest>,
         shadows: Option<SceneReadback>,
+        /// The resident frame's collider pairs.
+        contacts: Option<crate::ecs::gpu_collide::PendingContacts>,
+        /// The resident frame's timestamps.
+        phases: Option<crate::gpu::PhasesReadback>,
+    }
+
+    /// A collected frame: the batch's answers and, from the resident frame with colliders, its contact
+    /// pairs.
+    pub(crate) struct Answers {
+        pub(crate) rays: RayResults,
+        pub(crate) contacts: Option<crate::Result<Vec<crate::ecs::gpu_collide::FoundPair>>>,
+        pub(crate) phases: Option<crate::Result<crate::gpu::GpuPhases>>,
     }
 
     /// The state of the GPU-resident frame (see [`TraceConfig::resident`](crate::ecs::TraceConfig)).
     pub(crate) struct Resident {
         pub(crate) meshes: HashMap<Entity, ResidentMesh>,
         pub(crate) scene: ResidentScene,
+        pub(crate) pairs: ResidentPairs,
+        /// `None` where the device has no timestamp queries.
+        pub(crate) timer: Option<FrameTimer>,
     }
 
     pub(crate) struct Inner {
@@ -79,6 +94,8 @@ mod imp {
                 shadow_at: vec![],
                 shadow_requests: vec![],
                 shadows: None,
+                contacts: None,
+                phases: None,
             };
             let gpu_ok =
                 |f: &super::super::QueryFilter| f.predicate.is_none() && f.excluded.len() <= 1;
@@ -117,13 +134,11 @@ mod imp {
         }
 
         /// The answers, if both read-backs are there (or `blocking`, after waiting for them).
-        fn answers(
-            &mut self,
-            ctx: &GpuContext,
-            blocking: bool,
-        ) -> Option<crate::Result<RayResults>> {
+        fn answers(&mut self, ctx: &GpuContext, blocking: bool) -> Option<crate::Result<Answers>> {
             let (closest, shadows) = (self.closest.as_ref()?, self.shadows.as_ref()?);
-            let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx));
+            let contacts_ready = self.contacts.as_ref().is_none_or(|c| c.ready(ctx))
+                && self.phases.as_ref().is_none_or(|p| p.ready(ctx));
+            let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx) && contacts_ready);
             if !ready {
                 return None;
             }
@@ -146,7 +161,13 @@ mod imp {
                 }
                 Ok(fresh)
             };
-            Some(run())
+            let contacts = self.contacts.take().map(|c| c.finish(ctx));
+            let phases = self.phases.take().map(|p| p.wait(ctx));
+            Some(run().map(|rays| Answers {
+                rays,
+                contacts,
+                phases,
+            }))
         }
     }
 
@@ -197,9 +218,17 @@ mod imp {
         }
 
         /// Queues a batch recorded by the resident frame.
-        pub(crate) fn push_pending(&mut self, mut p: Pending, readback: crate::gpu::FrameReadback) {
+        pub(crate) fn push_pending(
+            &mut self,
+            mut p: Pending,
+            readback: crate::gpu::FrameReadback,
+            contacts: Option<crate::ecs::gpu_collide::PendingContacts>,
+            phases: Option<crate::gpu::PhasesReadback>,
+        ) {
             p.closest = Some(readback.closest);
             p.shadows = Some(readback.any);
+            p.contacts = contacts;
+            p.phases = phases;
             self.inner.pending.push_back(p);
         }
 
@@ -209,6 +238,8 @@ mod imp {
             self.inner.resident.get_or_insert_with(|| Resident {
                 meshes: Default::default(),
                 scene: ResidentScene::new(ctx),
+                pairs: ResidentPairs::default(),
+                timer: FrameTimer::new(ctx),
             })
         }
 
@@ -220,6 +251,11 @@ mod imp {
         /// The answers of the oldest submitted batch, or `None` when there is none or (not `blocking`) when
         /// the GPU has not finished it; `blocking` waits for it.
         pub(crate) fn collect(&mut self, blocking: bool) -> Option<crate::Result<RayResults>> {
+            self.collect_frame(blocking).map(|r| r.map(|a| a.rays))
+        }
+
+        /// Like [`collect`](Self::collect), with the frame's contact pairs.
+        pub(crate) fn collect_frame(&mut self, blocking: bool) -> Option<crate::Result<Answers>> {
             let inner = &mut self.inner;
             let answers = inner.pending.front_mut()?.answers(&inner.ctx, blocking);
             if answers.is_some() {

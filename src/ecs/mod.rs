@@ -62,6 +62,8 @@ mod collide;
 mod components;
 mod config;
 mod filter;
+#[cfg(feature = "gpu")]
+mod gpu_collide;
 pub mod gpu_frame;
 mod gpu_queries;
 mod maintain;

@@ -211,4 +211,9 @@ pub struct TraceStats {
     /// zero without a GPU context).
     #[cfg(feature = "gpu")]
     pub gpu: crate::gpu::GpuCounters,
+    /// In the GPU-resident frame on a device with timestamp queries: the GPU's time per phase of the
+    /// frame whose answers were published this frame ([`RayResults::frame`](super::RayResults)); `None`
+    /// otherwise.
+    #[cfg(feature = "gpu")]
+    pub gpu_phases: Option<crate::gpu::GpuPhases>,
 }

@@ -357,6 +357,11 @@ impl GpuMeshBvh {
         Readback::record(ctx, encoder, self.vals.buffer(), self.tris as usize)
     }
 
+    /// Per slot, the id of its triangle (what [`read_tree`](Self::read_tree) reads as the primitive order).
+    pub(crate) fn slot_ids(&self) -> &wgpu::Buffer {
+        self.vals.buffer()
+    }
+
     /// Per slot: the triangle's three vertex indices and its id.
     pub(crate) fn slot_tris(&self) -> &wgpu::Buffer {
         self.slot_tris.buffer()

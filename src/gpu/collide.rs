@@ -421,6 +421,11 @@ impl PairsReadback {
         }
     }
 
+    /// Whether the answer is there (a [`wait`](Self::wait) would not block), without blocking.
+    pub fn ready(&self, ctx: &GpuContext) -> bool {
+        self.data.as_ref().is_none_or(|d| d.ready(ctx))
+    }
+
     /// Blocks until the answer is there.
     pub fn wait(self, ctx: &GpuContext) -> Result<PairsResult> {
         loop {

@@ -56,8 +56,11 @@ pub use context::shared_for_tests;
 pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
-pub(crate) use frame::{FrameInstance, FrameReadback, ResidentScene};
-pub use frame::{Maintained, MeshUpdate, ResidentMesh};
+pub(crate) use frame::{
+    FrameCollider, FrameContacts, FrameInstance, FrameReadback, FrameTimer, PhasesReadback,
+    ReadTrees, ResidentPairs, ResidentScene,
+};
+pub use frame::{GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]

@@ -32,10 +32,27 @@ pub enum Maintained {
     Rebuilt,
 }
 
+/// What a resident mesh knows of its tree when it decides whether to rebuild: the metric of an earlier
+/// refit, read back without blocking (one frame late, or more when the GPU is behind).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefitState {
+    /// The most recent degradation metric read back (0 after a rebuild, before its first refit's).
+    pub degradation: f32,
+    /// Refits recorded since the tree was last built.
+    pub frames_since_rebuild: u32,
+}
+
+impl RefitState {
+    /// Mean rise of the degradation per refit since the last build.
+    pub fn incoherence(&self) -> f32 {
+        self.degradation / self.frames_since_rebuild.max(1) as f32
+    }
+}
+
 /// A mesh kept on the GPU for the resident frame: uploaded once ([`new`](Self::new): positions, indices,
 /// and for a skinned mesh its rest pose and weights), then per frame only what [`MeshUpdate`] names.
 ///
-/// The refit-or-rebuild rule is Lauterbach's (thesis §4.1.5) on the metric of an earlier refit: the
+/// The refit-or-rebuild rule is the caller's, on the metric of an earlier refit ([`RefitState`]): the
 /// metric of frame n's refit comes back without blocking and decides frame n+1 (or later, if the GPU is
 /// behind): a rebuild one frame late. Rebuilds use GPU LBVH, or the binned SAH or hybrid builder
 /// ([`GpuSahBuilder`]) the mesh was made with.
@@ -49,6 +66,8 @@ pub struct ResidentMesh {
     pending: Option<DegradationReadback>,
     /// The most recent metric read back (0 after a rebuild).
     degradation: f32,
+    /// Refits since the last build.
+    refits: u32,
 }
 
 impl ResidentMesh {
@@ -80,6 +99,7 @@ impl ResidentMesh {
             built: false,
             pending: None,
             degradation: 0.0,
+            refits: 0,
         })
     }
 
@@ -99,14 +119,15 @@ impl ResidentMesh {
     }
 
     /// Records this frame's update and maintenance into `encoder`: skinning or the position upload, then
-    /// a refit (and its metric's read-back) or, on the first frame and when the last metric read back
-    /// exceeds `threshold`, a rebuild with its builder. Never blocks.
+    /// a refit (and its metric's read-back) or, on the first frame and when `rebuild` says so of the
+    /// state read back so far, a rebuild with its builder. `rebuild` is called only for a changed mesh
+    /// with a tree. Never blocks.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         update: MeshUpdate<'_>,
-        threshold: f32,
+        rebuild: impl FnOnce(&RefitState) -> bool,
     ) -> Result<Maintained> {
         if let Some(r) = &self.pending
             && let Some(metric) = r.try_take(ctx)
@@ -125,18 +146,24 @@ impl ResidentMesh {
             }
             (MeshUpdate::Positions(p), _) => self.bvh.upload_positions(ctx, p)?,
         }
-        if !self.built || self.degradation > threshold {
+        let state = RefitState {
+            degradation: self.degradation,
+            frames_since_rebuild: self.refits,
+        };
+        if !self.built || rebuild(&state) {
             match &self.sah {
                 Some(builder) => builder.record(ctx, &mut self.bvh, encoder),
                 None => self.bvh.record_build(ctx, encoder),
             }
             self.built = true;
             self.degradation = 0.0;
+            self.refits = 0;
             // A metric of the tree before the rebuild says nothing about the new one.
             self.pending = None;
             return Ok(Maintained::Rebuilt);
         }
         self.bvh.record_refit(ctx, encoder)?;
+        self.refits += 1;
         if self.pending.is_none() {
             self.pending = Some(self.bvh.record_degradation(ctx, encoder));
         }

@@ -10,8 +10,13 @@
 //! hundred boxes costs a handful of dispatches, less than tracking which boxes moved.
 
 mod mesh;
+mod pairs;
+mod timer;
 
-pub use mesh::{Maintained, MeshUpdate, ResidentMesh};
+pub use mesh::{Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
+pub use timer::GpuPhases;
+pub(crate) use timer::{FrameTimer, PhasesReadback};
 
 use super::buffers::{GpuBuffer, bind_group};
 use super::scene::{Batch, GpuInstance, SceneReadback, SceneRequest};
@@ -76,7 +81,8 @@ impl ResidentScene {
     }
 
     /// Records, after the meshes' maintenance in the same `encoder`: the gathering of the instances' trees,
-    /// the top-level build, and the two batches with their read-backs. Instances of empty meshes are
+    /// the top-level build, and the two batches with their read-backs (with `timer`, boundary 2 between
+    /// the top level and the batches). Instances of empty meshes are
     /// left out. Errors: [`Error::Gpu`](crate::Error::Gpu) for a scene past the device's limits.
     pub fn record(
         &mut self,
@@ -85,6 +91,7 @@ impl ResidentScene {
         instances: &[FrameInstance<'_>],
         closest: &[SceneRequest],
         any: &[SceneRequest],
+        timer: Option<&FrameTimer>,
     ) -> Result<FrameReadback> {
         let live: Vec<&FrameInstance> = instances
             .iter()
@@ -94,6 +101,9 @@ impl ResidentScene {
         let n = live.len() as u32;
         let tlas = self.top_level(ctx, encoder, n)?;
         let tlas_len = tlas.map_or(0, |t| t.node_count());
+        if let Some(timer) = timer {
+            timer.mark(encoder, 2);
+        }
         let Self {
             tlas,
             blas,

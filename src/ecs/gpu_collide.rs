@@ -1,0 +1,131 @@
+//! Collider pairs in the GPU-resident frame ([`gpu_frame`](super::gpu_frame)): the pair traversal runs on
+//! the GPU in the frame's submission, over the trees the frame just maintained; the exact triangle tests
+//! run on the CPU when the answers come back, so the contacts are those of the CPU's query on the same
+//! geometry.
+//!
+//! Which pairs: every two colliders on interacting [`CollisionLayers`](super::CollisionLayers), and each
+//! self-colliding one with itself. There is no top-level cull before the traversal (the GPU's top level is
+//! not known on the CPU when the frame is recorded): a pair whose world boxes are apart stops at its first
+//! round, but each pair records its rounds (up to 130 dispatches after a GPU build), so this suits tens of
+//! colliders, not hundreds. `GpuOnly` colliders take part: their trees and skinned positions come back
+//! with the answers (36 bytes per triangle and 12 per vertex of every collider per frame, plus 8 per leaf
+//! pair found). Contacts arrive with the frame's ray answers ([`Latency`](super::Latency)), tagged
+//! with their frame in [`Contacts::frame`](super::Contacts). Continuous colliders are tested at this frame's
+//! positions (discrete); collision fronts are not used.
+
+use super::{Collider, Contacts};
+use crate::collide::{Contact, PairQuery, Placed};
+use crate::gpu::{FrameCollider, FrameContacts, GpuContext, ReadTrees, ResidentPairs};
+use crate::{Mesh, MeshBvh, Result};
+use bevy_ecs::prelude::*;
+use glam::Affine3A;
+
+/// A collider of the frame being recorded.
+pub(crate) struct Recorded {
+    pub entity: Entity,
+    pub collider: Collider,
+    pub mesh: Mesh,
+    pub transform: Affine3A,
+}
+
+/// A frame's collider pairs on their way back, with what the narrow phase needs on the CPU.
+pub(crate) struct PendingContacts {
+    /// The colliders in entity order, as the read-backs index them.
+    colliders: Vec<(Entity, Mesh, Affine3A)>,
+    readback: FrameContacts,
+}
+
+/// One touching (or not) entity pair's contacts: `a <= b`.
+pub(crate) type FoundPair = ((Entity, Entity), Vec<Contact>);
+
+/// Sorts `colliders` by entity and records the traversal of every candidate pair (see the module docs)
+/// with `traversals`, each collider's resident tree found by `tree`.
+pub(crate) fn record<'a>(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    traversals: &mut ResidentPairs,
+    mut colliders: Vec<Recorded>,
+    tree: impl Fn(Entity) -> &'a crate::gpu::ResidentMesh,
+) -> Result<PendingContacts> {
+    colliders.sort_unstable_by_key(|c| c.entity);
+    let mut pairs = Vec::new();
+    for (i, a) in colliders.iter().enumerate() {
+        if a.collider.self_collision {
+            pairs.push((i, i));
+        }
+        for (j, b) in colliders.iter().enumerate().skip(i + 1) {
+            if a.collider.layers.interacts(&b.collider.layers) {
+                pairs.push((i, j));
+            }
+        }
+    }
+    let frame: Vec<FrameCollider> = (colliders.iter())
+        .map(|c| FrameCollider {
+            id: c.entity.to_bits(),
+            mesh: tree(c.entity),
+            transform: c.transform,
+        })
+        .collect();
+    let readback = traversals.record(ctx, encoder, &frame, &pairs)?;
+    Ok(PendingContacts {
+        colliders: (colliders.into_iter())
+            .map(|c| (c.entity, c.mesh, c.transform))
+            .collect(),
+        readback,
+    })
+}
+
+impl PendingContacts {
+    /// Whether the GPU's part is back.
+    pub fn ready(&self, ctx: &GpuContext) -> bool {
+        self.readback.ready(ctx)
+    }
+
+    /// Waits for the GPU's part if needed, then runs the exact tests of every candidate pair on the
+    /// read-back trees: on the GPU's leaf pairs, or walking the trees on the CPU for a pair whose
+    /// traversal overflowed. Pairs in entity order.
+    pub fn finish(self, ctx: &GpuContext) -> Result<Vec<FoundPair>> {
+        let ReadTrees { trees, pairs } = self.readback.wait(ctx)?;
+        let meshes = (self.colliders.iter().zip(trees))
+            .map(|((_, mesh, _), (_, tree))| {
+                let mesh = mesh.with_positions(tree.positions)?;
+                Ok(MeshBvh::from_tree(&mesh, tree.bvh))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let placed = |i: usize| Placed::new(&meshes[i], self.colliders[i].2);
+        let mut query = PairQuery::new();
+        let mut out = Vec::with_capacity(pairs.len());
+        for p in pairs {
+            let (a, b) = p.pair;
+            let mut contacts = Vec::new();
+            match (&p.leaves, a == b) {
+                (Some(l), true) => query.itself_from_leaf_pairs(placed(a), l, &mut contacts)?,
+                (Some(l), false) => {
+                    query.meshes_from_leaf_pairs(placed(a), placed(b), l, &mut contacts)?
+                }
+                (None, true) => query.itself(placed(a), &mut contacts)?,
+                (None, false) => query.meshes(placed(a), placed(b), &mut contacts)?,
+            };
+            out.push(((self.colliders[a].0, self.colliders[b].0), contacts));
+        }
+        out.sort_unstable_by_key(|p| p.0);
+        Ok(out)
+    }
+}
+
+/// Publishes a frame's collider pairs in `contacts` and sends the messages of pairs that began or ended
+/// touching.
+pub(crate) fn publish(
+    frame: u64,
+    found: &[FoundPair],
+    contacts: &mut Contacts,
+    state: &mut super::collide::CollisionState,
+    started: &mut MessageWriter<super::CollisionStarted>,
+    ended: &mut MessageWriter<super::CollisionEnded>,
+) {
+    contacts.clear(frame);
+    for (pair, c) in found {
+        contacts.push(*pair, c, &[]);
+    }
+    state.send_changes(contacts, started, ended);
+}
