@@ -2,6 +2,7 @@
 //! measured yet (see the [module docs](super) for the rules).
 
 use super::costs::{Asset, CostTable, Tables};
+use super::query_model::{QueryModel, proportional};
 use super::rank::{Candidate, choose, pays};
 use super::{Build, Estimate};
 use crate::bvh::{Builder, Bvh};
@@ -118,6 +119,8 @@ pub struct AdaptivePolicy {
     clustered: bool,
     /// Rays per frame at this mesh.
     rays: Estimate,
+    /// This mesh's query seconds per ray against its tree's SAH cost: the rent's marginal rate.
+    query_model: QueryModel,
     /// Frames between rebuilds.
     interval: Estimate,
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
@@ -180,6 +183,7 @@ impl AdaptivePolicy {
             asset,
             clustered: false,
             rays: Estimate::default(),
+            query_model: QueryModel::default(),
             interval: Estimate::default(),
             reference: 0.0,
             assumed: false,
@@ -344,6 +348,7 @@ impl AdaptivePolicy {
                 .lock()
                 .query_rate
                 .add(seconds / (rays * sah_cost));
+            self.query_model.add(sah_cost, seconds / rays);
             self.rays.add(rays);
         }
     }
@@ -697,11 +702,14 @@ impl View<'_> {
         (mean.unwrap_or(0.0) * frames as f64).exp()
     }
 
-    /// Query seconds per ray per unit of SAH cost, and the spread of that mean (0 before any query was
-    /// measured): a rent sums many frames, so what is uncertain is the rate, not one frame's noise.
+    /// The query seconds per ray that one more unit of SAH cost adds, and the spread of that estimate (0
+    /// before any query was measured): this mesh's fitted slope ([`QueryModel::marginal`]) with the
+    /// table's proportional rate as its prior. A rent sums many frames, so what is uncertain is the rate,
+    /// not one frame's noise.
     fn rate(&self) -> (f64, f64) {
-        let e = &self.t.query_rate;
-        (e.mean().unwrap_or(0.0), e.mean_spread())
+        self.p
+            .query_model
+            .marginal(proportional(&self.t.query_rate))
     }
 
     /// `b` as a candidate: its rebuild spread over the interval between rebuilds plus the queries of a
