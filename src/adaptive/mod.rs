@@ -24,8 +24,12 @@
 //! Every choice goes through one core ([`rank`]): options are [`Candidate`]s with a predicted cost and the
 //! standard deviation of that prediction (from the estimates' variances; a prediction made from a prior
 //! carries 25%).
-//! - **Rebuild (rent)**: after each refit the extra query time the refitted tree costs against a fresh
-//!   tree, `rate · rays · (C_now − C_fresh)` at the marginal rate, is added to the rent; the mesh is rebuilt once the rent
+//! - **Rebuild (rent)**: after each refit the work the refitted tree costs beyond a fresh tree,
+//!   `rays · (C_now − C_fresh)`, is added up since the last rebuild, and the rent is that sum at the
+//!   marginal rate as estimated *now* (so a rate revised down by the mesh's own frames revalues the
+//!   whole rent, not only the frames to come: charged frame by frame at the prior's proportional rate,
+//!   a scene whose query time ignores the SAH cost kept the rent of its first frames and rebuilt for
+//!   nothing); its spread is the rate's spread times the sum. The mesh is rebuilt once the rent
 //!   exceeds the predicted rebuild time by `z` standard deviations of their difference ([`rank::pays`],
 //!   `z` = [`AdaptivePolicy::z`], 2 by default) — the ski-rental rule with a margin from the measured
 //!   noise instead of a magic constant.
