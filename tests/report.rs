@@ -30,6 +30,7 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
         &harness::Settings::QUICK,
         &common::shared_assets_dir(),
         &out,
+        &output::Only::default(),
     )
     .unwrap();
     for s in &report.skipped {
@@ -236,7 +237,7 @@ fn zero_counts_are_errors_not_panics() {
         harness::Settings { triangles: 0, ..q },
         harness::Settings { rays: 0, ..q },
     ] {
-        let e = output::write_report(&bad, assets, &out)
+        let e = output::write_report(&bad, assets, &out, &output::Only::default())
             .err()
             .expect("an error");
         assert_eq!(e.kind(), std::io::ErrorKind::InvalidInput);

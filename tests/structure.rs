@@ -11,7 +11,6 @@ use glam::{Affine3A, Quat, Vec3};
 use kinetrace::characterize::SceneProfile;
 use kinetrace::ecs::*;
 use kinetrace::grid::choice::{MAX_EMPTY_BIN_FRACTION, MIN_GRID_TRIANGLES, MIN_SIZE_SPREAD};
-use kinetrace::grid::{ChoiceInput, StructureCosts, choose_structure};
 use kinetrace::scenes::bumpy_torus;
 use kinetrace::{Mesh, Ray};
 
@@ -300,45 +299,6 @@ fn auto_follows_the_documented_rule_and_reports_it() {
                 .resource::<TraceWorld>()
                 .cast_ray(&ray, f32::INFINITY, &QueryFilter::default());
         agree(got.as_ref(), expect, &format!("ray {i}"));
-    }
-}
-
-#[test]
-fn measured_costs_decide_with_a_margin_for_the_structure_in_use() {
-    let costs = |bvh: f64, grid: f64| StructureCosts {
-        bvh_update: bvh * 0.25,
-        bvh_query: bvh * 0.75,
-        grid_build: grid * 0.5,
-        grid_query: grid * 0.5,
-    };
-    let margin = kinetrace::grid::choice::SWITCH_MARGIN;
-    for (bvh, grid, current) in [
-        (1.0, 0.5, None),
-        (1.0, 2.0, None),
-        (1.0, 1.0 - margin / 2.0, Some(StructureKind::Bvh)),
-        (1.0, 1.0 - 2.0 * margin, Some(StructureKind::Bvh)),
-        (1.0 - margin / 2.0, 1.0, Some(StructureKind::Grid)),
-        (1.0 - 2.0 * margin, 1.0, Some(StructureKind::Grid)),
-    ] {
-        let c = costs(bvh, grid);
-        let choice = choose_structure(&ChoiceInput {
-            profile: None,
-            costs: Some(c),
-            current,
-        });
-        // Switch only when the other is cheaper by more than the margin; with nothing in use, the cheaper.
-        let want = match current {
-            None if grid < bvh => StructureKind::Grid,
-            None => StructureKind::Bvh,
-            Some(StructureKind::Bvh) if grid < bvh * (1.0 - margin) => StructureKind::Grid,
-            Some(StructureKind::Grid) if bvh < grid * (1.0 - margin) => StructureKind::Bvh,
-            Some(k) => k,
-        };
-        assert_eq!(choice.structure, want, "{bvh} {grid} {current:?}");
-        let ChoiceReason::Measured { bvh: b, grid: g } = choice.reason else {
-            panic!("{choice:?}");
-        };
-        assert!((b - bvh).abs() < 1e-12 && (g - grid).abs() < 1e-12);
     }
 }
 

@@ -84,7 +84,6 @@ fn run_auto(frames: &[Frame], settings: &Settings) -> Vec<FrameRecord> {
     let profile = profile_mesh(&frames[0].0);
     let choice = choose_structure(&ChoiceInput {
         profile: Some(&profile),
-        ..Default::default()
     });
     let profile_s = t.elapsed().as_secs_f64();
     println!(

@@ -8,7 +8,9 @@
 //! cargo run --release --example report            # 300 frames, ~20k triangles per scene
 //! cargo run --release --example report -- --quick # 24 frames, ~3k triangles (what the smoke test runs)
 //! options: --frames N --triangles N --rays N --runs N --out DIR --assets DIR
-//! (--runs N: every scene N times, each strategy's median run reported; 1 by default)
+//!          --scenes NAME,NAME --strategies NAME,NAME
+//! (--runs N: every scene N times, each strategy's median run reported; 1 by default;
+//!  --scenes / --strategies: only those, by the names the summary prints; all by default)
 //! ```
 
 mod grid_rows;
@@ -33,6 +35,8 @@ fn main() {
     };
     let mut out = PathBuf::from("target/report");
     let mut assets = PathBuf::from("../shared/assets");
+    let mut only = output::Only::default();
+    let list = |v: String| v.split(',').map(str::to_owned).collect();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = |what: &str| {
@@ -57,13 +61,15 @@ fn main() {
             "--rays" => settings.rays = number("a ray count"),
             "--out" => out = PathBuf::from(value("a directory")),
             "--assets" => assets = PathBuf::from(value("a directory")),
+            "--scenes" => only.scenes = list(value("scene names")),
+            "--strategies" => only.strategies = list(value("strategy names")),
             _ => fail(&format!("unknown option {a}")),
         }
     }
     if let Some(problem) = settings.problem() {
         fail(problem);
     }
-    match output::write_report(&settings, &assets, &out) {
+    match output::write_report(&settings, &assets, &out, &only) {
         Ok(report) => {
             for s in &report.skipped {
                 eprintln!("{s}");

@@ -90,7 +90,6 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
     let mut planners = (strategy == OptionStrategy::Planned).then(|| {
         let prior = choose_structure(&ChoiceInput {
             profile: Some(&profile_mesh(&frames[0].0)),
-            ..Default::default()
         });
         Planners {
             structure: Choice::structure(prior.structure),

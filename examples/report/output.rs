@@ -68,9 +68,29 @@ pub struct Report {
     pub strategies: Vec<Strategy>,
 }
 
-/// Runs every scene and strategy and writes the files.
+/// Which scenes and strategies to run, by name; an empty list runs them all. A scene filter also leaves
+/// out the 256-instance crowd unless it names `crowd`. For measuring a change on the scenes it concerns
+/// without paying for the others.
+#[derive(Clone, Debug, Default)]
+pub struct Only {
+    pub scenes: Vec<String>,
+    pub strategies: Vec<String>,
+}
+
+impl Only {
+    fn keeps(list: &[String], name: &str) -> bool {
+        list.is_empty() || list.iter().any(|n| n == name)
+    }
+}
+
+/// Runs the scenes and strategies `only` names (all by default) and writes the files.
 /// Errors: `InvalidInput` for settings with a zero count (see [`Settings::problem`]), or the I/O error.
-pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::Result<Report> {
+pub fn write_report(
+    settings: &Settings,
+    assets: &Path,
+    out: &Path,
+    only: &Only,
+) -> std::io::Result<Report> {
     if let Some(problem) = settings.problem() {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
@@ -78,11 +98,13 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         ));
     }
     std::fs::create_dir_all(out)?;
-    let (scenes, mut skipped) = Scene::all(settings.triangles, assets);
+    let (mut scenes, mut skipped) = Scene::all(settings.triangles, assets);
+    scenes.retain(|s| Only::keeps(&only.scenes, s.name));
     let gpu = find_gpu()
         .inspect_err(|e| skipped.push(format!("GPU strategies SKIPPED: {e}")))
         .ok();
-    let strategies = Strategy::all(gpu.is_some());
+    let mut strategies = Strategy::all(gpu.is_some());
+    strategies.retain(|s| Only::keeps(&only.strategies, &s.name()));
     let names: Vec<String> = strategies.iter().map(Strategy::name).collect();
     let looks = plots::looks(&strategies);
     let mut csv = String::from(
@@ -132,10 +154,18 @@ pub fn write_report(settings: &Settings, assets: &Path, out: &Path) -> std::io::
         plots::per_frame(&png, scene.name, &names, &looks, &per_strategy)?;
         files.push(png);
     }
-    let crowds = [true, false].map(|shared| planner::instance_crowd(settings, 256, shared));
-    let planner_sections = planner::cold_start_table(&cold)
-        + &planner::instance_crowd_table(&crowds)
-        + &option_rows::picks_table(&picks);
+    let crowds: Vec<_> = Only::keeps(&only.scenes, "crowd")
+        .then(|| [true, false].map(|shared| planner::instance_crowd(settings, 256, shared)))
+        .into_iter()
+        .flatten()
+        .collect();
+    let crowd_table = if crowds.is_empty() {
+        String::new()
+    } else {
+        planner::instance_crowd_table(&crowds)
+    };
+    let planner_sections =
+        planner::cold_start_table(&cold) + &crowd_table + &option_rows::picks_table(&picks);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);

@@ -5,24 +5,31 @@
 //!
 //! # The model
 //!
-//! A frame costs update time plus query time, and query time is proportional to rays × the tree's SAH
-//! cost. Learned, each as a running mean *and variance* ([`Estimate`]), in a [`CostTable`] that every
+//! A frame costs update time plus query time, and query time per ray grows along a line in the tree's
+//! SAH cost. Learned, each as a running mean *and variance* ([`Estimate`]), in a [`CostTable`] that every
 //! mesh of a world shares:
 //! - per [`Build`] (a builder on a [`Device`]): seconds per unit of `n·log2 n` ([`costs::size_unit`]), so
 //!   a time measured on one mesh predicts a mesh of another size;
 //! - per [`Asset`] (same topology: the ECS's shared index buffer, or [`Asset::of_indices`]) and build: the
 //!   SAH cost its trees reach, relative to the asset's unit — so the second instance of a character knows
 //!   every build its first instance tried and explores nothing;
-//! - seconds per ray per unit of SAH cost; and per mesh, rays per frame, frames between rebuilds and the
-//!   drift of a fresh tree's cost from frame to frame.
+//! - seconds per ray per unit of SAH cost (the proportional rate); and per mesh, rays per frame, frames
+//!   between rebuilds, the drift of a fresh tree's cost from frame to frame, and the line of query seconds
+//!   per ray against SAH cost fitted over the mesh's frames, whose slope — the *marginal* rate, about half
+//!   the proportional one on the report's scenes — the rent and the builder choice use, with the
+//!   proportional rate as its prior until the mesh's own frames say otherwise (`query_model`).
 //!
 //! # The rules
 //!
 //! Every choice goes through one core ([`rank`]): options are [`Candidate`]s with a predicted cost and the
 //! standard deviation of that prediction (from the estimates' variances; a prediction made from a prior
 //! carries 25%).
-//! - **Rebuild (rent)**: after each refit the extra query time the refitted tree costs against a fresh
-//!   tree, `rate · rays · (C_now − C_fresh)`, is added to the rent; the mesh is rebuilt once the rent
+//! - **Rebuild (rent)**: after each refit the work the refitted tree costs beyond a fresh tree,
+//!   `rays · (C_now − C_fresh)`, is added up since the last rebuild, and the rent is that sum at the
+//!   marginal rate as estimated *now* (so a rate revised down by the mesh's own frames revalues the
+//!   whole rent, not only the frames to come: charged frame by frame at the prior's proportional rate,
+//!   a scene whose query time ignores the SAH cost kept the rent of its first frames and rebuilt for
+//!   nothing); its spread is the rate's spread times the sum. The mesh is rebuilt once the rent
 //!   exceeds the predicted rebuild time by `z` standard deviations of their difference ([`rank::pays`],
 //!   `z` = [`AdaptivePolicy::z`], 2 by default) — the ski-rental rule with a margin from the measured
 //!   noise instead of a magic constant.
@@ -140,6 +147,7 @@ mod choice;
 pub mod costs;
 mod estimate;
 mod policy;
+mod query_model;
 pub mod rank;
 
 pub use build::{Build, Device};

@@ -2,6 +2,7 @@
 //! measured yet (see the [module docs](super) for the rules).
 
 use super::costs::{Asset, CostTable, Tables};
+use super::query_model::{QueryModel, proportional};
 use super::rank::{Candidate, choose, pays};
 use super::{Build, Estimate};
 use crate::bvh::{Builder, Bvh};
@@ -82,7 +83,9 @@ pub struct Prediction {
     pub build: Build,
     /// Its predicted seconds (0 before any build was measured).
     pub rebuild_s: f64,
-    /// Extra query seconds the refitted tree has cost since the last rebuild, this frame included.
+    /// Extra query seconds the refitted tree has cost since the last rebuild, this frame included: the
+    /// rays times the SAH cost above a fresh tree's, summed over those frames, at the marginal rate as
+    /// estimated now.
     pub rent_s: f64,
     /// The margin the rent must exceed the rebuild by: `z` standard deviations of their difference.
     pub margin_s: f64,
@@ -118,6 +121,8 @@ pub struct AdaptivePolicy {
     clustered: bool,
     /// Rays per frame at this mesh.
     rays: Estimate,
+    /// This mesh's query seconds per ray against its tree's SAH cost: the rent's marginal rate.
+    query_model: QueryModel,
     /// Frames between rebuilds.
     interval: Estimate,
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
@@ -136,7 +141,11 @@ pub struct AdaptivePolicy {
     /// How far this mesh's rebuilt trees landed from their predicted cost: see [`AnchorError`].
     anchor_error: AnchorError,
     current: Option<Build>,
-    rent: f64,
+    /// The rent's work: rays times the SAH cost the refitted tree had above a fresh tree's, summed over
+    /// the frames since the last rebuild. Priced in seconds at the current marginal rate each frame, so
+    /// that when the rate is revised (the mesh's frames show query time following the SAH cost less
+    /// than assumed) the whole rent is, not only the frames still to come.
+    excess: f64,
     frames: u32,
     age: u32,
     last_ratio: f64,
@@ -180,6 +189,7 @@ impl AdaptivePolicy {
             asset,
             clustered: false,
             rays: Estimate::default(),
+            query_model: QueryModel::default(),
             interval: Estimate::default(),
             reference: 0.0,
             assumed: false,
@@ -189,7 +199,7 @@ impl AdaptivePolicy {
             guard_factor: 1.0,
             anchor_error: AnchorError::default(),
             current: None,
-            rent: 0.0,
+            excess: 0.0,
             frames: 0,
             age: 0,
             last_ratio: 1.0,
@@ -212,7 +222,7 @@ impl AdaptivePolicy {
     /// the small policy (its list of builds).
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
-            rent: 0.0,
+            excess: 0.0,
             explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
@@ -300,7 +310,7 @@ impl AdaptivePolicy {
         drop(t);
         self.current = Some(build);
         self.guard_factor = 1.0;
-        self.rent = 0.0;
+        self.excess = 0.0;
         self.frames = 0;
     }
 
@@ -344,6 +354,7 @@ impl AdaptivePolicy {
                 .lock()
                 .query_rate
                 .add(seconds / (rays * sah_cost));
+            self.query_model.add(sah_cost, seconds / rays);
             self.rays.add(rays);
         }
     }
@@ -376,12 +387,12 @@ impl AdaptivePolicy {
             verdict: Verdict::Keep,
             build,
             rebuild_s,
-            rent_s: self.rent,
+            rent_s: 0.0,
             margin_s: 0.0,
             sah: sah_cost,
             fresh_sah: 0.0,
         };
-        let mut rent = self.rent;
+        let mut excess = self.excess;
         let mut ratio = self.last_ratio;
         let mut guard_factor = 1.0;
         if self.reference > 0.0 {
@@ -395,19 +406,14 @@ impl AdaptivePolicy {
             let fresh = v
                 .relative(build)
                 .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
-            rent += rate * rays.max(0.0) * (sah_cost - fresh).max(0.0);
-            p.rent_s = rent;
-            let rent_spread = if rate > 0.0 {
-                rent * rate_spread / rate
-            } else {
-                0.0
-            };
-            p.margin_s = self.z * rebuild_spread.hypot(rent_spread);
+            excess += rays.max(0.0) * (sah_cost - fresh).max(0.0);
+            p.rent_s = rate * excess;
+            p.margin_s = self.z * rebuild_spread.hypot(rate_spread * excess);
             // The ratio extrapolated one frame at this frame's rise.
             let next = ratio + (ratio - self.last_ratio).max(0.0);
             p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
                 Verdict::Guard
-            } else if rent > 0.0 && pays(rent, rebuild_s, p.margin_s / self.z, self.z) {
+            } else if p.rent_s > 0.0 && pays(p.rent_s, rebuild_s, p.margin_s / self.z, self.z) {
                 Verdict::Rent
             } else {
                 // With no rays a build is tried only where the guard rebuilds anyway.
@@ -423,7 +429,7 @@ impl AdaptivePolicy {
         }
         drop(t);
         self.guard_factor = guard_factor;
-        self.rent = rent;
+        self.excess = excess;
         self.last_ratio = ratio;
         self.last = p;
         p.verdict != Verdict::Keep
@@ -482,7 +488,7 @@ impl AdaptivePolicy {
         if sah_cost.is_finite() && sah_cost > 0.0 {
             self.sah_built = sah_cost;
         }
-        self.rent = 0.0;
+        self.excess = 0.0;
     }
 
     /// Why the last [`after_refit`](Self::after_refit) decided as it did (the default before any).
@@ -697,11 +703,14 @@ impl View<'_> {
         (mean.unwrap_or(0.0) * frames as f64).exp()
     }
 
-    /// Query seconds per ray per unit of SAH cost, and the spread of that mean (0 before any query was
-    /// measured): a rent sums many frames, so what is uncertain is the rate, not one frame's noise.
+    /// The query seconds per ray that one more unit of SAH cost adds, and the spread of that estimate (0
+    /// before any query was measured): this mesh's fitted slope ([`QueryModel::marginal`]) with the
+    /// table's proportional rate as its prior. A rent sums many frames, so what is uncertain is the rate,
+    /// not one frame's noise.
     fn rate(&self) -> (f64, f64) {
-        let e = &self.t.query_rate;
-        (e.mean().unwrap_or(0.0), e.mean_spread())
+        self.p
+            .query_model
+            .marginal(proportional(&self.t.query_rate))
     }
 
     /// `b` as a candidate: its rebuild spread over the interval between rebuilds plus the queries of a

@@ -84,8 +84,6 @@ pub(crate) fn structure_for(
         Structure::Auto => {
             let choice = choose_structure(&ChoiceInput {
                 profile: inst.and_then(|i| i.profile.as_deref()),
-                costs: None,
-                current: inst.map(|i| i.structure),
             });
             (choice.structure, StructureWhy::Rule(choice.reason))
         }

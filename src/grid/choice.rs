@@ -1,21 +1,17 @@
 //! Which structure answers a mesh's ray queries: a BVH (refitted, rebuilt when it degrades) or a uniform grid
-//! rebuilt every frame. A pure function, [`choose_structure`], of the characteriser's profile and of
-//! measured (or predicted) costs; the ECS calls it for meshes configured as `Structure::Auto`, and the
-//! planner can call it with its own measurements.
+//! rebuilt every frame. A pure function, [`choose_structure`], of the characteriser's profile; the ECS
+//! calls it for meshes configured as `Structure::Auto`.
 //!
 //! **The rule is ours.** The seeds give none: seed 001 (the grid) assumes the grid, seed 003 (the
-//! characteriser) profiles a scene but decides nothing. The rule, in order:
+//! characteriser) profiles a scene but decides nothing.
 //!
-//! Under the ECS's adaptive policy this rule is only the prior: rules 2 and 3 pick the structure a mesh
-//! starts in, and the planner (`ecs::planned`, [`Choice`](crate::adaptive::Choice)) decides from what
-//! each structure measured, with the planner's margin instead of rule 1's.
+//! Under the ECS's adaptive policy this rule is only the prior: it picks the structure a mesh starts in,
+//! and the planner (`ecs::planned`, [`Choice`](crate::adaptive::Choice)) decides from what each
+//! structure measured, with the planner's margin (reported as [`ChoiceReason::Measured`]). The rule, in
+//! order:
 //!
-//! 1. **Measured costs decide when there are any.** With [`StructureCosts`] for both structures (seconds per
-//!    frame: update plus the frame's queries), the cheaper one answers; the structure in use is kept unless
-//!    the other is cheaper by more than [`SWITCH_MARGIN`] (10%), so that noise in the timings does not flip
-//!    the choice every frame.
-//! 2. **No profile** (a mesh not characterised yet): the BVH.
-//! 3. **Otherwise the profile predicts**, with the first test that fails as the reason:
+//! 1. **No profile** (a mesh not characterised yet): the BVH.
+//! 2. **Otherwise the profile predicts**, with the first test that fails as the reason:
 //!    - at least [`MIN_GRID_TRIANGLES`] triangles, else the BVH (either structure is a handful of tests);
 //!    - at most [`MAX_EMPTY_BIN_FRACTION`] of the Morton histogram's bins empty, else the BVH: empty space
 //!      costs the grid a step per empty cell and costs the BVH nothing (a teapot in a stadium of two
@@ -48,8 +44,8 @@
 //!
 //! The grid takes fewer steps exactly where sizes are mixed (soup, teapot in stadium), and in the
 //! explosion it spares the BVH a rebuild every frame for 14% more steps; [`MIN_SIZE_SPREAD`] = 0.8 lies in
-//! the gap between 0.50 and 1.10. Seven scenes are few: the thresholds are a first fit, and measured
-//! costs (rule 1) override the prediction wherever they exist. The run's *times* could not decide it:
+//! the gap between 0.50 and 1.10. Seven scenes are few: the thresholds are a first fit, and under the
+//! adaptive policy the planner's measured costs override the prediction wherever they exist. The run's *times* could not decide it:
 //! with the machine's load average above 10, the same strategy's time differed up to 5× between two runs,
 //! and in most runs the grid's picks (explosion, soup, teapot in stadium) were *slower* in time than
 //! `lauterbach-0.4` (grid single-ray queries cost more per step than BVH ones: the steps are not the same
@@ -70,9 +66,6 @@ pub const MAX_EMPTY_BIN_FRACTION: f64 = 0.25;
 /// predict the grid.
 pub const MIN_SIZE_SPREAD: f64 = 0.8;
 
-/// The structure in use is kept unless the other one's measured cost is lower by more than this fraction.
-pub const SWITCH_MARGIN: f64 = 0.10;
-
 /// The two structures a mesh can be kept in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 pub enum StructureKind {
@@ -83,54 +76,25 @@ pub enum StructureKind {
     Grid,
 }
 
-/// Seconds per frame each structure costs a mesh, measured or predicted: its update (BVH: refit and the
-/// rebuilds amortised over the frames; grid: a rebuild) plus its share of the frame's queries.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StructureCosts {
-    /// BVH update seconds per frame.
-    pub bvh_update: f64,
-    /// BVH query seconds per frame.
-    pub bvh_query: f64,
-    /// Grid rebuild seconds per frame.
-    pub grid_build: f64,
-    /// Grid query seconds per frame.
-    pub grid_query: f64,
-}
-
-impl StructureCosts {
-    /// The BVH's total seconds per frame.
-    pub fn bvh(&self) -> f64 {
-        self.bvh_update + self.bvh_query
-    }
-
-    /// The grid's total seconds per frame.
-    pub fn grid(&self) -> f64 {
-        self.grid_build + self.grid_query
-    }
-}
-
 /// What [`choose_structure`] decides from.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct ChoiceInput<'a> {
     /// The characteriser's profile of the mesh, if it has one.
     pub profile: Option<&'a SceneProfile>,
-    /// Measured or predicted costs of both structures, if known.
-    pub costs: Option<StructureCosts>,
-    /// The structure in use now, if any (measured choices keep it within [`SWITCH_MARGIN`]).
-    pub current: Option<StructureKind>,
 }
 
 /// Why [`choose_structure`] chose what it chose.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ChoiceReason {
-    /// Measured costs, seconds per frame of each structure.
+    /// Measured costs, seconds per frame of each structure: the adaptive planner's decision
+    /// (`ecs::planned`), never this rule's.
     Measured {
         /// The BVH's.
         bvh: f64,
         /// The grid's.
         grid: f64,
     },
-    /// No profile and no costs yet: the BVH.
+    /// No profile yet: the BVH.
     NoProfile,
     /// Fewer than [`MIN_GRID_TRIANGLES`] triangles.
     FewTriangles(usize),
@@ -162,17 +126,6 @@ pub struct StructureChoice {
 /// The rule of the [module docs](self). Pure and O(1).
 pub fn choose_structure(input: &ChoiceInput<'_>) -> StructureChoice {
     let choice = |structure, reason| StructureChoice { structure, reason };
-    if let Some(c) = input.costs {
-        let (bvh, grid) = (c.bvh(), c.grid());
-        let reason = ChoiceReason::Measured { bvh, grid };
-        let structure = match input.current {
-            Some(StructureKind::Grid) if bvh >= grid * (1.0 - SWITCH_MARGIN) => StructureKind::Grid,
-            Some(StructureKind::Bvh) if grid >= bvh * (1.0 - SWITCH_MARGIN) => StructureKind::Bvh,
-            _ if grid < bvh => StructureKind::Grid,
-            _ => StructureKind::Bvh,
-        };
-        return choice(structure, reason);
-    }
     let Some(p) = input.profile else {
         return choice(StructureKind::Bvh, ChoiceReason::NoProfile);
     };

@@ -31,9 +31,7 @@ pub mod choice;
 mod dda;
 mod packet;
 
-pub use choice::{
-    ChoiceInput, ChoiceReason, StructureChoice, StructureCosts, StructureKind, choose_structure,
-};
+pub use choice::{ChoiceInput, ChoiceReason, StructureChoice, StructureKind, choose_structure};
 pub use packet::{MAX_PACKET, PACKET_SPREAD_LIMIT, PACKET_START_CELLS};
 
 use crate::bvh::Hit;
