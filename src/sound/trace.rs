@@ -62,7 +62,7 @@ struct Tracer<'f> {
 pub(crate) fn trace(scene: &SoundScene, f: &Frustum, n: usize) -> Traced {
     // The reflector a reflected frustum starts on: hits must lie beyond it, and it cannot be hit again.
     let reflector = f.chain.last().copied().unwrap_or(NO_SURFACE);
-    let cull = f.cull();
+    let cull = f.cull(n);
     let mut centre = [0.0; MAX_SAMPLING];
     for (i, c) in centre.iter_mut().take(n).enumerate() {
         *c = (i as f32 + 0.5) / n as f32;
