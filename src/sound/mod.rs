@@ -163,8 +163,9 @@ pub fn propagate(
                         children(scene, f, n, &mut next);
                     }
                 }
-                (paths, next)
+                (paths, vec![next])
             },
+            // The next level stays one list per chunk until here, so merging moves lists, not frusta.
             |(mut pa, mut na), (pb, nb)| {
                 pa.extend(pb);
                 na.extend(nb);
@@ -172,7 +173,7 @@ pub fn propagate(
             },
         );
         out.paths.extend(paths);
-        level = next;
+        level = next.into_iter().flatten().collect();
     }
     // One image source is one path, even when two frusta meet exactly at the listener.
     out.paths.sort_by(|a, b| {
