@@ -242,3 +242,73 @@ fn meets_a_plane(normals: &[Vec3], centre: Vec3, half: Vec3) -> bool {
 pub(crate) fn box_distance(p: Vec3, b: &Aabb) -> f32 {
     (b.min - p).max(p - b.max).max(Vec3::ZERO).length()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whether the ray `o + t·d`, `t ≥ 0`, meets the box: a slab test in f64, written here.
+    fn ray_meets(o: Vec3, d: Vec3, b: &Aabb) -> bool {
+        let (mut lo, mut hi) = (0.0f64, f64::INFINITY);
+        for a in 0..3 {
+            let (o, d) = (o[a] as f64, d[a] as f64);
+            let (p, q) = (b.min[a] as f64, b.max[a] as f64);
+            if d == 0.0 {
+                if o < p || o > q {
+                    return false;
+                }
+                continue;
+            }
+            let (t0, t1) = ((p - o) / d, (q - o) / d);
+            lo = lo.max(t0.min(t1));
+            hi = hi.min(t0.max(t1));
+        }
+        lo <= hi
+    }
+
+    #[test]
+    fn sample_plane_culling_keeps_every_box_a_sample_ray_meets() {
+        let mut seed = 0x2545_f491u64;
+        let mut rand = move || {
+            seed = seed
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let centre = |i: usize, n: usize| (i as f32 + 0.5) / n as f32;
+        for (k, f) in Frustum::around(Vec3::new(0.3, -0.2, 0.1), 2)
+            .iter()
+            .enumerate()
+            .step_by(5)
+        {
+            let n = 4;
+            let cull = f.cull(n);
+            let sides_only = Cull { planes: 0, ..cull };
+            let (mut met, mut culled) = (0, 0);
+            for _ in 0..4000 {
+                let at = f.apex + f.dir_at(rand(), rand()) * (0.5 + 4.0 * rand());
+                let half = Vec3::new(rand(), rand(), rand()) * 0.15 + Vec3::splat(0.005);
+                let b = Aabb {
+                    min: at - half,
+                    max: at + half,
+                };
+                let hit = (0..n).any(|j| {
+                    (0..n).any(|i| ray_meets(f.apex, f.dir_at(centre(i, n), centre(j, n)), &b))
+                });
+                if hit {
+                    met += 1;
+                    assert!(
+                        cull.may_overlap(&b),
+                        "frustum {k}: {b:?} culled, a sample ray meets it"
+                    );
+                }
+                culled += usize::from(sides_only.may_overlap(&b) && !cull.may_overlap(&b));
+            }
+            // Both outcomes occur: the test is not vacuous and the sample planes do cull.
+            assert!(
+                met > 400 && culled > 400,
+                "frustum {k}: {met} met, {culled} culled"
+            );
+        }
+    }
+}
