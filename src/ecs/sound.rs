@@ -4,8 +4,8 @@
 //!
 //! What an update does: it traces through the two-level scene the ray queries use ([`TraceWorld`]: the
 //! top-level tree over the entities and each entity's own tree with its transform, so moved entities and
-//! deformed, refitted meshes are current) with [`SoundScene::instanced`], copying no triangle and building
-//! no tree; it merges coplanar surfaces of the entities the settings' layer mask accepts and traces each
+//! deformed, refitted meshes are current) with [`SoundScene::instanced`], building no tree (each triangle
+//! is transformed to world space once per update, not once per test); it merges coplanar surfaces of the entities the settings' layer mask accepts and traces each
 //! source–listener pair with [`propagate`](crate::sound::propagate) on all threads. The answer is the
 //! direct call's on one world-space tree of the same triangles (up to float rounding of the merged
 //! surfaces' planes; tested).

@@ -6,7 +6,8 @@
 //!
 //! How it works: frusta with four corner rays cover every direction around the source (each cube face split
 //! into [`SoundConfig::primary`]² frusta). Each frustum is traced through the tree (`trace.rs`) with
-//! frustum–box culling and culling beyond the farthest nearest hit; Plücker tests of its corner rays decide
+//! frustum–box culling (boxes between two columns or rows of centre sample rays included) and culling
+//! beyond the farthest nearest hit; Plücker tests of its corner rays decide
 //! per triangle whether it misses, covers the whole frustum, or needs the `n × n` centre sample rays
 //! ([`SoundConfig::sampling`]), which are built only then. The sub-frusta hitting one surface are merged
 //! along an implicit quadtree and reflected into the next order's frusta, up to
@@ -18,12 +19,13 @@
 //! the sampling rate; each frustum is one tree traversal plus `n²` samples for the triangles it only
 //! partly covers. Levels of the frustum tree run on all threads; results do not depend on the thread count.
 //!
-//! Measured (`examples/sound`, 2-core dev VM shared with other builds, release): a 10 × 8 × 3.5 m room with
-//! 16 walking characters (19,212 triangles), order 3, refit + surfaces + propagation per update: about
-//! 114k frusta and 0.4–0.95 s at the defaults (4² primary frusta per cube face, 8² samples); 10k frusta
-//! and 0.12–0.3 s at 4² samples; 1.6k frusta and 0.07–0.14 s at 2² samples (the spread is the machine's
-//! load). The 50 ms target is not met:
-//! every character triangle is its own surface, so sub-frusta hitting characters do not merge.
+//! Measured (`bench sound --quick`, release, 2-core dev VM loaded by parallel builds to a load average of
+//! about 14, so the process got 0.15–0.18 of a core): a 10 × 8 × 3.5 m room with 16 walking characters
+//! (19,212 triangles), order 3, surfaces + propagation per ECS update: 10,295 frusta at 4² samples in
+//! 28–207 ms wall per update, about 25 ms of CPU time over all threads (the whole quick run's 70 ms of CPU,
+//! less the shoebox and setup, over its two updates; 209 ms before the culling by sample planes and the
+//! per-scene world triangles); 116,661 frusta at the default 8² samples in 0.33–0.38 s. The CPU time puts
+//! the 50 ms target within reach of an idle 2-core machine; it was not measured idle.
 //!
 //! Limits (thesis §6.1.7): discrete sampling misses a path when one of its reflection points lies closer
 //! to its surface's border than a sub-frustum's footprint there — at most `r · sin ρ / cos(θ + ρ)` for a
@@ -161,8 +163,9 @@ pub fn propagate(
                         children(scene, f, n, &mut next);
                     }
                 }
-                (paths, next)
+                (paths, vec![next])
             },
+            // The next level stays one list per chunk until here, so merging moves lists, not frusta.
             |(mut pa, mut na), (pb, nb)| {
                 pa.extend(pb);
                 na.extend(nb);
@@ -170,7 +173,7 @@ pub fn propagate(
             },
         );
         out.paths.extend(paths);
-        level = next;
+        level = next.into_iter().flatten().collect();
     }
     // One image source is one path, even when two frusta meet exactly at the listener.
     out.paths.sort_by(|a, b| {

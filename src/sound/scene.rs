@@ -38,10 +38,20 @@ pub struct SoundInstance<'a> {
 /// An instance as traversal needs it.
 struct Placed<'a> {
     bvh: &'a MeshBvh,
-    /// `None`: the identity (world triangles are the tree's own, untouched).
+    /// `None`: the identity (the tree is in world space).
     xf: Option<Xf>,
-    /// Index of the instance's slot 0 in [`SoundScene::slot_surface`].
+    /// Index of the instance's slot 0 in [`SoundScene::facets`].
     first: usize,
+}
+
+/// One triangle as tracing reads it, made once per scene so no test transforms a vertex or recomputes
+/// a normal: world-space corners, the unnormalised normal `(b − a) × (c − a)` and the surface.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Facet {
+    pub corners: [Vec3; 3],
+    pub normal: Vec3,
+    /// [`NO_SURFACE`] for a zero-area triangle.
+    pub surface: u32,
 }
 
 /// A transform with what traversing its tree needs.
@@ -81,7 +91,6 @@ impl Xf {
 impl Placed<'_> {
     /// Triangle `slot` in world space: the same arithmetic as transforming the mesh's vertices, so a
     /// copy of the world triangles gives bit-identical corners.
-    #[inline]
     fn world_triangle(&self, slot: usize) -> [Vec3; 3] {
         let t = self.bvh.slot_triangles()[slot];
         match self.xf {
@@ -103,17 +112,17 @@ pub(crate) struct SceneHit {
 /// Make one from a single world-space tree ([`new`](Self::new)) or, without copying any triangle, from
 /// the top-level tree and the instances of a two-level scene ([`instanced`](Self::instanced)); both trace
 /// the same world triangles with the same arithmetic, so they find the same paths. Building one groups the
-/// triangles into surfaces in O(n) (a hash on the quantised world plane and the material); make a new one
-/// after a tree is refitted, rebuilt or moved. Triangles whose unit normals agree to about 1e-4 and whose
+/// triangles into surfaces in O(n) (a hash on the quantised world plane and the material) and keeps each
+/// triangle's world corners and normal (52 bytes a triangle), so tracing never transforms a vertex; make a
+/// new one after a tree is refitted, rebuilt or moved. Triangles whose unit normals agree to about 1e-4 and whose
 /// plane offsets agree to 1e-4 of the scene's size share a surface.
 pub struct SoundScene<'a> {
     /// The top-level tree (primitive `i` is `instances[i]`); `None`: one instance, traversed directly.
     top: Option<&'a Bvh>,
     /// `None`: an instance left out (it neither reflects nor occludes).
     instances: Vec<Option<Placed<'a>>>,
-    /// Surface of each slot of every instance (leaf order, instance after instance), [`NO_SURFACE`] for
-    /// zero-area triangles.
-    slot_surface: Vec<u32>,
+    /// Every slot of every instance (leaf order, instance after instance) in world space with its surface.
+    facets: Vec<Facet>,
     pub(crate) surfaces: Vec<Surface>,
     pub(crate) materials: Vec<AcousticMaterial>,
 }
@@ -126,8 +135,19 @@ struct Grouping {
 }
 
 impl Grouping {
-    fn surface(&mut self, [a, b, c]: [Vec3; 3], material: u32) -> u32 {
-        let normal = (b - a).cross(c - a).normalize_or_zero();
+    /// The triangle as a [`Facet`], its surface found or made.
+    fn facet(&mut self, corners: [Vec3; 3], material: u32) -> Facet {
+        let [a, b, c] = corners;
+        let cross = (b - a).cross(c - a);
+        Facet {
+            corners,
+            normal: cross,
+            surface: self.surface(a, cross.normalize_or_zero(), material),
+        }
+    }
+
+    /// The surface of a triangle with corner `a` and unit normal `normal` (zero: none).
+    fn surface(&mut self, a: Vec3, normal: Vec3, material: u32) -> u32 {
         if normal == Vec3::ZERO {
             return NO_SURFACE;
         }
@@ -181,11 +201,11 @@ impl<'a> SoundScene<'a> {
             )));
         }
         let mut group = Grouping::new(bvh.bvh().bounds().extent().max_element());
-        let slot_surface = bvh
+        let facets = bvh
             .slot_triangles()
             .iter()
             .zip(prims)
-            .map(|(t, &p)| group.surface(*t, triangle_materials[p as usize]))
+            .map(|(t, &p)| group.facet(*t, triangle_materials[p as usize]))
             .collect();
         Ok(Self {
             top: None,
@@ -194,16 +214,17 @@ impl<'a> SoundScene<'a> {
                 xf: None,
                 first: 0,
             })],
-            slot_surface,
+            facets,
             surfaces: group.surfaces,
             materials,
         })
     }
 
     /// A two-level scene: `top` is a tree over the instances' world boxes whose primitive `i` is
-    /// `instances[i]` (`None` leaves that primitive out). Nothing is copied: frusta and rays descend from
+    /// `instances[i]` (`None` leaves that primitive out). No tree is built: frusta and rays descend from
     /// `top` into each instance's tree with the inverse transform, as the ray queries do, and meet the
-    /// triangles in world space. Cost: O(triangles) once to group the surfaces.
+    /// triangles in world space, transformed once here. Cost: O(triangles) once to transform the
+    /// triangles and group the surfaces.
     ///
     /// Errors: [`Error::InvalidOption`] when `instances` is not one entry per primitive of `top` or an
     /// instance names a material that does not exist; [`Error::InvalidTransform`] for a transform that is
@@ -221,7 +242,7 @@ impl<'a> SoundScene<'a> {
             )));
         }
         let mut group = Grouping::new(top.bounds().extent().max_element());
-        let mut slot_surface = Vec::new();
+        let mut facets = Vec::new();
         let mut placed = Vec::with_capacity(instances.len());
         for inst in instances {
             let Some(inst) = inst else {
@@ -238,17 +259,16 @@ impl<'a> SoundScene<'a> {
             let p = Placed {
                 bvh: inst.bvh,
                 xf: Some(Xf::new(inst.transform)?),
-                first: slot_surface.len(),
+                first: facets.len(),
             };
             let slots = inst.bvh.slot_triangles().len();
-            slot_surface
-                .extend((0..slots).map(|s| group.surface(p.world_triangle(s), inst.material)));
+            facets.extend((0..slots).map(|s| group.facet(p.world_triangle(s), inst.material)));
             placed.push(Some(p));
         }
         Ok(Self {
             top: Some(top),
             instances: placed,
-            slot_surface,
+            facets,
             surfaces: group.surfaces,
             materials,
         })
@@ -261,7 +281,7 @@ impl<'a> SoundScene<'a> {
 
     /// Number of triangles traced (zero-area ones included).
     pub fn triangle_count(&self) -> usize {
-        self.slot_surface.len()
+        self.facets.len()
     }
 
     /// Calls `f(placed)` for every instance whose world box `enter(box, bound)` accepts, nearest key first;
@@ -298,13 +318,13 @@ impl<'a> SoundScene<'a> {
         );
     }
 
-    /// Frustum traversal: calls `tri(state, world triangle, surface)` for every triangle with a surface in
-    /// a leaf the frustum may overlap within `bound(state)` of its apex (re-read after every leaf).
+    /// Frustum traversal: calls `tri(state, facet)` for every triangle with a surface in a leaf the
+    /// frustum may overlap within `bound(state)` of its apex (re-read after every leaf).
     pub(crate) fn frustum_leaves<S>(
         &self,
         cull: &Cull,
         state: &mut S,
-        mut tri: impl FnMut(&mut S, [Vec3; 3], u32),
+        mut tri: impl FnMut(&mut S, &Facet),
         bound: impl Fn(&S) -> f32,
     ) {
         let start = bound(state);
@@ -332,10 +352,9 @@ impl<'a> SoundScene<'a> {
                         (e <= d && local.may_overlap(&b)).then_some(e)
                     },
                     |slots, d| {
-                        for s in slots {
-                            let surface = self.slot_surface[p.first + s];
-                            if surface != NO_SURFACE {
-                                tri(state, p.world_triangle(s), surface);
+                        for facet in &self.facets[p.first + slots.start..p.first + slots.end] {
+                            if facet.surface != NO_SURFACE {
+                                tri(state, facet);
                             }
                         }
                         *d = bound(state);
@@ -370,15 +389,17 @@ impl<'a> SoundScene<'a> {
                 let mut stop = false;
                 let mut t = tmax;
                 traverse(p.bvh.bvh().nodes(), &local, &mut (), |slots, tmax| {
-                    for s in slots {
-                        let surface = self.slot_surface[p.first + s];
-                        if surface == NO_SURFACE {
+                    for facet in &self.facets[p.first + slots.start..p.first + slots.end] {
+                        if facet.surface == NO_SURFACE {
                             continue;
                         }
-                        let [a, b, c] = p.world_triangle(s);
+                        let [a, b, c] = facet.corners;
                         if let Some(hit) = tr.intersect(a, b, c, ray.tmin, *tmax) {
                             *tmax = hit.t;
-                            best = Some(SceneHit { hit, surface });
+                            best = Some(SceneHit {
+                                hit,
+                                surface: facet.surface,
+                            });
                             if any {
                                 stop = true;
                                 return true;

@@ -11,8 +11,8 @@
 //! no sample slips between them.
 
 use super::frustum::{Frustum, bilerp};
-use super::scene::{NO_SURFACE, SoundScene};
-use glam::Vec3;
+use super::scene::{Facet, NO_SURFACE, SoundScene};
+use glam::{Vec3, Vec4};
 
 /// What the frustum's samples hit so far.
 enum Coverage {
@@ -32,6 +32,8 @@ struct Samples {
     inv: Vec<f32>,
     /// Length of each sample's direction, to turn depths into distances.
     len: Vec<f32>,
+    /// Distance of each sample's hit from the apex, `len / inv` (infinite: no hit).
+    dist: Vec<f32>,
 }
 
 /// The surfaces a frustum's `n × n` sub-frusta hit, after tracing.
@@ -41,24 +43,44 @@ pub(crate) enum Traced {
     Samples(Vec<u32>),
 }
 
-/// Parameter of sample `i` of `n` along one side of the square: the sub-frustum's centre.
-#[inline]
-fn centre(i: usize, n: usize) -> f32 {
-    (i as f32 + 0.5) / n as f32
+/// The most sub-frusta per side ([`SoundConfig::sampling`](super::SoundConfig) is at most this).
+const MAX_SAMPLING: usize = 256;
+
+/// What every triangle test of one frustum shares, made once per frustum.
+struct Tracer<'f> {
+    f: &'f Frustum,
+    n: usize,
+    /// The sample centres' parameter along a side: `centre[i] = (i + ½) / n`.
+    centre: [f32; MAX_SAMPLING],
+    /// Inward normals of the frustum's side planes.
+    sides: [Vec3; 4],
+    /// The reflector's inverse depth, as a triangle's `inv` (none for a primary frustum).
+    near_inv: Option<Vec3>,
 }
 
 /// Traces `f` with `n × n` sub-frusta; returns the surface each sub-frustum's centre ray hits first.
 pub(crate) fn trace(scene: &SoundScene, f: &Frustum, n: usize) -> Traced {
     // The reflector a reflected frustum starts on: hits must lie beyond it, and it cannot be hit again.
-    let near_inv = f.near.map(|pl| pl.n / (pl.c - pl.n.dot(f.apex)));
     let reflector = f.chain.last().copied().unwrap_or(NO_SURFACE);
+    let cull = f.cull(n);
+    let mut centre = [0.0; MAX_SAMPLING];
+    for (i, c) in centre.iter_mut().take(n).enumerate() {
+        *c = (i as f32 + 0.5) / n as f32;
+    }
+    let tracer = Tracer {
+        f,
+        n,
+        centre,
+        sides: cull.sides,
+        near_inv: f.near.map(|pl| pl.n / (pl.c - pl.n.dot(f.apex))),
+    };
     let mut cov = Coverage::Empty;
     scene.frustum_leaves(
-        &f.cull(),
+        &cull,
         &mut cov,
-        |cov, tri, surface| {
-            if surface != reflector {
-                triangle(f, n, cov, tri, surface, near_inv);
+        |cov, facet| {
+            if facet.surface != reflector {
+                tracer.triangle(cov, facet);
             }
         },
         far_bound,
@@ -75,128 +97,156 @@ fn far_bound(cov: &Coverage) -> f32 {
     match cov {
         Coverage::Empty => f32::INFINITY,
         Coverage::Whole { far, .. } => *far,
-        Coverage::Samples(s) => s.inv.iter().zip(&s.len).fold(0.0f32, |m, (&w, &l)| {
-            if w > 0.0 { m.max(l / w) } else { f32::INFINITY }
-        }),
+        Coverage::Samples(s) => s.dist.iter().fold(0.0f32, |m, &d| m.max(d)),
     }
 }
 
-/// Adds one triangle to the coverage (the five cases of the thesis).
-fn triangle(
-    f: &Frustum,
-    n: usize,
-    cov: &mut Coverage,
-    [a, b, c]: [Vec3; 3],
-    surface: u32,
-    near_inv: Option<Vec3>,
-) {
-    let o = f.apex;
-    let normal = (b - a).cross(c - a);
-    let h = (a - o).dot(normal);
-    if h == 0.0 {
-        return; // apex in the triangle's plane: every ray grazes it
-    }
-    let sigma = h.signum();
-    let edges = [(a, b), (b, c), (c, a)].map(|(p, q)| sigma * (p - o).cross(q - o));
-    let plucker: [[f32; 4]; 3] = edges.map(|e| f.dirs.map(|d| d.dot(e)));
-    // Case 1: all four corner rays outside one edge.
-    if plucker.iter().any(|p| p.iter().all(|&x| x < 0.0)) {
-        return;
-    }
-    let inv = normal / h;
-    let inv_c = f.dirs.map(|d| d.dot(inv));
-    // How much nearer the reflector is than the triangle, per corner; the triangle must lie beyond it.
-    let beyond_c: Option<[f32; 4]> = near_inv.map(|k| {
-        let w = f.dirs.map(|d| d.dot(k));
-        std::array::from_fn(|i| w[i] - inv_c[i])
-    });
-    if let Some(q) = beyond_c
-        && q.iter().all(|&x| x <= 0.0)
-    {
-        return;
-    }
-    let inside = plucker.iter().all(|p| p.iter().all(|&x| x >= 0.0));
-    let beyond = beyond_c.is_none_or(|q| q.iter().all(|&x| x > 0.0));
-    if inside && beyond {
-        // Case 2: the whole frustum hits the triangle. Keep it whole while it is nearer everywhere.
-        match cov {
-            Coverage::Empty => {
-                *cov = whole(o, [a, b, c], surface, inv);
-                return;
-            }
-            Coverage::Whole { inv: old, .. } => {
-                let nearer = f.dirs.map(|d| d.dot(inv) - d.dot(*old));
-                if nearer.iter().all(|&x| x > 0.0) {
-                    *cov = whole(o, [a, b, c], surface, inv);
-                    return;
-                }
-                if nearer.iter().all(|&x| x <= 0.0) {
-                    return;
-                }
-            }
-            Coverage::Samples(_) => {}
-        }
-    }
-    // Cases 3–5: per-sample tests, the samples built now if they were not yet.
-    let s = samples(f, n, cov);
-    for j in 0..n {
-        let v = centre(j, n);
-        // Whole row outside one edge: the edge value is linear in u along a row.
-        let row = |p: &[f32; 4], u: f32| bilerp(*p, u, v);
-        if plucker
+/// True when one lane of `x`'s first three is negative.
+#[inline]
+fn any_edge_negative(x: Vec4) -> bool {
+    x.cmplt(Vec4::ZERO).bitmask() & 0b111 != 0
+}
+
+impl Tracer<'_> {
+    /// Adds one triangle to the coverage (the five cases of the thesis).
+    fn triangle(&self, cov: &mut Coverage, facet: &Facet) {
+        let (f, n) = (self.f, self.n);
+        let o = f.apex;
+        let [a, b, c] = facet.corners;
+        let rel = [a - o, b - o, c - o];
+        // Wholly outside one side plane: no ray of the frustum meets it.
+        if self
+            .sides
             .iter()
-            .any(|p| row(p, centre(0, n)) < 0.0 && row(p, centre(n - 1, n)) < 0.0)
+            .any(|s| rel.iter().all(|r| s.dot(*r) < 0.0))
         {
-            continue;
+            return;
         }
-        for i in 0..n {
-            let u = centre(i, n);
-            let e = plucker.map(|p| bilerp(p, u, v));
-            if e.iter().any(|&x| x < 0.0) || e[0] + e[1] + e[2] <= 0.0 {
+        let normal = facet.normal;
+        let h = rel[0].dot(normal);
+        if h == 0.0 {
+            return; // apex in the triangle's plane: every ray grazes it
+        }
+        let sigma = h.signum();
+        let edges = [(0, 1), (1, 2), (2, 0)].map(|(p, q)| sigma * rel[p].cross(rel[q]));
+        let plucker: [[f32; 4]; 3] = edges.map(|e| f.dirs.map(|d| d.dot(e)));
+        // Case 1: all four corner rays outside one edge.
+        if plucker.iter().any(|p| p.iter().all(|&x| x < 0.0)) {
+            return;
+        }
+        let inv = normal / h;
+        let inv_c = f.dirs.map(|d| d.dot(inv));
+        // How much nearer the reflector is than the triangle, per corner; the triangle must lie beyond it.
+        let beyond_c: Option<[f32; 4]> = self.near_inv.map(|k| {
+            let w = f.dirs.map(|d| d.dot(k));
+            std::array::from_fn(|i| w[i] - inv_c[i])
+        });
+        if let Some(q) = beyond_c
+            && q.iter().all(|&x| x <= 0.0)
+        {
+            return;
+        }
+        let inside = plucker.iter().all(|p| p.iter().all(|&x| x >= 0.0));
+        let beyond = beyond_c.is_none_or(|q| q.iter().all(|&x| x > 0.0));
+        if inside && beyond {
+            // Case 2: the whole frustum hits the triangle. Keep it whole while it is nearer everywhere.
+            match cov {
+                Coverage::Empty => {
+                    *cov = whole(o, facet, inv);
+                    return;
+                }
+                Coverage::Whole { inv: old, .. } => {
+                    let nearer = f.dirs.map(|d| d.dot(inv) - d.dot(*old));
+                    if nearer.iter().all(|&x| x > 0.0) {
+                        *cov = whole(o, facet, inv);
+                        return;
+                    }
+                    if nearer.iter().all(|&x| x <= 0.0) {
+                        return;
+                    }
+                }
+                Coverage::Samples(_) => {}
+            }
+        }
+        // Cases 3–5: per-sample tests, the samples built now if they were not yet. Each corner's three
+        // edge values and inverse depth blend as one vector (lane by lane the scalar arithmetic).
+        let corner: [Vec4; 4] = std::array::from_fn(|k| {
+            Vec4::new(plucker[0][k], plucker[1][k], plucker[2][k], inv_c[k])
+        });
+        let centre = &self.centre[..n];
+        let s = self.samples(cov);
+        for (j, &v) in centre.iter().enumerate() {
+            // Whole row outside one edge: the edge value is linear in u along a row.
+            let first = bilerp(corner, centre[0], v);
+            let last = bilerp(corner, centre[n - 1], v);
+            if (first.cmplt(Vec4::ZERO) & last.cmplt(Vec4::ZERO)).bitmask() & 0b111 != 0 {
                 continue;
             }
-            let w = bilerp(inv_c, u, v);
-            let k = j * n + i;
-            if w > s.inv[k] && beyond_c.is_none_or(|q| bilerp(q, u, v) > 0.0) {
-                s.inv[k] = w;
-                s.surface[k] = surface;
-            }
-        }
-    }
-}
-
-fn whole(o: Vec3, tri: [Vec3; 3], surface: u32, inv: Vec3) -> Coverage {
-    let far = tri.iter().map(|p| p.distance(o)).fold(0.0, f32::max);
-    Coverage::Whole { surface, inv, far }
-}
-
-/// The per-sample arrays, filled from the whole-frustum hit if there was one.
-fn samples<'c>(f: &Frustum, n: usize, cov: &'c mut Coverage) -> &'c mut Samples {
-    if !matches!(cov, Coverage::Samples(_)) {
-        let mut s = Samples {
-            surface: vec![NO_SURFACE; n * n],
-            inv: vec![0.0; n * n],
-            len: Vec::with_capacity(n * n),
-        };
-        for j in 0..n {
-            for i in 0..n {
-                s.len.push(f.dir_at(centre(i, n), centre(j, n)).length());
-            }
-        }
-        if let Coverage::Whole { surface, inv, .. } = cov {
-            let inv_c = f.dirs.map(|d| d.dot(*inv));
-            for j in 0..n {
-                for i in 0..n {
-                    s.inv[j * n + i] = bilerp(inv_c, centre(i, n), centre(j, n));
-                    s.surface[j * n + i] = *surface;
+            for (i, &u) in centre.iter().enumerate() {
+                let e = bilerp(corner, u, v);
+                if any_edge_negative(e) || e.x + e.y + e.z <= 0.0 {
+                    continue;
+                }
+                let w = e.w;
+                let k = j * n + i;
+                if w > s.inv[k] && beyond_c.is_none_or(|q| bilerp(q, u, v) > 0.0) {
+                    s.inv[k] = w;
+                    s.dist[k] = s.len[k] / w;
+                    s.surface[k] = facet.surface;
                 }
             }
         }
-        *cov = Coverage::Samples(s);
     }
-    match cov {
-        Coverage::Samples(s) => s,
-        _ => unreachable!("just made"),
+
+    /// The per-sample arrays, filled from the whole-frustum hit if there was one.
+    fn samples<'c>(&self, cov: &'c mut Coverage) -> &'c mut Samples {
+        let (f, n) = (self.f, self.n);
+        let centre = &self.centre[..n];
+        if !matches!(cov, Coverage::Samples(_)) {
+            let mut s = Samples {
+                surface: vec![NO_SURFACE; n * n],
+                inv: vec![0.0; n * n],
+                len: Vec::with_capacity(n * n),
+                dist: vec![f32::INFINITY; n * n],
+            };
+            for &v in centre {
+                for &u in centre {
+                    s.len.push(f.dir_at(u, v).length());
+                }
+            }
+            if let Coverage::Whole { surface, inv, .. } = cov {
+                let inv_c = f.dirs.map(|d| d.dot(*inv));
+                for (j, &v) in centre.iter().enumerate() {
+                    for (i, &u) in centre.iter().enumerate() {
+                        let k = j * n + i;
+                        let w = bilerp(inv_c, u, v);
+                        s.inv[k] = w;
+                        if w > 0.0 {
+                            s.dist[k] = s.len[k] / w;
+                        }
+                        s.surface[k] = *surface;
+                    }
+                }
+            }
+            *cov = Coverage::Samples(s);
+        }
+        match cov {
+            Coverage::Samples(s) => s,
+            _ => unreachable!("just made"),
+        }
+    }
+}
+
+fn whole(o: Vec3, facet: &Facet, inv: Vec3) -> Coverage {
+    let far = facet
+        .corners
+        .iter()
+        .map(|p| p.distance(o))
+        .fold(0.0, f32::max);
+    Coverage::Whole {
+        surface: facet.surface,
+        inv,
+        far,
     }
 }
 
