@@ -621,7 +621,11 @@ pub fn sun_visibility<'a>(
 ) -> kinetrace::Result<&'a [f32]> {
     let tw = world.resource::<TraceWorld>();
     let all = QueryFilter::default();
-    tw.world_triangles(&all, triangles);
+    triangles.clear();
+    // The ray-traced mode reads no triangles: gathering them would only slow the reference down.
+    if settings.mode != ShadowMode::RayTraced {
+        tw.world_triangles(&all, triangles);
+    }
     pass.run(settings, triangles, g, |from, to| {
         tw.occluded(from, to, &all)
     })

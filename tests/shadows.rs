@@ -12,7 +12,7 @@ use common::RayOracle;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::ecs::TraceWorld;
-use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings, light_direction};
 use kinetrace::{Error, Mesh, MeshBvh, Ray};
 
 fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
@@ -24,10 +24,9 @@ fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
     }
 }
 
-/// A unit square at height 1 over a 6 × 6 ground, the light straight above: the ground is in shadow exactly
-/// where `|x| < 0.5` and `|z| < 0.5`. Receivers sit on a grid whose lines avoid the square's edges.
-#[test]
-fn square_casts_its_analytic_shadow() {
+/// A unit square at height 1 over a 6 × 6 ground (its triangles, their BVH) and a 97 × 97 grid of ground
+/// receivers whose lines avoid the square's edges.
+fn square_over_ground() -> (Vec<[Vec3; 3]>, MeshBvh, GBuffer) {
     let square = [
         Vec3::new(-0.5, 1.0, -0.5),
         Vec3::new(0.5, 1.0, -0.5),
@@ -39,7 +38,6 @@ fn square_casts_its_analytic_shadow() {
     let mesh = Mesh::new(pos, vec![0, 2, 1, 0, 3, 2, 4, 6, 5, 4, 7, 6]).unwrap();
     let tris: Vec<[Vec3; 3]> = (0..4).map(|i| mesh.triangle(i)).collect();
     let bvh = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).unwrap();
-    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
     let n = 97; // receivers at -2.4 + 0.05·k: never on |x| = 0.5
     let mut g = GBuffer::new(n, n);
     for j in 0..n {
@@ -52,6 +50,16 @@ fn square_casts_its_analytic_shadow() {
             g.set(j * n + i, p, Vec3::Y);
         }
     }
+    (tris, bvh, g)
+}
+
+/// The square's shadow with the light straight above: the ground is in shadow exactly where `|x| < 0.5`
+/// and `|z| < 0.5`.
+#[test]
+fn square_casts_its_analytic_shadow() {
+    let (tris, bvh, g) = square_over_ground();
+    let n = g.width;
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
     let inside = |p: Vec3| p.x.abs() < 0.5 && p.z.abs() < 0.5;
     let mut pass = HardShadows::new();
     for mode in [
@@ -181,6 +189,100 @@ fn ray_traced_equals_brute_force_occlusion() {
     );
 }
 
+/// Soft shadows of a disc light straight above the square (angular radius 0.1 rad, 16 samples): every
+/// pixel's visibility is the fraction of its sample directions whose ray misses the square, found
+/// analytically (where the ray crosses the square's plane); pixels with a crossing within 1e-4 of the
+/// square's outline are skipped (the triangle test's rounding may go either way there). The
+/// ray-traced and the selective pass must both match exactly, and the selective one traces only part.
+#[test]
+fn square_casts_its_analytic_soft_shadow() {
+    let (tris, bvh, g) = square_over_ground();
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let (angle, samples) = (0.1, 16);
+    let mut pass = HardShadows::new();
+    let (mut penumbra, mut checked) = (0, 0);
+    for mode in [ShadowMode::RayTraced, ShadowMode::Selective] {
+        let s = ShadowSettings {
+            light_angle: angle,
+            samples,
+            map_resolution: 64,
+            ..settings(mode, Vec3::Y)
+        };
+        let vis = pass.run(&s, &tris, &g, occluded).unwrap().to_vec();
+        'pixel: for (i, &p) in g.positions.iter().enumerate() {
+            let from = p + Vec3::Y * s.normal_offset;
+            let mut reach = 0;
+            for k in 0..samples {
+                let d = light_direction(Vec3::Y, angle, i as u32, k, samples);
+                let q = from + d * ((1.0 - from.y) / d.y);
+                let (x, z, eps) = (q.x.abs(), q.z.abs(), 1e-4);
+                let on_square = x <= 0.5 && z <= 0.5;
+                let near = |a: f32, b: f32| (a - 0.5).abs() < eps && b < 0.5 + eps;
+                if near(x, z) || near(z, x) {
+                    continue 'pixel;
+                }
+                reach += !on_square as u32;
+            }
+            let want = reach as f32 / samples as f32;
+            assert_eq!(vis[i], want, "{mode:?} at {p}");
+            checked += 1;
+            penumbra += (want > 0.0 && want < 1.0) as usize;
+        }
+        let stats = pass.stats();
+        if mode == ShadowMode::Selective {
+            assert!(stats.rays < g.width * g.height / 4, "{stats:?}");
+        }
+    }
+    assert!(
+        penumbra > 200 && checked > 2 * 9000,
+        "{penumbra} in penumbra, {checked} checked"
+    );
+}
+
+/// On fixed crowd frames, soft shadows of a disc sun (0.05 rad, 16 samples): the selective image differs
+/// from sampling every pixel with the same pattern in at most 0.1% of the pixels; the marked fraction is
+/// reported.
+#[test]
+fn soft_selective_matches_ray_traced_on_crowd_frames() {
+    for frames in [1, 60, 150] {
+        let world = crowd_world(frames);
+        let (w, h) = (320, 180);
+        let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
+        let image = |mode| {
+            let s = ShadowSettings {
+                light_angle: 0.05,
+                samples: 16,
+                ..settings(mode, crowd::sun())
+            };
+            let mut pass = HardShadows::new();
+            let vis = crowd::sun_visibility(&world, &g, &s, &mut pass, &mut Vec::new())
+                .unwrap()
+                .to_vec();
+            (vis, pass.stats())
+        };
+        let (traced, _) = image(ShadowMode::RayTraced);
+        let (selective, stats) = image(ShadowMode::Selective);
+        let differ = selective
+            .iter()
+            .zip(&traced)
+            .filter(|(a, b)| a != b)
+            .count();
+        let penumbra = traced.iter().filter(|v| **v > 0.0 && **v < 1.0).count();
+        println!(
+            "frame {frames}: {:.2}% of pixels marked, {penumbra} in penumbra, selective differs in \
+             {differ} of {}",
+            100.0 * stats.ray_fraction(),
+            w * h
+        );
+        assert!(
+            differ * 1000 <= (w * h) as usize,
+            "frame {frames}: soft selective differs from ray traced in {differ} pixels"
+        );
+        assert!(penumbra >= 50, "the frame has penumbrae to get right");
+        assert!(stats.ray_fraction() < 0.25, "{stats:?}");
+    }
+}
+
 #[test]
 fn bad_input_is_an_error() {
     let g = GBuffer::new(4, 4);
@@ -195,6 +297,14 @@ fn bad_input_is_an_error() {
         },
         ShadowSettings {
             bias_texels: -1.0,
+            ..Default::default()
+        },
+        ShadowSettings {
+            light_angle: 0.6,
+            ..Default::default()
+        },
+        ShadowSettings {
+            samples: 0,
             ..Default::default()
         },
     ] {
