@@ -12,7 +12,7 @@ use common::RayOracle;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::ecs::TraceWorld;
-use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings, light_direction};
+use kinetrace::shadows::{GBuffer, HardShadows, LightDisc, ShadowMode, ShadowSettings};
 use kinetrace::{Error, Mesh, MeshBvh, Ray};
 
 fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
@@ -199,6 +199,7 @@ fn square_casts_its_analytic_soft_shadow() {
     let (tris, bvh, g) = square_over_ground();
     let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
     let (angle, samples) = (0.1, 16);
+    let disc = LightDisc::new(Vec3::Y, angle, samples);
     let mut pass = HardShadows::new();
     let (mut penumbra, mut checked) = (0, 0);
     for mode in [ShadowMode::RayTraced, ShadowMode::Selective] {
@@ -213,7 +214,7 @@ fn square_casts_its_analytic_soft_shadow() {
             let from = p + Vec3::Y * s.normal_offset;
             let mut reach = 0;
             for k in 0..samples {
-                let d = light_direction(Vec3::Y, angle, i as u32, k, samples);
+                let d = disc.direction(i as u32, k);
                 let q = from + d * ((1.0 - from.y) / d.y);
                 let (x, z, eps) = (q.x.abs(), q.z.abs(), 1e-4);
                 let on_square = x <= 0.5 && z <= 0.5;

@@ -30,7 +30,7 @@ mod classify;
 mod penumbra;
 mod shadow_map;
 
-pub use penumbra::light_direction;
+pub use penumbra::LightDisc;
 pub use shadow_map::ShadowMap;
 
 use crate::{Error, Result, parallel};
@@ -74,7 +74,7 @@ pub struct ShadowSettings {
     /// [`samples`](Self::samples) rays.
     pub light_angle: f32,
     /// Shadow rays per pixel that gets rays when the light has an area ([`light_angle`](Self::light_angle)
-    /// above 0), 1 to 1024, along [`light_direction`]'s pattern; the thesis shows 16.
+    /// above 0), 1 to 1024, along [`LightDisc`]'s pattern; the thesis shows 16.
     pub samples: u32,
 }
 
@@ -258,6 +258,7 @@ impl HardShadows {
         self.lit.resize(self.marked.len(), 0.0);
         let marked = &self.marked;
         let samples = if soft { s.samples } else { 1 };
+        let disc = LightDisc::new(towards, s.light_angle, samples);
         parallel::fill(par, &mut self.lit, 256, |k| {
             let i = marked[k] as usize;
             let (p, nrm) = (gbuffer.positions[i], gbuffer.normals[i]);
@@ -265,7 +266,7 @@ impl HardShadows {
             let reach = (0..samples)
                 .filter(|&k| {
                     let dir = if soft {
-                        light_direction(towards, s.light_angle, i as u32, k, samples)
+                        disc.direction(i as u32, k)
                     } else {
                         towards
                     };

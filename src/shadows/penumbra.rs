@@ -3,27 +3,56 @@
 //! from them.
 
 use super::ShadowMap;
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use std::f32::consts::TAU;
 
-/// Direction `k` of `samples` towards a disc-shaped light of angular radius `angle` around the unit
-/// direction `towards`, for pixel `pixel`: stratified over a ⌈√samples⌉² grid on the unit square, jittered
-/// per pixel and sample by a hash of both (so any two passes over the same pixel use the same pattern),
-/// mapped onto the disc (area-uniform) and tilted off `towards` by up to `tan(angle)`. Use it to build a
-/// reference with the same rays as [`HardShadows`](super::HardShadows)'s soft mode; its cost is a hash and
-/// a `sin_cos`.
-pub fn light_direction(towards: Vec3, angle: f32, pixel: u32, k: u32, samples: u32) -> Vec3 {
-    let grid = (samples as f32).sqrt().ceil().max(1.0) as u32;
-    let h = hash((pixel as u64) << 32 | k as u64);
-    let jitter = |bits: u64| (bits & 0xff_ffff) as f32 / (1u32 << 24) as f32;
-    let (a, b) = (
-        ((k % grid) as f32 + jitter(h)) / grid as f32,
-        ((k / grid % grid) as f32 + jitter(h >> 32)) / grid as f32,
-    );
-    let (sin, cos) = (TAU * b).sin_cos();
-    let disc = a.sqrt() * Vec2::new(cos, sin) * angle.tan();
-    let u = towards.any_orthonormal_vector();
-    (towards + u * disc.x + towards.cross(u) * disc.y).normalize()
+/// A disc-shaped light of angular radius `angle` around the unit direction `towards`, sampled with
+/// `samples` directions per pixel: stratified over a ⌈√samples⌉² grid on the unit square, jittered per
+/// pixel and sample by a hash of both (so any two passes over the same pixel use the same pattern), mapped
+/// onto the disc (area-uniform) and tilted off `towards` by up to `tan(angle)`.
+///
+/// [`HardShadows`](super::HardShadows)'s soft mode samples it; use it to build a reference with the same
+/// rays. A direction costs a hash, a `sin_cos` and a normalisation.
+#[derive(Clone, Copy, Debug)]
+pub struct LightDisc {
+    towards: Vec3,
+    /// The disc's axes, each `tan(angle)` long.
+    u: Vec3,
+    v: Vec3,
+    samples: u32,
+    grid: u32,
+}
+
+impl LightDisc {
+    /// The light around `towards` (unit) of angular radius `angle` (radians), `samples` (≥ 1) per pixel.
+    pub fn new(towards: Vec3, angle: f32, samples: u32) -> Self {
+        let u = towards.any_orthonormal_vector();
+        let tan = angle.tan();
+        Self {
+            towards,
+            u: u * tan,
+            v: towards.cross(u) * tan,
+            samples,
+            grid: (samples as f32).sqrt().ceil().max(1.0) as u32,
+        }
+    }
+
+    /// Sample directions per pixel.
+    pub fn samples(&self) -> u32 {
+        self.samples
+    }
+
+    /// Direction `k` (below [`samples`](Self::samples)) of pixel `pixel`'s pattern: unit, towards the light.
+    pub fn direction(&self, pixel: u32, k: u32) -> Vec3 {
+        let h = hash((pixel as u64) << 32 | k as u64);
+        let jitter = |bits: u64| (bits & 0xff_ffff) as f32 / (1u32 << 24) as f32;
+        let g = self.grid as f32;
+        let a = ((k % self.grid) as f32 + jitter(h)) / g;
+        let b = ((k / self.grid % self.grid) as f32 + jitter(h >> 32)) / g;
+        let (sin, cos) = (TAU * b).sin_cos();
+        let r = a.sqrt();
+        (self.towards + self.u * (r * cos) + self.v * (r * sin)).normalize()
+    }
 }
 
 /// SplitMix64's finaliser: a well-mixed 64-bit hash of `x`.
