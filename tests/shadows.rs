@@ -105,36 +105,45 @@ fn crowd_world(frames: usize) -> bevy_ecs::world::World {
     world
 }
 
-/// Visibility of every pixel of a crowd frame under `mode`, and the pass's statistics.
+/// Visibility of every pixel of a crowd frame under `mode`, the sun `light_angle` radians wide (16 samples
+/// where soft), and the pass's statistics.
 fn crowd_shadows(
     world: &bevy_ecs::world::World,
     g: &GBuffer,
     mode: ShadowMode,
+    light_angle: f32,
 ) -> (Vec<f32>, kinetrace::shadows::ShadowStats) {
+    let s = ShadowSettings {
+        light_angle,
+        samples: 16,
+        ..settings(mode, crowd::sun())
+    };
     let mut pass = HardShadows::new();
-    let vis = crowd::sun_visibility(
-        world,
-        g,
-        &settings(mode, crowd::sun()),
-        &mut pass,
-        &mut Vec::new(),
-    )
-    .unwrap()
-    .to_vec();
+    let vis = crowd::sun_visibility(world, g, &s, &mut pass, &mut Vec::new())
+        .unwrap()
+        .to_vec();
     (vis, pass.stats())
+}
+
+/// The fixed crowd frames the image tests use: frame number and the G-buffer of a 320 × 180 view, with
+/// the world it shows.
+fn crowd_frames() -> impl Iterator<Item = (usize, bevy_ecs::world::World, GBuffer)> {
+    [1, 60, 150].into_iter().map(|frames| {
+        let world = crowd_world(frames);
+        let (_, g) = crowd::primary_hits(&world, 320, 180, &crowd::Camera::default());
+        (frames, world, g)
+    })
 }
 
 /// On fixed crowd frames the selective image differs from the fully ray-traced one in at most 0.1% of the
 /// pixels; the shadow map alone is measured beside it, and the marked fraction is reported.
 #[test]
 fn selective_matches_ray_traced_on_crowd_frames() {
-    for frames in [1, 60, 150] {
-        let world = crowd_world(frames);
-        let (w, h) = (320, 180);
-        let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
-        let (traced, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
-        let (selective, stats) = crowd_shadows(&world, &g, ShadowMode::Selective);
-        let (map, _) = crowd_shadows(&world, &g, ShadowMode::ShadowMap);
+    for (frames, world, g) in crowd_frames() {
+        let (w, h) = (g.width, g.height);
+        let (traced, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced, 0.0);
+        let (selective, stats) = crowd_shadows(&world, &g, ShadowMode::Selective, 0.0);
+        let (map, _) = crowd_shadows(&world, &g, ShadowMode::ShadowMap, 0.0);
         let differ = |a: &[f32]| a.iter().zip(&traced).filter(|(x, y)| x != y).count();
         let (sel_diff, map_diff) = (differ(&selective), differ(&map));
         let shadowed = traced.iter().filter(|v| **v == 0.0).count();
@@ -146,7 +155,7 @@ fn selective_matches_ray_traced_on_crowd_frames() {
             w * h
         );
         assert!(
-            sel_diff * 1000 <= (w * h) as usize,
+            sel_diff * 1000 <= w * h,
             "frame {frames}: selective differs from ray traced in {sel_diff} pixels"
         );
         assert!(stats.rays > 0 && sel_diff <= map_diff);
@@ -161,7 +170,7 @@ fn ray_traced_equals_brute_force_occlusion() {
     let world = crowd_world(40);
     let (w, h) = (128, 72);
     let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
-    let (vis, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
+    let (vis, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced, 0.0);
     let mut tris = Vec::new();
     world
         .resource::<TraceWorld>()
@@ -245,22 +254,9 @@ fn square_casts_its_analytic_soft_shadow() {
 /// reported.
 #[test]
 fn soft_selective_matches_ray_traced_on_crowd_frames() {
-    for frames in [1, 60, 150] {
-        let world = crowd_world(frames);
-        let (w, h) = (320, 180);
-        let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
-        let image = |mode| {
-            let s = ShadowSettings {
-                light_angle: 0.05,
-                samples: 16,
-                ..settings(mode, crowd::sun())
-            };
-            let mut pass = HardShadows::new();
-            let vis = crowd::sun_visibility(&world, &g, &s, &mut pass, &mut Vec::new())
-                .unwrap()
-                .to_vec();
-            (vis, pass.stats())
-        };
+    for (frames, world, g) in crowd_frames() {
+        let (w, h) = (g.width, g.height);
+        let image = |mode| crowd_shadows(&world, &g, mode, 0.05);
         let (traced, _) = image(ShadowMode::RayTraced);
         let (selective, stats) = image(ShadowMode::Selective);
         let differ = selective
@@ -276,7 +272,7 @@ fn soft_selective_matches_ray_traced_on_crowd_frames() {
             w * h
         );
         assert!(
-            differ * 1000 <= (w * h) as usize,
+            differ * 1000 <= w * h,
             "frame {frames}: soft selective differs from ray traced in {differ} pixels"
         );
         assert!(penumbra >= 50, "the frame has penumbrae to get right");

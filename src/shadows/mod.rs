@@ -1,5 +1,5 @@
-//! Selective ray-traced hard shadows (thesis §6.3): a shadow map from the light decides most pixels, and
-//! shadow rays only the pixels it may get wrong.
+//! Selective ray-traced shadows, hard and soft (thesis §6.3): a shadow map from the light decides most
+//! pixels, and shadow rays only the pixels it may get wrong.
 //!
 //! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles in
 //! world space and a shadow-ray query (`occluded(from, to)`, e.g. `TraceWorld::occluded` or
@@ -10,21 +10,30 @@
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked;
+//!    incorrect* and marked. Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
+//!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
+//!    as a shadow can spread from it — and those near the light's horizon;
 //! 3. compaction of the marked pixels into a dense list;
-//! 4. one shadow ray per marked pixel, in parallel;
-//! 5. the composite: the map's verdict where it was trusted, the ray's where not.
+//! 4. shadow rays for the marked pixels only, in parallel: one towards a point-like light, or
+//!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]);
+//! 5. the composite: the map's verdict where it was trusted, the fraction of rays that reach the light
+//!    where not.
 //!
-//! [`ShadowMode`] switches between the shadow map alone, the selective pipeline and a shadow ray for every
-//! pixel (the reference the selective image is measured against). Its cost is the map (O(bands ·
-//! triangles + texels)), O(pixels) classification, and rays for the marked pixels only (2–7% of them on
-//! the crowd). On the CPU the map and the classification cost about as much as shadow rays that mostly
-//! escape to the sky, so on the crowd the selective pass is *not* faster than a ray per pixel (see the
-//! `shadows` bench suite in docs/BENCHMARKS.md): use it where shadow rays are expensive (dense occluders,
-//! many triangles over the receivers) or where the map is rendered anyway; use the shadow map alone where
-//! aliased edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from the light are in shadow without a ray. Not
-//! covered: soft shadows of area lights, point lights, and conservative rasterisation of thin triangles
-//! (triangles edge-on to the light cover no texel; receivers over empty texels are marked instead).
+//! [`ShadowMode`] switches between the shadow map alone (always hard), the selective pipeline and rays for
+//! every pixel (the reference the selective image is measured against). Its cost is the map
+//! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
+//! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
+//! classification cost about as much as hard shadow rays that mostly escape to the sky, so on the crowd
+//! selective hard shadows are only 1.1–1.7× faster than a ray per pixel (see the `shadows` bench suite in
+//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
+//! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
+//! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
+//! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
+//! light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
+//! triangles (triangles edge-on to the light cover no texel; receivers over empty texels are marked
+//! instead); the soft mask assumes every receiver as deep as the deepest, so occluders high above the
+//! receivers mark wide areas (the thesis's caveat), and smooth surfaces that shade part of the disc
+//! without a depth edge (a slope below the light's horizon) are missed.
 
 mod classify;
 mod penumbra;
@@ -291,7 +300,8 @@ impl HardShadows {
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
-    /// light); 1 where there is no surface.
+    /// light), the fraction of the disc's samples that reach it for soft shadows; 1 where there is no
+    /// surface.
     pub fn visibility(&self) -> &[f32] {
         &self.visibility
     }

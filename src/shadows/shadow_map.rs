@@ -111,7 +111,7 @@ impl ShadowMap {
         let span = |t: &[Vec3; 3]| {
             let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
             let ((x0, x1), (y0, y1)) = (centres(lo.x, hi.x, res), centres(lo.y, hi.y, res));
-            (x0 <= x1 && y0 <= y1).then(|| (y0 / BAND_ROWS, y1 / BAND_ROWS))
+            (x0 <= x1 && y0 <= y1).then_some((y0 / BAND_ROWS, y1 / BAND_ROWS))
         };
         self.bins.clear();
         self.bins.resize(bands + 1, 0);
@@ -131,9 +131,9 @@ impl ShadowMap {
         next.extend_from_slice(&self.bins[..bands]);
         for (i, t) in projected.iter().enumerate() {
             if let Some((b0, b1)) = span(t) {
-                for b in b0..=b1 {
-                    self.binned[next[b] as usize] = i as u32;
-                    next[b] += 1;
+                for at in &mut next[b0..=b1] {
+                    self.binned[*at as usize] = i as u32;
+                    *at += 1;
                 }
             }
         }
