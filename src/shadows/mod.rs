@@ -210,12 +210,9 @@ impl HardShadows {
         if s.mode != ShadowMode::RayTraced {
             self.map.aim(towards);
             let (lo, hi) = self.receivers(gbuffer, towards, par);
-            self.map.render(
-                triangles,
-                (lo.truncate(), hi.truncate()),
-                s.map_resolution,
-                par,
-            );
+            let spread = s.light_angle.tan();
+            self.map
+                .render(triangles, (lo, hi), spread, s.map_resolution, par);
             if soft && s.mode == ShadowMode::Selective {
                 // The deepest receiver's depth: top − its lowest `p · towards`.
                 let deepest = self.map.project(Vec3::ZERO).z - lo.z;

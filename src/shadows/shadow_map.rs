@@ -51,8 +51,10 @@ impl ShadowMap {
     }
 
     /// Renders `triangles` (world space) as seen from the light the map is [aimed](Self::aim) at into a
-    /// `res × res` map that covers the receivers' bounds across the light (`receivers`, lower and upper
-    /// corner from [`across`](Self::across); empty when lower > upper), plus a
+    /// `res × res` map that covers the receivers' bounds (`receivers`, lower and upper corner: x, y from
+    /// [`across`](Self::across), z = `p · towards`; empty when lower > upper), widened by `spread` (the
+    /// tangent of an area light's angular radius, 0 for a point-like one) times the depth from the
+    /// nearest triangle to the deepest receiver — as far as a penumbra reaches — plus a
     /// margin of one texel so every receiver has its eight neighbours. A directional light's occluder of a
     /// receiver lies on the receiver's line towards the light, so it projects onto the same spot: fitting
     /// the map to the receivers (the pixels the camera sees) rather than the scene loses no shadow and
@@ -60,16 +62,21 @@ impl ShadowMap {
     pub(super) fn render(
         &mut self,
         triangles: &[[Vec3; 3]],
-        receivers: (Vec2, Vec2),
+        receivers: (Vec3, Vec3),
+        spread: f32,
         res: usize,
         parallel: bool,
     ) {
-        let (lo, hi) = receivers;
         let towards = self.towards;
         let mut top = f32::MIN;
         for [a, b, c] in triangles {
             top = top.max(a.dot(towards).max(b.dot(towards)).max(c.dot(towards)));
         }
+        let widen = Vec2::splat((top - receivers.0.z).max(0.0) * spread);
+        let (lo, hi) = (
+            receivers.0.truncate() - widen,
+            receivers.1.truncate() + widen,
+        );
         self.res = res;
         if triangles.is_empty() || lo.x > hi.x {
             self.depth.clear();
