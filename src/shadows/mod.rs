@@ -24,8 +24,8 @@
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky, so on the crowd
-//! selective hard shadows are only 1.1–1.7× faster than a ray per pixel (see the `shadows` bench suite in
-//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
+//! selective hard shadows are only 1.4–1.6× faster than a ray per pixel (see the `shadows` bench suite in
+//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
