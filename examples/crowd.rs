@@ -4,7 +4,7 @@
 //! ```text
 //! cargo run --release --example crowd -- [--characters 64] [--triangles 10000] [--frames 600]
 //!                                         [--cpu] [--png-every 120] [--out target/crowd]
-//!                                         [--shadows map|selective|traced]
+//!                                         [--shadows map|selective|traced] [--soft RAD]
 //! ```
 //! Gameplay each frame: every character checks line of sight (shadow rays, batched) to its two nearest
 //! neighbours and probes the ground under it (immediate ray); a turret sweeps the crowd and reports which
@@ -16,7 +16,8 @@
 //! second with the table line. Once per simulated second a table line shows the frame time by
 //! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
 //! shadows from the sun (`--shadows`: shadow map alone, selective ray-traced — the default — or a shadow
-//! ray per pixel, see `kinetrace::shadows`), the turret's hits marked red. Batched queries run on the GPU when one is found
+//! ray per pixel, see `kinetrace::shadows`; `--soft RAD` makes the sun a disc of that angular radius with soft
+//! shadows), the turret's hits marked red. Batched queries run on the GPU when one is found
 //! (`--cpu` keeps them on the CPU).
 
 use bevy_ecs::prelude::*;
@@ -52,6 +53,8 @@ pub struct Options {
     pub height: u32,
     /// How the images' shadows are computed.
     pub shadows: ShadowMode,
+    /// The sun's angular radius in radians: 0 casts hard shadows, above 0 soft ones (at most 0.5).
+    pub sun_angle: f32,
 }
 
 impl Default for Options {
@@ -67,6 +70,7 @@ impl Default for Options {
             width: 480,
             height: 270,
             shadows: ShadowMode::Selective,
+            sun_angle: 0.0,
         }
     }
 }
@@ -127,6 +131,13 @@ struct Crowd {
     summary: Summary,
     turret_marks: Vec<Vec3>,
     shadows: ShadowMode,
+    sun_angle: f32,
+}
+
+/// The images' shadow mode and the sun's angular radius (see [`Options`]), to switch them between frames.
+pub fn shadows_mut(world: &mut World) -> (&mut ShadowMode, &mut f32) {
+    let crowd = world.resource_mut::<Crowd>().into_inner();
+    (&mut crowd.shadows, &mut crowd.sun_angle)
 }
 
 /// Moves every walker: forward along its heading, turning gently, pushed apart from near neighbours and
@@ -380,6 +391,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         summary: Summary::default(),
         turret_marks: Vec::new(),
         shadows: opt.shadows,
+        sun_angle: opt.sun_angle,
     });
     schedule.add_systems((
         walk.before(TraceSystems::TopLevel),
@@ -621,7 +633,11 @@ pub fn sun_visibility<'a>(
 ) -> kinetrace::Result<&'a [f32]> {
     let tw = world.resource::<TraceWorld>();
     let all = QueryFilter::default();
-    tw.world_triangles(&all, triangles);
+    triangles.clear();
+    // The ray-traced mode reads no triangles: gathering them would only slow the reference down.
+    if settings.mode != ShadowMode::RayTraced {
+        tw.world_triangles(&all, triangles);
+    }
     pass.run(settings, triangles, g, |from, to| {
         tw.occluded(from, to, &all)
     })
@@ -645,6 +661,7 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
     };
     let settings = ShadowSettings {
         mode: world.resource::<Crowd>().shadows,
+        light_angle: world.resource::<Crowd>().sun_angle,
         towards_light: sun,
         ..Default::default()
     };
@@ -786,6 +803,15 @@ fn main() {
                     }
                 }
             }
+            "--soft" => {
+                opt.sun_angle = match args.next().and_then(|a| a.parse().ok()) {
+                    Some(a) if (0.0..=0.5).contains(&a) => a,
+                    _ => {
+                        eprintln!("--soft needs the sun's angular radius in radians, 0 to 0.5");
+                        std::process::exit(2)
+                    }
+                }
+            }
             // The GPU path is the GPU-resident frame; `--resident` is kept as its older name.
             "--gpu" | "--resident" => (opt.gpu, opt.resident) = (true, true),
             "--out" => {
@@ -793,7 +819,7 @@ fn main() {
             }
             _ => {
                 eprintln!(
-                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR] [--shadows map|selective|traced]"
+                    "usage: crowd [--characters N] [--triangles N] [--frames N] [--png-every N] [--cpu|--gpu] [--out DIR] [--shadows map|selective|traced] [--soft RAD]"
                 );
                 std::process::exit(2);
             }

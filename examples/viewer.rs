@@ -3,7 +3,8 @@
 //! ```text
 //! cargo run --release --features viewer --example viewer -- [--characters 32] [--triangles 5000]
 //! ```
-//! Keys: 1 shaded, 2 traversal-cost heatmap, 3 BVH boxes; arrows orbit and zoom; Escape quits. Where no
+//! Keys: 1 shaded, 2 traversal-cost heatmap, 3 BVH boxes; shadows: 4 shadow map alone, 5 selective ray
+//! traced, 6 a ray per pixel, 7 hard / soft (a sun of 0.03 rad); arrows orbit and zoom; Escape quits. Where no
 //! window can be opened (no display), it says so and exits; the `crowd` example writes the same images to
 //! PNG files instead.
 
@@ -14,6 +15,7 @@ mod crowd;
 use bevy_ecs::prelude::*;
 use crowd::{Camera, View};
 use glam::Vec3;
+use kinetrace::shadows::ShadowMode;
 use std::sync::Arc;
 use winit::application::ApplicationHandler;
 use winit::event::{ElementState, KeyEvent, WindowEvent};
@@ -230,6 +232,19 @@ impl ApplicationHandler for App {
                 Key::Character("1") => self.view = View::Shaded,
                 Key::Character("2") => self.view = View::Heatmap,
                 Key::Character("3") => self.view = View::Boxes,
+                Key::Character("4") => {
+                    *crowd::shadows_mut(&mut self.world).0 = ShadowMode::ShadowMap
+                }
+                Key::Character("5") => {
+                    *crowd::shadows_mut(&mut self.world).0 = ShadowMode::Selective
+                }
+                Key::Character("6") => {
+                    *crowd::shadows_mut(&mut self.world).0 = ShadowMode::RayTraced
+                }
+                Key::Character("7") => {
+                    let angle = crowd::shadows_mut(&mut self.world).1;
+                    *angle = if *angle > 0.0 { 0.0 } else { 0.03 };
+                }
                 _ => {}
             },
             WindowEvent::RedrawRequested => self.draw(),

@@ -12,7 +12,7 @@ use common::RayOracle;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::ecs::TraceWorld;
-use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{GBuffer, HardShadows, LightDisc, ShadowMode, ShadowSettings};
 use kinetrace::{Error, Mesh, MeshBvh, Ray};
 
 fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
@@ -24,10 +24,9 @@ fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
     }
 }
 
-/// A unit square at height 1 over a 6 × 6 ground, the light straight above: the ground is in shadow exactly
-/// where `|x| < 0.5` and `|z| < 0.5`. Receivers sit on a grid whose lines avoid the square's edges.
-#[test]
-fn square_casts_its_analytic_shadow() {
+/// A unit square at height 1 over a 6 × 6 ground (its triangles, their BVH) and a 97 × 97 grid of ground
+/// receivers whose lines avoid the square's edges.
+fn square_over_ground() -> (Vec<[Vec3; 3]>, MeshBvh, GBuffer) {
     let square = [
         Vec3::new(-0.5, 1.0, -0.5),
         Vec3::new(0.5, 1.0, -0.5),
@@ -39,7 +38,6 @@ fn square_casts_its_analytic_shadow() {
     let mesh = Mesh::new(pos, vec![0, 2, 1, 0, 3, 2, 4, 6, 5, 4, 7, 6]).unwrap();
     let tris: Vec<[Vec3; 3]> = (0..4).map(|i| mesh.triangle(i)).collect();
     let bvh = MeshBvh::build(&mesh, &BuildOptions::new(Builder::SAH)).unwrap();
-    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
     let n = 97; // receivers at -2.4 + 0.05·k: never on |x| = 0.5
     let mut g = GBuffer::new(n, n);
     for j in 0..n {
@@ -52,6 +50,16 @@ fn square_casts_its_analytic_shadow() {
             g.set(j * n + i, p, Vec3::Y);
         }
     }
+    (tris, bvh, g)
+}
+
+/// The square's shadow with the light straight above: the ground is in shadow exactly where `|x| < 0.5`
+/// and `|z| < 0.5`.
+#[test]
+fn square_casts_its_analytic_shadow() {
+    let (tris, bvh, g) = square_over_ground();
+    let n = g.width;
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
     let inside = |p: Vec3| p.x.abs() < 0.5 && p.z.abs() < 0.5;
     let mut pass = HardShadows::new();
     for mode in [
@@ -97,36 +105,45 @@ fn crowd_world(frames: usize) -> bevy_ecs::world::World {
     world
 }
 
-/// Visibility of every pixel of a crowd frame under `mode`, and the pass's statistics.
+/// Visibility of every pixel of a crowd frame under `mode`, the sun `light_angle` radians wide (16 samples
+/// where soft), and the pass's statistics.
 fn crowd_shadows(
     world: &bevy_ecs::world::World,
     g: &GBuffer,
     mode: ShadowMode,
+    light_angle: f32,
 ) -> (Vec<f32>, kinetrace::shadows::ShadowStats) {
+    let s = ShadowSettings {
+        light_angle,
+        samples: 16,
+        ..settings(mode, crowd::sun())
+    };
     let mut pass = HardShadows::new();
-    let vis = crowd::sun_visibility(
-        world,
-        g,
-        &settings(mode, crowd::sun()),
-        &mut pass,
-        &mut Vec::new(),
-    )
-    .unwrap()
-    .to_vec();
+    let vis = crowd::sun_visibility(world, g, &s, &mut pass, &mut Vec::new())
+        .unwrap()
+        .to_vec();
     (vis, pass.stats())
+}
+
+/// The fixed crowd frames the image tests use: frame number and the G-buffer of a 320 × 180 view, with
+/// the world it shows.
+fn crowd_frames() -> impl Iterator<Item = (usize, bevy_ecs::world::World, GBuffer)> {
+    [1, 60, 150].into_iter().map(|frames| {
+        let world = crowd_world(frames);
+        let (_, g) = crowd::primary_hits(&world, 320, 180, &crowd::Camera::default());
+        (frames, world, g)
+    })
 }
 
 /// On fixed crowd frames the selective image differs from the fully ray-traced one in at most 0.1% of the
 /// pixels; the shadow map alone is measured beside it, and the marked fraction is reported.
 #[test]
 fn selective_matches_ray_traced_on_crowd_frames() {
-    for frames in [1, 60, 150] {
-        let world = crowd_world(frames);
-        let (w, h) = (320, 180);
-        let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
-        let (traced, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
-        let (selective, stats) = crowd_shadows(&world, &g, ShadowMode::Selective);
-        let (map, _) = crowd_shadows(&world, &g, ShadowMode::ShadowMap);
+    for (frames, world, g) in crowd_frames() {
+        let (w, h) = (g.width, g.height);
+        let (traced, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced, 0.0);
+        let (selective, stats) = crowd_shadows(&world, &g, ShadowMode::Selective, 0.0);
+        let (map, _) = crowd_shadows(&world, &g, ShadowMode::ShadowMap, 0.0);
         let differ = |a: &[f32]| a.iter().zip(&traced).filter(|(x, y)| x != y).count();
         let (sel_diff, map_diff) = (differ(&selective), differ(&map));
         let shadowed = traced.iter().filter(|v| **v == 0.0).count();
@@ -138,7 +155,7 @@ fn selective_matches_ray_traced_on_crowd_frames() {
             w * h
         );
         assert!(
-            sel_diff * 1000 <= (w * h) as usize,
+            sel_diff * 1000 <= w * h,
             "frame {frames}: selective differs from ray traced in {sel_diff} pixels"
         );
         assert!(stats.rays > 0 && sel_diff <= map_diff);
@@ -153,7 +170,7 @@ fn ray_traced_equals_brute_force_occlusion() {
     let world = crowd_world(40);
     let (w, h) = (128, 72);
     let (_, g) = crowd::primary_hits(&world, w, h, &crowd::Camera::default());
-    let (vis, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced);
+    let (vis, _) = crowd_shadows(&world, &g, ShadowMode::RayTraced, 0.0);
     let mut tris = Vec::new();
     world
         .resource::<TraceWorld>()
@@ -181,6 +198,100 @@ fn ray_traced_equals_brute_force_occlusion() {
     );
 }
 
+/// Soft shadows of a disc light straight above the square (angular radius 0.1 rad, 16 samples): every
+/// pixel's visibility is the fraction of its sample directions whose ray misses the square, found
+/// analytically (where the ray crosses the square's plane); pixels with a crossing within 1e-4 of the
+/// square's outline are skipped (the triangle test's rounding may go either way there). The
+/// ray-traced and the selective pass must both match exactly, and the selective one traces only part.
+/// Besides the whole ground, a strip of receivers just outside the square's shadow, in its penumbra: the
+/// square's edge lies off the receivers' footprint, so the map must reach past them to see it.
+#[test]
+fn square_casts_its_analytic_soft_shadow() {
+    let (tris, bvh, ground) = square_over_ground();
+    let mut strip = GBuffer::new(20, 20);
+    for k in 0..400 {
+        let (i, j) = ((k % 20) as f32, (k / 20) as f32);
+        let p = Vec3::new(0.5125 + 0.0125 * i, 0.0, -0.1 + 0.01 * j);
+        strip.set(k, p, Vec3::Y);
+    }
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let (angle, samples) = (0.1, 16);
+    let disc = LightDisc::new(Vec3::Y, angle, samples);
+    let mut pass = HardShadows::new();
+    let (mut penumbra, mut checked) = (0, 0);
+    for (g, mode) in [
+        (&ground, ShadowMode::RayTraced),
+        (&ground, ShadowMode::Selective),
+        (&strip, ShadowMode::Selective),
+    ] {
+        let s = ShadowSettings {
+            light_angle: angle,
+            samples,
+            map_resolution: 64,
+            ..settings(mode, Vec3::Y)
+        };
+        let vis = pass.run(&s, &tris, g, occluded).unwrap().to_vec();
+        'pixel: for (i, &p) in g.positions.iter().enumerate() {
+            let from = p + Vec3::Y * s.normal_offset;
+            let mut reach = 0;
+            for k in 0..samples {
+                let d = disc.direction(i as u32, k);
+                let q = from + d * ((1.0 - from.y) / d.y);
+                let (x, z, eps) = (q.x.abs(), q.z.abs(), 1e-4);
+                let on_square = x <= 0.5 && z <= 0.5;
+                let near = |a: f32, b: f32| (a - 0.5).abs() < eps && b < 0.5 + eps;
+                if near(x, z) || near(z, x) {
+                    continue 'pixel;
+                }
+                reach += !on_square as u32;
+            }
+            let want = reach as f32 / samples as f32;
+            assert_eq!(vis[i], want, "{mode:?} at {p}");
+            checked += 1;
+            penumbra += (want > 0.0 && want < 1.0) as usize;
+        }
+        let stats = pass.stats();
+        if g.width == ground.width && mode == ShadowMode::Selective {
+            assert!(stats.rays < g.width * g.height / 4, "{stats:?}");
+        }
+    }
+    assert!(
+        penumbra > 300 && checked > 2 * 9000,
+        "{penumbra} in penumbra, {checked} checked"
+    );
+}
+
+/// On fixed crowd frames, soft shadows of a disc sun (0.05 rad, 16 samples): the selective image differs
+/// from sampling every pixel with the same pattern in at most 0.1% of the pixels; the marked fraction is
+/// reported.
+#[test]
+fn soft_selective_matches_ray_traced_on_crowd_frames() {
+    for (frames, world, g) in crowd_frames() {
+        let (w, h) = (g.width, g.height);
+        let image = |mode| crowd_shadows(&world, &g, mode, 0.05);
+        let (traced, _) = image(ShadowMode::RayTraced);
+        let (selective, stats) = image(ShadowMode::Selective);
+        let differ = selective
+            .iter()
+            .zip(&traced)
+            .filter(|(a, b)| a != b)
+            .count();
+        let penumbra = traced.iter().filter(|v| **v > 0.0 && **v < 1.0).count();
+        println!(
+            "frame {frames}: {:.2}% of pixels marked, {penumbra} in penumbra, selective differs in \
+             {differ} of {}",
+            100.0 * stats.ray_fraction(),
+            w * h
+        );
+        assert!(
+            differ * 1000 <= w * h,
+            "frame {frames}: soft selective differs from ray traced in {differ} pixels"
+        );
+        assert!(penumbra >= 50, "the frame has penumbrae to get right");
+        assert!(stats.ray_fraction() < 0.25, "{stats:?}");
+    }
+}
+
 #[test]
 fn bad_input_is_an_error() {
     let g = GBuffer::new(4, 4);
@@ -195,6 +306,14 @@ fn bad_input_is_an_error() {
         },
         ShadowSettings {
             bias_texels: -1.0,
+            ..Default::default()
+        },
+        ShadowSettings {
+            light_angle: 0.6,
+            ..Default::default()
+        },
+        ShadowSettings {
+            samples: 0,
             ..Default::default()
         },
     ] {

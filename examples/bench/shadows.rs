@@ -1,6 +1,6 @@
 //! Suite `shadows`: selective ray-traced hard shadows (thesis §6.3) on the crowd demo's scene — time per
 //! image and the fraction of pixels ray traced for the shadow map alone, the selective pipeline and a
-//! shadow ray per pixel, at 1024×1024 (512×512 with `--quick`) with a shadow map of the image's
+//! shadow ray per pixel, at 1024×1024 (a smaller crowd with `--quick`) with a shadow map of the image's
 //! resolution (as in the thesis), on all threads, warm buffers.
 
 use crate::crowd;
@@ -9,10 +9,14 @@ use kinetrace::shadows::{HardShadows, ShadowMode, ShadowSettings};
 
 const SUITE: &str = "shadows";
 
+/// The soft rows' light: a disc of 0.02 rad angular radius (about four times the sun's), 16 rays per
+/// penumbra pixel.
+const SOFT_ANGLE: f32 = 0.02;
+
 pub fn run(rec: &mut Records) {
     println!("suite shadows on {}", crate::record::machine());
     let (characters, triangles, frames, side) = if rec.quick {
-        (16, 3_000, 30, 512)
+        (16, 3_000, 30, 1024)
     } else {
         (64, 10_000, 60, 1024)
     };
@@ -30,11 +34,12 @@ pub fn run(rec: &mut Records) {
     println!("\n{scene}");
     let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
     let (mut pass, mut tris) = (HardShadows::new(), Vec::new());
-    let mut image = |mode| {
+    let mut image = |mode, map_resolution, light_angle| {
         let settings = ShadowSettings {
             mode,
             towards_light: crowd::sun(),
-            map_resolution: side as usize,
+            map_resolution,
+            light_angle,
             ..Default::default()
         };
         let (t, vis) = best_of(rec.reps(), || {
@@ -44,14 +49,20 @@ pub fn run(rec: &mut Records) {
         });
         (t, vis, pass.stats())
     };
-    let (t_traced, traced, _) = image(ShadowMode::RayTraced);
-    let (t_map, map, _) = image(ShadowMode::ShadowMap);
-    let (t_sel, sel, stats) = image(ShadowMode::Selective);
+    let side_map = side as usize;
+    let (t_traced, traced, _) = image(ShadowMode::RayTraced, side_map, 0.0);
+    let (t_map, map, _) = image(ShadowMode::ShadowMap, side_map, 0.0);
+    // A map of half the image's side: a quarter of the texels, more pixels marked.
+    let (t_half, half, half_stats) = image(ShadowMode::Selective, side_map / 2, 0.0);
+    let (t_sel, sel, stats) = image(ShadowMode::Selective, side_map, 0.0);
+    let (t_soft_traced, soft_traced, _) = image(ShadowMode::RayTraced, side_map, SOFT_ANGLE);
+    let (t_soft, soft, soft_stats) = image(ShadowMode::Selective, side_map, SOFT_ANGLE);
     let wrong = |v: &[f32]| v.iter().zip(&traced).filter(|(a, b)| a != b).count() as f64;
     let pixels = (side * side) as f64;
     for (who, t, v) in [
         ("shadow map", t_map, &map),
         ("selective", t_sel, &sel),
+        ("selective, half-side map", t_half, &half),
         ("ray traced", t_traced, &traced),
     ] {
         rec.add(SUITE, &scene, who, "time per image", t * 1e3, "ms");
@@ -70,6 +81,14 @@ pub fn run(rec: &mut Records) {
         "selective",
         "pixels ray traced",
         100.0 * stats.ray_fraction(),
+        "%",
+    );
+    rec.add(
+        SUITE,
+        &scene,
+        "selective, half-side map",
+        "pixels ray traced",
+        100.0 * half_stats.ray_fraction(),
         "%",
     );
     rec.add(
@@ -102,9 +121,47 @@ pub fn run(rec: &mut Records) {
     rec.add(
         SUITE,
         &scene,
+        "traced/selective, half-side map",
+        "speed-up",
+        t_traced / t_half,
+        "x",
+    );
+    rec.add(
+        SUITE,
+        &scene,
         "selective/map",
         "slow-down",
         t_sel / t_map,
         "x",
     );
+    let soft_wrong = soft.iter().zip(&soft_traced).filter(|(a, b)| a != b);
+    for (subject, metric, value, unit) in [
+        ("soft selective", "time per image", t_soft * 1e3, "ms"),
+        (
+            "soft ray traced",
+            "time per image",
+            t_soft_traced * 1e3,
+            "ms",
+        ),
+        (
+            "soft selective",
+            "pixels ray traced",
+            100.0 * soft_stats.ray_fraction(),
+            "%",
+        ),
+        (
+            "soft selective",
+            "pixels unlike traced",
+            100.0 * soft_wrong.count() as f64 / pixels,
+            "%",
+        ),
+        (
+            "soft traced/selective",
+            "speed-up",
+            t_soft_traced / t_soft,
+            "x",
+        ),
+    ] {
+        rec.add(SUITE, &scene, subject, metric, value, unit);
+    }
 }

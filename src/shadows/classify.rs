@@ -42,47 +42,61 @@ fn tolerances(map: &ShadowMap, cos: f32, bias_texels: f32) -> Tolerances {
     }
 }
 
-/// The shadow map's depth under a point and `Δ`, the largest depth difference to its eight neighbours
-/// (infinite next to an empty texel or outside the map); `None` when the point falls outside the map.
-fn sample(map: &ShadowMap, x: f32, y: f32) -> Option<(f32, f32)> {
+/// The texel under map coordinates `(x, y)` when it has all eight neighbours, `None` when the point falls
+/// outside the map's interior.
+fn texel(map: &ShadowMap, x: f32, y: f32) -> Option<(usize, usize)> {
     let res = map.resolution();
     // Truncation is the floor here: anything below 1 (NaN included) is off the map's interior.
     if !(x >= 1.0 && y >= 1.0) {
         return None;
     }
     let (i, j) = (x as usize, y as usize);
-    if i >= res - 1 || j >= res - 1 {
-        return None;
-    }
-    let s = map.depth(i, j);
+    (i < res - 1 && j < res - 1).then_some((i, j))
+}
+
+/// `Δ` at texel `(i, j)` (interior) of finite depth `s`: the largest depth difference to its eight
+/// neighbours, infinite next to an empty texel.
+fn delta(map: &ShadowMap, i: usize, j: usize, s: f32) -> f32 {
     let mut delta = 0f32;
-    for (di, dj) in [
-        (0, 0),
-        (1, 0),
-        (2, 0),
-        (0, 1),
-        (2, 1),
-        (0, 2),
-        (1, 2),
-        (2, 2),
-    ] {
-        let n = map.depth(i + di - 1, j + dj - 1);
-        delta = delta.max(if n.is_finite() && s.is_finite() {
-            (n - s).abs()
-        } else {
-            f32::INFINITY
-        });
+    for row in map.rows3(i, j) {
+        for n in row {
+            // A finite s makes an empty neighbour's difference infinite, never NaN.
+            delta = delta.max((n - s).abs());
+        }
     }
-    Some((s, delta))
+    delta
 }
 
 /// The shadow map's verdict alone for the receiver at `p` (no edge test): lit when it is at most the bias
 /// behind the nearest surface the light sees, or off the map.
 pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f32) -> Class {
     let q = map.project(p);
-    match sample(map, q.x, q.y) {
-        Some((s, _)) if q.z > s + tolerances(map, cos, bias_texels).bias => Class::Shadowed,
-        _ => Class::Lit,
+    match texel(map, q.x, q.y) {
+        Some((i, j)) => verdict(map, q.z, map.depth(i, j), cos, bias_texels),
+        None => Class::Lit,
+    }
+}
+
+/// The map's verdict for a receiver at depth `d` over a texel of depth `s`: lit when it is at most the
+/// bias behind it.
+fn verdict(map: &ShadowMap, d: f32, s: f32, cos: f32, bias_texels: f32) -> Class {
+    if d <= s + tolerances(map, cos, bias_texels).bias {
+        Class::Lit
+    } else {
+        Class::Shadowed
+    }
+}
+
+/// The soft-shadow classification of a receiver that faces all of the light (`cos = n·L` above the
+/// sine of the light's angular radius): marked where the penumbra `mask` covers its texel, off the map or
+/// over an empty texel; elsewhere no edge's penumbra reaches it and the map decides as for hard shadows.
+pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texels: f32) -> Class {
+    let q = map.project(p);
+    match texel(map, q.x, q.y) {
+        Some((i, j)) if !mask[j * map.resolution() + i] && map.depth(i, j).is_finite() => {
+            verdict(map, q.z, map.depth(i, j), cos, bias_texels)
+        }
+        _ => Class::Marked,
     }
 }
 
@@ -93,17 +107,18 @@ pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f
 /// map): marked.
 pub(super) fn selective(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f32, edge: f32) -> Class {
     let q = map.project(p);
-    let Some((s, delta)) = sample(map, q.x, q.y).filter(|(s, _)| s.is_finite()) else {
+    let Some((i, j)) = texel(map, q.x, q.y) else {
         return Class::Marked;
     };
+    let s = map.depth(i, j);
+    if !s.is_finite() {
+        return Class::Marked;
+    }
+    let delta = delta(map, i, j, s);
     let tol = tolerances(map, cos, bias_texels);
     let d = q.z;
     if delta <= edge {
-        if d <= s + tol.bias {
-            Class::Lit
-        } else {
-            Class::Shadowed
-        }
+        verdict(map, d, s, cos, bias_texels)
     } else if d - tol.reach - tol.bias <= s + delta && d + tol.bias >= s - delta {
         Class::Marked
     } else if d > s {

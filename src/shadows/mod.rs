@@ -1,5 +1,5 @@
-//! Selective ray-traced hard shadows (thesis §6.3): a shadow map from the light decides most pixels, and
-//! shadow rays only the pixels it may get wrong.
+//! Selective ray-traced shadows, hard and soft (thesis §6.3): a shadow map from the light decides most
+//! pixels, and shadow rays only the pixels it may get wrong.
 //!
 //! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles in
 //! world space and a shadow-ray query (`occluded(from, to)`, e.g. `TraceWorld::occluded` or
@@ -10,25 +10,36 @@
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked;
+//!    incorrect* and marked. Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
+//!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
+//!    as a shadow can spread from it — and those near the light's horizon;
 //! 3. compaction of the marked pixels into a dense list;
-//! 4. one shadow ray per marked pixel, in parallel;
-//! 5. the composite: the map's verdict where it was trusted, the ray's where not.
+//! 4. shadow rays for the marked pixels only, in parallel: one towards a point-like light, or
+//!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]);
+//! 5. the composite: the map's verdict where it was trusted, the fraction of rays that reach the light
+//!    where not.
 //!
-//! [`ShadowMode`] switches between the shadow map alone, the selective pipeline and a shadow ray for every
-//! pixel (the reference the selective image is measured against). Its cost is the map (O(bands ·
-//! triangles + texels)), O(pixels) classification, and rays for the marked pixels only (2–7% of them on
-//! the crowd). On the CPU the map and the classification cost about as much as shadow rays that mostly
-//! escape to the sky, so on the crowd the selective pass is *not* faster than a ray per pixel (see the
-//! `shadows` bench suite in docs/BENCHMARKS.md): use it where shadow rays are expensive (dense occluders,
-//! many triangles over the receivers) or where the map is rendered anyway; use the shadow map alone where
-//! aliased edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from the light are in shadow without a ray. Not
-//! covered: soft shadows of area lights, point lights, and conservative rasterisation of thin triangles
-//! (triangles edge-on to the light cover no texel; receivers over empty texels are marked instead).
+//! [`ShadowMode`] switches between the shadow map alone (always hard), the selective pipeline and rays for
+//! every pixel (the reference the selective image is measured against). Its cost is the map
+//! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
+//! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
+//! classification cost about as much as hard shadow rays that mostly escape to the sky, so on the crowd
+//! selective hard shadows are only 1.4–1.6× faster than a ray per pixel (see the `shadows` bench suite in
+//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
+//! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
+//! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
+//! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
+//! light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
+//! triangles (triangles edge-on to the light cover no texel; receivers over empty texels are marked
+//! instead); the soft mask assumes every receiver as deep as the deepest, so occluders high above the
+//! receivers mark wide areas (the thesis's caveat), and smooth surfaces that shade part of the disc
+//! without a depth edge (a slope below the light's horizon) are missed.
 
 mod classify;
+mod penumbra;
 mod shadow_map;
 
+pub use penumbra::LightDisc;
 pub use shadow_map::ShadowMap;
 
 use crate::{Error, Result, parallel};
@@ -67,6 +78,13 @@ pub struct ShadowSettings {
     pub ray_length: f32,
     /// Run the map, classification and rays on all threads (feature `parallel`).
     pub parallel: bool,
+    /// Angular radius of the light in radians, at most 0.5: 0 is a point-like sun (hard shadows); above 0
+    /// the light is a disc of directions and shadows are soft — pixels in the penumbra mask get
+    /// [`samples`](Self::samples) rays.
+    pub light_angle: f32,
+    /// Shadow rays per pixel that gets rays when the light has an area ([`light_angle`](Self::light_angle)
+    /// above 0), 1 to 1024, along [`LightDisc`]'s pattern; the thesis shows 16.
+    pub samples: u32,
 }
 
 impl Default for ShadowSettings {
@@ -80,6 +98,8 @@ impl Default for ShadowSettings {
             normal_offset: 1e-3,
             ray_length: 100.0,
             parallel: true,
+            light_angle: 0.0,
+            samples: 16,
         }
     }
 }
@@ -150,10 +170,15 @@ impl ShadowStats {
 pub struct HardShadows {
     map: ShadowMap,
     class: Vec<Class>,
-    /// Indices of the pixels that get a shadow ray (dense), and whether each ray was blocked.
+    /// Indices of the pixels that get shadow rays (dense), and the fraction of each one's rays that reach
+    /// the light.
     marked: Vec<u32>,
-    blocked: Vec<bool>,
+    lit: Vec<f32>,
+    /// Soft shadows: per texel, whether a penumbra may reach it.
+    mask: Vec<bool>,
     visibility: Vec<f32>,
+    /// Per chunk of pixels, the receivers' bounds across the light (scratch of [`Self::receivers`]).
+    bounds: Vec<(Vec3, Vec3)>,
     stats: ShadowStats,
 }
 
@@ -179,20 +204,26 @@ impl HardShadows {
         let towards = validate(settings, gbuffer)?;
         let par = settings.parallel;
         let n = gbuffer.width * gbuffer.height;
+        let s = settings;
+        let soft = s.light_angle > 0.0;
         let t0 = Instant::now();
-        if settings.mode != ShadowMode::RayTraced {
-            let receivers = gbuffer
-                .positions
-                .iter()
-                .zip(&gbuffer.normals)
-                .filter(|(_, n)| n.dot(towards) > 0.0)
-                .map(|(p, _)| p);
+        if s.mode != ShadowMode::RayTraced {
+            self.map.aim(towards);
+            let (lo, hi) = self.receivers(gbuffer, towards, par);
+            let spread = s.light_angle.tan();
             self.map
-                .render(triangles, receivers, towards, settings.map_resolution, par);
+                .render(triangles, (lo, hi), spread, s.map_resolution, par);
+            if soft && s.mode == ShadowMode::Selective {
+                // The deepest receiver's depth: top − its lowest `p · towards`.
+                let deepest = self.map.project(Vec3::ZERO).z - lo.z;
+                let edge = s.edge_texels * self.map.texel_size();
+                penumbra::mask(&self.map, s.light_angle, edge, deepest, &mut self.mask);
+            }
         }
         let t1 = Instant::now();
-        let map = &self.map;
-        let s = settings;
+        let (map, mask) = (&self.map, &self.mask);
+        // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
+        let horizon = s.light_angle.sin();
         self.class.resize(n, Class::Empty);
         parallel::fill(par, &mut self.class, 4096, |i| {
             let nrm = gbuffer.normals[i];
@@ -200,45 +231,63 @@ impl HardShadows {
                 return Class::Empty;
             }
             let cos = nrm.dot(towards);
-            if cos <= 0.0 {
+            if cos <= -horizon || (cos <= 0.0 && s.mode == ShadowMode::ShadowMap) {
                 return Class::FacingAway;
             }
             let p = gbuffer.positions[i];
             match s.mode {
                 ShadowMode::RayTraced => Class::Marked,
                 ShadowMode::ShadowMap => classify::shadow_map_only(map, p, cos, s.bias_texels),
+                ShadowMode::Selective if soft && cos <= horizon => Class::Marked,
+                ShadowMode::Selective if soft => classify::soft(map, mask, p, cos, s.bias_texels),
                 ShadowMode::Selective => {
                     let edge = s.edge_texels * map.texel_size();
                     classify::selective(map, p, cos, s.bias_texels, edge)
                 }
             }
         });
+        // One pass compacts the marked pixels and writes the map's verdict everywhere.
         self.marked.clear();
-        self.marked
-            .extend((0..n as u32).filter(|&i| self.class[i as usize] == Class::Marked));
-        let t2 = Instant::now();
-        self.blocked.resize(self.marked.len(), false);
-        let marked = &self.marked;
-        parallel::fill(par, &mut self.blocked, 256, |k| {
-            let i = marked[k] as usize;
-            let from = gbuffer.positions[i] + gbuffer.normals[i] * s.normal_offset;
-            occluded(from, from + towards * s.ray_length)
-        });
         self.visibility.clear();
-        self.visibility.extend(self.class.iter().map(|c| match c {
-            Class::Empty | Class::Lit => 1.0,
-            Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
-        }));
-        for (&i, &b) in self.marked.iter().zip(&self.blocked) {
-            self.visibility[i as usize] = if b { 0.0 } else { 1.0 };
+        let mut facing = 0;
+        for (i, c) in self.class.iter().enumerate() {
+            self.visibility.push(match c {
+                Class::Empty | Class::Lit => 1.0,
+                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
+            });
+            facing += !matches!(c, Class::Empty | Class::FacingAway) as usize;
+            if *c == Class::Marked {
+                self.marked.push(i as u32);
+            }
+        }
+        let t2 = Instant::now();
+        self.lit.resize(self.marked.len(), 0.0);
+        let marked = &self.marked;
+        let samples = if soft { s.samples } else { 1 };
+        let disc = LightDisc::new(towards, s.light_angle, samples);
+        parallel::fill(par, &mut self.lit, 256, |k| {
+            let i = marked[k] as usize;
+            let (p, nrm) = (gbuffer.positions[i], gbuffer.normals[i]);
+            let from = p + nrm * s.normal_offset;
+            let reach = (0..samples)
+                .filter(|&k| {
+                    let dir = if soft {
+                        disc.direction(i as u32, k)
+                    } else {
+                        towards
+                    };
+                    // A direction below the surface is blocked by the surface itself.
+                    dir.dot(nrm) > 0.0 && !occluded(from, from + dir * s.ray_length)
+                })
+                .count();
+            reach as f32 / samples as f32
+        });
+        for (&i, &l) in self.marked.iter().zip(&self.lit) {
+            self.visibility[i as usize] = l;
         }
         self.stats = ShadowStats {
             pixels: n,
-            facing: self
-                .class
-                .iter()
-                .filter(|c| !matches!(c, Class::Empty | Class::FacingAway))
-                .count(),
+            facing,
             rays: self.marked.len(),
             map_time: t1 - t0,
             classify_time: t2 - t1,
@@ -248,9 +297,35 @@ impl HardShadows {
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
-    /// light); 1 where there is no surface.
+    /// light), the fraction of the disc's samples that reach it for soft shadows; 1 where there is no
+    /// surface.
     pub fn visibility(&self) -> &[f32] {
         &self.visibility
+    }
+
+    /// The bounds of the pixels whose surface faces the light (lower corner above the upper where none
+    /// does): x and y across the light the map is aimed at, z along it (`p · towards`), in parallel over
+    /// chunks of pixels.
+    fn receivers(&mut self, g: &GBuffer, towards: Vec3, par: bool) -> (Vec3, Vec3) {
+        const CHUNK: usize = 16384;
+        let none = (Vec3::MAX, Vec3::MIN);
+        let n = g.positions.len();
+        let map = &self.map;
+        self.bounds.resize(n.div_ceil(CHUNK), none);
+        parallel::fill(par, &mut self.bounds, 1, |c| {
+            let mut b = none;
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                if g.normals[i].dot(towards) > 0.0 {
+                    let p = g.positions[i];
+                    let q = map.across(p).extend(p.dot(towards));
+                    b = (b.0.min(q), b.1.max(q));
+                }
+            }
+            b
+        });
+        self.bounds
+            .iter()
+            .fold(none, |a, b| (a.0.min(b.0), a.1.max(b.1)))
     }
 
     /// Indices of the pixels the last pass sent shadow rays for, ascending.
@@ -278,6 +353,12 @@ fn validate(s: &ShadowSettings, g: &GBuffer) -> Result<Vec3> {
     }
     if !(4..=16384).contains(&s.map_resolution) {
         return bad(format!("map resolution {} (4 to 16384)", s.map_resolution));
+    }
+    if !(0.0..=0.5).contains(&s.light_angle) || !(1..=1024).contains(&s.samples) {
+        return bad(format!(
+            "light angle {} rad (0 to 0.5), {} samples (1 to 1024)",
+            s.light_angle, s.samples
+        ));
     }
     for (what, x) in [
         ("bias_texels", s.bias_texels),

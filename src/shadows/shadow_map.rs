@@ -4,16 +4,16 @@
 use crate::parallel;
 use glam::{Vec2, Vec3};
 
-/// Rows of the map one worker rasterises at a time (every band visits every triangle's bounds).
+/// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
 
 /// A depth map seen from a directional light: depth is the distance along the light's rays from the plane
 /// through the scene's point nearest the light, so 0 is nearest and `f32::INFINITY` marks an empty texel.
 ///
 /// Use it through [`HardShadows`](super::HardShadows); on its own it answers "what does the light see
-/// nearest at this point". Rendering costs one pass over the triangles per band of 32 rows plus the
-/// covered texels (O(bands · triangles + covered texels)), in parallel over bands; the buffers are kept,
-/// so a warm map of the same resolution does not allocate.
+/// nearest at this point". Rendering costs a projection and a counting sort of the triangles into bands of
+/// 32 rows, then, in parallel over bands, a few steps per row a triangle spans plus one per covered texel
+/// (O(triangles + texels)); the buffers are kept, so a warm map of the same resolution does not allocate.
 #[derive(Clone, Debug, Default)]
 pub struct ShadowMap {
     res: usize,
@@ -29,40 +29,58 @@ pub struct ShadowMap {
     texel: f32,
     /// Triangles in map coordinates (x, y in texels, z = depth), kept between frames.
     projected: Vec<[Vec3; 3]>,
+    /// Band `b`'s triangles are `binned[bins[b]..bins[b + 1]]` (indices into `projected`).
+    bins: Vec<u32>,
+    binned: Vec<u32>,
+    /// Scratch of the binning's scatter.
+    cursor: Vec<u32>,
 }
 
 impl ShadowMap {
-    /// Renders `triangles` (world space) as seen from a light in direction `towards` (unit, pointing from the
-    /// scene to the light) into a `res × res` map that covers the `receivers` across the light, plus a
+    /// Points the map along `towards` (unit, from the scene to the light): sets the axes that
+    /// [`across`](Self::across) and [`render`](Self::render) use.
+    pub(super) fn aim(&mut self, towards: Vec3) {
+        self.towards = towards;
+        self.u = towards.any_orthonormal_vector();
+        self.v = towards.cross(self.u);
+    }
+
+    /// World point `p`'s coordinates across the light (world units, along the map's axes).
+    pub(super) fn across(&self, p: Vec3) -> Vec2 {
+        Vec2::new(p.dot(self.u), p.dot(self.v))
+    }
+
+    /// Renders `triangles` (world space) as seen from the light the map is [aimed](Self::aim) at into a
+    /// `res × res` map that covers the receivers' bounds (`receivers`, lower and upper corner: x, y from
+    /// [`across`](Self::across), z = `p · towards`; empty when lower > upper), widened by `spread` (the
+    /// tangent of an area light's angular radius, 0 for a point-like one) times the depth from the
+    /// nearest triangle to the deepest receiver — as far as a penumbra reaches — plus a
     /// margin of one texel so every receiver has its eight neighbours. A directional light's occluder of a
     /// receiver lies on the receiver's line towards the light, so it projects onto the same spot: fitting
     /// the map to the receivers (the pixels the camera sees) rather than the scene loses no shadow and
     /// spends every texel where it is looked at. No receivers or no triangles give an empty map.
-    pub(super) fn render<'a>(
+    pub(super) fn render(
         &mut self,
         triangles: &[[Vec3; 3]],
-        receivers: impl Iterator<Item = &'a Vec3>,
-        towards: Vec3,
+        receivers: (Vec3, Vec3),
+        spread: f32,
         res: usize,
         parallel: bool,
     ) {
-        self.towards = towards;
-        self.u = towards.any_orthonormal_vector();
-        self.v = towards.cross(self.u);
-        let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
-        for p in receivers {
-            let q = Vec2::new(p.dot(self.u), p.dot(self.v));
-            lo = lo.min(q);
-            hi = hi.max(q);
-        }
+        let towards = self.towards;
         let mut top = f32::MIN;
         for [a, b, c] in triangles {
             top = top.max(a.dot(towards).max(b.dot(towards)).max(c.dot(towards)));
         }
+        let widen = Vec2::splat((top - receivers.0.z).max(0.0) * spread);
+        let (lo, hi) = (
+            receivers.0.truncate() - widen,
+            receivers.1.truncate() + widen,
+        );
         self.res = res;
-        self.depth.clear();
-        self.depth.resize(res * res, f32::INFINITY);
         if triangles.is_empty() || lo.x > hi.x {
+            self.depth.clear();
+            self.depth.resize(res * res, f32::INFINITY);
             (self.corner, self.top, self.texel) = (Vec2::ZERO, 0.0, 1.0);
             return;
         }
@@ -77,21 +95,62 @@ impl ShadowMap {
         parallel::fill(parallel, &mut projected, 4096, |i| {
             triangles[i].map(|p| this.project(p))
         });
+        self.bin(&projected);
+        let (bins, binned) = (&self.bins, &self.binned);
         let mut depth = std::mem::take(&mut self.depth);
+        depth.resize(res * res, f32::INFINITY);
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
-            let row0 = band * BAND_ROWS;
-            for t in &projected {
-                rasterise(t, row0, res, out);
+            out.fill(f32::INFINITY);
+            for &t in &binned[bins[band] as usize..bins[band + 1] as usize] {
+                rasterise(&projected[t as usize], band * BAND_ROWS, res, out);
             }
         });
         self.depth = depth;
         self.projected = projected;
     }
 
+    /// Sorts the projected triangles into the bands of rows whose texel centres their bounds may cover
+    /// (a counting sort: band `b` rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its
+    /// own triangles; triangles off the map go nowhere.
+    fn bin(&mut self, projected: &[[Vec3; 3]]) {
+        let res = self.res;
+        let bands = res.div_ceil(BAND_ROWS);
+        let span = |t: &[Vec3; 3]| {
+            let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+            let ((x0, x1), (y0, y1)) = (centres(lo.x, hi.x, res), centres(lo.y, hi.y, res));
+            (x0 <= x1 && y0 <= y1).then_some((y0 / BAND_ROWS, y1 / BAND_ROWS))
+        };
+        self.bins.clear();
+        self.bins.resize(bands + 1, 0);
+        for t in projected {
+            if let Some((b0, b1)) = span(t) {
+                for b in b0..=b1 {
+                    self.bins[b + 1] += 1;
+                }
+            }
+        }
+        for b in 0..bands {
+            self.bins[b + 1] += self.bins[b];
+        }
+        self.binned.resize(self.bins[bands] as usize, 0);
+        let mut next = std::mem::take(&mut self.cursor);
+        next.clear();
+        next.extend_from_slice(&self.bins[..bands]);
+        for (i, t) in projected.iter().enumerate() {
+            if let Some((b0, b1)) = span(t) {
+                for at in &mut next[b0..=b1] {
+                    self.binned[*at as usize] = i as u32;
+                    *at += 1;
+                }
+            }
+        }
+        self.cursor = next;
+    }
+
     /// Map coordinates of a world point: x and y in texels (texel `(i, j)` covers `[i, i+1) × [j, j+1)`),
     /// z its depth from the light.
     pub fn project(&self, p: Vec3) -> Vec3 {
-        let q = (Vec2::new(p.dot(self.u), p.dot(self.v)) - self.corner) / self.texel;
+        let q = (self.across(p) - self.corner) / self.texel;
         q.extend(self.top - p.dot(self.towards))
     }
 
@@ -109,28 +168,42 @@ impl ShadowMap {
     pub fn depth(&self, i: usize, j: usize) -> f32 {
         self.depth[j * self.res + i]
     }
+
+    /// The 3 × 3 texels centred on interior texel `(i, j)`, as three rows of three.
+    pub(super) fn rows3(&self, i: usize, j: usize) -> [&[f32; 3]; 3] {
+        [j - 1, j, j + 1].map(|r| {
+            let at = r * self.res + i - 1;
+            self.depth[at..at + 3].try_into().expect("three texels")
+        })
+    }
+}
+
+/// The first and last texel whose centre (`i + 0.5`) lies in `[lo, hi]`, clamped to `0..n`; empty when
+/// the first is past the last.
+fn centres(lo: f32, hi: f32, n: usize) -> (usize, usize) {
+    let first = (lo - 0.5).ceil().max(0.0);
+    let last = (hi - 0.5).floor().min(n as f32 - 1.0);
+    if last < first {
+        (1, 0)
+    } else {
+        (first as usize, last as usize)
+    }
 }
 
 /// Writes the nearest depth of triangle `t` (map coordinates) into the texels of rows `row0..` whose centres
 /// it covers, edges and corners included (a centre on a shared edge belongs to both triangles). Each row's
-/// covered span is solved from the three edge functions, so the cost is the covered texels plus one step
-/// per row. Triangles seen edge-on by the light cover nothing.
+/// covered span is solved from the three edge functions and its two ends checked exactly (a weight is
+/// monotone along the row, so the covered centres are one run), so the cost is one depth-plane step per
+/// covered texel plus a few per row. Triangles seen edge-on by the light cover nothing.
 fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
     let rows = out.len() / res;
     let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    // Most triangles miss a band: reject them with two comparisons.
-    if hi.y < row0 as f32 || lo.y > (row0 + rows) as f32 {
+    let (y0, y1) = centres(lo.y, hi.y, res);
+    let (y0, y1) = (y0.max(row0), y1.min(row0 + rows - 1));
+    let (x0, x1) = centres(lo.x, hi.x, res);
+    if y1 < y0 || x1 < x0 {
         return;
     }
-    // Texel centres are at i + 0.5.
-    let first = |a: f32| (a - 0.5).ceil().max(0.0) as usize;
-    let last = |a: f32, n: usize| (a - 0.5).floor().min(n as f32 - 1.0);
-    let (y0, y1) = (first(lo.y).max(row0), last(hi.y, row0 + rows));
-    let (x0, x1) = (first(lo.x), last(hi.x, res));
-    if y1 < y0 as f32 || x1 < x0 as f32 {
-        return;
-    }
-    let (y1, x1) = (y1 as usize, x1 as usize);
     // Edge k's weight is a_k x + b_k y + c_k, normalised so the three sum to 1 (barycentrics).
     let area = (t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[1].y - t[0].y) * (t[2].x - t[0].x);
     if area == 0.0 || !area.is_finite() {
@@ -141,13 +214,19 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
         (ea, eb, -(ea * a.x + eb * a.y))
     };
     let e = [coef(t[1], t[2]), coef(t[2], t[0]), coef(t[0], t[1])];
+    // Depth is the weights' blend of the corners' depths: linear along a row, `dz · x + z_row`.
+    let dz = e[0].0 * t[0].z + e[1].0 * t[1].z + e[2].0 * t[2].z;
     for y in y0..=y1 {
         let cy = y as f32 + 0.5;
-        // The span of centres where all three weights are ≥ 0.
+        let inside = |x: usize| {
+            let cx = x as f32 + 0.5;
+            e.iter().all(|&(a, b, c)| a * cx + b * cy + c >= 0.0)
+        };
+        // The span of centres where all three weights are ≥ 0, one centre of slack each way, then
+        // trimmed at both ends by the exact test.
         let (mut from, mut to) = (x0 as f32, x1 as f32);
         for &(a, b, c) in &e {
             let r = b * cy + c; // weight = a·(x + 0.5) + r ≥ 0
-            // One centre of slack each way: the exact test below decides.
             if a > 0.0 {
                 from = from.max((-r / a - 0.5).ceil() - 1.0);
             } else if a < 0.0 {
@@ -159,14 +238,24 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
         if to < from {
             continue;
         }
+        let (mut from, mut to) = (from as usize, to as usize);
+        while from <= to && !inside(from) {
+            from += 1;
+        }
+        while to > from && !inside(to) {
+            to -= 1;
+        }
+        if from > to || !inside(from) {
+            continue;
+        }
+        let z_row = e
+            .iter()
+            .zip(t)
+            .map(|(&(_, b, c), p)| (b * cy + c) * p.z)
+            .sum::<f32>();
         let row = &mut out[(y - row0) * res..(y - row0 + 1) * res];
-        let from = from as usize;
-        for (x, d) in row[from..=to as usize].iter_mut().enumerate() {
-            let cx = (from + x) as f32 + 0.5;
-            let w = e.map(|(a, b, c)| a * cx + b * cy + c);
-            if w[0] >= 0.0 && w[1] >= 0.0 && w[2] >= 0.0 {
-                *d = d.min(w[0] * t[0].z + w[1] * t[1].z + w[2] * t[2].z);
-            }
+        for (x, d) in row[from..=to].iter_mut().enumerate() {
+            *d = d.min(dz * ((from + x) as f32 + 0.5) + z_row);
         }
     }
 }
