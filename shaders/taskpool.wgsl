@@ -1,11 +1,20 @@
 // The task pool of seed 004 (src/gpu/taskpool/): tasks -> phases -> steps -> work chunks, run in rounds.
 //
-// A round is five dispatches: `pool_plan` lists the chunk count of every live task's current step, the
-// crate's scan (src/gpu/scan.rs) turns the counts into offsets, `pool_work` runs a fixed number of persistent
-// workgroups whose invocations claim chunks with one atomic counter until the round's chunks are gone,
-// `pool_advance` moves each live task to its next phase (inserting child tasks into the next round's live
-// list, or retiring it), and `pool_finish` (one invocation) swaps the live lists and writes the indirect
-// arguments of the next round (zero workgroups once the pool is empty).
+// A round is six dispatches: `pool_plan` lists the chunk count of every live task's current step, the
+// crate's scan (src/gpu/scan.rs) turns the counts into offsets, `pool_size` (one invocation) sizes the work
+// dispatch to the round's chunk total, `pool_work` runs workgroups whose invocations each claim up to
+// CLAIMS chunks with one atomic counter, `pool_advance` moves each live task to its next phase (inserting
+// child tasks into the next round's live list, or retiring it), and `pool_finish` (one invocation) swaps the
+// live lists and writes the indirect arguments of the next round (zero workgroups once the pool is empty).
+//
+// Why each invocation claims at most CLAIMS chunks, with enough workgroups that every chunk is claimed:
+// an invocation may not run an unbounded share of a round. On a CPU driver (lavapipe) a few threads run
+// the workgroups one after the other, so the first workgroups used to claim nearly every chunk, and
+// llvmpipe caps the loop iterations of one shader invocation at 65535 (its loop limiter, shared by all
+// loops of the shader): past that count the chunk search's loop left early and its chunks were summed
+// into the wrong task, from about 2^15 chunks a round on. With `pool_size`'s workgroup count,
+// groups · 64 · CLAIMS ≥ chunks, and an invocation stops early only when the cursor has passed the total,
+// so every chunk is still claimed exactly once.
 //
 // Why no invocation ever waits on another workgroup: the only cross-invocation operations inside a dispatch
 // are atomic increments that never retry (claiming a chunk, accumulating into a task, allocating task ids);
@@ -22,11 +31,14 @@
 //   the capacity (0 when none were), 5 rounds with live tasks, 6 live-list parity, 7 chunks run.
 // Indirect arguments (u32): 0..3 per-live-task kernels, 3..6 the work kernel, 6..15 scan levels 0..2.
 
-struct PoolParams { capacity: u32, leaf: u32, chunk: u32, work_groups: u32 }
+struct PoolParams { capacity: u32, leaf: u32, chunk: u32, max_groups: u32 }
 
 const NONE: u32 = 0xffffffffu;
 const STRIDE: u32 = 8u;
 const PHASE_SUM: u32 = 0u;
+// Chunks one invocation of `pool_work` claims at most; its workgroups have WORK_SIZE invocations.
+const CLAIMS: u32 = 4u;
+const WORK_SIZE: u32 = 64u;
 
 @group(0) @binding(0) var<storage, read> values: array<u32>;
 @group(0) @binding(1) var<storage, read_write> tasks: array<atomic<u32>>;
@@ -82,13 +94,31 @@ fn run_chunk(t: u32, c: u32) {
     atomicAdd(&tasks[t * STRIDE + 6u], s);
 }
 
+// The round's chunk total: the scanned offset of the last live task plus its own count.
+fn chunk_total(n: u32) -> u32 {
+    return offsets[n - 1u] + field(live_task(n - 1u), 3u);
+}
+
+// Sizes the work dispatch so that groups · WORK_SIZE · CLAIMS covers the round's chunks (folded into y past
+// the device's per-dimension limit).
+@compute @workgroup_size(1)
+fn pool_size() {
+    let n = atomicLoad(&state[0]);
+    var g = 0u;
+    if n > 0u { g = groups(chunk_total(n), WORK_SIZE * CLAIMS); }
+    let x = min(g, params.max_groups);
+    args[3] = x;
+    args[4] = select(1u, groups(g, max(x, 1u)), g > 0u);
+    args[5] = 1u;
+}
+
 @compute @workgroup_size(64)
 fn pool_work() {
     let n = atomicLoad(&state[0]);
     if n == 0u { return; }
-    let total = offsets[n - 1u] + field(live_task(n - 1u), 3u);
-    // Bounded: the cursor only grows, and there are `total` chunks this round.
-    loop {
+    let total = chunk_total(n);
+    // Bounded: at most CLAIMS claims, and the cursor only grows past the round's `total` chunks.
+    for (var k = 0u; k < CLAIMS; k++) {
         let c = atomicAdd(&state[3], 1u);
         if c >= total { break; }
         // The last live slot whose offset is <= c (slots with no chunks share their successor's offset).
@@ -138,9 +168,6 @@ fn pool_finish() {
     args[0] = groups(n, 256u);
     args[1] = 1u;
     args[2] = 1u;
-    args[3] = select(0u, params.work_groups, n > 0u);
-    args[4] = 1u;
-    args[5] = 1u;
     var level = n;
     for (var l = 0u; l < 3u; l++) {
         args[6u + 3u * l] = groups(level, WG);

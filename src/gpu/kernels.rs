@@ -274,7 +274,13 @@ impl Kernels {
                 "taskpool",
                 shader!("taskpool.wgsl"),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
-                &["pool_plan", "pool_work", "pool_advance", "pool_finish"],
+                &[
+                    "pool_plan",
+                    "pool_size",
+                    "pool_work",
+                    "pool_advance",
+                    "pool_finish",
+                ],
             ),
         }
     }

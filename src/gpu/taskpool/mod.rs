@@ -6,28 +6,29 @@
 //! task. Atomics hand out chunks (one claim counter per round), accumulate chunk results into their task, and
 //! allocate ids for child tasks that a finishing phase inserts.
 //!
-//! # The bounded persistent loop
+//! # Bounded rounds, bounded claims
 //!
 //! WGSL promises no forward progress between workgroups, so no invocation here ever waits for another: a
-//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), work, advance, finish),
-//! and `work` runs a fixed number of persistent workgroups whose invocations claim chunks until the round's
-//! chunks — counted before the dispatch started — are gone, then leave. Phase changes and child insertion
-//! read chunk results only in the next dispatch, after the boundary that makes them visible. Rounds are
-//! recorded in batches; `finish` writes the next round's indirect workgroup counts, which are zero once the
-//! pool is empty, so surplus rounds of a batch cost only empty dispatches. After each batch the host reads
-//! three words and records another batch only while tasks are live.
+//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), size, work, advance,
+//! finish). `size` reads the round's chunk total and sizes the work dispatch so that its invocations, each
+//! claiming at most a few chunks (4) from one atomic cursor, cover every chunk; an invocation that finds no
+//! chunk left leaves. Phase changes and child insertion read chunk results only in the next dispatch, after
+//! the boundary that makes them visible. Rounds are recorded in batches; `finish` writes the next round's
+//! indirect workgroup counts, which are zero once the pool is empty, so surplus rounds of a batch cost only
+//! empty dispatches. After each batch the host reads three words and records another batch only while
+//! tasks are live.
+//!
+//! Why the claims are bounded: an earlier version ran 32 persistent workgroups that claimed chunks until
+//! none were left. On lavapipe, whose few threads run workgroups one after the other, the first workgroups
+//! took nearly every chunk, and llvmpipe stops any shader invocation's loops after 65535 iterations in all
+//! (its loop limiter): past about 2^15 chunks in one round the chunk search left its loop early and 8
+//! chunks were summed into the wrong task (`tests/gpu_taskpool.rs`, the 2^16-task case). Bounded claims
+//! keep every invocation's loop count small on any driver.
 //!
 //! # Status
 //!
 //! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
-//! built with that feature alone until a BVH build and DACRT land on it. Known bug: past 32768 elements
-//! with one-element leaves (about 2^16 tasks) a few tasks end with a wrong sum although every chunk ran
-//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction). Instrumenting `pool_work` showed 8
-//! chunks (one run of 8 consecutive live slots) mapped to a slot whose scanned offsets do not hold them:
-//! the offsets the work kernel reads disagree with the chunk counts `pool_plan` wrote, so the fault lies in
-//! plan → scan → work (the indirect 3-level scan, or the visibility between those dispatches), not in the
-//! chunk claims. All 8 happen in one round (round 15); a compute pass per round does not help, and one
-//! round per submission made the reproduction pass alone but not beside the other tests.
+//! built with that feature alone until a BVH build and DACRT land on it.
 //!
 //! # Bounds
 //!
@@ -54,12 +55,10 @@ const TASK_WORDS: u64 = 8;
 const STATE_WORDS: usize = 8;
 /// Indirect argument words: per-task kernels, the work kernel, three scan levels.
 const ARG_WORDS: usize = 15;
-/// Persistent workgroups (of 64 invocations) of the work kernel.
-const WORK_GROUPS: u32 = 32;
 /// Rounds recorded per submission.
 const ROUNDS_PER_BATCH: u32 = 8;
 /// Dispatches per round besides the scan's.
-const POOL_DISPATCHES: u32 = 4;
+const POOL_DISPATCHES: u32 = 5;
 
 /// What one pool run did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -121,7 +120,7 @@ impl TaskPool {
         );
         let stand_in = GpuBuffer::storage(ctx, "pool stand-in", ARG_WORDS as u64 * 4);
         let scan = Scan::new(ctx, &offsets, capacity);
-        let params = ParamSlots::new(ctx, &[[capacity, leaf, chunk, WORK_GROUPS]]);
+        let params = ParamSlots::new(ctx, &[[capacity, leaf, chunk, ctx.max_groups()]]);
         let with = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -161,7 +160,7 @@ impl TaskPool {
         self.tasks.write(ctx, &root);
         self.live.write(ctx, &[0u32]);
         self.state.write(ctx, &[1u32, 0, 1, 0, 0, 0, 0, 0]);
-        let first = [1u32, 1, 1, WORK_GROUPS, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1];
+        let first = [1u32; ARG_WORDS];
         ctx.write_buffer(self.args.buffer(), 0, bytemuck::cast_slice(&first));
         let mut counts = PoolCounts::default();
         loop {
@@ -201,6 +200,9 @@ impl TaskPool {
             pass.set_pipeline(k.pipeline("pool_plan"));
             pass.dispatch_workgroups_indirect(args, 0);
             self.scan.record(ctx, &mut pass, Some((args, 24)));
+            pass.set_bind_group(0, direct, &[0]);
+            pass.set_pipeline(k.pipeline("pool_size"));
+            pass.dispatch_workgroups(1, 1, 1);
             pass.set_bind_group(0, indirect, &[0]);
             pass.set_pipeline(k.pipeline("pool_work"));
             pass.dispatch_workgroups_indirect(args, 12);
