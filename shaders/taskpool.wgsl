@@ -24,23 +24,24 @@
 // which WGSL does not give. The persistent loop is bounded: the claim cursor only grows and the round's
 // chunk total is fixed before the dispatch starts.
 //
-// Task record (8 words, all atomic so that accumulation and reads share one type):
-//   0 lo, 1 hi (the element range), 2 phase, 3 chunks of the current step, 4 parent (NONE for the root),
-//   5 depth, 6 accumulator, 7 unused.
+// This file is the pool's core; a task kind (taskpool_sum.wgsl, taskpool_dacrt.wgsl) is appended and
+// defines STRIDE (words per task record), binding 0 and any bindings from 7 on, `run_chunk(t, c)` and
+// `advance_task(t)`. Task records are all atomic words; word 3 of a record is the chunk count of the task's
+// current step, the only word the core reads.
 // State words: 0 live count, 1 next live count, 2 tasks allocated, 3 chunk cursor, 4 tasks asked for past
-//   the capacity (0 when none were), 5 rounds with live tasks, 6 live-list parity, 7 chunks run.
+//   the capacity (0 when none were), 5 rounds with live tasks, 6 live list (0, 1: the two halves, 2: the
+//   parked list), 7 chunks run, 8 parked count, 9 parked list taken, 10..16 the task kind's.
+// Parked tasks: a task kind may park a task (instead of retiring it) to run it once more after every other
+//   task is done; when the pool first runs empty, the parked list becomes the live list for more rounds.
 // Indirect arguments (u32): 0..3 per-live-task kernels, 3..6 the work kernel, 6..15 scan levels 0..2.
 
 struct PoolParams { capacity: u32, leaf: u32, chunk: u32, max_groups: u32 }
 
 const NONE: u32 = 0xffffffffu;
-const STRIDE: u32 = 8u;
-const PHASE_SUM: u32 = 0u;
 // Chunks one invocation of `pool_work` claims at most; its workgroups have WORK_SIZE invocations.
 const CLAIMS: u32 = 4u;
 const WORK_SIZE: u32 = 64u;
 
-@group(0) @binding(0) var<storage, read> values: array<u32>;
 @group(0) @binding(1) var<storage, read_write> tasks: array<atomic<u32>>;
 @group(0) @binding(2) var<storage, read_write> live: array<u32>;
 @group(0) @binding(3) var<storage, read_write> offsets: array<u32>;
@@ -55,22 +56,32 @@ fn live_task(i: u32) -> u32 {
     return live[atomicLoad(&state[6]) * params.capacity + i];
 }
 
-// Writes a new task record; its first step's chunk count comes from its range.
-fn init_task(t: u32, lo: u32, hi: u32, parent: u32, depth: u32) {
-    set_field(t, 0u, lo);
-    set_field(t, 1u, hi);
-    set_field(t, 2u, PHASE_SUM);
-    set_field(t, 3u, (hi - lo + params.chunk - 1u) / params.chunk);
-    set_field(t, 4u, parent);
-    set_field(t, 5u, depth);
-    set_field(t, 6u, 0u);
-    set_field(t, 7u, 0u);
+// The live list the next round reads: the other half (half 0 after the parked list's round).
+fn next_half() -> u32 {
+    let p = atomicLoad(&state[6]);
+    return select(1u - p, 0u, p == 2u);
 }
 
 // Puts task t on the next round's live list.
 fn push_next(t: u32) {
     let slot = atomicAdd(&state[1], 1u);
-    live[(1u - atomicLoad(&state[6])) * params.capacity + slot] = t;
+    live[next_half() * params.capacity + slot] = t;
+}
+
+// Puts task t on the parked list, to run again once the pool has run empty.
+fn park(t: u32) {
+    let slot = atomicAdd(&state[8], 1u);
+    live[2u * params.capacity + slot] = t;
+}
+
+// Allocates `k` task ids, or NONE (and records the demand) when the pool is full.
+fn alloc_tasks(k: u32) -> u32 {
+    let first = atomicAdd(&state[2], k);
+    if first + k > params.capacity {
+        atomicMax(&state[4], first + k);
+        return NONE;
+    }
+    return first;
 }
 
 @compute @workgroup_size(256)
@@ -83,15 +94,6 @@ fn pool_plan(@builtin(global_invocation_id) gid: vec3<u32>) {
     if i < atomicLoad(&state[0]) {
         offsets[i] = field(live_task(i), 3u);
     }
-}
-
-// One work chunk: the toy task sums `chunk` elements of its range into its accumulator.
-fn run_chunk(t: u32, c: u32) {
-    let lo = field(t, 0u) + c * params.chunk;
-    let hi = min(lo + params.chunk, field(t, 1u));
-    var s = 0u;
-    for (var k = lo; k < hi; k++) { s += values[k]; }
-    atomicAdd(&tasks[t * STRIDE + 6u], s);
 }
 
 // The round's chunk total: the scanned offset of the last live task plus its own count.
@@ -137,33 +139,22 @@ fn pool_work() {
 fn pool_advance(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= atomicLoad(&state[0]) { return; }
-    let t = live_task(i);
-    // The toy task has one phase; when it ends, a range larger than a leaf splits into two child tasks.
-    let lo = field(t, 0u);
-    let hi = field(t, 1u);
-    set_field(t, 3u, 0u);
-    if hi - lo <= params.leaf { return; }
-    let first = atomicAdd(&state[2], 2u);
-    if first + 2u > params.capacity {
-        atomicMax(&state[4], first + 2u);
-        return;
-    }
-    let mid = lo + (hi - lo) / 2u;
-    let depth = field(t, 5u) + 1u;
-    init_task(first, lo, mid, t, depth);
-    init_task(first + 1u, mid, hi, t, depth);
-    set_field(t, 7u, first);
-    push_next(first);
-    push_next(first + 1u);
+    advance_task(live_task(i));
 }
 
 fn groups(n: u32, size: u32) -> u32 { return (n + size - 1u) / size; }
 
 @compute @workgroup_size(1)
 fn pool_finish() {
-    let n = atomicLoad(&state[1]);
+    var n = atomicLoad(&state[1]);
+    var half = next_half();
+    if n == 0u && atomicLoad(&state[9]) == 0u && atomicLoad(&state[8]) > 0u {
+        n = atomicLoad(&state[8]);
+        half = 2u;
+        atomicStore(&state[9], 1u);
+    }
     atomicStore(&state[0], n);
-    atomicStore(&state[6], 1u - atomicLoad(&state[6]));
+    atomicStore(&state[6], half);
     if n > 0u { atomicAdd(&state[5], 1u); }
     args[0] = groups(n, 256u);
     args[1] = 1u;

@@ -272,7 +272,10 @@ impl Kernels {
             taskpool: Module::new(
                 device,
                 "taskpool",
-                shader!("taskpool.wgsl"),
+                concat!(
+                    shader!("taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_sum.wgsl")
+                ),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
                 &[
                     "pool_plan",

@@ -44,15 +44,14 @@ pub use sum_tree::{SumTask, sum_tree};
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
+use super::kernels::{Kernels, Module};
 use super::scan::Scan;
 use crate::{Error, Result};
 
 /// The most tasks a pool can hold.
 pub const MAX_TASK_CAPACITY: u32 = 1 << 22;
-/// Words per task record.
-const TASK_WORDS: u64 = 8;
-/// Words of the pool state.
-const STATE_WORDS: usize = 8;
+/// Words of the pool state (the core's 10, then the task kind's).
+const STATE_WORDS: usize = 16;
 /// Indirect argument words: per-task kernels, the work kernel, three scan levels.
 const ARG_WORDS: usize = 15;
 /// Rounds recorded per submission.
@@ -75,11 +74,20 @@ pub struct PoolCounts {
     pub submissions: u32,
 }
 
+/// One kind of task: its kernels (taskpool.wgsl with the kind's file appended) and record size.
+pub(crate) struct TaskKind {
+    /// The kind's module among the crate's kernels.
+    pub module: fn(&Kernels) -> &Module,
+    /// Words per task record.
+    pub words: u32,
+}
+
 /// Buffers of one pool: task records, live lists, offsets and their scan, state and indirect arguments.
-/// Memory: 32 bytes per task of records, 12 bytes per task of lists and offsets, plus the scan's scratch.
+/// Memory: 4 bytes per record word and task, 16 bytes per task of lists and offsets, plus the scan's
+/// scratch.
 pub(crate) struct TaskPool {
     capacity: u32,
-    chunk: u32,
+    kind: TaskKind,
     tasks: GpuBuffer,
     live: GpuBuffer,
     state: GpuBuffer,
@@ -92,24 +100,24 @@ pub(crate) struct TaskPool {
 }
 
 impl TaskPool {
-    /// A pool of `capacity` tasks over `values` whose tasks split down to `leaf` elements, `chunk` elements
-    /// per work chunk. Errors: [`Error::InvalidOption`] for a capacity outside `1..=MAX_TASK_CAPACITY` or a
-    /// zero chunk.
+    /// A pool of `capacity` tasks of `kind`; the kind's buffers are `data[0]` at binding 0 and the rest
+    /// from binding 7 on, and its two parameters (`leaf` and `chunk` in the shader) are `kind_params`.
+    /// Errors: [`Error::InvalidOption`] for a capacity outside `1..=MAX_TASK_CAPACITY`.
     pub fn new(
         ctx: &GpuContext,
-        values: &GpuBuffer,
+        kind: TaskKind,
+        data: &[&GpuBuffer],
         capacity: u32,
-        leaf: u32,
-        chunk: u32,
+        kind_params: [u32; 2],
     ) -> Result<Self> {
-        if !(1..=MAX_TASK_CAPACITY).contains(&capacity) || chunk == 0 {
+        if !(1..=MAX_TASK_CAPACITY).contains(&capacity) {
             return Err(Error::InvalidOption(format!(
-                "task pool capacity {capacity} is outside 1..={MAX_TASK_CAPACITY} or chunk {chunk} is 0"
+                "task pool capacity {capacity} is outside 1..={MAX_TASK_CAPACITY}"
             )));
         }
         let c = capacity as u64;
-        let tasks = GpuBuffer::storage(ctx, "pool tasks", c * TASK_WORDS * 4);
-        let live = GpuBuffer::storage(ctx, "pool live lists", 2 * c * 4);
+        let tasks = GpuBuffer::storage(ctx, "pool tasks", c * kind.words as u64 * 4);
+        let live = GpuBuffer::storage(ctx, "pool live lists", 3 * c * 4);
         let offsets = GpuBuffer::storage(ctx, "pool offsets", c * 4);
         let state = GpuBuffer::storage(ctx, "pool state", STATE_WORDS as u64 * 4);
         let args = GpuBuffer::new(
@@ -120,26 +128,25 @@ impl TaskPool {
         );
         let stand_in = GpuBuffer::storage(ctx, "pool stand-in", ARG_WORDS as u64 * 4);
         let scan = Scan::new(ctx, &offsets, capacity);
-        let params = ParamSlots::new(ctx, &[[capacity, leaf, chunk, ctx.max_groups()]]);
-        let with = |a: &GpuBuffer| {
-            bind_group(
-                ctx,
-                &ctx.kernels.taskpool.layout,
-                &[
-                    values.binding(),
-                    tasks.binding(),
-                    live.binding(),
-                    offsets.binding(),
-                    state.binding(),
-                    params.binding(),
-                    a.binding(),
-                ],
-            )
+        let [a, b] = kind_params;
+        let params = ParamSlots::new(ctx, &[[capacity, a, b, ctx.max_groups()]]);
+        let with = |args: &GpuBuffer| {
+            let mut entries = vec![
+                data[0].binding(),
+                tasks.binding(),
+                live.binding(),
+                offsets.binding(),
+                state.binding(),
+                params.binding(),
+                args.binding(),
+            ];
+            entries.extend(data[1..].iter().map(|d| d.binding()));
+            bind_group(ctx, &(kind.module)(&ctx.kernels).layout, &entries)
         };
         let groups = [with(&args), with(&stand_in)];
         Ok(Self {
             capacity,
-            chunk,
+            kind,
             tasks,
             live,
             state,
@@ -151,15 +158,22 @@ impl TaskPool {
         })
     }
 
-    /// Starts a run with one root task over `0..n` and runs rounds until the pool is empty. Blocking: one
-    /// submission per batch of rounds. Errors: [`Error::TaskPoolFull`] when tasks asked for more room than
-    /// the capacity, or a GPU error.
-    pub fn run(&self, ctx: &GpuContext, n: u32) -> Result<PoolCounts> {
-        // The root's record, its chunk count as the shader's `init_task` computes it for other tasks.
-        let root = [0, n, 0, n.div_ceil(self.chunk), u32::MAX, 0, 0, 0];
-        self.tasks.write(ctx, &root);
+    /// Starts a run with one root task (`root`: its record, task id 0) and the task kind's state words
+    /// (`kind_state`, from word 10 on) and runs rounds until the pool is empty. Blocking: one submission
+    /// per batch of rounds; returns the counts and the final state words. Errors:
+    /// [`Error::TaskPoolFull`] when tasks asked for more room than the capacity, or a GPU error.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        root: &[u32],
+        kind_state: &[u32],
+    ) -> Result<(PoolCounts, Vec<u32>)> {
+        self.tasks.write(ctx, root);
         self.live.write(ctx, &[0u32]);
-        self.state.write(ctx, &[1u32, 0, 1, 0, 0, 0, 0, 0]);
+        let mut state = [0u32; STATE_WORDS];
+        state[..3].copy_from_slice(&[1, 0, 1]);
+        state[10..10 + kind_state.len()].copy_from_slice(kind_state);
+        self.state.write(ctx, &state);
         let first = [1u32; ARG_WORDS];
         ctx.write_buffer(self.args.buffer(), 0, bytemuck::cast_slice(&first));
         let mut counts = PoolCounts::default();
@@ -181,14 +195,14 @@ impl TaskPool {
                 });
             }
             if s[0] == 0 {
-                return Ok(counts);
+                return Ok((counts, s));
             }
         }
     }
 
     /// Records `rounds` rounds; a round without live tasks dispatches zero workgroups.
     fn record_rounds(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, rounds: u32) {
-        let k = &ctx.kernels.taskpool;
+        let k = (self.kind.module)(&ctx.kernels);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("kinetrace task pool rounds"),
             timestamp_writes: None,
@@ -214,10 +228,11 @@ impl TaskPool {
         }
     }
 
-    /// Reads back the first `count` task records (blocking).
-    pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<[u32; 8]>> {
+    /// Reads back the words of the first `count` task records (blocking).
+    pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<u32>> {
         let mut enc = ctx.encoder();
-        let r = Readback::<[u32; 8]>::record(ctx, &mut enc, self.tasks.buffer(), count as usize);
+        let words = (count * self.kind.words) as usize;
+        let r = Readback::<u32>::record(ctx, &mut enc, self.tasks.buffer(), words);
         ctx.submit(enc);
         r.wait(ctx)
     }
