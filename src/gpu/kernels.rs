@@ -120,6 +120,9 @@ pub(crate) struct Kernels {
     /// The task pool: only its test hook uses it until a task kind beyond the toy lands.
     #[cfg(feature = "testing")]
     pub taskpool: Module,
+    /// DACRT on the task pool.
+    #[cfg(feature = "testing")]
+    pub dacrt: Module,
 }
 
 impl Kernels {
@@ -267,6 +270,25 @@ impl Kernels {
                 shader!(rays "raysort_crsh.wgsl"),
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
+            ),
+            #[cfg(feature = "testing")]
+            dacrt: Module::new(
+                device,
+                "dacrt",
+                concat!(
+                    shader!(rays "taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_dacrt.wgsl")
+                ),
+                &[
+                    Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
+                ],
+                &[
+                    "pool_plan",
+                    "pool_size",
+                    "pool_work",
+                    "pool_advance",
+                    "pool_finish",
+                ],
             ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(

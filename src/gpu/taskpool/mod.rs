@@ -39,7 +39,9 @@
 //! retires or advances every live task and tasks are finite, so a run ends after at most `capacity` rounds
 //! with live tasks.
 
+mod dacrt;
 mod sum_tree;
+pub use dacrt::{DacrtHit, DacrtOptions, dacrt};
 pub use sum_tree::{SumTask, sum_tree};
 
 use super::GpuContext;
