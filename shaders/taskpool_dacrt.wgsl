@@ -72,53 +72,48 @@ fn ray_sides(t: u32, r: u32, axis: u32, mid: f32) -> u32 {
 
 fn child_slot(child: u32, f: u32) -> u32 { return atomicAdd(&tasks[child * STRIDE + f], 1u); }
 
-// One chunk of a counting or scattering step: ELEMS triangles, or ELEMS rays.
+// Triangle or ray lists: element `i` of the index array, and its store.
+fn elem(tri: bool, i: u32) -> u32 {
+    if tri { return tri_idx[i]; }
+    return ray_idx[i];
+}
+
+fn put(tri: bool, i: u32, v: u32) {
+    if tri { tri_idx[i] = v; } else { ray_idx[i] = v; }
+}
+
+// One chunk of a counting or scattering step: ELEMS triangles (the first chunks), or ELEMS rays. A
+// triangle's range sits in record words 4..6, a ray's in 0..2; the counts go to words 16, 17 (triangles)
+// or 18, 19 (rays).
 fn sort_chunk(t: u32, c: u32, scatter: bool) {
     let axis = field(t, 11u);
     let mid = fbits(t, 15u);
-    let t_lo = field(t, 4u);
-    let nt = field(t, 5u) - t_lo;
-    let ct = groups(nt, ELEMS);
+    let ct = groups(field(t, 5u) - field(t, 4u), ELEMS);
+    let tri = c < ct;
+    let f = select(0u, 4u, tri);
+    let lo = field(t, f);
+    let n = field(t, f + 1u) - lo;
+    let b = select(c - ct, c, tri);
     let first = field(t, 7u);
     var n0 = 0u;
     var n1 = 0u;
-    if c < ct {
-        for (var k = c * ELEMS; k < min(c * ELEMS + ELEMS, nt); k++) {
-            let id = tri_idx[t_lo + k];
-            let s = tri_sides(id, axis, mid);
-            if (s & 1u) != 0u {
-                n0++;
-                if scatter { tri_idx[child_slot(first, 5u)] = id; }
-            }
-            if (s & 2u) != 0u {
-                n1++;
-                if scatter { tri_idx[child_slot(first + 1u, 5u)] = id; }
-            }
-        }
-        if !scatter {
-            atomicAdd(&tasks[t * STRIDE + 16u], n0);
-            atomicAdd(&tasks[t * STRIDE + 17u], n1);
-        }
-        return;
-    }
-    let r_lo = field(t, 0u);
-    let nr = field(t, 1u) - r_lo;
-    let b = c - ct;
-    for (var k = b * ELEMS; k < min(b * ELEMS + ELEMS, nr); k++) {
-        let r = ray_idx[r_lo + k];
-        let s = ray_sides(t, r, axis, mid);
+    for (var k = b * ELEMS; k < min(b * ELEMS + ELEMS, n); k++) {
+        let id = elem(tri, lo + k);
+        var s = 0u;
+        if tri { s = tri_sides(id, axis, mid); } else { s = ray_sides(t, id, axis, mid); }
         if (s & 1u) != 0u {
             n0++;
-            if scatter { ray_idx[child_slot(first, 1u)] = r; }
+            if scatter { put(tri, child_slot(first, f + 1u), id); }
         }
         if (s & 2u) != 0u {
             n1++;
-            if scatter { ray_idx[child_slot(first + 1u, 1u)] = r; }
+            if scatter { put(tri, child_slot(first + 1u, f + 1u), id); }
         }
     }
     if !scatter {
-        atomicAdd(&tasks[t * STRIDE + 18u], n0);
-        atomicAdd(&tasks[t * STRIDE + 19u], n1);
+        let w = select(18u, 16u, tri);
+        atomicAdd(&tasks[t * STRIDE + w], n0);
+        atomicAdd(&tasks[t * STRIDE + w + 1u], n1);
     }
 }
 

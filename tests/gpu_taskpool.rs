@@ -1,7 +1,8 @@
 //! The GPU task pool of seed 004 (`kinetrace::gpu::taskpool`) on its toy task, a recursive halving of a range
 //! into a tree whose tasks sum their ranges in work chunks: the tree read back equals the one a plain CPU
 //! recursion builds (ranges, parents, depths, sums), across sizes, leaf sizes and chunk sizes that make
-//! tasks of zero, one and many chunks; a pool too small fails with `Error::TaskPoolFull`. Runs on lavapipe
+//! tasks of zero, one and many chunks; a pool too small fails with `Error::TaskPoolFull`. DACRT on the pool:
+//! closest hits against brute force and the GPU BVH traversal. Runs on lavapipe
 //! in CI (`KINETRACE_REQUIRE_GPU=1` makes a missing adapter a failure; without it the tests skip).
 #![cfg(feature = "gpu")]
 
@@ -9,7 +10,7 @@ mod common;
 use common::*;
 use glam::Vec3;
 use kinetrace::gpu::taskpool::{SumTask, sum_tree};
-use kinetrace::scenes::{cube_sphere, icosphere, soup};
+use kinetrace::scenes::soup;
 use kinetrace::{Error, Ray};
 
 /// A task as the oracle sees it: (range, parent range, depth, sum).
@@ -154,13 +155,7 @@ fn dacrt_equals_bvh_traversal_and_brute_force() {
         .collect();
     let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(300)).unwrap();
     scenes.push(("identical".into(), same));
-    let tiny = map_mesh(&icosphere(2), |p| p * 1e-6 + Vec3::splat(0.25));
-    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
-    let mut pos = tiny.positions().to_vec();
-    let mut idx = tiny.indices().to_vec();
-    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
-    pos.extend_from_slice(stadium.positions());
-    scenes.push(("teapot in a stadium".into(), Mesh::new(pos, idx).unwrap()));
+    scenes.push(("teapot in a stadium".into(), teapot_in_stadium()));
     for (name, m) in &scenes {
         let mut rays = if m.triangle_count() == 0 {
             vec![Ray::new(Vec3::ZERO, Vec3::X)]

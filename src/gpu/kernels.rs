@@ -117,11 +117,10 @@ pub(crate) struct Kernels {
     pub ploc: Module,
     pub raysort: Module,
     pub raysort_crsh: Module,
-    /// The task pool: only its test hook uses it until a task kind beyond the toy lands.
+    /// The task pool's toy task (a test hook).
     #[cfg(feature = "testing")]
     pub taskpool: Module,
     /// DACRT on the task pool.
-    #[cfg(feature = "testing")]
     pub dacrt: Module,
 }
 
@@ -271,7 +270,6 @@ impl Kernels {
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
             ),
-            #[cfg(feature = "testing")]
             dacrt: Module::new(
                 device,
                 "dacrt",

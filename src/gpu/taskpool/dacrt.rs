@@ -34,10 +34,10 @@ pub struct DacrtOptions {
 }
 
 impl Default for DacrtOptions {
-    /// 2^20 tasks (24 MiB of records) and 64 slots per ray and triangle (4 bytes each).
+    /// 2^18 tasks (24 MiB of records) and 64 slots per ray and triangle (4 bytes each).
     fn default() -> Self {
         Self {
-            task_capacity: 1 << 20,
+            task_capacity: 1 << 18,
             slot_factor: 64,
         }
     }

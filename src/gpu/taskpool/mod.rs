@@ -25,10 +25,14 @@
 //! chunks were summed into the wrong task (`tests/gpu_taskpool.rs`, the 2^16-task case). Bounded claims
 //! keep every invocation's loop count small on any driver.
 //!
-//! # Status
+//! # Task kinds
 //!
-//! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
-//! built with that feature alone until a BVH build and DACRT land on it.
+//! A kind appends its WGSL to the pool's core and defines its record, chunks and phase changes:
+//! [`dacrt`] (divide-and-conquer ray tracing, public) and the toy `sum_tree` (a test hook, feature
+//! `testing`). When to use the pool: for divide-and-conquer work whose parallelism changes shape as it
+//! runs (few large tasks, then many small ones) without a host round trip per level. Cost per round: 6
+//! dispatches plus the scan's (2 per factor of 256 live tasks), no host work; one submission and a
+//! blocking 64-byte read per 8 rounds.
 //!
 //! # Bounds
 //!
@@ -40,8 +44,10 @@
 //! with live tasks.
 
 mod dacrt;
+#[cfg(feature = "testing")]
 mod sum_tree;
 pub use dacrt::{DacrtHit, DacrtOptions, dacrt};
+#[cfg(feature = "testing")]
 pub use sum_tree::{SumTask, sum_tree};
 
 use super::GpuContext;
@@ -231,6 +237,7 @@ impl TaskPool {
     }
 
     /// Reads back the words of the first `count` task records (blocking).
+    #[cfg(feature = "testing")]
     pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<u32>> {
         let mut enc = ctx.encoder();
         let words = (count * self.kind.words) as usize;
