@@ -3,8 +3,8 @@
 // pool, appended to ray_tests.wgsl and taskpool.wgsl. A task holds a list of rays and a list of triangles
 // (ranges of two index arrays) and a box. A split task counts, then scatters, its triangles and rays into
 // the two halves of its box split at the middle of its longest axis (a triangle whose bounds reach into a
-// half goes there, a ray whose conservative slab test enters a half goes there); the halves become child
-// tasks. A task small enough by the seed's cost rule (tris · rays < 80 · (tris + rays)) tests all its pairs
+// half goes there, a ray whose conservative slab test enters a half goes there); the halves, shrunk to
+// their triangles' bounds, become child tasks. A task small enough by the seed's cost rule (tris · rays < 80 · (tris + rays)) tests all its pairs
 // instead, keeping each ray's nearest distance with an atomic minimum, and is parked; once every task is
 // done, the parked tasks run again to name, for each ray, the lowest triangle hit at exactly that distance
 // (the crate's tie rule). Children get fresh index ranges (appended, never swapped in place), so no two
@@ -18,9 +18,10 @@
 //
 // Task record (24 words): 0 ray lo, 1 ray hi, 2 phase, 3 chunks of the current step, 4 triangle lo,
 // 5 triangle hi, 6 depth, 7 first child, 8..11 box min (f32 bits) and 11 split axis, 12..15 box max and
-// 15 split position (f32 bits), 16..20 counts of triangles left and right, rays left and right.
+// 15 split position (f32 bits), 16..20 counts of triangles left and right, rays left and right,
+// 24..27 and 28..31 the bounds of the triangles scattered into the task (order-preserving u32 of f32).
 
-const STRIDE: u32 = 24u;
+const STRIDE: u32 = 32u;
 const COUNT: u32 = 0u;
 const SCATTER: u32 = 1u;
 const INTERSECT: u32 = 2u;
@@ -72,6 +73,23 @@ fn ray_sides(t: u32, r: u32, axis: u32, mid: f32) -> u32 {
 
 fn child_slot(child: u32, f: u32) -> u32 { return atomicAdd(&tasks[child * STRIDE + f], 1u); }
 
+// f32 → u32 keeping the order (for atomic min / max of coordinates), and back.
+fn ordered(f: f32) -> u32 {
+    let b = bitcast<u32>(f);
+    return select(~b, b | 0x80000000u, (b & 0x80000000u) == 0u);
+}
+
+fn unordered(u: u32) -> f32 {
+    return bitcast<f32>(select(~u, u & 0x7fffffffu, (u & 0x80000000u) != 0u));
+}
+
+fn grow_bounds(c: u32, lo: vec3<f32>, hi: vec3<f32>) {
+    for (var k = 0u; k < 3u; k++) {
+        atomicMin(&tasks[c * STRIDE + 24u + k], ordered(lo[k]));
+        atomicMax(&tasks[c * STRIDE + 28u + k], ordered(hi[k]));
+    }
+}
+
 // Triangle or ray lists: element `i` of the index array, and its store.
 fn elem(tri: bool, i: u32) -> u32 {
     if tri { return tri_idx[i]; }
@@ -97,18 +115,42 @@ fn sort_chunk(t: u32, c: u32, scatter: bool) {
     let first = field(t, 7u);
     var n0 = 0u;
     var n1 = 0u;
+    // The bounds of the triangles scattered to each child.
+    var lo0 = vec3<f32>(BIG);
+    var hi0 = vec3<f32>(-BIG);
+    var lo1 = lo0;
+    var hi1 = hi0;
     for (var k = b * ELEMS; k < min(b * ELEMS + ELEMS, n); k++) {
         let id = elem(tri, lo + k);
         var s = 0u;
-        if tri { s = tri_sides(id, axis, mid); } else { s = ray_sides(t, id, axis, mid); }
+        var tlo = vec3<f32>(0.0);
+        var thi = tlo;
+        if tri {
+            s = tri_sides(id, axis, mid);
+            let v0 = verts[3u * id].xyz;
+            let v1 = verts[3u * id + 1u].xyz;
+            let v2 = verts[3u * id + 2u].xyz;
+            tlo = min(v0, min(v1, v2));
+            thi = max(v0, max(v1, v2));
+        } else {
+            s = ray_sides(t, id, axis, mid);
+        }
         if (s & 1u) != 0u {
             n0++;
+            lo0 = min(lo0, tlo);
+            hi0 = max(hi0, thi);
             if scatter { put(tri, child_slot(first, f + 1u), id); }
         }
         if (s & 2u) != 0u {
             n1++;
+            lo1 = min(lo1, tlo);
+            hi1 = max(hi1, thi);
             if scatter { put(tri, child_slot(first + 1u, f + 1u), id); }
         }
+    }
+    if scatter && tri {
+        if n0 > 0u { grow_bounds(first, lo0, hi0); }
+        if n1 > 0u { grow_bounds(first + 1u, lo1, hi1); }
     }
     if !scatter {
         let w = select(18u, 16u, tri);
@@ -172,6 +214,11 @@ fn alloc_slots(w: u32, k: u32, cap: u32) -> u32 {
 
 // A child record with empty ranges starting at `t_lo`, `r_lo` (the scatter step fills them) and a box.
 fn init_child(c: u32, t_lo: u32, r_lo: u32, depth: u32, lo: vec3<f32>, hi: vec3<f32>) {
+    for (var k = 0u; k < 3u; k++) {
+        set_field(c, 24u + k, 0xffffffffu);
+        set_field(c, 28u + k, 0u);
+    }
+    set_box(c, lo, hi);
     set_field(c, 0u, r_lo);
     set_field(c, 1u, r_lo);
     set_field(c, 2u, DONE);
@@ -180,6 +227,11 @@ fn init_child(c: u32, t_lo: u32, r_lo: u32, depth: u32, lo: vec3<f32>, hi: vec3<
     set_field(c, 5u, t_lo);
     set_field(c, 6u, depth);
     set_field(c, 7u, 0u);
+    for (var k = 16u; k < 20u; k++) { set_field(c, k, 0u); }
+}
+
+// Sets a task's box and its split: the middle of the longest axis.
+fn set_box(c: u32, lo: vec3<f32>, hi: vec3<f32>) {
     let e = hi - lo;
     let axis = select(select(2u, 1u, e.y >= e.z), 0u, e.x >= e.y && e.x >= e.z);
     for (var k = 0u; k < 3u; k++) {
@@ -188,7 +240,6 @@ fn init_child(c: u32, t_lo: u32, r_lo: u32, depth: u32, lo: vec3<f32>, hi: vec3<
     }
     set_field(c, 11u, axis);
     set_field(c, 15u, bitcast<u32>(lo[axis] * 0.5 + hi[axis] * 0.5));
-    for (var k = 16u; k < 20u; k++) { set_field(c, k, 0u); }
 }
 
 // After counting: reserves the children's index ranges and records, then scatters.
@@ -221,10 +272,11 @@ fn after_count(t: u32) {
     push_next(t);
 }
 
-// After scattering: each child with rays and triangles goes live, split again or tested pair by pair. A
-// child that kept all of its parent's triangles (all straddle the split, or all lie in this half) is
-// tested pair by pair: splitting it further would copy every triangle again and again (identical
-// triangles would until the depth bound).
+// After scattering: each child's box shrinks to the bounds of its triangles (the hit points it must
+// find lie in both), and each child with rays and triangles goes live, split again or tested pair by
+// pair. A child that kept all of its parent's triangles in a box that did not shrink (they all straddle
+// the split) is tested pair by pair: splitting it further would copy every triangle again and again
+// (identical triangles would until the depth bound).
 fn after_scatter(t: u32) {
     let pt = field(t, 5u) - field(t, 4u);
     set_field(t, 2u, DONE);
@@ -234,8 +286,18 @@ fn after_scatter(t: u32) {
         let nt = field(c, 5u) - field(c, 4u);
         let nr = field(c, 1u) - field(c, 0u);
         if nt == 0u || nr == 0u { continue; }
+        let lo = box_min(c);
+        let hi = box_max(c);
+        var tlo = vec3<f32>(0.0);
+        var thi = tlo;
+        for (var k = 0u; k < 3u; k++) {
+            tlo[k] = unordered(field(c, 24u + k));
+            thi[k] = unordered(field(c, 28u + k));
+        }
+        let shrunk = any(tlo > lo) || any(thi < hi);
+        if shrunk { set_box(c, max(lo, tlo), min(hi, thi)); }
         let cheap = f32(nt) * f32(nr) < C_SORT * f32(nt + nr);
-        if cheap || field(c, 6u) >= MAX_DEPTH || nt == pt {
+        if cheap || field(c, 6u) >= MAX_DEPTH || (nt == pt && !shrunk) {
             set_field(c, 2u, INTERSECT);
             set_field(c, 3u, nr * groups(nt, TRI_BLOCK));
         } else {

@@ -1,7 +1,7 @@
 //! Divide-and-conquer ray tracing (DACRT, seed 004 §5) on the task pool (shaders/taskpool_dacrt.wgsl):
 //! closest hits of a batch of rays against a mesh without building any tree. Tasks pair a list of rays
 //! with a list of triangles and a box; a task splits its box at the middle of its longest axis and sorts
-//! both lists into the halves (2 rounds), until the seed's cost rule (`tris · rays < 80 · (tris + rays)`)
+//! both lists into the halves (2 rounds), each half's box then shrinking to its triangles' bounds, until the seed's cost rule (`tris · rays < 80 · (tris + rays)`)
 //! says testing every pair is cheaper; the pair tests keep each ray's nearest distance with an atomic
 //! minimum, and a final parked round names the lowest triangle at that distance, the same answer as
 //! [`GpuRays`](crate::gpu::GpuRays) with [`Query::Closest`](crate::gpu::Query::Closest).
@@ -21,7 +21,7 @@ use crate::gpu::trace::GpuRay;
 use crate::{Aabb, Error, Mesh, Ray, Result};
 
 /// Words per DACRT task record (see the shader).
-const WORDS: u32 = 24;
+const WORDS: u32 = 32;
 
 /// Bounds of one DACRT run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -34,7 +34,7 @@ pub struct DacrtOptions {
 }
 
 impl Default for DacrtOptions {
-    /// 2^18 tasks (24 MiB of records) and 64 slots per ray and triangle (4 bytes each).
+    /// 2^18 tasks (32 MiB of records) and 64 slots per ray and triangle (4 bytes each).
     fn default() -> Self {
         Self {
             task_capacity: 1 << 18,
