@@ -37,11 +37,11 @@
 //! # Bounds
 //!
 //! A pool holds at most `capacity` tasks over a whole run (task records are kept so that results can be read
-//! back), and at most [`MAX_TASK_CAPACITY`] (2^22, 32 MiB of records: the indirect dispatches over live
-//! tasks then stay within 16384 workgroups of 256). A run that asks for more tasks stops inserting, finishes
-//! the tasks it has, and returns [`Error::TaskPoolFull`] with the number of tasks it asked for. Every round
-//! retires or advances every live task and tasks are finite, so a run ends after at most `capacity` rounds
-//! with live tasks.
+//! back), and at most [`MAX_TASK_CAPACITY`] (2^22; the indirect dispatches over live tasks then stay within
+//! 16384 workgroups of 256). A run that asks for more tasks stops inserting, finishes the tasks it has, and
+//! returns [`Error::TaskPoolFull`] with the number of tasks it asked for. Every round retires, parks or
+//! advances every live task, a task kind gives each task finitely many phases, and parked tasks run once
+//! more, so a run ends.
 
 mod dacrt;
 #[cfg(feature = "testing")]
