@@ -155,7 +155,7 @@ fn dacrt_equals_bvh_traversal_and_brute_force() {
         .collect();
     let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(300)).unwrap();
     scenes.push(("identical".into(), same));
-    scenes.push(("teapot in a stadium".into(), teapot_in_stadium()));
+    scenes.push(("teapot in a stadium".into(), teapot_in_stadium(2)));
     for (name, m) in &scenes {
         let mut rays = if m.triangle_count() == 0 {
             vec![Ray::new(Vec3::ZERO, Vec3::X)]
