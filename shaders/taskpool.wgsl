@@ -1,11 +1,20 @@
 // The task pool of seed 004 (src/gpu/taskpool/): tasks -> phases -> steps -> work chunks, run in rounds.
 //
-// A round is five dispatches: `pool_plan` lists the chunk count of every live task's current step, the
-// crate's scan (src/gpu/scan.rs) turns the counts into offsets, `pool_work` runs a fixed number of persistent
-// workgroups whose invocations claim chunks with one atomic counter until the round's chunks are gone,
-// `pool_advance` moves each live task to its next phase (inserting child tasks into the next round's live
-// list, or retiring it), and `pool_finish` (one invocation) swaps the live lists and writes the indirect
-// arguments of the next round (zero workgroups once the pool is empty).
+// A round is six dispatches: `pool_plan` lists the chunk count of every live task's current step, the
+// crate's scan (src/gpu/scan.rs) turns the counts into offsets, `pool_size` (one invocation) sizes the work
+// dispatch to the round's chunk total, `pool_work` runs workgroups whose invocations each claim up to
+// CLAIMS chunks with one atomic counter, `pool_advance` moves each live task to its next phase (inserting
+// child tasks into the next round's live list, or retiring it), and `pool_finish` (one invocation) swaps the
+// live lists and writes the indirect arguments of the next round (zero workgroups once the pool is empty).
+//
+// Why each invocation claims at most CLAIMS chunks, with enough workgroups that every chunk is claimed:
+// an invocation may not run an unbounded share of a round. On a CPU driver (lavapipe) a few threads run
+// the workgroups one after the other, so the first workgroups used to claim nearly every chunk, and
+// llvmpipe caps the loop iterations of one shader invocation at 65535 (its loop limiter, shared by all
+// loops of the shader): past that count the chunk search's loop left early and its chunks were summed
+// into the wrong task, from about 2^15 chunks a round on. With `pool_size`'s workgroup count,
+// groups · 64 · CLAIMS ≥ chunks, and an invocation stops early only when the cursor has passed the total,
+// so every chunk is still claimed exactly once.
 //
 // Why no invocation ever waits on another workgroup: the only cross-invocation operations inside a dispatch
 // are atomic increments that never retry (claiming a chunk, accumulating into a task, allocating task ids);
@@ -15,20 +24,24 @@
 // which WGSL does not give. The persistent loop is bounded: the claim cursor only grows and the round's
 // chunk total is fixed before the dispatch starts.
 //
-// Task record (8 words, all atomic so that accumulation and reads share one type):
-//   0 lo, 1 hi (the element range), 2 phase, 3 chunks of the current step, 4 parent (NONE for the root),
-//   5 depth, 6 accumulator, 7 unused.
+// This file is the pool's core; a task kind (taskpool_sum.wgsl, taskpool_dacrt.wgsl) is appended and
+// defines STRIDE (words per task record), binding 0 and any bindings from 7 on, `run_chunk(t, c)` and
+// `advance_task(t)`. Task records are all atomic words; word 3 of a record is the chunk count of the task's
+// current step, the only word the core reads.
 // State words: 0 live count, 1 next live count, 2 tasks allocated, 3 chunk cursor, 4 tasks asked for past
-//   the capacity (0 when none were), 5 rounds with live tasks, 6 live-list parity, 7 chunks run.
+//   the capacity (0 when none were), 5 rounds with live tasks, 6 live list (0, 1: the two halves, 2: the
+//   parked list), 7 chunks run, 8 parked count, 9 parked list taken, 10..16 the task kind's.
+// Parked tasks: a task kind may park a task (instead of retiring it) to run it once more after every other
+//   task is done; when the pool first runs empty, the parked list becomes the live list for more rounds.
 // Indirect arguments (u32): 0..3 per-live-task kernels, 3..6 the work kernel, 6..15 scan levels 0..2.
 
-struct PoolParams { capacity: u32, leaf: u32, chunk: u32, work_groups: u32 }
+struct PoolParams { capacity: u32, leaf: u32, chunk: u32, max_groups: u32 }
 
 const NONE: u32 = 0xffffffffu;
-const STRIDE: u32 = 8u;
-const PHASE_SUM: u32 = 0u;
+// Chunks one invocation of `pool_work` claims at most; its workgroups have WORK_SIZE invocations.
+const CLAIMS: u32 = 4u;
+const WORK_SIZE: u32 = 64u;
 
-@group(0) @binding(0) var<storage, read> values: array<u32>;
 @group(0) @binding(1) var<storage, read_write> tasks: array<atomic<u32>>;
 @group(0) @binding(2) var<storage, read_write> live: array<u32>;
 @group(0) @binding(3) var<storage, read_write> offsets: array<u32>;
@@ -43,22 +56,32 @@ fn live_task(i: u32) -> u32 {
     return live[atomicLoad(&state[6]) * params.capacity + i];
 }
 
-// Writes a new task record; its first step's chunk count comes from its range.
-fn init_task(t: u32, lo: u32, hi: u32, parent: u32, depth: u32) {
-    set_field(t, 0u, lo);
-    set_field(t, 1u, hi);
-    set_field(t, 2u, PHASE_SUM);
-    set_field(t, 3u, (hi - lo + params.chunk - 1u) / params.chunk);
-    set_field(t, 4u, parent);
-    set_field(t, 5u, depth);
-    set_field(t, 6u, 0u);
-    set_field(t, 7u, 0u);
+// The live list the next round reads: the other half (half 0 after the parked list's round).
+fn next_half() -> u32 {
+    let p = atomicLoad(&state[6]);
+    return select(1u - p, 0u, p == 2u);
 }
 
 // Puts task t on the next round's live list.
 fn push_next(t: u32) {
     let slot = atomicAdd(&state[1], 1u);
-    live[(1u - atomicLoad(&state[6])) * params.capacity + slot] = t;
+    live[next_half() * params.capacity + slot] = t;
+}
+
+// Puts task t on the parked list, to run again once the pool has run empty.
+fn park(t: u32) {
+    let slot = atomicAdd(&state[8], 1u);
+    live[2u * params.capacity + slot] = t;
+}
+
+// Allocates `k` task ids, or NONE (and records the demand) when the pool is full.
+fn alloc_tasks(k: u32) -> u32 {
+    let first = atomicAdd(&state[2], k);
+    if first + k > params.capacity {
+        atomicMax(&state[4], first + k);
+        return NONE;
+    }
+    return first;
 }
 
 @compute @workgroup_size(256)
@@ -73,22 +96,31 @@ fn pool_plan(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
-// One work chunk: the toy task sums `chunk` elements of its range into its accumulator.
-fn run_chunk(t: u32, c: u32) {
-    let lo = field(t, 0u) + c * params.chunk;
-    let hi = min(lo + params.chunk, field(t, 1u));
-    var s = 0u;
-    for (var k = lo; k < hi; k++) { s += values[k]; }
-    atomicAdd(&tasks[t * STRIDE + 6u], s);
+// The round's chunk total: the scanned offset of the last live task plus its own count.
+fn chunk_total(n: u32) -> u32 {
+    return offsets[n - 1u] + field(live_task(n - 1u), 3u);
+}
+
+// Sizes the work dispatch so that groups · WORK_SIZE · CLAIMS covers the round's chunks (folded into y past
+// the device's per-dimension limit).
+@compute @workgroup_size(1)
+fn pool_size() {
+    let n = atomicLoad(&state[0]);
+    var g = 0u;
+    if n > 0u { g = groups(chunk_total(n), WORK_SIZE * CLAIMS); }
+    let x = min(g, params.max_groups);
+    args[3] = x;
+    args[4] = select(1u, groups(g, max(x, 1u)), g > 0u);
+    args[5] = 1u;
 }
 
 @compute @workgroup_size(64)
 fn pool_work() {
     let n = atomicLoad(&state[0]);
     if n == 0u { return; }
-    let total = offsets[n - 1u] + field(live_task(n - 1u), 3u);
-    // Bounded: the cursor only grows, and there are `total` chunks this round.
-    loop {
+    let total = chunk_total(n);
+    // Bounded: at most CLAIMS claims, and the cursor only grows past the round's `total` chunks.
+    for (var k = 0u; k < CLAIMS; k++) {
         let c = atomicAdd(&state[3], 1u);
         if c >= total { break; }
         // The last live slot whose offset is <= c (slots with no chunks share their successor's offset).
@@ -107,40 +139,26 @@ fn pool_work() {
 fn pool_advance(@builtin(global_invocation_id) gid: vec3<u32>) {
     let i = gid.x;
     if i >= atomicLoad(&state[0]) { return; }
-    let t = live_task(i);
-    // The toy task has one phase; when it ends, a range larger than a leaf splits into two child tasks.
-    let lo = field(t, 0u);
-    let hi = field(t, 1u);
-    set_field(t, 3u, 0u);
-    if hi - lo <= params.leaf { return; }
-    let first = atomicAdd(&state[2], 2u);
-    if first + 2u > params.capacity {
-        atomicMax(&state[4], first + 2u);
-        return;
-    }
-    let mid = lo + (hi - lo) / 2u;
-    let depth = field(t, 5u) + 1u;
-    init_task(first, lo, mid, t, depth);
-    init_task(first + 1u, mid, hi, t, depth);
-    set_field(t, 7u, first);
-    push_next(first);
-    push_next(first + 1u);
+    advance_task(live_task(i));
 }
 
 fn groups(n: u32, size: u32) -> u32 { return (n + size - 1u) / size; }
 
 @compute @workgroup_size(1)
 fn pool_finish() {
-    let n = atomicLoad(&state[1]);
+    var n = atomicLoad(&state[1]);
+    var half = next_half();
+    if n == 0u && atomicLoad(&state[9]) == 0u && atomicLoad(&state[8]) > 0u {
+        n = atomicLoad(&state[8]);
+        half = 2u;
+        atomicStore(&state[9], 1u);
+    }
     atomicStore(&state[0], n);
-    atomicStore(&state[6], 1u - atomicLoad(&state[6]));
+    atomicStore(&state[6], half);
     if n > 0u { atomicAdd(&state[5], 1u); }
     args[0] = groups(n, 256u);
     args[1] = 1u;
     args[2] = 1u;
-    args[3] = select(0u, params.work_groups, n > 0u);
-    args[4] = 1u;
-    args[5] = 1u;
     var level = n;
     for (var l = 0u; l < 3u; l++) {
         args[6u + 3u * l] = groups(level, WG);

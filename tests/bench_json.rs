@@ -19,6 +19,8 @@ mod ecs;
 mod ecs_gpu;
 #[path = "../examples/bench/gpu.rs"]
 mod gpu;
+#[path = "../examples/bench/gpu_dacrt.rs"]
+mod gpu_dacrt;
 #[path = "../examples/bench/gpu_ploc.rs"]
 mod gpu_ploc;
 #[path = "../examples/bench/gpu_sah.rs"]

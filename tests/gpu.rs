@@ -202,13 +202,7 @@ fn extreme_scenes_on_the_gpu() {
     // Offsets of 1e7 (sphere radius 1e3 so the f32 grid resolves it) and a 1e-6 teapot in a 1e4 stadium.
     let far = map_mesh(&icosphere(2), |p| p * 1e3 + Vec3::new(1e7, -1e7, 5e6));
     check_traversal(&g, &far, &random_rays(&far, 8, 500), "1e7 offset");
-    let tiny = map_mesh(&icosphere(2), |p| p * 1e-6 + Vec3::splat(0.25));
-    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
-    let mut pos = tiny.positions().to_vec();
-    let mut idx = tiny.indices().to_vec();
-    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
-    pos.extend_from_slice(stadium.positions());
-    let teapot = Mesh::new(pos, idx).unwrap();
+    let teapot = teapot_in_stadium(2);
     let mut rays: Vec<Ray> = [Vec3::X, -Vec3::Y, -Vec3::Z]
         .iter()
         .map(|&d| Ray::new(Vec3::splat(0.25) - d * 4e3, d))

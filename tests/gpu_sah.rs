@@ -369,18 +369,6 @@ fn random_rays(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
         .collect()
 }
 
-/// A 1e-6 icosphere of subdivision `subdiv` (the teapot) inside a 1e4 box (the stadium): the clustered
-/// scene of the thesis.
-fn teapot_in_stadium(subdiv: u32) -> Mesh {
-    let tiny = map_mesh(&icosphere(subdiv), |p| p * 1e-6 + Vec3::splat(0.25));
-    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
-    let mut pos = tiny.positions().to_vec();
-    let mut idx = tiny.indices().to_vec();
-    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
-    pos.extend_from_slice(stadium.positions());
-    Mesh::new(pos, idx).unwrap()
-}
-
 // ---- tests ----
 
 #[test]

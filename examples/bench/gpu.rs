@@ -1,4 +1,5 @@
-//! Suite `gpu`: LBVH build (and the work-queue SAH and hybrid builds, [`crate::gpu_sah`]), refit, and
+//! Suite `gpu`: LBVH build (and the work-queue SAH and hybrid builds, [`crate::gpu_sah`]), refit, DACRT
+//! against build + trace ([`crate::gpu_dacrt`]), and
 //! closest/any-hit throughput on the GPU, for 100k, 1M and 4M
 //! triangles (quick: 100k), with 1M coherent and 1M random rays (quick: 64k). Wall-clock per submitted
 //! phase, waited for: on a real GPU this includes submission latency, so small sizes understate throughput.
@@ -39,6 +40,7 @@ pub fn run(rec: &mut Records) {
             ray_count,
         );
     }
+    crate::gpu_dacrt::rows(rec, &ctx);
 }
 
 fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count: usize) {

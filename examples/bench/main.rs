@@ -27,6 +27,7 @@ mod crowd;
 mod ecs;
 mod ecs_gpu;
 mod gpu;
+mod gpu_dacrt;
 mod gpu_ploc;
 mod gpu_sah;
 mod grid;

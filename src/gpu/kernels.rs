@@ -117,9 +117,11 @@ pub(crate) struct Kernels {
     pub ploc: Module,
     pub raysort: Module,
     pub raysort_crsh: Module,
-    /// The task pool: only its test hook uses it until a task kind beyond the toy lands.
+    /// The task pool's toy task (a test hook).
     #[cfg(feature = "testing")]
     pub taskpool: Module,
+    /// DACRT on the task pool.
+    pub dacrt: Module,
 }
 
 impl Kernels {
@@ -268,13 +270,40 @@ impl Kernels {
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
             ),
+            dacrt: Module::new(
+                device,
+                "dacrt",
+                concat!(
+                    shader!(rays "taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_dacrt.wgsl")
+                ),
+                &[
+                    Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
+                ],
+                &[
+                    "pool_plan",
+                    "pool_size",
+                    "pool_work",
+                    "pool_advance",
+                    "pool_finish",
+                ],
+            ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(
                 device,
                 "taskpool",
-                shader!("taskpool.wgsl"),
+                concat!(
+                    shader!("taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_sum.wgsl")
+                ),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
-                &["pool_plan", "pool_work", "pool_advance", "pool_finish"],
+                &[
+                    "pool_plan",
+                    "pool_size",
+                    "pool_work",
+                    "pool_advance",
+                    "pool_finish",
+                ],
             ),
         }
     }

@@ -38,8 +38,6 @@ mod scan;
 pub(crate) mod scene;
 mod skin;
 pub(crate) mod sort;
-// Only the toy task runs on the pool so far: the module is built with the test hook until a BVH build lands.
-#[cfg(feature = "testing")]
 pub mod taskpool;
 pub(crate) mod trace;
 mod tree;

@@ -64,6 +64,11 @@ impl GpuRay {
 }
 
 impl GpuRay {
+    /// The end of the ray's range as the kernels see it.
+    pub(crate) fn tmax(&self) -> f32 {
+        self.tmax
+    }
+
     /// The form scene.wgsl takes: triangles are tested in each entity's object space, so instead of the
     /// world-space shear rows it needs the world direction, sent in `row_x`.
     pub(crate) fn for_scene(ray: &Ray) -> Self {

@@ -274,3 +274,16 @@ pub fn even_soup(n: usize, s: f32, decades: f32) -> Mesh {
     }
     Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
 }
+
+/// A 1e-6 icosphere of subdivision `subdiv` (the teapot) at (0.25, 0.25, 0.25) inside a 1e4 box (the
+/// stadium): the clustered scene of the thesis. The teapot's triangles come first.
+pub fn teapot_in_stadium(subdiv: u32) -> Mesh {
+    use kinetrace::scenes::{cube_sphere, icosphere};
+    let tiny = map_mesh(&icosphere(subdiv), |p| p * 1e-6 + Vec3::splat(0.25));
+    let stadium = map_mesh(&cube_sphere(2), |p| p.signum() * 5e3);
+    let mut pos = tiny.positions().to_vec();
+    let mut idx = tiny.indices().to_vec();
+    idx.extend(stadium.indices().iter().map(|i| i + pos.len() as u32));
+    pos.extend_from_slice(stadium.positions());
+    Mesh::new(pos, idx).unwrap()
+}

@@ -6,60 +6,66 @@
 //! task. Atomics hand out chunks (one claim counter per round), accumulate chunk results into their task, and
 //! allocate ids for child tasks that a finishing phase inserts.
 //!
-//! # The bounded persistent loop
+//! # Bounded rounds, bounded claims
 //!
 //! WGSL promises no forward progress between workgroups, so no invocation here ever waits for another: a
-//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), work, advance, finish),
-//! and `work` runs a fixed number of persistent workgroups whose invocations claim chunks until the round's
-//! chunks — counted before the dispatch started — are gone, then leave. Phase changes and child insertion
-//! read chunk results only in the next dispatch, after the boundary that makes them visible. Rounds are
-//! recorded in batches; `finish` writes the next round's indirect workgroup counts, which are zero once the
-//! pool is empty, so surplus rounds of a batch cost only empty dispatches. After each batch the host reads
-//! three words and records another batch only while tasks are live.
+//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), size, work, advance,
+//! finish). `size` reads the round's chunk total and sizes the work dispatch so that its invocations, each
+//! claiming at most a few chunks (4) from one atomic cursor, cover every chunk; an invocation that finds no
+//! chunk left leaves. Phase changes and child insertion read chunk results only in the next dispatch, after
+//! the boundary that makes them visible. Rounds are recorded in batches; `finish` writes the next round's
+//! indirect workgroup counts, which are zero once the pool is empty, so surplus rounds of a batch cost only
+//! empty dispatches. After each batch the host reads three words and records another batch only while
+//! tasks are live.
 //!
-//! # Status
+//! Why the claims are bounded: an earlier version ran 32 persistent workgroups that claimed chunks until
+//! none were left. On lavapipe, whose few threads run workgroups one after the other, the first workgroups
+//! took nearly every chunk, and llvmpipe stops any shader invocation's loops after 65535 iterations in all
+//! (its loop limiter): past about 2^15 chunks in one round the chunk search left its loop early and 8
+//! chunks were summed into the wrong task (`tests/gpu_taskpool.rs`, the 2^16-task case). Bounded claims
+//! keep every invocation's loop count small on any driver.
 //!
-//! Only a toy task (the [`sum_tree`] test hook, feature `testing`) runs on the pool so far; the module is
-//! built with that feature alone until a BVH build and DACRT land on it. Known bug: past 32768 elements
-//! with one-element leaves (about 2^16 tasks) a few tasks end with a wrong sum although every chunk ran
-//! exactly once (`tests/gpu_taskpool.rs`, the ignored reproduction). Instrumenting `pool_work` showed 8
-//! chunks (one run of 8 consecutive live slots) mapped to a slot whose scanned offsets do not hold them:
-//! the offsets the work kernel reads disagree with the chunk counts `pool_plan` wrote, so the fault lies in
-//! plan → scan → work (the indirect 3-level scan, or the visibility between those dispatches), not in the
-//! chunk claims. All 8 happen in one round (round 15); a compute pass per round does not help, and one
-//! round per submission made the reproduction pass alone but not beside the other tests.
+//! # Task kinds
+//!
+//! A kind appends its WGSL to the pool's core and defines its record, chunks and phase changes:
+//! [`dacrt`] (divide-and-conquer ray tracing, public) and the toy `sum_tree` (a test hook, feature
+//! `testing`). When to use the pool: for divide-and-conquer work whose parallelism changes shape as it
+//! runs (few large tasks, then many small ones) without a host round trip per level. Cost per round: 6
+//! dispatches plus the scan's (2 per factor of 256 live tasks), no host work; one submission and a
+//! blocking 64-byte read per 8 rounds.
 //!
 //! # Bounds
 //!
 //! A pool holds at most `capacity` tasks over a whole run (task records are kept so that results can be read
-//! back), and at most [`MAX_TASK_CAPACITY`] (2^22, 32 MiB of records: the indirect dispatches over live
-//! tasks then stay within 16384 workgroups of 256). A run that asks for more tasks stops inserting, finishes
-//! the tasks it has, and returns [`Error::TaskPoolFull`] with the number of tasks it asked for. Every round
-//! retires or advances every live task and tasks are finite, so a run ends after at most `capacity` rounds
-//! with live tasks.
+//! back), and at most [`MAX_TASK_CAPACITY`] (2^22; the indirect dispatches over live tasks then stay within
+//! 16384 workgroups of 256). A run that asks for more tasks stops inserting, finishes the tasks it has, and
+//! returns [`Error::TaskPoolFull`] with the number of tasks it asked for. Every round retires, parks or
+//! advances every live task, a task kind gives each task finitely many phases, and parked tasks run once
+//! more, so a run ends.
 
+mod dacrt;
+#[cfg(feature = "testing")]
 mod sum_tree;
+pub use dacrt::{DacrtHit, DacrtOptions, dacrt};
+#[cfg(feature = "testing")]
 pub use sum_tree::{SumTask, sum_tree};
 
 use super::GpuContext;
 use super::buffers::{GpuBuffer, ParamSlots, Readback, STORAGE, bind_group};
+use super::kernels::{Kernels, Module};
 use super::scan::Scan;
 use crate::{Error, Result};
 
 /// The most tasks a pool can hold.
 pub const MAX_TASK_CAPACITY: u32 = 1 << 22;
-/// Words per task record.
-const TASK_WORDS: u64 = 8;
-/// Words of the pool state.
-const STATE_WORDS: usize = 8;
+/// Words of the pool state (the core's 10, then the task kind's).
+const STATE_WORDS: usize = 16;
 /// Indirect argument words: per-task kernels, the work kernel, three scan levels.
 const ARG_WORDS: usize = 15;
-/// Persistent workgroups (of 64 invocations) of the work kernel.
-const WORK_GROUPS: u32 = 32;
 /// Rounds recorded per submission.
 const ROUNDS_PER_BATCH: u32 = 8;
 /// Dispatches per round besides the scan's.
-const POOL_DISPATCHES: u32 = 4;
+const POOL_DISPATCHES: u32 = 5;
 
 /// What one pool run did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -76,11 +82,20 @@ pub struct PoolCounts {
     pub submissions: u32,
 }
 
+/// One kind of task: its kernels (taskpool.wgsl with the kind's file appended) and record size.
+pub(crate) struct TaskKind {
+    /// The kind's module among the crate's kernels.
+    pub module: fn(&Kernels) -> &Module,
+    /// Words per task record.
+    pub words: u32,
+}
+
 /// Buffers of one pool: task records, live lists, offsets and their scan, state and indirect arguments.
-/// Memory: 32 bytes per task of records, 12 bytes per task of lists and offsets, plus the scan's scratch.
+/// Memory: 4 bytes per record word and task, 16 bytes per task of lists and offsets, plus the scan's
+/// scratch.
 pub(crate) struct TaskPool {
     capacity: u32,
-    chunk: u32,
+    kind: TaskKind,
     tasks: GpuBuffer,
     live: GpuBuffer,
     state: GpuBuffer,
@@ -93,24 +108,24 @@ pub(crate) struct TaskPool {
 }
 
 impl TaskPool {
-    /// A pool of `capacity` tasks over `values` whose tasks split down to `leaf` elements, `chunk` elements
-    /// per work chunk. Errors: [`Error::InvalidOption`] for a capacity outside `1..=MAX_TASK_CAPACITY` or a
-    /// zero chunk.
+    /// A pool of `capacity` tasks of `kind`; the kind's buffers are `data[0]` at binding 0 and the rest
+    /// from binding 7 on, and its two parameters (`leaf` and `chunk` in the shader) are `kind_params`.
+    /// Errors: [`Error::InvalidOption`] for a capacity outside `1..=MAX_TASK_CAPACITY`.
     pub fn new(
         ctx: &GpuContext,
-        values: &GpuBuffer,
+        kind: TaskKind,
+        data: &[&GpuBuffer],
         capacity: u32,
-        leaf: u32,
-        chunk: u32,
+        kind_params: [u32; 2],
     ) -> Result<Self> {
-        if !(1..=MAX_TASK_CAPACITY).contains(&capacity) || chunk == 0 {
+        if !(1..=MAX_TASK_CAPACITY).contains(&capacity) {
             return Err(Error::InvalidOption(format!(
-                "task pool capacity {capacity} is outside 1..={MAX_TASK_CAPACITY} or chunk {chunk} is 0"
+                "task pool capacity {capacity} is outside 1..={MAX_TASK_CAPACITY}"
             )));
         }
         let c = capacity as u64;
-        let tasks = GpuBuffer::storage(ctx, "pool tasks", c * TASK_WORDS * 4);
-        let live = GpuBuffer::storage(ctx, "pool live lists", 2 * c * 4);
+        let tasks = GpuBuffer::storage(ctx, "pool tasks", c * kind.words as u64 * 4);
+        let live = GpuBuffer::storage(ctx, "pool live lists", 3 * c * 4);
         let offsets = GpuBuffer::storage(ctx, "pool offsets", c * 4);
         let state = GpuBuffer::storage(ctx, "pool state", STATE_WORDS as u64 * 4);
         let args = GpuBuffer::new(
@@ -121,26 +136,25 @@ impl TaskPool {
         );
         let stand_in = GpuBuffer::storage(ctx, "pool stand-in", ARG_WORDS as u64 * 4);
         let scan = Scan::new(ctx, &offsets, capacity);
-        let params = ParamSlots::new(ctx, &[[capacity, leaf, chunk, WORK_GROUPS]]);
-        let with = |a: &GpuBuffer| {
-            bind_group(
-                ctx,
-                &ctx.kernels.taskpool.layout,
-                &[
-                    values.binding(),
-                    tasks.binding(),
-                    live.binding(),
-                    offsets.binding(),
-                    state.binding(),
-                    params.binding(),
-                    a.binding(),
-                ],
-            )
+        let [a, b] = kind_params;
+        let params = ParamSlots::new(ctx, &[[capacity, a, b, ctx.max_groups()]]);
+        let with = |args: &GpuBuffer| {
+            let mut entries = vec![
+                data[0].binding(),
+                tasks.binding(),
+                live.binding(),
+                offsets.binding(),
+                state.binding(),
+                params.binding(),
+                args.binding(),
+            ];
+            entries.extend(data[1..].iter().map(|d| d.binding()));
+            bind_group(ctx, &(kind.module)(&ctx.kernels).layout, &entries)
         };
         let groups = [with(&args), with(&stand_in)];
         Ok(Self {
             capacity,
-            chunk,
+            kind,
             tasks,
             live,
             state,
@@ -152,16 +166,23 @@ impl TaskPool {
         })
     }
 
-    /// Starts a run with one root task over `0..n` and runs rounds until the pool is empty. Blocking: one
-    /// submission per batch of rounds. Errors: [`Error::TaskPoolFull`] when tasks asked for more room than
-    /// the capacity, or a GPU error.
-    pub fn run(&self, ctx: &GpuContext, n: u32) -> Result<PoolCounts> {
-        // The root's record, its chunk count as the shader's `init_task` computes it for other tasks.
-        let root = [0, n, 0, n.div_ceil(self.chunk), u32::MAX, 0, 0, 0];
-        self.tasks.write(ctx, &root);
+    /// Starts a run with one root task (`root`: its record, task id 0) and the task kind's state words
+    /// (`kind_state`, from word 10 on) and runs rounds until the pool is empty. Blocking: one submission
+    /// per batch of rounds; returns the counts and the final state words. Errors:
+    /// [`Error::TaskPoolFull`] when tasks asked for more room than the capacity, or a GPU error.
+    pub fn run(
+        &self,
+        ctx: &GpuContext,
+        root: &[u32],
+        kind_state: &[u32],
+    ) -> Result<(PoolCounts, Vec<u32>)> {
+        self.tasks.write(ctx, root);
         self.live.write(ctx, &[0u32]);
-        self.state.write(ctx, &[1u32, 0, 1, 0, 0, 0, 0, 0]);
-        let first = [1u32, 1, 1, WORK_GROUPS, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1];
+        let mut state = [0u32; STATE_WORDS];
+        state[..3].copy_from_slice(&[1, 0, 1]);
+        state[10..10 + kind_state.len()].copy_from_slice(kind_state);
+        self.state.write(ctx, &state);
+        let first = [1u32; ARG_WORDS];
         ctx.write_buffer(self.args.buffer(), 0, bytemuck::cast_slice(&first));
         let mut counts = PoolCounts::default();
         loop {
@@ -182,14 +203,14 @@ impl TaskPool {
                 });
             }
             if s[0] == 0 {
-                return Ok(counts);
+                return Ok((counts, s));
             }
         }
     }
 
     /// Records `rounds` rounds; a round without live tasks dispatches zero workgroups.
     fn record_rounds(&self, ctx: &GpuContext, enc: &mut wgpu::CommandEncoder, rounds: u32) {
-        let k = &ctx.kernels.taskpool;
+        let k = (self.kind.module)(&ctx.kernels);
         let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("kinetrace task pool rounds"),
             timestamp_writes: None,
@@ -201,6 +222,9 @@ impl TaskPool {
             pass.set_pipeline(k.pipeline("pool_plan"));
             pass.dispatch_workgroups_indirect(args, 0);
             self.scan.record(ctx, &mut pass, Some((args, 24)));
+            pass.set_bind_group(0, direct, &[0]);
+            pass.set_pipeline(k.pipeline("pool_size"));
+            pass.dispatch_workgroups(1, 1, 1);
             pass.set_bind_group(0, indirect, &[0]);
             pass.set_pipeline(k.pipeline("pool_work"));
             pass.dispatch_workgroups_indirect(args, 12);
@@ -212,10 +236,12 @@ impl TaskPool {
         }
     }
 
-    /// Reads back the first `count` task records (blocking).
-    pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<[u32; 8]>> {
+    /// Reads back the words of the first `count` task records (blocking).
+    #[cfg(feature = "testing")]
+    pub fn read_tasks(&self, ctx: &GpuContext, count: u32) -> Result<Vec<u32>> {
         let mut enc = ctx.encoder();
-        let r = Readback::<[u32; 8]>::record(ctx, &mut enc, self.tasks.buffer(), count as usize);
+        let words = (count * self.kind.words) as usize;
+        let r = Readback::<u32>::record(ctx, &mut enc, self.tasks.buffer(), words);
         ctx.submit(enc);
         r.wait(ctx)
     }

@@ -3,7 +3,7 @@
 //! atomics, accumulation, phase ends, child insertion, the capacity bound — against an answer the CPU can
 //! compute independently.
 
-use super::{PoolCounts, TaskPool};
+use super::{PoolCounts, TaskKind, TaskPool};
 use crate::Result;
 use crate::gpu::GpuContext;
 use crate::gpu::buffers::GpuBuffer;
@@ -35,17 +35,26 @@ pub fn sum_tree(
     chunk: u32,
     capacity: u32,
 ) -> Result<(Vec<SumTask>, PoolCounts)> {
-    if leaf == 0 {
-        return Err(crate::Error::InvalidOption("sum tree leaf size 0".into()));
+    if leaf == 0 || chunk == 0 {
+        return Err(crate::Error::InvalidOption(format!(
+            "sum tree leaf size {leaf} or chunk {chunk} is 0"
+        )));
     }
     let buf = GpuBuffer::storage(ctx, "sum tree values", values.len() as u64 * 4);
     buf.write(ctx, values);
-    let pool = TaskPool::new(ctx, &buf, capacity, leaf, chunk)?;
-    let counts = pool.run(ctx, values.len() as u32)?;
+    let kind = TaskKind {
+        module: |k| &k.taskpool,
+        words: 8,
+    };
+    let pool = TaskPool::new(ctx, kind, &[&buf], capacity, [leaf, chunk])?;
+    let n = values.len() as u32;
+    // The root's record, its chunk count as the shader's `init_task` computes it for other tasks.
+    let root = [0, n, 0, n.div_ceil(chunk), u32::MAX, 0, 0, 0];
+    let (counts, _) = pool.run(ctx, &root, &[])?;
     let some = |v: u32| (v != u32::MAX).then_some(v);
     let tasks = pool
         .read_tasks(ctx, counts.tasks)?
-        .into_iter()
+        .chunks_exact(8)
         .map(|t| SumTask {
             range: (t[0], t[1]),
             parent: some(t[4]),
