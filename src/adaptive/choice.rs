@@ -13,7 +13,7 @@
 //!
 //! Which option is cheaper is a question about means, so the margin is `z` standard deviations of the
 //! difference of the two options' *means* (each at least the machine's pooled relative noise over the
-//! square root of its samples) and at least [`MIN_GAIN`] (10%, the profile rule's [`SWITCH_MARGIN`](crate::grid::SWITCH_MARGIN)) of the cost in use. An earlier margin of
+//! square root of its samples) and at least [`MIN_GAIN`] (10%, the profile rule's [`SWITCH_MARGIN`](crate::grid::choice::SWITCH_MARGIN)) of the cost in use. An earlier margin of
 //! one *frame's* spread kept an option in use forever when its frames' costs were spiky — a periodic
 //! rebuild, a loaded machine's stalls — however much cheaper the other measured on average: in the
 //! report's `planned-options` the grid, charged a BVH rebuild every third frame (soup) or 10–20 ms
