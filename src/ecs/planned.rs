@@ -39,7 +39,7 @@
 //! spiky — the report charged them the BVH's lauterbach rebuilds (12 ms every third frame on soup), and
 //! the loaded machine stalled one frame in four by 10–20 ms — so the margin outgrew any difference of
 //! means and the grid was never left. Fixed in [`Choice`] (margin on the difference of the means, at
-//! least 10%; a sample over 4× its mean is a stall, clipped), in the report (the BVH only refitted under
+//! least 15%; a sample over 4× its mean is a stall, clipped), in the report (the BVH only refitted under
 //! the grid, as here) and here: the frame of a switch, which catches a BVH refitted under the grid up
 //! (a rebuild), does not teach the structure's overhead. `tests/options.rs` scripts the spiky case.
 //!
