@@ -11,9 +11,20 @@
 //! costs at most three frames of the difference (three tries per option at most, also where a tried
 //! frame measured nothing), and a frame with no work (`units` = 0) tries nothing.
 //!
+//! Which option is cheaper is a question about means, so the margin is `z` standard deviations of the
+//! difference of the two options' *means* (each at least the machine's pooled relative noise over the
+//! square root of its samples) and at least [`MIN_GAIN`] (15%, half again the profile rule's
+//! [`SWITCH_MARGIN`](crate::grid::choice::SWITCH_MARGIN)) of the cost in use. An earlier margin of
+//! one *frame's* spread kept an option in use forever when its frames' costs were spiky — a periodic
+//! rebuild, a loaded machine's stalls — however much cheaper the other measured on average: in the
+//! report's `planned-options` the grid, charged a BVH rebuild every third frame (soup) or 10–20 ms
+//! stalls (explosion, teapot in stadium), was kept 891 of 900 frames at 1.2–1.7× lauterbach-0.4's time
+//! (issue 12; `tests/options.rs` scripts that case).
+//!
 //! Hysteresis, in numbers: with costs that jitter around equal ones (±10% in `tests/options.rs`), the
-//! option in use changes at most twice per other option — to a try and back — and never once both are
-//! measured, since the margin is `z` standard deviations of the difference of two frames' predictions.
+//! option in use changes at most twice per other option — to a try and back — since a mean re-estimated
+//! every frame does not drift 15% below a measured one (at 5% it did in that test, at 10% once in
+//! `tests/policy.rs`).
 
 use super::Estimate;
 use super::rank::{Candidate, choose};
@@ -22,10 +33,29 @@ use crate::grid::StructureKind;
 /// Relative spread of a prediction made from a prior.
 const PRIOR_SPREAD: f64 = 0.25;
 
+/// Smallest saving, relative to the option in use, for which a measured option replaces it: jitter of
+/// the mean in use (re-estimated every frame) never buys a change smaller than this.
+const MIN_GAIN: f64 = 0.15;
+
 /// Frames an option is tried for at most before only measurements decide: until its spread is
 /// measured rather than assumed (the [`Estimate`]'s three samples), since one frame's prior spread of
 /// 25% would keep even a 30% cheaper option from beating the margin.
 const TRIES: u32 = 3;
+
+/// A sample above this many times its estimate's mean (once the mean rests on [`TRIES`] samples) is
+/// taken for a stall of the machine — a descheduled thread, a page fault storm — and learned as this
+/// many times the mean. On a loaded 2-core machine stalls of 10–20 ms hit one frame in four of 0.5 ms
+/// ones (issue 12); a cost that is really that spiky (a rebuild every twentieth frame) is understated,
+/// the price of not letting the machine's stalls decide.
+const STALL: f64 = 4.0;
+
+/// `x`, or [`STALL`] times the mean of `e` where it is larger and the mean rests on [`TRIES`] samples.
+fn unstalled(e: &Estimate, x: f64) -> f64 {
+    match e.mean() {
+        Some(m) if e.samples() >= TRIES => x.min(STALL * m),
+        _ => x,
+    }
+}
 
 /// One option of a [`Choice`] and what it measured.
 #[derive(Clone, Debug)]
@@ -89,24 +119,26 @@ impl<T: Copy + PartialEq> Choice<T> {
     }
 
     /// Learns a frame of `option`: `units` of work served in `seconds` (ignored unless `units` > 0, the
-    /// time is finite and not negative, and `option` is one of the choice's).
+    /// time is finite and not negative, and `option` is one of the choice's; a stall is clipped, see
+    /// [`STALL`]).
     pub fn served(&mut self, option: T, units: f64, seconds: f64) {
         if units > 0.0
             && seconds.is_finite()
             && seconds >= 0.0
             && let Some(arm) = self.arm_mut(option)
         {
-            arm.per_unit.add(seconds / units);
+            arm.per_unit.add(unstalled(&arm.per_unit, seconds / units));
         }
     }
 
-    /// Learns a frame of `option`'s overhead: the seconds it added to keeping the mesh current.
+    /// Learns a frame of `option`'s overhead: the seconds it added to keeping the mesh current (a stall
+    /// clipped, see [`STALL`]).
     pub fn kept(&mut self, option: T, seconds: f64) {
         if seconds.is_finite()
             && seconds >= 0.0
             && let Some(arm) = self.arm_mut(option)
         {
-            arm.overhead.add(seconds);
+            arm.overhead.add(unstalled(&arm.overhead, seconds));
         }
     }
 
@@ -146,14 +178,15 @@ impl<T: Copy + PartialEq> Choice<T> {
     }
 
     /// The option to use for a frame with `units` of work: among the measured options the cheapest
-    /// predicted, the one chosen before kept unless another beats it by `z` standard deviations; or an
+    /// predicted, the one chosen before kept unless another beats it by `z` standard deviations of the
+    /// difference of their means and by [`MIN_GAIN`]; or an
     /// option measured fewer than three times whose optimistic prediction beats that (tried: once
     /// measured, it is chosen only if it beats the kept one by the margin like any other).
     pub fn decide(&mut self, units: f64) -> T {
-        // Timing noise is the machine's, not an option's: every measured option's prediction carries at
-        // least the largest relative spread any option measured over three samples or more (an option
-        // tried three times can have measured almost none by chance, and would then win on a lucky mean),
-        // widened by the uncertainty of its own mean (`√(1 + 1/n)`).
+        // Timing noise is the machine's, not an option's: every measured option's mean carries at least
+        // the largest relative spread any option measured over three samples or more (an option tried
+        // three times can have measured almost none by chance, and would then win on a lucky mean), over
+        // the square root of the samples its mean rests on.
         let noise = (self.arms.iter())
             .filter(|a| a.per_unit.samples() >= TRIES)
             .filter_map(|a| Some(a.per_unit.spread() / a.per_unit.mean()?))
@@ -163,14 +196,22 @@ impl<T: Copy + PartialEq> Choice<T> {
             let (c, true) = self.predict(a.option, units)? else {
                 return None;
             };
-            let n = a.per_unit.samples().max(1) as f64;
-            let pooled = noise * c.cost_s * (1.0 + 1.0 / n).sqrt();
+            let pooled = noise * c.cost_s / a.per_unit.effective_samples().max(1.0).sqrt();
+            let mean = (a.per_unit.mean_spread() * units).hypot(a.overhead.mean_spread());
             Some(Candidate {
-                spread_s: c.spread_s.max(pooled),
+                spread_s: mean.max(pooled),
                 ..c
             })
         });
-        let chosen = choose(candidates, Some(self.settled), self.z).unwrap_or(self.settled);
+        let best = choose(candidates, Some(self.settled), self.z).unwrap_or(self.settled);
+        let measured = |o| match self.predict(o, units) {
+            Some((c, true)) => Some(c.cost_s),
+            _ => None,
+        };
+        let chosen = match (measured(best), measured(self.settled)) {
+            (Some(b), Some(s)) if b > s * (1.0 - MIN_GAIN) => self.settled,
+            _ => best,
+        };
         self.settled = chosen;
         let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
         let tried = (self.arms.iter())

@@ -209,6 +209,9 @@ pub(crate) fn maintain_system(
             }
         };
         let inst = world.instances.get_mut(&e).expect("refitted or rebuilt");
+        // A switch's frame pays a catch-up (a BVH only refitted under the grid may be rebuilt now): not
+        // what the structure costs per frame, so its overhead is not learned.
+        let switched = inst.structure != structure;
         if let Err(err) = inst.keep_structure(structure, why, &config.grid, mesh, positions) {
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
@@ -216,10 +219,12 @@ pub(crate) fn maintain_system(
         if let Some(choice) = inst.kept.structure.as_mut() {
             let option = PlannedOption::Structure(structure);
             let measured = t.elapsed().as_secs_f64();
-            choice.kept(
-                structure,
-                scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
-            );
+            if !switched {
+                choice.kept(
+                    structure,
+                    scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
+                );
+            }
             stats.options.push(OptionStats {
                 entity: e,
                 option,
