@@ -1,6 +1,6 @@
 //! Suite `raysort`: the crowd's secondary rays (one shadow ray per primary hit toward one light, toward one
 //! of four lights chosen per pixel, and one reflection ray per hit) through the BVH in pixel order, the BVH
-//! in key order, packets of sorted rays (8, 16, 64 rays; 16 also unsorted, in pixel order), CRSH (s and D
+//! in key order, packets of sorted rays (8, 16, 64 rays; 64 also unsorted, in pixel order), CRSH (s and D
 //! swept) and RAH: intersection tests per ray and Mrays/s on one thread; with an
 //! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
@@ -87,7 +87,7 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
         ("BVH, shuffled", Strategy::Bvh),
         ("sorted BVH, shuffled", Strategy::SortedBvh),
         (
-            "sorted packets 16, shuffled",
+            "sorted packets 64, shuffled",
             Strategy::SortedPackets {
                 size: SORTED_PACKET,
             },
@@ -116,7 +116,7 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
     rec.add(
         SUITE,
         name,
-        "sorted packets 16 / BVH, shuffled",
+        "sorted packets 64 / BVH, shuffled",
         "speed-up 1 thread",
         speed[2] / speed[0],
         "x",
@@ -320,16 +320,16 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
     rec.add(
         SUITE,
         name,
-        "sorted packets 16 / BVH",
+        "sorted packets 64 / BVH",
         "speed-up 1 thread",
-        get(&speed, "sorted packets 16") / get(&speed, "BVH"),
+        get(&speed, "sorted packets 64") / get(&speed, "BVH"),
         "x",
     );
     let (t, _) = one_thread(|| best_of(rec.reps(), || request_order_packets(scene, rays)));
     rec.add(
         SUITE,
         name,
-        "packets 16, request order / BVH",
+        "packets 64, request order / BVH",
         "speed-up 1 thread",
         n / t / 1e6 / get(&speed, "BVH"),
         "x",

@@ -63,7 +63,8 @@ pub enum SecondaryStrategy {
     /// The rays in key order, traced as packets of [`SORTED_PACKET`] consecutive rays with the same
     /// filter ([`TraceWorld::cast_packet`], [`TraceWorld::occluded_packet`]): sorting makes neighbours in
     /// key order start near each other and point the same way, so a packet shares most node visits. Costs
-    /// the sort; pays on shadow rays toward few lights and on reflection rays off smooth surfaces.
+    /// the sort; pays on shadow rays toward one light (1.16–1.44× the BVH's speed on the crowd), not on
+    /// reflection rays (0.79–0.83×), whose sorted runs still spread too far for the packet's interval culling.
     SortedPackets,
     /// The coherent ray-space hierarchy over the sorted rays, culled against every mesh's world sphere
     /// and then its triangles' spheres; one sphere test per triangle of every mesh a top node reaches,
@@ -71,21 +72,23 @@ pub enum SecondaryStrategy {
     Crsh,
 }
 
-/// Rays per packet of [`SecondaryStrategy::SortedPackets`]: the fastest of 8, 16 and 64 on the crowd's
-/// shadow and reflection rays in `bench raysort` (16 rays of one key run share most node visits; 64 reach
-/// too far along the key order).
-pub const SORTED_PACKET: usize = 16;
+/// Rays per packet of [`SecondaryStrategy::SortedPackets`]: [`MAX_PACKET`](crate::bvh::MAX_PACKET). Of 8,
+/// 16 and 64 on the crowd's secondary rays (`bench raysort --quick`, idle 2-core dev VM), 64 was fastest on
+/// shadow rays toward one light (1.16–1.44× the BVH's rays per second) and on reflection rays (0.79–0.83×, still
+/// slower than the BVH), 16 on shadow rays toward four lights (0.99×, 64 0.98×).
+pub const SORTED_PACKET: usize = crate::bvh::MAX_PACKET;
 
 /// Priors of the secondary planners (ours, from `bench raysort` on the crowd's secondary rays, 2-core
-/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. Sorted packets at 0.5
-/// (they measured 1.8–2.4× the BVH's rays per second there), so they are tried first; the sorted BVH at
-/// 0.8 (0.61–1.12× the BVH's speed on shuffled rays, slower on rays in pixel order); CRSH at 4 (it runs at
+/// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. Sorted packets at 0.75,
+/// optimistic so that they are tried first (idle: 0.69× the BVH's time on shadow rays toward one light, 1.02×
+/// toward four, 1.2× on reflection rays); the sorted BVH at 0.8, optimistic so that it is tried
+/// (0.61–1.12× the BVH's speed on shuffled rays, slower on rays in pixel order); CRSH at 4 (it runs at
 /// 0.04–0.25× the BVH's rays per second), so the planner never tries it on its own on the CPU;
-/// [`SecondaryRays::fixed`] forces it.
+/// [`SecondaryRays::fixed`] forces it. The planner leaves whichever measures slower.
 const PRIORS: [(SecondaryStrategy, f64, f64); 4] = [
     (SecondaryStrategy::Bvh, 1.0, 1.0),
     (SecondaryStrategy::SortedBvh, 0.8, 1.0),
-    (SecondaryStrategy::SortedPackets, 0.5, 1.0),
+    (SecondaryStrategy::SortedPackets, 0.75, 1.0),
     (SecondaryStrategy::Crsh, 4.0, 1.0),
 ];
 

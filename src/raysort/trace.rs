@@ -5,9 +5,10 @@
 //!   incoherent, costs the sort (a few ns per ray).
 //! - [`Strategy::SortedPackets`]: the rays in key order, each kind apart, as packets of consecutive rays
 //!   ([`MeshBvh::closest_hits_packet`], [`MeshBvh::any_hits_packet`]): neighbours in key order start near
-//!   each other and point the same way, so a packet shares its node visits; the sort is what makes packets
-//!   of incoherent batches pay. Costs the sort and the packets' range scans; node tests count once per
-//!   packet.
+//!   each other and point the same way, so a packet shares its node visits where the rays allow: on the
+//!   crowd, 1.16–1.44× the BVH's speed on shadow rays toward one light, 0.79–0.83× on reflection rays (idle `bench
+//!   raysort --quick`, packets of 64). Costs the sort and the packets' range scans; node tests count once
+//!   per packet.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
 //!   children, and each level-1 node's survivors to the exact watertight test of its rays. Cost per top node:
