@@ -231,28 +231,12 @@ fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_ba
     let mut previous: HashMap<Entity, [Option<PlannedOption>; 3]> = HashMap::new();
     let mut changes: HashMap<(Entity, usize), u32> = HashMap::new();
     let mut tries = 0;
-    let mut bvh_tries = 0;
     // Frames each mesh's rays met the structure its prior did not pick (the torus's grid, the soup's BVH).
     let mut other = [0u32; 4];
     for f in 0..40 {
         let picks = frame(&mut world, &mut schedule, &meshes, f, f % 8 == 0);
         let stats = world.resource::<TraceStats>();
         tries += stats.options.iter().filter(|o| o.tried).count();
-        // A structure being tried is measured with the mesh's other options settled: none of them is
-        // tried in the same frame (a try of the wide tree or of packets would be charged to it).
-        let structure =
-            |o: &&kinetrace::ecs::OptionStats| matches!(o.option, PlannedOption::Structure(_));
-        for o in stats.options.iter().filter(|o| o.tried).filter(structure) {
-            bvh_tries += matches!(o.option, PlannedOption::Structure(StructureKind::Bvh)) as u32;
-            let also = (stats.options.iter())
-                .filter(|p| p.entity == o.entity && p.tried && !structure(p))
-                .count();
-            assert_eq!(
-                also, 0,
-                "frame {f}: {:?} tried beside {:?}",
-                stats.options, o.option
-            );
-        }
         for (i, (e, _)) in meshes.iter().enumerate() {
             let prior = [StructureKind::Bvh, StructureKind::Grid][i % 2];
             // Planned frames only: before its profile (the first frame) a mesh starts on the BVH.
@@ -276,7 +260,6 @@ fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_ba
             }
         }
     }
-    assert!(bvh_tries > 0, "no mesh tried the BVH under its grid prior");
     // The scenario must exercise the hysteresis: options were tried, and measured side by side.
     assert!(tries > 0);
     // Nothing to gain, little paid: the other structure answered only while it was tried.

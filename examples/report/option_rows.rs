@@ -116,10 +116,6 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         let n = rays.len() as f64;
         let (kind, wide, packets) = match (&mut planners, strategy) {
             (Some(p), _) => match p.structure.decide(n) {
-                // A structure being tried is measured with its sub-options settled (`Choice::hold`).
-                StructureKind::Bvh if p.structure.explored() => {
-                    (StructureKind::Bvh, p.wide.hold(), p.packets.hold())
-                }
                 StructureKind::Bvh => (StructureKind::Bvh, p.wide.decide(n), p.packets.decide(n)),
                 StructureKind::Grid => (StructureKind::Grid, p.wide.current(), false),
             },

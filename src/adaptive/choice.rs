@@ -177,16 +177,6 @@ impl<T: Copy + PartialEq> Choice<T> {
         ))
     }
 
-    /// The option settled on, for a frame that must try nothing: one in which another choice it
-    /// depends on tries an option (a structure being tried measures its rays with its sub-options as
-    /// settled, not with one of theirs being tried too, which would charge that try's cost to the
-    /// structure). O(1).
-    pub fn hold(&mut self) -> T {
-        self.current = self.settled;
-        self.explored = false;
-        self.current
-    }
-
     /// The option to use for a frame with `units` of work: among the measured options the cheapest
     /// predicted, the one chosen before kept unless another beats it by `z` standard deviations of the
     /// difference of their means and by [`MIN_GAIN`]; or an

@@ -216,8 +216,6 @@ pub(crate) fn maintain_system(
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
-        // A structure being tried is measured with its sub-options as settled (see `Choice::hold`).
-        let settle = inst.kept.structure.as_ref().is_some_and(|c| c.explored());
         if let Some(choice) = inst.kept.structure.as_mut() {
             let option = PlannedOption::Structure(structure);
             let measured = t.elapsed().as_secs_f64();
@@ -234,13 +232,13 @@ pub(crate) fn maintain_system(
             });
         }
         if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
-            let wide = plan_wide(inst, t, script.as_ref(), e, settle);
+            let wide = plan_wide(inst, t, script.as_ref(), e);
             stats.options.push(OptionStats {
                 entity: e,
                 option: PlannedOption::Wide(wide.current()),
                 tried: wide.explored(),
             });
-            let packets = plan_packets(inst, settle);
+            let packets = plan_packets(inst);
             stats.options.push(OptionStats {
                 entity: e,
                 option: PlannedOption::Packets(packets.current()),
@@ -340,22 +338,17 @@ fn start_from_sibling(
 }
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
-/// first call, [`Choice::wide`]; with `settle`, the settled option, no try): the option is applied (a
-/// collapse when the tree comes back) and charged this frame's maintenance of the mesh since `start`,
-/// its rays are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+/// first call, [`Choice::wide`]): the option is applied (a collapse when the tree comes back) and
+/// charged this frame's maintenance of the mesh since `start`, its rays are charged by
+/// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
     start: Instant,
     script: Option<&CostScript>,
     e: Entity,
-    settle: bool,
 ) -> &'a Choice<bool> {
     let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
-    let on = if settle {
-        wide.hold()
-    } else {
-        wide.decide(inst.rays)
-    };
+    let on = wide.decide(inst.rays);
     inst.bvh.set_wide(on);
     let measured = start.elapsed().as_secs_f64();
     wide.kept(
@@ -368,15 +361,11 @@ fn plan_wide<'a>(
 }
 
 /// Whether packet requests meet the mesh as packets from this frame on, decided by its [`Choice`] (made
-/// at its first call, [`Choice::packets`]; with `settle`, the settled option, no try). Its rays are
-/// charged by [`TraceWorld::attribute_queries`] to the option in use. O(1).
-fn plan_packets(inst: &mut Instance, settle: bool) -> &Choice<bool> {
+/// at its first call, [`Choice::packets`]). Its rays are charged by [`TraceWorld::attribute_queries`] to the
+/// option in use. O(1).
+fn plan_packets(inst: &mut Instance) -> &Choice<bool> {
     let packets = (inst.kept.packets).get_or_insert_with(Choice::packets);
-    if settle {
-        packets.hold();
-    } else {
-        packets.decide(inst.rays);
-    }
+    packets.decide(inst.rays);
     packets
 }
 

@@ -42,13 +42,6 @@
 //! least 15%; a sample over 4× its mean is a stall, clipped), in the report (the BVH only refitted under
 //! the grid, as here) and here: the frame of a switch, which catches a BVH refitted under the grid up
 //! (a rebuild), does not teach the structure's overhead. `tests/options.rs` scripts the spiky case.
-//! That was not all: on an idle machine the explosion and the soup still kept the grid 891 of 900
-//! frames, because the BVH's tried frames were also the first frames of its wide-tree and packet
-//! choices, which tried the binary tree and packets there — both slower — and charged them to the BVH.
-//! A structure being tried now measures with those options settled ([`Choice::hold`]); the report then
-//! left the grid after 25 of 300 frames on the explosion (0.79× lauterbach-0.4's time) and 26 on the
-//! soup (a run beside a CI build). `tests/options.rs` checks that no other option of a mesh is tried
-//! in a frame its structure is.
 //!
 //! Cost: a few arithmetic operations per mesh and frame; the grid is built only in frames it is in use.
 
