@@ -28,6 +28,17 @@ use kinetrace::ecs::*;
 use rand::Rng;
 use rand::rngs::SmallRng;
 
+/// Held by every test of this file, so that the test harness's parallel threads do not time each other:
+/// verdicts follow measured seconds (the rent is charged from measured query and rebuild times), and on
+/// two cores a test running beside the churning-corner test kept its rent from ever coming due (CI, and
+/// here beside the SAH-bound test). The file's tests run one after another.
+static MEASURED_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// [`MEASURED_TIME`], also after a test that held it failed.
+fn measured_time() -> std::sync::MutexGuard<'static, ()> {
+    MEASURED_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn app(policy: RebuildPolicy, mode: TraceMode) -> (World, Schedule) {
     app_with(TraceConfig {
         policy,
@@ -200,6 +211,7 @@ fn policy_rebuilds(n: usize, frames: u32) -> Vec<u32> {
 
 #[test]
 fn adaptive_rebuilds_sooner_the_more_rays_a_degraded_tree_costs() {
+    let _serial = measured_time();
     let many = policy_rebuilds(4000, 40);
     let none = policy_rebuilds(0, 40);
     assert!(
@@ -245,6 +257,7 @@ fn rebuilds(stats: &[MeshStats]) -> impl Iterator<Item = (usize, Build, RebuildR
 
 #[test]
 fn lauterbach_rebuilds_exactly_past_its_threshold_and_explains_nothing_more() {
+    let _serial = measured_time();
     for (policy, threshold) in [
         (RebuildPolicy::Lauterbach { threshold: 0.1 }, 0.1),
         (RebuildPolicy::LAUTERBACH, 0.4),
@@ -297,6 +310,7 @@ fn always_gpu_sah8(_: &PolicyInput<'_>) -> Decision {
 
 #[test]
 fn without_a_gpu_every_build_runs_on_the_cpu() {
+    let _serial = measured_time();
     let stats = run(RebuildPolicy::ADAPTIVE, TraceMode::Cpu, 30);
     for (f, build, _) in rebuilds(&stats) {
         assert_eq!(build.device, Device::Cpu, "adaptive, frame {f}");
@@ -325,6 +339,7 @@ fn without_a_gpu_every_build_runs_on_the_cpu() {
 #[cfg(feature = "gpu")]
 #[test]
 fn with_a_gpu_the_adaptive_policy_tries_it_and_answers_stay_exact() {
+    let _serial = measured_time();
     if gpu_or_skip().is_none() {
         return;
     }
@@ -365,6 +380,7 @@ fn with_a_gpu_the_adaptive_policy_tries_it_and_answers_stay_exact() {
 
 #[test]
 fn switching_to_the_adaptive_policy_at_run_time_rebuilds_once_to_measure() {
+    let _serial = measured_time();
     let never = RebuildPolicy::Lauterbach {
         threshold: f32::INFINITY,
     };
@@ -521,6 +537,7 @@ fn rent_rebuilds(sensitivity: f64, seed: u64) -> Counted {
 
 #[test]
 fn the_policy_stays_on_refit_where_query_time_ignores_the_sah_cost() {
+    let _serial = measured_time();
     for seed in 0..4 {
         let counted = rent_rebuilds(0.0, 40 + seed);
         assert_eq!(counted.verdicts, [0, 0, 0], "seed {seed}: {counted:?}");
@@ -529,6 +546,7 @@ fn the_policy_stays_on_refit_where_query_time_ignores_the_sah_cost() {
 
 #[test]
 fn the_policy_rebuilds_where_query_time_follows_the_sah_cost() {
+    let _serial = measured_time();
     for seed in 0..4 {
         let counted = rent_rebuilds(1.0, 40 + seed);
         assert!(counted.verdicts[2] >= 5, "seed {seed}: {counted:?}");
@@ -546,6 +564,7 @@ const OFFERED: [Build; 3] = [
 /// other topology) explores again.
 #[test]
 fn the_second_instance_of_an_asset_explores_nothing() {
+    let _serial = measured_time();
     let table = CostTable::new();
     let asset = Asset {
         triangles: TRIANGLES,
@@ -571,6 +590,7 @@ fn the_second_instance_of_an_asset_explores_nothing() {
 /// the same script with no margin (`z` = 0) does flip.
 #[test]
 fn timing_noise_never_flips_the_build() {
+    let _serial = measured_time();
     let mut flips_without_margin = 0;
     for seed in 0..8 {
         for z in [DEFAULT_Z, 0.0] {
@@ -598,6 +618,7 @@ fn timing_noise_never_flips_the_build() {
 /// With no rays the rent stays 0 and nothing is worth exploring: every rebuild is the guard's.
 #[test]
 fn without_rays_only_the_guard_rebuilds() {
+    let _serial = measured_time();
     let mut p = AdaptivePolicy::shared(&OFFERED, &CostTable::new(), Asset::default());
     let counted = script(0.0, 0.1, 4).run(&mut p, Asset::default(), 300);
     assert!(counted.verdicts[1] > 0, "{counted:?}");
@@ -613,6 +634,7 @@ fn without_rays_only_the_guard_rebuilds() {
 /// the first included — is one the first entity measured.
 #[test]
 fn a_second_entity_of_one_mesh_explores_nothing() {
+    let _serial = measured_time();
     let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
     let mut a = Walk::spawn(&mut world, 2000, 21, 0.01);
     let mut r = rng(22);
@@ -673,6 +695,7 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
 /// planner's decisions follow measured timings, so runs differ: run it several times under load.
 #[test]
 fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
+    let _serial = measured_time();
     for triangles in [1000, 2000, 4000] {
         let settings = harness::Settings {
             triangles,
@@ -731,6 +754,7 @@ fn adaptive_or_fixed(
 /// fixed policy (no planner to judge the copy) the same spawn builds from scratch.
 #[test]
 fn a_new_instance_starts_from_a_siblings_tree_and_explores_nothing() {
+    let _serial = measured_time();
     for adaptive in [true, false] {
         let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 2000, 31);
         for _ in 0..10 {
@@ -790,6 +814,7 @@ fn a_new_instance_starts_from_a_siblings_tree_and_explores_nothing() {
 /// and nothing else: a later mesh of it explores again, one of another asset still does not.
 #[test]
 fn a_forgotten_asset_is_measured_again() {
+    let _serial = measured_time();
     let table = CostTable::new();
     let kept = Asset {
         triangles: TRIANGLES,
@@ -844,6 +869,7 @@ fn scripted_choice<T: Copy + PartialEq + std::fmt::Debug>(
 /// run in 400 did switch.
 #[test]
 fn each_option_is_chosen_when_it_is_cheaper_beyond_the_margin_and_not_otherwise() {
+    let _serial = measured_time();
     use kinetrace::grid::StructureKind;
     // Wide tree (b = on): 30% cheaper rays for 40 µs more maintenance a frame; with 1000 rays at 1 µs
     // it saves 300 µs, with 50 rays 15 µs (less than it costs).
@@ -883,6 +909,7 @@ fn each_option_is_chosen_when_it_is_cheaper_beyond_the_margin_and_not_otherwise(
 /// plans no options.
 #[test]
 fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
+    let _serial = measured_time();
     for adaptive in [true, false] {
         let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 1000, 71);
         let mut seen = Vec::new();
@@ -922,6 +949,7 @@ fn the_wide_tree_is_a_planned_option_and_answers_stay_exact() {
 /// whichever way the planner picked that frame; a fixed policy plans no options.
 #[test]
 fn packets_are_a_planned_option_and_answers_stay_exact() {
+    let _serial = measured_time();
     for adaptive in [true, false] {
         let (mut world, mut schedule, mut a, mut r) = adaptive_or_fixed(adaptive, 1000, 73);
         let mut seen = Vec::new();
@@ -979,6 +1007,7 @@ fn always_partial(_: &PolicyInput<'_>) -> Decision {
 /// triangles than the mesh), and every batched and immediate answer equals brute force each frame.
 #[test]
 fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
+    let _serial = measured_time();
     const N: usize = 4000;
     let (mut world, mut schedule) = app(RebuildPolicy::Custom(always_partial), TraceMode::Cpu);
     let mut walk = Walk::spawn(&mut world, N, 41, 0.0005);
@@ -1018,6 +1047,7 @@ fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
 /// brings the guard (which always rebuilds whole) to act.
 #[test]
 fn the_adaptive_policy_rebuilds_a_churning_corner_partially() {
+    let _serial = measured_time();
     const N: usize = 4000;
     let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
     let mut walk = Walk::spawn(&mut world, N, 43, 0.0005);
@@ -1057,6 +1087,7 @@ fn the_adaptive_policy_rebuilds_a_churning_corner_partially() {
 /// frame while rays keep the rent's measurements coming).
 #[test]
 fn a_rigid_scene_never_checks_for_a_partial_rebuild() {
+    let _serial = measured_time();
     let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
     let walk = Walk::spawn(&mut world, 2000, 45, 0.0);
     let mut r = rng(46);
