@@ -295,11 +295,7 @@ fn trace_batch(
                     start = end;
                 }
             });
-            let mut answers = vec![Answer::Miss; rays.len()];
-            for (&j, a) in valid.iter().zip(done) {
-                answers[j as usize] = a;
-            }
-            return Ok(answers);
+            return Ok(in_request_order(rays.len(), valid, done));
         }
         SecondaryStrategy::Crsh => {
             let sorted = sort_rays(rays, &config.layout, true)?;
@@ -328,11 +324,17 @@ fn trace_batch(
     };
     let mut done = vec![Answer::Miss; rays.len()];
     parallel::fill(true, &mut done, 64, |k| single(order[k] as usize));
-    let mut answers = vec![Answer::Miss; rays.len()];
+    Ok(in_request_order(rays.len(), &order, done))
+}
+
+/// `done[k]`, the answer to batch ray `order[k]`, put back at `order[k]` among `len` answers (a Miss
+/// where `order` has no entry: the invalid rays a sort trimmed).
+fn in_request_order(len: usize, order: &[u32], done: Vec<Answer>) -> Vec<Answer> {
+    let mut answers = vec![Answer::Miss; len];
     for (&j, a) in order.iter().zip(done) {
         answers[j as usize] = a;
     }
-    Ok(answers)
+    answers
 }
 
 /// The answers to the batch rays `ids` (at most [`SORTED_PACKET`], one filter), as one packet.
