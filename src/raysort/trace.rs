@@ -91,6 +91,18 @@ pub struct Traced {
     pub stats: RayTestStats,
 }
 
+impl Traced {
+    /// Puts `done[k]`, the answer to ray `order[k]` and its BVH traversal counts, in place: two box tests
+    /// per inner node visited, one exact test per primitive tested.
+    fn record(&mut self, order: &[u32], done: Vec<(Answer, TraversalStats)>) {
+        for (&i, (a, st)) in order.iter().zip(done) {
+            self.answers[i as usize] = a;
+            self.stats.node_tests += 2 * st.inner_visits;
+            self.stats.triangle_tests += st.prim_tests;
+        }
+    }
+}
+
 /// One mesh prepared for every strategy: its BVH, its bounding sphere and one sphere per triangle.
 /// Memory: the BVH plus 56 bytes per triangle.
 #[derive(Clone, Debug)]
@@ -181,14 +193,12 @@ impl RayScene {
             };
             (a, st)
         });
-        let mut answers = vec![Answer::Miss; rays.len()];
-        let mut stats = RayTestStats::default();
-        for (&i, (a, st)) in order.iter().zip(done) {
-            answers[i as usize] = a;
-            stats.node_tests += 2 * st.inner_visits;
-            stats.triangle_tests += st.prim_tests;
-        }
-        Traced { answers, stats }
+        let mut traced = Traced {
+            answers: vec![Answer::Miss; rays.len()],
+            stats: RayTestStats::default(),
+        };
+        traced.record(&order, done);
+        traced
     }
 
     /// The valid rays of `order`, split by kind (keeping their order), as packets of `size` consecutive rays.
@@ -200,8 +210,10 @@ impl RayScene {
         parallel: bool,
     ) -> Traced {
         let size = size.clamp(1, MAX_PACKET);
-        let mut answers = vec![Answer::Miss; rays.len()];
-        let mut stats = RayTestStats::default();
+        let mut traced = Traced {
+            answers: vec![Answer::Miss; rays.len()],
+            stats: RayTestStats::default(),
+        };
         let (shadow, reflect): (Vec<u32>, Vec<u32>) = order
             .iter()
             .partition(|&&i| matches!(rays[i as usize].kind, RayKind::Shadow { .. }));
@@ -228,13 +240,9 @@ impl RayScene {
                 }
                 out[0].1 = st;
             });
-            for (&i, (a, st)) in ids.iter().zip(done) {
-                answers[i as usize] = a;
-                stats.node_tests += 2 * st.inner_visits;
-                stats.triangle_tests += st.prim_tests;
-            }
+            traced.record(&ids, done);
         }
-        Traced { answers, stats }
+        traced
     }
 
     /// The valid rays of `order` through a hierarchy built over them in that order.
