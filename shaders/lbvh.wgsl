@@ -8,7 +8,8 @@
 //   walk_up      per node: depth and position in the crate's depth-first layout; writes node topology
 // Bounds and SA ratios then come bottom-up from levels.wgsl.
 
-struct MeshParams { tris: u32, _a: u32, _b: u32, _c: u32 }
+// cube: 1 for Morton codes on cubic cells (geometry::morton30_cube, PLOC's order), 0 for per-axis cells.
+struct MeshParams { tris: u32, cube: u32, _b: u32, _c: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
@@ -102,9 +103,10 @@ fn spread10(v: u32) -> u32 {
     return x;
 }
 
-// geometry::morton30 of `p` in [lo, hi].
+// geometry::morton30 of `p` in [lo, hi], or geometry::morton30_cube when params.cube is set.
 fn morton30(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> u32 {
-    let e = hi - lo;
+    var e = hi - lo;
+    if params.cube != 0u { e = vec3<f32>(max(e.x, max(e.y, e.z))); }
     let inv = select(vec3<f32>(0.0), vec3<f32>(1.0) / e, e > vec3<f32>(0.0));
     let n = clamp((p - lo) * inv, vec3<f32>(0.0), vec3<f32>(1.0));
     let q = vec3<u32>(min(n * 1024.0, vec3<f32>(1023.0)));

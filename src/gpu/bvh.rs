@@ -348,6 +348,13 @@ impl GpuMeshBvh {
         self.vals.binding()
     }
 
+    /// Sorts by Morton codes on cubic cells ([`morton30_cube`](crate::geometry::morton30_cube)) from the
+    /// next submission on, as PLOC's order; the LBVH tree and the characteriser's histogram keep per-axis
+    /// codes, so only a PLOC builder's own tree calls this.
+    pub(crate) fn use_cube_codes(&self, ctx: &GpuContext) {
+        self.params.write(ctx, SLOT_MESH, [self.tris, 1, 0, 0]);
+    }
+
     /// Records the read-back of the triangle ids in Morton order.
     pub(crate) fn record_sorted_ids(
         &self,

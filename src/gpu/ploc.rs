@@ -60,6 +60,7 @@ impl GpuPloc {
             )));
         }
         let lbvh = GpuMeshBvh::new(ctx, mesh)?;
+        lbvh.use_cube_codes(ctx);
         let n = lbvh.triangle_count().max(1) as u64;
         let boxes = GpuBuffer::storage(ctx, "ploc boxes", 2 * n * 32);
         let clusters = GpuBuffer::storage(ctx, "ploc clusters", n * 4);
