@@ -22,8 +22,7 @@ struct MeshParams { tris: u32, cube: u32, _b: u32, _c: u32 }
 @group(0) @binding(8) var<storage, read_write> first: array<u32>;
 @group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
 @group(0) @binding(10) var<storage, read_write> depths: array<u32>;
-@group(0) @binding(11) var<storage, read_write> slot_tris: array<vec4<u32>>;
-@group(0) @binding(12) var<uniform> params: MeshParams;
+@group(0) @binding(11) var<uniform> params: MeshParams;
 
 // Node ids of the radix tree: inner nodes 0 .. n-2 (0 is the root), leaves n-1 .. 2n-2.
 const NONE: u32 = 0xffffffffu;
@@ -197,8 +196,6 @@ fn walk_up(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     } else {
         let slot = v - (n - 1u);
         nodes[pos].index = LEAF_BIT | (1u << 27u) | slot;
-        let t = vals[slot];
-        slot_tris[slot] = vec4<u32>(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u], t);
     }
     nodes[pos].sa_ratio = 0.0;
     depths[pos] = depth;

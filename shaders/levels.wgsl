@@ -10,17 +10,19 @@ const MAX_DEPTH: u32 = 64u;
 struct LevelParams { nodes: u32, mode: u32, level: u32, max_groups: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
-@group(0) @binding(1) var<storage, read> slot_tris: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(3) var<storage, read> depths: array<u32>;
+@group(0) @binding(1) var<storage, read> indices: array<u32>;
+// Per leaf slot the triangle's id.
+@group(0) @binding(2) var<storage, read> ids: array<u32>;
+@group(0) @binding(3) var<storage, read_write> nodes: array<Node>;
+@group(0) @binding(4) var<storage, read> depths: array<u32>;
 // [0, 64): nodes per depth; [64, 128): cursors; [128, 192): offsets.
-@group(0) @binding(4) var<storage, read_write> levels: array<atomic<u32>>;
-@group(0) @binding(5) var<storage, read_write> order: array<u32>;
-@group(0) @binding(6) var<storage, read_write> terms: array<f32>;
-@group(0) @binding(7) var<uniform> params: LevelParams;
+@group(0) @binding(5) var<storage, read_write> levels: array<atomic<u32>>;
+@group(0) @binding(6) var<storage, read_write> order: array<u32>;
+@group(0) @binding(7) var<storage, read_write> terms: array<f32>;
+@group(0) @binding(8) var<uniform> params: LevelParams;
 // Indirect dispatch arguments of bounds_level, 3 words per depth. A buffer used for indirect arguments
 // cannot be bound as storage by the same dispatch, so bounds_level binds a stand-in here.
-@group(0) @binding(8) var<storage, read_write> args: array<u32>;
+@group(0) @binding(9) var<storage, read_write> args: array<u32>;
 
 const CURSOR: u32 = 64u;
 const OFFSET: u32 = 128u;
@@ -86,10 +88,10 @@ fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
         var hi = vec3<f32>(-fmax());
         let f = leaf_first(node);
         for (var s = f; s < f + leaf_count(node); s++) {
-            let t = slot_tris[s];
-            let a = vertex(t.x);
-            let b = vertex(t.y);
-            let c = vertex(t.z);
+            let t = 3u * ids[s];
+            let a = vertex(indices[t]);
+            let b = vertex(indices[t + 1u]);
+            let c = vertex(indices[t + 2u]);
             lo = min(lo, min(min(a, b), c));
             hi = max(hi, max(max(a, b), c));
         }

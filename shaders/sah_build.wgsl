@@ -43,14 +43,13 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 @group(0) @binding(7) var<storage, read_write> state: array<atomic<u32>>;
 @group(0) @binding(8) var<storage, read_write> nodes: array<Node>;
 @group(0) @binding(9) var<storage, read_write> depths: array<u32>;
-@group(0) @binding(10) var<storage, read_write> slot_tris: array<vec4<u32>>;
-@group(0) @binding(11) var<storage, read_write> vals: array<u32>;
+@group(0) @binding(10) var<storage, read_write> vals: array<u32>;
 // Indirect arguments (3 words each): 0 primitive passes, 1 split pass, 2.. 5 scan levels, 6 small subtrees.
 // Bound only by the argument kernels; the others see a stand-in.
-@group(0) @binding(12) var<storage, read_write> args: array<u32>;
+@group(0) @binding(11) var<storage, read_write> args: array<u32>;
 // Morton codes in slot order, sorted by the LBVH sort (hybrid builds only).
-@group(0) @binding(13) var<storage, read> keys: array<u32>;
-@group(0) @binding(14) var<uniform> params: SahParams;
+@group(0) @binding(12) var<storage, read> keys: array<u32>;
+@group(0) @binding(13) var<uniform> params: SahParams;
 
 const BINS: u32 = 16u;
 const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
@@ -708,12 +707,10 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     if t < root.y { slots[first + t] = wids[t]; }
 }
 
-// The leaves' triangles in slot order.
+// The leaves' triangle ids in slot order.
 @compute @workgroup_size(256)
 fn sah_finish(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if s >= params.tris { return; }
-    let t = slots[s];
-    vals[s] = t;
-    slot_tris[s] = vec4<u32>(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u], t);
+    vals[s] = slots[s];
 }

@@ -32,19 +32,23 @@ pub enum BuildPhase {
 /// frame's work for all meshes goes into one submission. Buffers are allocated once per mesh size.
 ///
 /// Memory ([`memory_bytes`](Self::memory_bytes), per triangle, `n` triangles, `2n - 1` nodes): the mesh
-/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot triangles 16, sorted ids 4, Morton
-/// codes 4), refit's level schedule (node depths 8, level order 8, during a build the radix tree's range
-/// starts), and LBVH build scratch: centroids 16 (later the degradation terms of a refit, 8) and
-/// radix-tree links 8 + 8 (children and parents, first the radix sort's ping-pong keys and ids). About
-/// 154 bytes per triangle for a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH
-/// builder adds its own scratch.
+/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot ids 4, Morton codes 4), refit's level
+/// schedule (node depths 8, level order 8, during a build the radix tree's range starts), and LBVH build
+/// scratch: centroids 16 (later the degradation terms of a refit, 8) and radix-tree links 8 + 8 (children
+/// and parents, first the radix sort's ping-pong keys and ids). About 138 bytes per triangle for a closed
+/// mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH builder adds its own scratch.
+///
+/// The ray kernels and the leaf boxes read a leaf's triangle through its slot id and the mesh's indices
+/// (`indices[3 · ids[slot] ..]`), not through a 16-byte copy of the indices in slot order: 16 bytes per
+/// triangle less, for one more dependent read per triangle tested.
 pub struct GpuMeshBvh {
     tris: u32,
     vertices: u32,
     positions: GpuBuffer,
     _indices: GpuBuffer,
     nodes: GpuBuffer,
-    slot_tris: GpuBuffer,
+    /// Per leaf slot, its triangle's id: what the ray kernels and the leaf boxes read the triangle's
+    /// vertex indices through.
     vals: GpuBuffer,
     /// Morton codes, sorted with `vals` by an LBVH sort.
     keys: GpuBuffer,
@@ -102,7 +106,6 @@ impl GpuMeshBvh {
         for (what, bytes) in [
             ("positions", vertices as u64 * 12),
             ("indices", tris as u64 * 12),
-            ("slot triangles", n * 16),
             ("nodes", node_count as u64 * 32),
         ] {
             ctx.check_storage(what, bytes)?;
@@ -120,7 +123,6 @@ impl GpuMeshBvh {
         let parents = GpuBuffer::storage(ctx, "parents", 2 * n * 4);
         let nodes = GpuBuffer::storage(ctx, "nodes", node_count as u64 * 32);
         let depths = GpuBuffer::storage(ctx, "depths", node_count as u64 * 4);
-        let slot_tris = GpuBuffer::storage(ctx, "slot triangles", n * 16);
         let levels = GpuBuffer::storage(ctx, "levels", LEVEL_WORDS * 4);
         let level_args = GpuBuffer::new(
             ctx,
@@ -168,7 +170,6 @@ impl GpuMeshBvh {
                 first.binding(),
                 nodes.binding(),
                 depths.binding(),
-                slot_tris.binding(),
                 params.binding(),
             ],
         );
@@ -178,7 +179,8 @@ impl GpuMeshBvh {
                 &k.levels.layout,
                 &[
                     positions.binding(),
-                    slot_tris.binding(),
+                    indices.binding(),
+                    vals.binding(),
                     nodes.binding(),
                     depths.binding(),
                     levels.binding(),
@@ -210,7 +212,6 @@ impl GpuMeshBvh {
             positions,
             _indices: indices,
             nodes,
-            slot_tris,
             vals,
             keys,
             level_args,
@@ -237,14 +238,7 @@ impl GpuMeshBvh {
     /// leaf it can be refitted on the GPU too.
     pub fn from_cpu(ctx: &GpuContext, mesh: &Mesh, bvh: &MeshBvh) -> Result<Self> {
         let mut g = Self::new(ctx, mesh)?;
-        let slot_tris: Vec<[u32; 4]> = bvh
-            .slot_indices()
-            .iter()
-            .zip(bvh.bvh().prim_indices())
-            .map(|(t, &p)| [t[0], t[1], t[2], p])
-            .collect();
         g.nodes.write(ctx, bvh.bvh().nodes());
-        g.slot_tris.write(ctx, &slot_tris);
         g.vals.write(ctx, bvh.bvh().prim_indices());
         g.built = true;
         g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
@@ -275,7 +269,6 @@ impl GpuMeshBvh {
             &self.positions,
             &self._indices,
             &self.nodes,
-            &self.slot_tris,
             &self.vals,
             &self.keys,
             &self.level_args,
@@ -369,9 +362,9 @@ impl GpuMeshBvh {
         self.vals.buffer()
     }
 
-    /// Per slot: the triangle's three vertex indices and its id.
-    pub(crate) fn slot_tris(&self) -> &wgpu::Buffer {
-        self.slot_tris.buffer()
+    /// The mesh's vertex indices, three per triangle in id order.
+    pub(crate) fn indices(&self) -> &wgpu::Buffer {
+        self._indices.buffer()
     }
 
     /// Replaces the vertex positions (same count as the mesh); takes effect at the next submission.
@@ -437,22 +430,21 @@ impl GpuMeshBvh {
     }
 
     /// The buffers another GPU builder writes before [`record_boxes`](Self::record_boxes): positions and
-    /// indices (read), nodes (topology), depths, slot triangles, slot ids, and the Morton codes the LBVH
-    /// sort ([`BuildPhase::Sort`]) leaves sorted beside the ids.
-    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 7] {
+    /// indices (read), nodes (topology), depths, slot ids, and the Morton codes the LBVH sort
+    /// ([`BuildPhase::Sort`]) leaves sorted beside the ids.
+    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 6] {
         [
             &self.positions,
             &self._indices,
             &self.nodes,
             &self.depths,
-            &self.slot_tris,
             &self.vals,
             &self.keys,
         ]
     }
 
     /// Records the second half of every GPU build once a builder has written each node's `index` (leaves
-    /// of one triangle), its depth, and the slots' triangles and ids: the level schedule, then boxes and
+    /// of one triangle), its depth, and the slots' triangle ids: the level schedule, then boxes and
     /// build-time SA ratios bottom-up. Marks the tree built; `coded` says whether this build sorted the
     /// current positions' Morton codes (for [`record_histogram`](Self::record_histogram)).
     pub(crate) fn record_boxes(
