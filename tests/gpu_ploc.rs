@@ -72,7 +72,7 @@ fn rays_at(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
 
 /// Validates, checks closest and any hits against brute force, prints the SAH cost over binned SAH's and
 /// returns it (1 for a mesh of at most one triangle).
-fn check_tree(m: &Mesh, bvh: &MeshBvh, what: &str) -> f32 {
+fn check_tree(m: &Mesh, bvh: &MeshBvh, what: &str) -> f64 {
     let bounds = m.triangle_bounds();
     bvh.bvh()
         .validate(Some(&bounds))
