@@ -21,8 +21,7 @@ struct MeshParams { tris: u32, cube: u32, _b: u32, _c: u32 }
 @group(0) @binding(7) var<storage, read_write> parents: array<u32>;
 @group(0) @binding(8) var<storage, read_write> first: array<u32>;
 @group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(10) var<storage, read_write> depths: array<u32>;
-@group(0) @binding(11) var<uniform> params: MeshParams;
+@group(0) @binding(10) var<uniform> params: MeshParams;
 
 // Node ids of the radix tree: inner nodes 0 .. n-2 (0 is the root), leaves n-1 .. 2n-2.
 const NONE: u32 = 0xffffffffu;
@@ -197,6 +196,6 @@ fn walk_up(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
         let slot = v - (n - 1u);
         nodes[pos].index = LEAF_BIT | (1u << 27u) | slot;
     }
-    nodes[pos].sa_ratio = 0.0;
-    depths[pos] = depth;
+    // The depth, until levels.wgsl has bucketed the nodes by it and made the boxes.
+    nodes[pos].sa_ratio = f32(depth);
 }

@@ -222,7 +222,7 @@ impl GpuSahBuilder {
         let slots_params: Vec<[u32; 4]> =
             (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
         let params = ParamSlots::new(ctx, &slots_params);
-        let [positions, indices, nodes, depths, vals, keys] = bvh.build_targets();
+        let [positions, indices, nodes, vals, keys] = bvh.build_targets();
         let group = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -237,7 +237,6 @@ impl GpuSahBuilder {
                     bins.binding(),
                     state.binding(),
                     nodes.binding(),
-                    depths.binding(),
                     vals.binding(),
                     a.binding(),
                     keys.binding(),

@@ -147,8 +147,7 @@ impl Kernels {
                 "lbvh",
                 shader!("lbvh.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Uniform,
                 ],
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
@@ -156,12 +155,13 @@ impl Kernels {
                 device,
                 "levels",
                 shader!("levels.wgsl"),
-                &[Read, Read, Read, Write, Read, Write, Write, Write, Uniform, Write],
+                &[Read, Read, Read, Write, Write, Write, Write, Uniform, Write],
                 &[
                     "level_reset",
                     "level_count",
                     "level_offsets",
                     "level_scatter",
+                    "leaf_bounds",
                     "bounds_level",
                 ],
             ),
@@ -222,7 +222,7 @@ impl Kernels {
                 shader!("sah_build.wgsl"),
                 &[
                     Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Read, Uniform,
+                    Read, Uniform,
                 ],
                 &[
                     "sah_frame",
