@@ -120,10 +120,19 @@ mod tests {
     fn cube_codes_scale_every_axis_by_the_largest_extent() {
         // A 4 × 1 × 0.25 box: 1024 cells along x, 256 along y, 64 along z.
         let b = Aabb::new(Vec3::ZERO, Vec3::new(4.0, 1.0, 0.25));
-        assert_eq!(morton30_cube(Vec3::new(4.0, 1.0, 0.25), &b), naive(1023, 256, 64, 10) as u32);
-        assert_eq!(morton30_cube(Vec3::new(2.0, 0.5, 0.125), &b), naive(512, 128, 32, 10) as u32);
+        assert_eq!(
+            morton30_cube(Vec3::new(4.0, 1.0, 0.25), &b),
+            naive(1023, 256, 64, 10) as u32
+        );
+        assert_eq!(
+            morton30_cube(Vec3::new(2.0, 0.5, 0.125), &b),
+            naive(512, 128, 32, 10) as u32
+        );
         // Per-axis codes stretch the thin axes to the whole grid.
-        assert_eq!(morton30(Vec3::new(2.0, 0.5, 0.125), &b), naive(512, 512, 512, 10) as u32);
+        assert_eq!(
+            morton30(Vec3::new(2.0, 0.5, 0.125), &b),
+            naive(512, 512, 512, 10) as u32
+        );
         let point = Aabb::new(Vec3::ONE, Vec3::ONE);
         assert_eq!(morton30_cube(Vec3::ONE, &point), 0);
     }

@@ -79,6 +79,8 @@ pub struct GpuMeshBvh {
     /// partition flags: no build needs both at once, and the schedule rewrites the order after every
     /// build.
     aliased: [GpuBuffer; 2],
+    /// The radix tree's children (8 B per triangle) and parents (8), first the sort's ping-pong buffers.
+    links: [GpuBuffer; 2],
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -228,7 +230,8 @@ impl GpuMeshBvh {
             refittable: true,
             height: MAX_DEPTH as u32,
             aliased: [centroids, order],
-            _scratch: vec![partials, children, parents, levels, stand_in],
+            links: [children, parents],
+            _scratch: vec![partials, levels, stand_in],
         })
     }
 
@@ -286,6 +289,7 @@ impl GpuMeshBvh {
             .chain(
                 self.aliased
                     .iter()
+                    .chain(&self.links)
                     .chain(&self._scratch)
                     .collect::<Vec<_>>()
                     .iter(),
@@ -470,6 +474,16 @@ impl GpuMeshBvh {
     /// the second.
     pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 2] {
         [&self.aliased[0], &self.aliased[1]]
+    }
+
+    /// What a PLOC build clusters in after [`BuildPhase::Sort`], none of it read again by this tree until
+    /// its next build: the node buffer (32 bytes per node id, `2n - 1` of them: the clusters' boxes), the
+    /// Morton codes (4 B per triangle), the centroids (16), the level order (4), and the radix tree's
+    /// children (8) and parents (8). A PLOC builder's own tree is never traced, refitted or read back.
+    pub(crate) fn ploc_scratch(&self) -> [&GpuBuffer; 6] {
+        let [centroids, order] = &self.aliased;
+        let [children, parents] = &self.links;
+        [&self.nodes, &self.keys, centroids, order, children, parents]
     }
 
     /// Dispatches recorded by the [`BuildPhase::Sort`] phase.

@@ -183,7 +183,9 @@ impl Kernels {
                 device,
                 "scene",
                 shader!(rays "scene.wgsl"),
-                &[Read, Read, Read, Read, Read, Read, Read, Read, Write, Uniform],
+                &[
+                    Read, Read, Read, Read, Read, Read, Read, Read, Write, Uniform,
+                ],
                 &["scene_trace"],
             ),
             skin: Module::new(

@@ -278,11 +278,8 @@ impl GpuScene {
         for inst in instances {
             self.count += 1;
             let bvh = inst.bvh;
-            let (node_offset, slot_offset, vertex_offset) = (
-                nodes.len() as u32,
-                ids.len() as u32,
-                corners.len() as u32,
-            );
+            let (node_offset, slot_offset, vertex_offset) =
+                (nodes.len() as u32, ids.len() as u32, corners.len() as u32);
             nodes.extend_from_slice(bvh.bvh().nodes());
             let prims = bvh.bvh().prim_indices();
             ids.extend_from_slice(prims);
