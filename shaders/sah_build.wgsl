@@ -34,21 +34,24 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 @group(0) @binding(3) var<storage, read_write> slots: array<u32>;
 @group(0) @binding(4) var<storage, read_write> flags: array<u32>;
 // vec4 words: [0, 2 cap) entries (first, count, node, descendants) of even / odd levels; [2 cap, 4 cap)
-// split records, two per entry; [4 cap, ...) small subtrees (first, count | depth << 16, node, descendants).
+// split records, two per entry.
 @group(0) @binding(5) var<storage, read_write> queues: array<vec4<u32>>;
+// Small subtrees (first, count | depth << 16, node, descendants), at most n / 2: in the tree's radix-tree
+// children (8 bytes per triangle), which only an LBVH build's tree phase uses.
+@group(0) @binding(6) var<storage, read_write> small: array<vec4<u32>>;
 // [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz); [336 cap, 342 cap) centroid bounds.
-@group(0) @binding(6) var<storage, read_write> bins: array<atomic<u32>>;
+@group(0) @binding(7) var<storage, read_write> bins: array<atomic<u32>>;
 // [0, 64) entries per level, [64] small subtrees, [65, 71) centroid bounds, [71, 77) box bounds (ordered
 // float bits, minima complemented).
-@group(0) @binding(7) var<storage, read_write> state: array<atomic<u32>>;
-@group(0) @binding(8) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(9) var<storage, read_write> vals: array<u32>;
+@group(0) @binding(8) var<storage, read_write> state: array<atomic<u32>>;
+@group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
+@group(0) @binding(10) var<storage, read_write> vals: array<u32>;
 // Indirect arguments (3 words each): 0 primitive passes, 1 split pass, 2.. 5 scan levels, 6 small subtrees.
 // Bound only by the argument kernels; the others see a stand-in.
-@group(0) @binding(10) var<storage, read_write> args: array<u32>;
+@group(0) @binding(11) var<storage, read_write> args: array<u32>;
 // Morton codes in slot order, sorted by the LBVH sort (hybrid builds only).
-@group(0) @binding(11) var<storage, read> keys: array<u32>;
-@group(0) @binding(12) var<uniform> params: SahParams;
+@group(0) @binding(12) var<storage, read> keys: array<u32>;
+@group(0) @binding(13) var<uniform> params: SahParams;
 
 const BINS: u32 = 16u;
 const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
@@ -215,7 +218,7 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
         if n == 1u {
             nodes[0] = leaf_node(0u, 0u);
         } else if small_root {
-            queues[4u * params.cap] = vec4<u32>(0u, n, 0u, 1u);
+            small[0] = vec4<u32>(0u, n, 0u, 1u);
             atomicStore(&state[SMALL_COUNT], 1u);
         } else {
             queues[0] = vec4<u32>(0u, n, 0u, 1u);
@@ -519,7 +522,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     }
     if small_on() && c.y <= SMALL {
         let k = atomicAdd(&state[SMALL_COUNT], 1u);
-        queues[4u * params.cap + k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
+        small[k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
         return NONE;
     }
     let k = atomicAdd(&state[params.level + 1u], 1u);
@@ -638,7 +641,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }
-    let packed = queues[4u * params.cap + k];
+    let packed = small[k];
     let root = vec4<u32>(packed.x, packed.y & 0xffffu, packed.z, packed.w);
     let first = root.x;
     if t < root.y { wids[t] = slots[first + t]; }

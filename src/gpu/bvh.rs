@@ -469,11 +469,12 @@ impl GpuMeshBvh {
         self.built = true;
     }
 
-    /// LBVH scratch free during another builder's build: 16 and 4 bytes per triangle (at least 256 bytes
-    /// each). An LBVH build overwrites them, and every build's schedule ([`record_boxes`](Self::record_boxes))
-    /// the second.
-    pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 2] {
-        [&self.aliased[0], &self.aliased[1]]
+    /// LBVH scratch free during another builder's build (after a hybrid's [`BuildPhase::Sort`]): the
+    /// centroids, the level order and the radix tree's children, 16, 4 and 8 bytes per triangle (at least
+    /// 256 bytes each). An LBVH build overwrites them, and every build's schedule
+    /// ([`record_boxes`](Self::record_boxes)) the second.
+    pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 3] {
+        [&self.aliased[0], &self.aliased[1], &self.links[0]]
     }
 
     /// What a PLOC build clusters in after [`BuildPhase::Sort`], none of it read again by this tree until

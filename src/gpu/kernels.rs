@@ -224,7 +224,7 @@ impl Kernels {
                 shader!("sah_build.wgsl"),
                 &[
                     Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Read, Uniform,
+                    Write, Read, Uniform,
                 ],
                 &[
                     "sah_frame",
