@@ -13,8 +13,8 @@ const NODE_OFFSET_WORD: u32 = 28u;
 @group(0) @binding(1) var<storage, read> by_id: array<u32>;
 // Object-to-world transform per instance: columns x, y, z, translation.
 @group(0) @binding(2) var<storage, read> forward: array<vec4<f32>>;
-// The top-level tree's slots: (vertex indices, instance) per leaf slot, after its build.
-@group(0) @binding(3) var<storage, read> tlas_slots: array<vec4<u32>>;
+// The top-level tree's slots: the instance at each leaf slot, after its build.
+@group(0) @binding(3) var<storage, read> tlas_ids: array<u32>;
 @group(0) @binding(4) var<storage, read_write> tlas_positions: array<f32>;
 @group(0) @binding(5) var<storage, read_write> sorted: array<u32>;
 @group(0) @binding(6) var<uniform> params: FrameParams;
@@ -55,7 +55,7 @@ fn instance_boxes(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_wo
 fn order_instances(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if s >= params.instances { return; }
-    let at = tlas_slots[s].w * INSTANCE_WORDS;
+    let at = tlas_ids[s] * INSTANCE_WORDS;
     for (var k = 0u; k < INSTANCE_WORDS; k++) {
         sorted[s * INSTANCE_WORDS + k] = by_id[at + k];
     }

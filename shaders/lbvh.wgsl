@@ -8,7 +8,8 @@
 //   walk_up      per node: depth and position in the crate's depth-first layout; writes node topology
 // Bounds and SA ratios then come bottom-up from levels.wgsl.
 
-struct MeshParams { tris: u32, _a: u32, _b: u32, _c: u32 }
+// cube: 1 for Morton codes on cubic cells (geometry::morton30_cube, PLOC's order), 0 for per-axis cells.
+struct MeshParams { tris: u32, cube: u32, _b: u32, _c: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
@@ -20,9 +21,7 @@ struct MeshParams { tris: u32, _a: u32, _b: u32, _c: u32 }
 @group(0) @binding(7) var<storage, read_write> parents: array<u32>;
 @group(0) @binding(8) var<storage, read_write> first: array<u32>;
 @group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(10) var<storage, read_write> depths: array<u32>;
-@group(0) @binding(11) var<storage, read_write> slot_tris: array<vec4<u32>>;
-@group(0) @binding(12) var<uniform> params: MeshParams;
+@group(0) @binding(10) var<uniform> params: MeshParams;
 
 // Node ids of the radix tree: inner nodes 0 .. n-2 (0 is the root), leaves n-1 .. 2n-2.
 const NONE: u32 = 0xffffffffu;
@@ -102,9 +101,10 @@ fn spread10(v: u32) -> u32 {
     return x;
 }
 
-// geometry::morton30 of `p` in [lo, hi].
+// geometry::morton30 of `p` in [lo, hi], or geometry::morton30_cube when params.cube is set.
 fn morton30(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> u32 {
-    let e = hi - lo;
+    var e = hi - lo;
+    if params.cube != 0u { e = vec3<f32>(max(e.x, max(e.y, e.z))); }
     let inv = select(vec3<f32>(0.0), vec3<f32>(1.0) / e, e > vec3<f32>(0.0));
     let n = clamp((p - lo) * inv, vec3<f32>(0.0), vec3<f32>(1.0));
     let q = vec3<u32>(min(n * 1024.0, vec3<f32>(1023.0)));
@@ -195,9 +195,7 @@ fn walk_up(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     } else {
         let slot = v - (n - 1u);
         nodes[pos].index = LEAF_BIT | (1u << 27u) | slot;
-        let t = vals[slot];
-        slot_tris[slot] = vec4<u32>(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u], t);
     }
-    nodes[pos].sa_ratio = 0.0;
-    depths[pos] = depth;
+    // The depth, until levels.wgsl has bucketed the nodes by it and made the boxes.
+    nodes[pos].sa_ratio = f32(depth);
 }

@@ -1,5 +1,6 @@
-// Bottom-up passes over a tree in the crate's layout without arrival counters: nodes are bucketed by depth
-// once per topology (level_count, level_offsets, level_scatter), then `bounds_level` runs once per depth,
+// Bottom-up passes over a tree in the crate's layout without arrival counters: inner nodes are bucketed by
+// depth once per topology (level_count, level_offsets, level_scatter; the depth is what the builder left in
+// sa_ratio), then `leaf_bounds` makes every leaf's box in one pass and `bounds_level` runs once per depth,
 // deepest first, one indirect dispatch each, so a parent only ever reads children written by an earlier
 // dispatch. The same passes serve LBVH construction (storing the build-time SA ratios) and refit
 // (producing the per-node terms of the degradation metric, summed by `reduce_terms`).
@@ -10,9 +11,10 @@ const MAX_DEPTH: u32 = 64u;
 struct LevelParams { nodes: u32, mode: u32, level: u32, max_groups: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
-@group(0) @binding(1) var<storage, read> slot_tris: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(3) var<storage, read> depths: array<u32>;
+@group(0) @binding(1) var<storage, read> indices: array<u32>;
+// Per leaf slot the triangle's id.
+@group(0) @binding(2) var<storage, read> ids: array<u32>;
+@group(0) @binding(3) var<storage, read_write> nodes: array<Node>;
 // [0, 64): nodes per depth; [64, 128): cursors; [128, 192): offsets.
 @group(0) @binding(4) var<storage, read_write> levels: array<atomic<u32>>;
 @group(0) @binding(5) var<storage, read_write> order: array<u32>;
@@ -26,6 +28,10 @@ const CURSOR: u32 = 64u;
 const OFFSET: u32 = 128u;
 const MODE_BUILD: u32 = 0u;
 
+// A node's depth: the builders store it in sa_ratio, which bounds_level then overwrites in build mode (the
+// schedule is made once per build, and refit reuses it), so no buffer keeps it between builds.
+fn depth(i: u32) -> u32 { return u32(nodes[i].sa_ratio); }
+
 var<workgroup> local_count: array<atomic<u32>, 64>;
 
 @compute @workgroup_size(256)
@@ -34,7 +40,7 @@ fn level_count(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
     if lid.x < MAX_DEPTH { atomicStore(&local_count[lid.x], 0u); }
     workgroupBarrier();
     let i = linear_id(gid, nwg);
-    if i < params.nodes { atomicAdd(&local_count[depths[i]], 1u); }
+    if i < params.nodes && !is_leaf(nodes[i]) { atomicAdd(&local_count[depth(i)], 1u); }
     workgroupBarrier();
     if lid.x < MAX_DEPTH {
         let c = atomicLoad(&local_count[lid.x]);
@@ -61,8 +67,8 @@ fn level_offsets() {
 @compute @workgroup_size(256)
 fn level_scatter(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
-    if i >= params.nodes { return; }
-    let d = depths[i];
+    if i >= params.nodes || is_leaf(nodes[i]) { return; }
+    let d = depth(i);
     let at = atomicLoad(&levels[OFFSET + d]) + atomicAdd(&levels[CURSOR + d], 1u);
     order[at] = i;
 }
@@ -71,8 +77,35 @@ fn vertex(i: u32) -> vec3<f32> {
     return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
 }
 
-// Boxes of every node at depth params.level: leaves from their triangles' current vertices, inner nodes
-// from their children. Build mode stores the SA ratio; refit mode writes ratio − stored ratio to `terms`.
+// Boxes of every leaf from its triangles' current vertices (one pass over all nodes, before the inner levels:
+// the schedule orders inner nodes only, 4 bytes per triangle). Build mode clears the depth the builder left
+// in sa_ratio (a leaf's is 0).
+@compute @workgroup_size(256)
+fn leaf_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    if i >= params.nodes { return; }
+    var node = nodes[i];
+    if !is_leaf(node) { return; }
+    var lo = vec3<f32>(fmax());
+    var hi = vec3<f32>(-fmax());
+    let f = leaf_first(node);
+    for (var s = f; s < f + leaf_count(node); s++) {
+        let t = 3u * ids[s];
+        let a = vertex(indices[t]);
+        let b = vertex(indices[t + 1u]);
+        let c = vertex(indices[t + 2u]);
+        lo = min(lo, min(min(a, b), c));
+        hi = max(hi, max(max(a, b), c));
+    }
+    node.min = lo;
+    node.max = hi;
+    if params.mode == MODE_BUILD { node.sa_ratio = 0.0; }
+    terms[i] = 0.0;
+    nodes[i] = node;
+}
+
+// Boxes of every inner node at depth params.level from its children. Build mode stores the SA ratio; refit
+// mode writes ratio − stored ratio to `terms`.
 @compute @workgroup_size(256)
 fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let k = linear_id(gid, nwg);
@@ -81,33 +114,16 @@ fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     if k >= count { return; }
     let i = order[atomicLoad(&levels[OFFSET + d]) + k];
     var node = nodes[i];
-    if is_leaf(node) {
-        var lo = vec3<f32>(fmax());
-        var hi = vec3<f32>(-fmax());
-        let f = leaf_first(node);
-        for (var s = f; s < f + leaf_count(node); s++) {
-            let t = slot_tris[s];
-            let a = vertex(t.x);
-            let b = vertex(t.y);
-            let c = vertex(t.z);
-            lo = min(lo, min(min(a, b), c));
-            hi = max(hi, max(max(a, b), c));
-        }
-        node.min = lo;
-        node.max = hi;
+    let l = nodes[node.index];
+    let r = nodes[node.index + 1u];
+    node.min = min(l.min, r.min);
+    node.max = max(l.max, r.max);
+    let ratio = sa_ratio(node.min, node.max, l.min, l.max, r.min, r.max);
+    if params.mode == MODE_BUILD {
+        node.sa_ratio = ratio;
         terms[i] = 0.0;
     } else {
-        let l = nodes[node.index];
-        let r = nodes[node.index + 1u];
-        node.min = min(l.min, r.min);
-        node.max = max(l.max, r.max);
-        let ratio = sa_ratio(node.min, node.max, l.min, l.max, r.min, r.max);
-        if params.mode == MODE_BUILD {
-            node.sa_ratio = ratio;
-            terms[i] = 0.0;
-        } else {
-            terms[i] = ratio - node.sa_ratio;
-        }
+        terms[i] = ratio - node.sa_ratio;
     }
     nodes[i] = node;
 }

@@ -34,23 +34,24 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 @group(0) @binding(3) var<storage, read_write> slots: array<u32>;
 @group(0) @binding(4) var<storage, read_write> flags: array<u32>;
 // vec4 words: [0, 2 cap) entries (first, count, node, descendants) of even / odd levels; [2 cap, 4 cap)
-// split records, two per entry; [4 cap, ...) small subtrees (first, count | depth << 16, node, descendants).
+// split records, two per entry.
 @group(0) @binding(5) var<storage, read_write> queues: array<vec4<u32>>;
+// Small subtrees (first, count | depth << 16, node, descendants), at most n / 2: in the tree's radix-tree
+// children (8 bytes per triangle), which only an LBVH build's tree phase uses.
+@group(0) @binding(6) var<storage, read_write> small: array<vec4<u32>>;
 // [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz); [336 cap, 342 cap) centroid bounds.
-@group(0) @binding(6) var<storage, read_write> bins: array<atomic<u32>>;
+@group(0) @binding(7) var<storage, read_write> bins: array<atomic<u32>>;
 // [0, 64) entries per level, [64] small subtrees, [65, 71) centroid bounds, [71, 77) box bounds (ordered
 // float bits, minima complemented).
-@group(0) @binding(7) var<storage, read_write> state: array<atomic<u32>>;
-@group(0) @binding(8) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(9) var<storage, read_write> depths: array<u32>;
-@group(0) @binding(10) var<storage, read_write> slot_tris: array<vec4<u32>>;
-@group(0) @binding(11) var<storage, read_write> vals: array<u32>;
+@group(0) @binding(8) var<storage, read_write> state: array<atomic<u32>>;
+@group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
+@group(0) @binding(10) var<storage, read_write> vals: array<u32>;
 // Indirect arguments (3 words each): 0 primitive passes, 1 split pass, 2.. 5 scan levels, 6 small subtrees.
 // Bound only by the argument kernels; the others see a stand-in.
-@group(0) @binding(12) var<storage, read_write> args: array<u32>;
+@group(0) @binding(11) var<storage, read_write> args: array<u32>;
 // Morton codes in slot order, sorted by the LBVH sort (hybrid builds only).
-@group(0) @binding(13) var<storage, read> keys: array<u32>;
-@group(0) @binding(14) var<uniform> params: SahParams;
+@group(0) @binding(12) var<storage, read> keys: array<u32>;
+@group(0) @binding(13) var<uniform> params: SahParams;
 
 const BINS: u32 = 16u;
 const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
@@ -174,12 +175,13 @@ fn sah_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     }
 }
 
-fn leaf_node(slot: u32) -> Node {
-    return Node(vec3<f32>(0.0), LEAF_BIT | (1u << 27u) | slot, vec3<f32>(0.0), 0.0);
+// Until the boxes are made bottom-up, a node's sa_ratio holds its depth (levels.wgsl buckets by it).
+fn leaf_node(slot: u32, depth: u32) -> Node {
+    return Node(vec3<f32>(0.0), LEAF_BIT | (1u << 27u) | slot, vec3<f32>(0.0), f32(depth));
 }
 
-fn inner_node(left: u32) -> Node {
-    return Node(vec3<f32>(0.0), left, vec3<f32>(0.0), 0.0);
+fn inner_node(left: u32, depth: u32) -> Node {
+    return Node(vec3<f32>(0.0), left, vec3<f32>(0.0), f32(depth));
 }
 
 // Quantised centroid and box of every triangle, the identity order, and the root's queue entry.
@@ -214,10 +216,9 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     slots[2u * n + i] = select(0u, NONE, n == 1u || small_root);
     if i == 0u {
         if n == 1u {
-            nodes[0] = leaf_node(0u);
-            depths[0] = 0u;
+            nodes[0] = leaf_node(0u, 0u);
         } else if small_root {
-            queues[4u * params.cap] = vec4<u32>(0u, n, 0u, 1u);
+            small[0] = vec4<u32>(0u, n, 0u, 1u);
             atomicStore(&state[SMALL_COUNT], 1u);
         } else {
             queues[0] = vec4<u32>(0u, n, 0u, 1u);
@@ -516,13 +517,12 @@ var<workgroup> wcount: u32;
 // next level. Returns its entry (NONE unless queued for the next level).
 fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     if c.y == 1u {
-        nodes[c.z] = leaf_node(c.x);
-        depths[c.z] = depth;
+        nodes[c.z] = leaf_node(c.x, depth);
         return NONE;
     }
     if small_on() && c.y <= SMALL {
         let k = atomicAdd(&state[SMALL_COUNT], 1u);
-        queues[4u * params.cap + k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
+        small[k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
         return NONE;
     }
     let k = atomicAdd(&state[params.level + 1u], 1u);
@@ -555,8 +555,7 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     if lid.x == 0u {
         let f = node_frame(e);
         let sp = choose(ent.x, ent.y, params.level, f[0], f[1]);
-        nodes[ent.z] = inner_node(ent.w);
-        depths[ent.z] = params.level;
+        nodes[ent.z] = inner_node(ent.w, params.level);
         let l = vec4<u32>(ent.x, sp.y, ent.w, ent.w + 2u);
         let r = vec4<u32>(ent.x + sp.y, ent.y - sp.y, ent.w + 1u, ent.w + 2u * sp.y);
         let le = place_child(l, params.level + 1u);
@@ -642,7 +641,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let t = lid.x;
     if t == 0u { wcount = atomicLoad(&state[SMALL_COUNT]); }
     if k >= workgroupUniformLoad(&wcount) { return; }
-    let packed = queues[4u * params.cap + k];
+    let packed = small[k];
     let root = vec4<u32>(packed.x, packed.y & 0xffffu, packed.z, packed.w);
     let first = root.x;
     if t < root.y { wids[t] = slots[first + t]; }
@@ -685,8 +684,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         workgroupBarrier();
         if t == 0u {
             let d = wnode_depth;
-            nodes[nd.z] = inner_node(nd.w);
-            depths[nd.z] = d;
+            nodes[nd.z] = inner_node(nd.w, d);
             let kids = array<vec4<u32>, 2>(
                 vec4<u32>(nd.x, sp.y, nd.w, nd.w + 2u),
                 vec4<u32>(nd.x + sp.y, nd.y - sp.y, nd.w + 1u, nd.w + 2u * sp.y),
@@ -694,8 +692,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
             for (var c = 0u; c < 2u; c++) {
                 let kid = kids[c];
                 if kid.y == 1u {
-                    nodes[kid.z] = leaf_node(first + kid.x);
-                    depths[kid.z] = d + 1u;
+                    nodes[kid.z] = leaf_node(first + kid.x, d + 1u);
                 } else {
                     wstack[wsp] = kid;
                     wdepth[wsp] = d + 1u;
@@ -708,12 +705,10 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     if t < root.y { slots[first + t] = wids[t]; }
 }
 
-// The leaves' triangles in slot order.
+// The leaves' triangle ids in slot order.
 @compute @workgroup_size(256)
 fn sah_finish(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if s >= params.tris { return; }
-    let t = slots[s];
-    vals[s] = t;
-    slot_tris[s] = vec4<u32>(indices[3u * t], indices[3u * t + 1u], indices[3u * t + 2u], t);
+    vals[s] = slots[s];
 }

@@ -34,13 +34,16 @@ struct SceneParams { rays: u32, any: u32, _b: u32, _c: u32 }
 @group(0) @binding(0) var<storage, read> tlas: array<Node>;
 @group(0) @binding(1) var<storage, read> instances: array<Instance>;
 @group(0) @binding(2) var<storage, read> blas: array<Node>;
-@group(0) @binding(3) var<storage, read> slot_tris: array<vec4<u32>>;
-@group(0) @binding(4) var<storage, read> positions: array<f32>;
-@group(0) @binding(5) var<storage, read> rays: array<GpuRay>;
+// Per leaf slot (from the instance's slot_offset) its triangle's id; the triangle's corners are
+// indices[3 (slot_offset + id) ..], relative to the instance's vertex_offset.
+@group(0) @binding(3) var<storage, read> ids: array<u32>;
+@group(0) @binding(4) var<storage, read> indices: array<u32>;
+@group(0) @binding(5) var<storage, read> positions: array<f32>;
+@group(0) @binding(6) var<storage, read> rays: array<GpuRay>;
 // Per ray: layer mask, excluded entity (lo, hi; all ones for none), unused.
-@group(0) @binding(6) var<storage, read> filters: array<vec4<u32>>;
-@group(0) @binding(7) var<storage, read_write> hits: array<SceneHit>;
-@group(0) @binding(8) var<uniform> params: SceneParams;
+@group(0) @binding(7) var<storage, read> filters: array<vec4<u32>>;
+@group(0) @binding(8) var<storage, read_write> hits: array<SceneHit>;
+@group(0) @binding(9) var<uniform> params: SceneParams;
 
 const MIN_NORMAL: f32 = 1.17549435e-38;
 
@@ -102,14 +105,15 @@ fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
         if is_leaf(n) {
             let f = leaf_first(n) + inst.slot_offset;
             for (var s = f; s < f + leaf_count(n); s++) {
-                let tri = slot_tris[s];
+                let t = ids[s];
+                let i = 3u * (inst.slot_offset + t);
                 let v = inst.vertex_offset;
-                let a = vertex(v + tri.x);
-                let b = vertex(v + tri.y);
-                let c = vertex(v + tri.z);
+                let a = vertex(v + indices[i]);
+                let b = vertex(v + indices[i + 1u]);
+                let c = vertex(v + indices[i + 2u]);
                 let h = intersect(ray, a, b, c, best.t);
-                if h.ok && (!best.found || h.t < best.t || tri.w < best.prim) {
-                    best = Best(h.t, tri.w, h.u, h.v, cross(b - a, c - a), true);
+                if h.ok && (!best.found || h.t < best.t || t < best.prim) {
+                    best = Best(h.t, t, h.u, h.v, cross(b - a, c - a), true);
                     if any { return best; }
                 }
             }

@@ -10,11 +10,14 @@ struct GpuHit { t: f32, prim: u32, u: f32, v: f32 }
 struct TraceParams { rays: u32, _a: u32, _b: u32, _c: u32 }
 
 @group(0) @binding(0) var<storage, read> nodes: array<Node>;
-@group(0) @binding(1) var<storage, read> slot_tris: array<vec4<u32>>;
-@group(0) @binding(2) var<storage, read> positions: array<f32>;
-@group(0) @binding(3) var<storage, read> rays: array<GpuRay>;
-@group(0) @binding(4) var<storage, read_write> hits: array<GpuHit>;
-@group(0) @binding(5) var<uniform> params: TraceParams;
+// Per leaf slot the triangle's id; its vertices are indices[3 id ..]: 4 bytes per triangle kept beside the
+// mesh instead of 16 for a copy of the indices in slot order, for one more dependent read per triangle.
+@group(0) @binding(1) var<storage, read> ids: array<u32>;
+@group(0) @binding(2) var<storage, read> indices: array<u32>;
+@group(0) @binding(3) var<storage, read> positions: array<f32>;
+@group(0) @binding(4) var<storage, read> rays: array<GpuRay>;
+@group(0) @binding(5) var<storage, read_write> hits: array<GpuHit>;
+@group(0) @binding(6) var<uniform> params: TraceParams;
 
 fn vertex(i: u32) -> vec3<f32> {
     return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
@@ -33,10 +36,11 @@ fn trace(ray: GpuRay, any: bool) -> GpuHit {
         if is_leaf(n) {
             let f = leaf_first(n);
             for (var s = f; s < f + leaf_count(n); s++) {
-                let tri = slot_tris[s];
-                let h = intersect(ray, vertex(tri.x), vertex(tri.y), vertex(tri.z), best.t);
-                if h.ok && (best.prim == MISS || h.t < best.t || tri.w < best.prim) {
-                    best = GpuHit(h.t, tri.w, h.u, h.v);
+                let t = ids[s];
+                let h = intersect(ray, vertex(indices[3u * t]), vertex(indices[3u * t + 1u]),
+                                  vertex(indices[3u * t + 2u]), best.t);
+                if h.ok && (best.prim == MISS || h.t < best.t || t < best.prim) {
+                    best = GpuHit(h.t, t, h.u, h.v);
                     if any { return best; }
                 }
             }

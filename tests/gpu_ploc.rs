@@ -70,8 +70,9 @@ fn rays_at(m: &Mesh, seed: u64, n: usize) -> Vec<Ray> {
         .collect()
 }
 
-/// Validates, checks closest and any hits against brute force, prints the SAH cost over binned SAH's.
-fn check_tree(m: &Mesh, bvh: &MeshBvh, what: &str) {
+/// Validates, checks closest and any hits against brute force, prints the SAH cost over binned SAH's and
+/// returns it (1 for a mesh of at most one triangle).
+fn check_tree(m: &Mesh, bvh: &MeshBvh, what: &str) -> f64 {
     let bounds = m.triangle_bounds();
     bvh.bvh()
         .validate(Some(&bounds))
@@ -81,13 +82,13 @@ fn check_tree(m: &Mesh, bvh: &MeshBvh, what: &str) {
         assert_brute_hit(m, ray, hit, &format!("{what} ray {i}"));
         assert_any_hit(m, ray, bvh.any_hit(ray), &format!("{what} any-hit ray {i}"));
     }
-    if m.triangle_count() > 1 {
-        let sah = MeshBvh::build(m, &BuildOptions::new(Builder::SAH)).unwrap();
-        eprintln!(
-            "{what}: PLOC SAH cost / binned SAH = {:.3}",
-            bvh.bvh().sah_cost() / sah.bvh().sah_cost()
-        );
+    if m.triangle_count() <= 1 {
+        return 1.0;
     }
+    let sah = MeshBvh::build(m, &BuildOptions::new(Builder::SAH)).unwrap();
+    let ratio = bvh.bvh().sah_cost() / sah.bvh().sah_cost();
+    eprintln!("{what}: PLOC SAH cost / binned SAH = {ratio:.3}");
+    ratio
 }
 
 fn cpu_ploc(m: &Mesh, radius: u32) -> MeshBvh {
@@ -106,7 +107,12 @@ fn cpu_ploc_trees_validate_and_answer_as_brute_force() {
         check_tree(&m, &four, &format!("soup {n} leaves of 4"));
     }
     for (name, m) in scenes() {
-        check_tree(&m, &cpu_ploc(&m, 16), name);
+        let ratio = check_tree(&m, &cpu_ploc(&m, 16), name);
+        if name == "folded sheet" {
+            // Issue 14's quality target. Per-axis Morton cells stretched the sheet's 0.16 thickness to the
+            // grid's 1024 cells and gave 1.158; the cubic cells of PLOC's order give about 1.06.
+            assert!(ratio <= 1.15, "{name}: PLOC / binned SAH = {ratio:.3}");
+        }
     }
 }
 

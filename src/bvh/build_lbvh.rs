@@ -15,7 +15,7 @@
 use super::layout::Slot;
 use super::topdown::{self, BALANCED_DEPTH, ObjectMedian, PARALLEL_SUBTREE, bounds_of};
 use super::{BuildInput, MortonBits, radix_sort};
-use crate::geometry::{Aabb, morton30, morton63};
+use crate::geometry::{Aabb, morton30, morton30_cube, morton63};
 use crate::parallel;
 
 /// How the tree below the LBVH levels is finished (the hybrid builder).
@@ -30,7 +30,7 @@ pub(crate) fn build(
     below: Below<'_>,
 ) -> usize {
     let n = slot.prims.len();
-    let codes = sorted_codes(input, slot.prims, bits);
+    let codes = sorted_codes(input, slot.prims, bits, false);
     let mut children = vec![[LEAF; 2]; n.saturating_sub(1)];
     let root = if n > 1 {
         radix_tree(&codes, &mut children)
@@ -54,8 +54,15 @@ pub(crate) fn build(
 
 /// Morton codes of the primitives' centroids in the centroids' box, sorted; `prims` is reordered with them.
 /// 30-bit codes travel packed with their primitive in one `u64` (code in the high half), so the sort moves
-/// 8 bytes per primitive instead of 12.
-pub(crate) fn sorted_codes(input: &BuildInput, prims: &mut [u32], bits: MortonBits) -> Vec<u64> {
+/// 8 bytes per primitive instead of 12. With `cube`, 30-bit codes are on cubic cells ([`morton30_cube`],
+/// PLOC's order) instead of per-axis ones.
+pub(crate) fn sorted_codes(
+    input: &BuildInput,
+    prims: &mut [u32],
+    bits: MortonBits,
+    cube: bool,
+) -> Vec<u64> {
+    let code30 = if cube { morton30_cube } else { morton30 };
     let cb = bounds_of(input.parallel, prims, |&p| {
         input.centroids[p as usize].into()
     });
@@ -64,7 +71,7 @@ pub(crate) fn sorted_codes(input: &BuildInput, prims: &mut [u32], bits: MortonBi
         MortonBits::Bits30 => {
             parallel::fill(input.parallel, &mut codes, 1 << 14, |i| {
                 let p = prims[i];
-                ((morton30(input.centroids[p as usize], &cb) as u64) << 32) | p as u64
+                ((code30(input.centroids[p as usize], &cb) as u64) << 32) | p as u64
             });
             radix_sort::sort_by_bits(&mut codes, 30, input.parallel, |&x| x >> 32);
             for (p, c) in prims.iter_mut().zip(codes.iter_mut()) {

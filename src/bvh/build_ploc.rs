@@ -1,7 +1,11 @@
 //! PLOC builder: Meister and Bittner, "Parallel Locally-Ordered Clustering for Bounding Volume Hierarchy
 //! Construction" (IEEE TVCG 2018). Bottom-up agglomerative clustering on a Morton curve.
 //!
-//! The primitives are sorted along the 30-bit Morton curve (as for LBVH) and each starts as a cluster.
+//! The primitives are sorted along a 30-bit Morton curve and each starts as a cluster. Unlike LBVH's, the
+//! curve's cells are cubes ([`morton30_cube`](crate::geometry::morton30_cube): every axis scaled by the
+//! centroids' largest extent), so a thin axis is not stretched to 1024 cells: on a folded sheet
+//! (`scenes::folded_sheet(20, 0.7)`, 0.16 thick, 0.5 × 1 wide) per-axis cells ordered the clusters mostly by
+//! the fold's height and PLOC's tree cost 1.158× CPU binned SAH's; see docs/BENCHMARKS.md for the figures.
 //! Every round, each cluster finds its nearest neighbour among the `radius` clusters before and after it
 //! in the current order, the distance being the surface area of the box of the two merged; mutual nearest
 //! neighbours merge into a new cluster at the lower position, and the surviving clusters are compacted in
@@ -56,7 +60,7 @@ pub(crate) fn merge_area(a: &Aabb, b: &Aabb) -> f32 {
 
 /// Builds into `slot` (the root slot, `slot.prims` = `0..n`): sort, cluster, lay out.
 pub(crate) fn build(input: &BuildInput, slot: Slot<'_>, radius: u32) -> usize {
-    sorted_codes(input, slot.prims, MortonBits::Bits30);
+    sorted_codes(input, slot.prims, MortonBits::Bits30, true);
     let leaves = slot.prims.to_vec();
     let mut boxes = vec![Aabb::EMPTY; leaves.len()];
     parallel::fill(input.parallel, &mut boxes, 1 << 14, |i| {

@@ -47,7 +47,22 @@ fn quantise(x: f32, cells: f32) -> u32 {
 /// 30-bit Morton code of `p` in `bounds` (1024 cells per axis).
 #[inline]
 pub fn morton30(p: Vec3, bounds: &Aabb) -> u32 {
-    let n = normalise(p, bounds);
+    code30(normalise(p, bounds))
+}
+
+/// 30-bit Morton code of `p` on a grid of cubic cells: every axis is scaled by the box's largest extent, so
+/// a thin axis gets fewer cells instead of being stretched to 1024 of them. Use it where the curve's
+/// order should follow distances (PLOC's initial order); it costs the same as [`morton30`].
+#[inline]
+pub fn morton30_cube(p: Vec3, bounds: &Aabb) -> u32 {
+    let m = bounds.extent().max_element();
+    let inv = if m > 0.0 { m.recip() } else { 0.0 };
+    code30(((p - bounds.min) * inv).clamp(Vec3::ZERO, Vec3::ONE))
+}
+
+/// The interleaved 30-bit code of a point in `[0, 1]^3`.
+#[inline]
+fn code30(n: Vec3) -> u32 {
     let q = |x| spread10(quantise(x, 1024.0));
     q(n.x) | (q(n.y) << 1) | (q(n.z) << 2)
 }
@@ -99,5 +114,26 @@ mod tests {
         // Flat box: everything quantises to zero on that axis.
         let flat = Aabb::new(Vec3::ZERO, Vec3::new(1.0, 0.0, 1.0));
         assert_eq!(morton30(Vec3::new(0.0, 0.0, 0.0), &flat), 0);
+    }
+
+    #[test]
+    fn cube_codes_scale_every_axis_by_the_largest_extent() {
+        // A 4 × 1 × 0.25 box: 1024 cells along x, 256 along y, 64 along z.
+        let b = Aabb::new(Vec3::ZERO, Vec3::new(4.0, 1.0, 0.25));
+        assert_eq!(
+            morton30_cube(Vec3::new(4.0, 1.0, 0.25), &b),
+            naive(1023, 256, 64, 10) as u32
+        );
+        assert_eq!(
+            morton30_cube(Vec3::new(2.0, 0.5, 0.125), &b),
+            naive(512, 128, 32, 10) as u32
+        );
+        // Per-axis codes stretch the thin axes to the whole grid.
+        assert_eq!(
+            morton30(Vec3::new(2.0, 0.5, 0.125), &b),
+            naive(512, 512, 512, 10) as u32
+        );
+        let point = Aabb::new(Vec3::ONE, Vec3::ONE);
+        assert_eq!(morton30_cube(Vec3::ONE, &point), 0);
     }
 }

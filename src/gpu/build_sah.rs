@@ -161,10 +161,10 @@ pub struct GpuBuildCounts {
 /// its triangle count) and record builds with [`record`](Self::record).
 ///
 /// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]), per triangle: quantised
-/// primitives 20 B (slot order, queue links and flags, 20 B, reuse the tree's LBVH scratch); bins of
-/// 1 368 B per queued node (`n / 65` of them with the small-split kernel, about 21 B per triangle; `n / 2`
-/// without), queues 16 B per small subtree (`n / 2`: 8 B) and 64 B per queued node (1 B). About 50 B per
-/// triangle in all. See [`memory_bytes`](Self::memory_bytes).
+/// primitives 20 B (slot order, queue links and flags, 20 B, and the queue of small subtrees, 16 B per
+/// subtree, at most `n / 2`: 8 B, reuse the tree's LBVH scratch); bins of 1 368 B per queued node (`n / 65`
+/// of them with the small-split kernel, about 21 B per triangle; `n / 2` without) and level queues of 64 B
+/// per queued node (1 B). About 42 B per triangle in all. See [`memory_bytes`](Self::memory_bytes).
 pub struct GpuSahBuilder {
     tris: u32,
     options: GpuSahOptions,
@@ -200,11 +200,11 @@ impl GpuSahBuilder {
         };
         let cap = (n / per + 1) as u32;
         let prims = GpuBuffer::storage(ctx, "sah primitives", n * 20);
-        // Slot order and links (16 B) and flags (4 B per triangle) live in the tree's LBVH scratch.
-        let [slots, flags] = bvh.lbvh_scratch();
-        // Entries and split records of two levels (4 per queued node), then one per small subtree (at
-        // most n / 2 of them).
-        let queues = GpuBuffer::storage(ctx, "sah queues", (4 * cap as u64 + n / 2 + 1) * 16);
+        // Slot order and links (16 B), flags (4 B per triangle) and the small subtrees (at most n / 2, 16 B
+        // each) live in the tree's LBVH scratch.
+        let [slots, flags, small] = bvh.lbvh_scratch();
+        // Entries and split records of two levels (4 per queued node).
+        let queues = GpuBuffer::storage(ctx, "sah queues", 4 * cap as u64 * 16);
         let bins = GpuBuffer::storage(ctx, "sah bins", cap as u64 * (ENTRY_BIN_WORDS + 6) * 4);
         let state = GpuBuffer::storage(ctx, "sah state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -222,7 +222,7 @@ impl GpuSahBuilder {
         let slots_params: Vec<[u32; 4]> =
             (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
         let params = ParamSlots::new(ctx, &slots_params);
-        let [positions, indices, nodes, depths, slot_tris, vals, keys] = bvh.build_targets();
+        let [positions, indices, nodes, vals, keys] = bvh.build_targets();
         let group = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -234,11 +234,10 @@ impl GpuSahBuilder {
                     slots.binding(),
                     flags.binding(),
                     queues.binding(),
+                    small.binding(),
                     bins.binding(),
                     state.binding(),
                     nodes.binding(),
-                    depths.binding(),
-                    slot_tris.binding(),
                     vals.binding(),
                     a.binding(),
                     keys.binding(),

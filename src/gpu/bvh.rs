@@ -32,24 +32,29 @@ pub enum BuildPhase {
 /// frame's work for all meshes goes into one submission. Buffers are allocated once per mesh size.
 ///
 /// Memory ([`memory_bytes`](Self::memory_bytes), per triangle, `n` triangles, `2n - 1` nodes): the mesh
-/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot triangles 16, sorted ids 4, Morton
-/// codes 4), refit's level schedule (node depths 8, level order 8, during a build the radix tree's range
-/// starts), and LBVH build scratch: centroids 16 (later the degradation terms of a refit, 8) and
-/// radix-tree links 8 + 8 (children and parents, first the radix sort's ping-pong keys and ids). About
-/// 154 bytes per triangle for a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH
-/// builder adds its own scratch.
+/// (positions 12 per vertex, indices 12), the tree (nodes 64, slot ids 4, Morton codes 4), refit's level
+/// schedule (the inner nodes' order by depth 4, during a build the radix tree's range starts), and LBVH
+/// build scratch: centroids 16 (later the degradation terms of a refit, 8) and radix-tree links 8 + 8
+/// (children and parents, first the radix sort's ping-pong keys and ids). About 126 bytes per triangle
+/// for a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH builder adds its own scratch.
+/// No buffer keeps node depths: a builder leaves each node's depth in its `sa_ratio`, the schedule
+/// buckets the inner nodes by it, and the bottom-up pass overwrites it with the ratio.
+///
+/// The ray kernels and the leaf boxes read a leaf's triangle through its slot id and the mesh's indices
+/// (`indices[3 · ids[slot] ..]`), not through a 16-byte copy of the indices in slot order: 16 bytes per
+/// triangle less, for one more dependent read per triangle tested.
 pub struct GpuMeshBvh {
     tris: u32,
     vertices: u32,
     positions: GpuBuffer,
     _indices: GpuBuffer,
     nodes: GpuBuffer,
-    slot_tris: GpuBuffer,
+    /// Per leaf slot, its triangle's id: what the ray kernels and the leaf boxes read the triangle's
+    /// vertex indices through.
     vals: GpuBuffer,
     /// Morton codes, sorted with `vals` by an LBVH sort.
     keys: GpuBuffer,
     level_args: GpuBuffer,
-    depths: GpuBuffer,
     sums: GpuBuffer,
     params: ParamSlots,
     /// Counts of the characteriser's Morton-code histogram (MAX_HISTOGRAM_BINS words).
@@ -69,11 +74,13 @@ pub struct GpuMeshBvh {
     refittable: bool,
     /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
     height: u32,
-    /// LBVH scratch (centroids 16 B per triangle, and the level order 8 B, whose first 4 B hold the
-    /// radix-tree range starts during an LBVH build) that the SAH builder reuses for its slot order and
+    /// LBVH scratch (centroids 16 B per triangle, and the level order 4 B, which holds the radix-tree
+    /// range starts during an LBVH build) that the SAH builder reuses for its slot order and
     /// partition flags: no build needs both at once, and the schedule rewrites the order after every
     /// build.
     aliased: [GpuBuffer; 2],
+    /// The radix tree's children (8 B per triangle) and parents (8), first the sort's ping-pong buffers.
+    links: [GpuBuffer; 2],
     _scratch: Vec<GpuBuffer>,
 }
 
@@ -102,7 +109,6 @@ impl GpuMeshBvh {
         for (what, bytes) in [
             ("positions", vertices as u64 * 12),
             ("indices", tris as u64 * 12),
-            ("slot triangles", n * 16),
             ("nodes", node_count as u64 * 32),
         ] {
             ctx.check_storage(what, bytes)?;
@@ -119,8 +125,6 @@ impl GpuMeshBvh {
         let children = GpuBuffer::storage(ctx, "children", n * 8);
         let parents = GpuBuffer::storage(ctx, "parents", 2 * n * 4);
         let nodes = GpuBuffer::storage(ctx, "nodes", node_count as u64 * 32);
-        let depths = GpuBuffer::storage(ctx, "depths", node_count as u64 * 4);
-        let slot_tris = GpuBuffer::storage(ctx, "slot triangles", n * 16);
         let levels = GpuBuffer::storage(ctx, "levels", LEVEL_WORDS * 4);
         let level_args = GpuBuffer::new(
             ctx,
@@ -129,7 +133,8 @@ impl GpuMeshBvh {
             super::buffers::STORAGE | wgpu::BufferUsages::INDIRECT,
         );
         let stand_in = GpuBuffer::storage(ctx, "stand-in", 16);
-        let order = GpuBuffer::storage(ctx, "level order", node_count as u64 * 4);
+        // Inner nodes only (n - 1), or the radix tree's range starts (n - 1).
+        let order = GpuBuffer::storage(ctx, "level order", n * 4);
         // The radix tree's range starts (4 bytes per triangle) live in the level order, which the
         // schedule rewrites after the tree phase.
         let first = &order;
@@ -167,8 +172,6 @@ impl GpuMeshBvh {
                 parents.binding(),
                 first.binding(),
                 nodes.binding(),
-                depths.binding(),
-                slot_tris.binding(),
                 params.binding(),
             ],
         );
@@ -178,9 +181,9 @@ impl GpuMeshBvh {
                 &k.levels.layout,
                 &[
                     positions.binding(),
-                    slot_tris.binding(),
+                    indices.binding(),
+                    vals.binding(),
                     nodes.binding(),
-                    depths.binding(),
                     levels.binding(),
                     order.binding(),
                     terms.binding(),
@@ -210,11 +213,9 @@ impl GpuMeshBvh {
             positions,
             _indices: indices,
             nodes,
-            slot_tris,
             vals,
             keys,
             level_args,
-            depths,
             sums,
             params,
             histogram,
@@ -229,7 +230,8 @@ impl GpuMeshBvh {
             refittable: true,
             height: MAX_DEPTH as u32,
             aliased: [centroids, order],
-            _scratch: vec![partials, children, parents, levels, stand_in],
+            links: [children, parents],
+            _scratch: vec![partials, levels, stand_in],
         })
     }
 
@@ -237,14 +239,6 @@ impl GpuMeshBvh {
     /// leaf it can be refitted on the GPU too.
     pub fn from_cpu(ctx: &GpuContext, mesh: &Mesh, bvh: &MeshBvh) -> Result<Self> {
         let mut g = Self::new(ctx, mesh)?;
-        let slot_tris: Vec<[u32; 4]> = bvh
-            .slot_indices()
-            .iter()
-            .zip(bvh.bvh().prim_indices())
-            .map(|(t, &p)| [t[0], t[1], t[2], p])
-            .collect();
-        g.nodes.write(ctx, bvh.bvh().nodes());
-        g.slot_tris.write(ctx, &slot_tris);
         g.vals.write(ctx, bvh.bvh().prim_indices());
         g.built = true;
         g.refittable = bvh.bvh().nodes().len() == g.node_count() as usize;
@@ -252,15 +246,25 @@ impl GpuMeshBvh {
         node_depths(bvh.bvh().nodes(), &mut depths);
         g.height = depths.iter().copied().max().unwrap_or(0);
         if g.refittable {
-            g.cpu_levels(ctx, &depths);
+            g.cpu_levels(ctx, bvh.bvh().nodes(), &depths);
         }
+        g.nodes.write(ctx, bvh.bvh().nodes());
         Ok(g)
     }
 
-    /// Uploads the depth of every node of a CPU-built tree, so refit's level schedule can be made on the
-    /// GPU as for an LBVH build.
-    fn cpu_levels(&self, ctx: &GpuContext, depths: &[u32]) {
-        self.depths.write(ctx, depths);
+    /// Makes refit's level schedule of a CPU-built tree on the GPU as for an LBVH build: uploads the nodes
+    /// with each one's depth where the schedule reads it (`sa_ratio`, as the GPU builders leave it);
+    /// the caller uploads the real nodes afterwards.
+    fn cpu_levels(&self, ctx: &GpuContext, nodes: &[Node], depths: &[u32]) {
+        let marked: Vec<Node> = nodes
+            .iter()
+            .zip(depths)
+            .map(|(n, &d)| Node {
+                sa_ratio: d as f32,
+                ..*n
+            })
+            .collect();
+        self.nodes.write(ctx, &marked);
         let mut enc = ctx.encoder();
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -275,11 +279,9 @@ impl GpuMeshBvh {
             &self.positions,
             &self._indices,
             &self.nodes,
-            &self.slot_tris,
             &self.vals,
             &self.keys,
             &self.level_args,
-            &self.depths,
             &self.sums,
             &self.histogram,
         ];
@@ -287,6 +289,7 @@ impl GpuMeshBvh {
             .chain(
                 self.aliased
                     .iter()
+                    .chain(&self.links)
                     .chain(&self._scratch)
                     .collect::<Vec<_>>()
                     .iter(),
@@ -348,6 +351,13 @@ impl GpuMeshBvh {
         self.vals.binding()
     }
 
+    /// Sorts by Morton codes on cubic cells ([`morton30_cube`](crate::geometry::morton30_cube)) from the
+    /// next submission on, as PLOC's order; the LBVH tree and the characteriser's histogram keep per-axis
+    /// codes, so only a PLOC builder's own tree calls this.
+    pub(crate) fn use_cube_codes(&self, ctx: &GpuContext) {
+        self.params.write(ctx, SLOT_MESH, [self.tris, 1, 0, 0]);
+    }
+
     /// Records the read-back of the triangle ids in Morton order.
     pub(crate) fn record_sorted_ids(
         &self,
@@ -362,9 +372,9 @@ impl GpuMeshBvh {
         self.vals.buffer()
     }
 
-    /// Per slot: the triangle's three vertex indices and its id.
-    pub(crate) fn slot_tris(&self) -> &wgpu::Buffer {
-        self.slot_tris.buffer()
+    /// The mesh's vertex indices, three per triangle in id order.
+    pub(crate) fn indices(&self) -> &wgpu::Buffer {
+        self._indices.buffer()
     }
 
     /// Replaces the vertex positions (same count as the mesh); takes effect at the next submission.
@@ -430,22 +440,20 @@ impl GpuMeshBvh {
     }
 
     /// The buffers another GPU builder writes before [`record_boxes`](Self::record_boxes): positions and
-    /// indices (read), nodes (topology), depths, slot triangles, slot ids, and the Morton codes the LBVH
-    /// sort ([`BuildPhase::Sort`]) leaves sorted beside the ids.
-    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 7] {
+    /// indices (read), nodes (topology, each node's depth in its `sa_ratio`), slot ids, and the Morton
+    /// codes the LBVH sort ([`BuildPhase::Sort`]) leaves sorted beside the ids.
+    pub(crate) fn build_targets(&self) -> [&GpuBuffer; 5] {
         [
             &self.positions,
             &self._indices,
             &self.nodes,
-            &self.depths,
-            &self.slot_tris,
             &self.vals,
             &self.keys,
         ]
     }
 
     /// Records the second half of every GPU build once a builder has written each node's `index` (leaves
-    /// of one triangle), its depth, and the slots' triangles and ids: the level schedule, then boxes and
+    /// of one triangle), its depth (as `sa_ratio`), and the slots' triangle ids: the level schedule, then boxes and
     /// build-time SA ratios bottom-up. Marks the tree built; `coded` says whether this build sorted the
     /// current positions' Morton codes (for [`record_histogram`](Self::record_histogram)).
     pub(crate) fn record_boxes(
@@ -461,11 +469,22 @@ impl GpuMeshBvh {
         self.built = true;
     }
 
-    /// LBVH scratch free during another builder's build: 16 and 8 bytes per triangle (at least 256 bytes
-    /// each). An LBVH build overwrites them, and every build's schedule ([`record_boxes`](Self::record_boxes))
-    /// the second.
-    pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 2] {
-        [&self.aliased[0], &self.aliased[1]]
+    /// LBVH scratch free during another builder's build (after a hybrid's [`BuildPhase::Sort`]): the
+    /// centroids, the level order and the radix tree's children, 16, 4 and 8 bytes per triangle (at least
+    /// 256 bytes each). An LBVH build overwrites them, and every build's schedule
+    /// ([`record_boxes`](Self::record_boxes)) the second.
+    pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 3] {
+        [&self.aliased[0], &self.aliased[1], &self.links[0]]
+    }
+
+    /// What a PLOC build clusters in after [`BuildPhase::Sort`], none of it read again by this tree until
+    /// its next build: the node buffer (32 bytes per node id, `2n - 1` of them: the clusters' boxes), the
+    /// Morton codes (4 B per triangle), the centroids (16), the level order (4), and the radix tree's
+    /// children (8) and parents (8). A PLOC builder's own tree is never traced, refitted or read back.
+    pub(crate) fn ploc_scratch(&self) -> [&GpuBuffer; 6] {
+        let [centroids, order] = &self.aliased;
+        let [children, parents] = &self.links;
+        [&self.nodes, &self.keys, centroids, order, children, parents]
     }
 
     /// Dispatches recorded by the [`BuildPhase::Sort`] phase.
@@ -474,9 +493,9 @@ impl GpuMeshBvh {
     }
 
     /// Dispatches recorded by [`record_boxes`](Self::record_boxes).
-    pub(crate) const BOXES_DISPATCHES: u32 = 4 + LEVELS as u32;
+    pub(crate) const BOXES_DISPATCHES: u32 = 5 + LEVELS as u32;
 
-    /// Buckets the nodes by depth (once per topology).
+    /// Buckets the inner nodes by depth (once per topology).
     fn record_schedule(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
         let k = &ctx.kernels;
         let off = [ParamSlots::offset(SLOT_NODES)];
@@ -493,9 +512,13 @@ impl GpuMeshBvh {
         pass.dispatch_workgroups(x, y, 1);
     }
 
-    /// One indirect dispatch per depth, deepest first.
+    /// The leaves' boxes, then one indirect dispatch per depth of inner nodes, deepest first.
     fn record_levels(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>, first_slot: usize) {
         let k = &ctx.kernels;
+        pass.set_pipeline(k.levels.pipeline("leaf_bounds"));
+        pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(first_slot)]);
+        let (x, y) = ctx.groups(self.node_count(), 256);
+        pass.dispatch_workgroups(x, y, 1);
         pass.set_pipeline(k.levels.pipeline("bounds_level"));
         for d in (0..LEVELS).rev() {
             pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(first_slot + d)]);

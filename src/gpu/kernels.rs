@@ -147,8 +147,7 @@ impl Kernels {
                 "lbvh",
                 shader!("lbvh.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Uniform,
                 ],
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
@@ -156,12 +155,13 @@ impl Kernels {
                 device,
                 "levels",
                 shader!("levels.wgsl"),
-                &[Read, Read, Write, Read, Write, Write, Write, Uniform, Write],
+                &[Read, Read, Read, Write, Write, Write, Write, Uniform, Write],
                 &[
                     "level_reset",
                     "level_count",
                     "level_offsets",
                     "level_scatter",
+                    "leaf_bounds",
                     "bounds_level",
                 ],
             ),
@@ -176,14 +176,16 @@ impl Kernels {
                 device,
                 "trace",
                 shader!(rays "trace.wgsl"),
-                &[Read, Read, Read, Read, Write, Uniform],
+                &[Read, Read, Read, Read, Read, Write, Uniform],
                 &["closest", "any_hit"],
             ),
             scene: Module::new(
                 device,
                 "scene",
                 shader!(rays "scene.wgsl"),
-                &[Read, Read, Read, Read, Read, Read, Read, Write, Uniform],
+                &[
+                    Read, Read, Read, Read, Read, Read, Read, Read, Write, Uniform,
+                ],
                 &["scene_trace"],
             ),
             skin: Module::new(
@@ -222,7 +224,7 @@ impl Kernels {
                 shader!("sah_build.wgsl"),
                 &[
                     Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Write, Read, Uniform,
+                    Write, Read, Uniform,
                 ],
                 &[
                     "sah_frame",

@@ -33,14 +33,14 @@ pub struct PlocBuildCounts {
 
 /// A mesh's PLOC builder on the GPU: buffers for one mesh size, reused across builds.
 ///
-/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with, plus 84
-/// bytes per triangle of clustering state (cluster boxes 64 over `2n` ids, two cluster lists, neighbours
-/// and scan offsets 16, merge links 8 — minus what it shares).
+/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 126
+/// bytes per triangle, see [`GpuMeshBvh`]) and nothing per triangle beyond them: the clustering state
+/// (cluster boxes 64 over `2n - 1` ids, two cluster lists, neighbours and scan offsets 16, merge links 8)
+/// lives in that tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the
+/// scan's block sums (4 bytes per 256 triangles) and a few words of state are its own.
 pub struct GpuPloc {
     lbvh: GpuMeshBvh,
     radius: u32,
-    clusters: GpuBuffer,
-    children: GpuBuffer,
     state: GpuBuffer,
     args: GpuBuffer,
     _params: ParamSlots,
@@ -60,14 +60,12 @@ impl GpuPloc {
             )));
         }
         let lbvh = GpuMeshBvh::new(ctx, mesh)?;
+        lbvh.use_cube_codes(ctx);
         let n = lbvh.triangle_count().max(1) as u64;
-        let boxes = GpuBuffer::storage(ctx, "ploc boxes", 2 * n * 32);
-        let clusters = GpuBuffer::storage(ctx, "ploc clusters", n * 4);
-        let next = GpuBuffer::storage(ctx, "ploc survivors", n * 4);
-        let nn = GpuBuffer::storage(ctx, "ploc neighbours", n * 4);
-        let offsets = GpuBuffer::storage(ctx, "ploc offsets", n * 4);
+        // Boxes over the node buffer, clusters over the centroids, survivors over the level order,
+        // neighbours over the parents, scan offsets over the Morton codes, merge links over the children.
+        let [boxes, offsets, clusters, next, children, nn] = lbvh.ploc_scratch();
         let sums = GpuBuffer::storage(ctx, "ploc block sums", n.div_ceil(256) * 4);
-        let children = GpuBuffer::storage(ctx, "ploc children", n * 8);
         let state = GpuBuffer::storage(ctx, "ploc state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
             ctx,
@@ -111,13 +109,11 @@ impl GpuPloc {
         Ok(Self {
             lbvh,
             radius,
-            clusters,
-            children,
             state,
             args,
             _params: params,
             groups,
-            _scratch: vec![boxes, next, nn, offsets, sums, stand_in],
+            _scratch: vec![sums, stand_in],
             counts: PlocBuildCounts::default(),
         })
     }
@@ -129,7 +125,7 @@ impl GpuPloc {
 
     /// GPU memory held (the mesh, the sort and all clustering scratch), in bytes.
     pub fn memory_bytes(&self) -> u64 {
-        let own = [&self.clusters, &self.children, &self.state, &self.args];
+        let own = [&self.state, &self.args];
         own.into_iter()
             .chain(&self._scratch)
             .map(|b| b.buffer().size())
@@ -202,9 +198,10 @@ impl GpuPloc {
             enc = ctx.encoder();
         }
         let mut enc = ctx.encoder();
-        let root = Readback::<u32>::record(ctx, &mut enc, self.clusters.buffer(), 1);
+        let [_, _, clusters, _, children, _] = self.lbvh.ploc_scratch();
+        let root = Readback::<u32>::record(ctx, &mut enc, clusters.buffer(), 1);
         let children =
-            Readback::<[u32; 2]>::record(ctx, &mut enc, self.children.buffer(), n as usize - 1);
+            Readback::<[u32; 2]>::record(ctx, &mut enc, children.buffer(), n as usize - 1);
         let leaves = self.lbvh.record_sorted_ids(ctx, &mut enc);
         ctx.submit(enc);
         self.counts.submissions += 1;

@@ -124,13 +124,13 @@ impl Batch {
     }
 
     /// Uploads `requests` and records their traversal of `scene` (its top-level nodes, instances in
-    /// top-level slot order, meshes' nodes, slot triangles and corners; `tlas_len` top-level nodes) and
-    /// the answers' read-back.
+    /// top-level slot order, meshes' nodes, slot ids, vertex indices and corners; `tlas_len` top-level
+    /// nodes) and the answers' read-back.
     pub(crate) fn record(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
-        scene: [wgpu::BindingResource<'_>; 5],
+        scene: [wgpu::BindingResource<'_>; 6],
         tlas_len: u32,
         requests: &[SceneRequest],
         any: bool,
@@ -160,7 +160,7 @@ impl Batch {
         );
         if n > 0 {
             let k = &ctx.kernels;
-            let [tlas, instances, blas, slot_tris, corners] = scene;
+            let [tlas, instances, blas, ids, indices, corners] = scene;
             let group = bind_group(
                 ctx,
                 &k.scene.layout,
@@ -168,7 +168,8 @@ impl Batch {
                     tlas,
                     instances,
                     blas,
-                    slot_tris,
+                    ids,
+                    indices,
                     corners,
                     b.rays.binding(),
                     b.filters.binding(),
@@ -201,7 +202,8 @@ pub(crate) struct GpuScene {
     tlas: GpuBuffer,
     instances: GpuBuffer,
     blas: GpuBuffer,
-    slot_tris: GpuBuffer,
+    ids: GpuBuffer,
+    indices: GpuBuffer,
     corners: GpuBuffer,
     /// Instances uploaded.
     count: usize,
@@ -214,7 +216,11 @@ pub(crate) struct GpuScene {
 #[derive(Default)]
 struct Upload {
     nodes: Vec<Node>,
-    slot_tris: Vec<[u32; 4]>,
+    /// Per slot its triangle's id.
+    ids: Vec<u32>,
+    /// Per triangle (by id, from the instance's slot offset) its corners' indices from the instance's
+    /// vertex offset.
+    indices: Vec<[u32; 3]>,
     corners: Vec<Vec3>,
     instances: Vec<GpuInstance>,
 }
@@ -230,7 +236,8 @@ impl GpuScene {
             tlas: GpuBuffer::storage(ctx, "scene tlas", 1024),
             instances: GpuBuffer::storage(ctx, "scene instances", 1024),
             blas: GpuBuffer::storage(ctx, "scene blas", 1024),
-            slot_tris: GpuBuffer::storage(ctx, "scene slot triangles", 1024),
+            ids: GpuBuffer::storage(ctx, "scene slot ids", 1024),
+            indices: GpuBuffer::storage(ctx, "scene indices", 1024),
             corners: GpuBuffer::storage(ctx, "scene corners", 1024),
             count: 0,
             version: None,
@@ -258,31 +265,29 @@ impl GpuScene {
         // The upload arrays keep their memory from one sync to the next.
         let Upload {
             nodes,
-            slot_tris,
+            ids,
+            indices,
             corners,
             instances: uploads,
         } = &mut self.upload;
         nodes.clear();
-        slot_tris.clear();
+        ids.clear();
+        indices.clear();
         corners.clear();
         uploads.clear();
         for inst in instances {
             self.count += 1;
             let bvh = inst.bvh;
-            let (node_offset, slot_offset, vertex_offset) = (
-                nodes.len() as u32,
-                slot_tris.len() as u32,
-                corners.len() as u32,
-            );
+            let (node_offset, slot_offset, vertex_offset) =
+                (nodes.len() as u32, ids.len() as u32, corners.len() as u32);
             nodes.extend_from_slice(bvh.bvh().nodes());
-            for (s, (tri, &p)) in bvh
-                .slot_triangles()
-                .iter()
-                .zip(bvh.bvh().prim_indices())
-                .enumerate()
-            {
+            let prims = bvh.bvh().prim_indices();
+            ids.extend_from_slice(prims);
+            indices.resize(ids.len(), [0; 3]);
+            let by_id = &mut indices[slot_offset as usize..];
+            for (s, (tri, &p)) in bvh.slot_triangles().iter().zip(prims).enumerate() {
                 let base = 3 * s as u32;
-                slot_tris.push([base, base + 1, base + 2, p]);
+                by_id[p as usize] = [base, base + 1, base + 2];
                 corners.extend_from_slice(tri);
             }
             uploads.push(GpuInstance::new(
@@ -297,7 +302,8 @@ impl GpuScene {
             (&mut self.tlas, std::mem::size_of_val(tlas.nodes())),
             (&mut self.instances, std::mem::size_of_val(&uploads[..])),
             (&mut self.blas, std::mem::size_of_val(&nodes[..])),
-            (&mut self.slot_tris, std::mem::size_of_val(&slot_tris[..])),
+            (&mut self.ids, std::mem::size_of_val(&ids[..])),
+            (&mut self.indices, std::mem::size_of_val(&indices[..])),
             (&mut self.corners, std::mem::size_of_val(&corners[..])),
         ] {
             buf.ensure(ctx, bytes as u64);
@@ -305,7 +311,8 @@ impl GpuScene {
         self.tlas.write(ctx, tlas.nodes());
         self.instances.write(ctx, uploads);
         self.blas.write(ctx, nodes);
-        self.slot_tris.write(ctx, slot_tris);
+        self.ids.write(ctx, ids);
+        self.indices.write(ctx, indices);
         self.corners.write(ctx, corners);
     }
 
@@ -323,7 +330,8 @@ impl GpuScene {
             self.tlas.binding(),
             self.instances.binding(),
             self.blas.binding(),
-            self.slot_tris.binding(),
+            self.ids.binding(),
+            self.indices.binding(),
             self.corners.binding(),
         ];
         self.batches[any as usize].record(ctx, encoder, scene, tlas_len, requests, any)

@@ -154,7 +154,8 @@ impl GpuRays {
             &k.trace.layout,
             &[
                 bvh.nodes().as_entire_binding(),
-                bvh.slot_tris().as_entire_binding(),
+                bvh.slot_ids().as_entire_binding(),
+                bvh.indices().as_entire_binding(),
                 bvh.positions().as_entire_binding(),
                 self.rays.binding(),
                 self.hits.binding(),

@@ -42,7 +42,8 @@ pub(crate) struct ResidentScene {
     /// LBVH over one triangle (min, max, max) per instance: its leaf boxes are the instances' world boxes.
     tlas: Option<GpuMeshBvh>,
     blas: GpuBuffer,
-    slot_tris: GpuBuffer,
+    ids: GpuBuffer,
+    indices: GpuBuffer,
     corners: GpuBuffer,
     /// Instances in the caller's order, then in the top-level tree's slot order.
     by_id: GpuBuffer,
@@ -68,7 +69,8 @@ impl ResidentScene {
         Self {
             tlas: None,
             blas: GpuBuffer::storage(ctx, "frame blas", 1024),
-            slot_tris: GpuBuffer::storage(ctx, "frame slot triangles", 1024),
+            ids: GpuBuffer::storage(ctx, "frame slot ids", 1024),
+            indices: GpuBuffer::storage(ctx, "frame indices", 1024),
             corners: GpuBuffer::storage(ctx, "frame corners", 1024),
             by_id: GpuBuffer::storage(ctx, "frame instances", 1024),
             sorted: GpuBuffer::storage(ctx, "frame sorted instances", 1024),
@@ -107,7 +109,8 @@ impl ResidentScene {
         let Self {
             tlas,
             blas,
-            slot_tris,
+            ids,
+            indices,
             corners,
             by_id,
             sorted,
@@ -124,7 +127,8 @@ impl ResidentScene {
                 top.clone(),
                 sorted.binding(),
                 blas.binding(),
-                slot_tris.binding(),
+                ids.binding(),
+                indices.binding(),
                 corners.binding(),
             ]
         };
@@ -139,8 +143,8 @@ impl ResidentScene {
         Ok(FrameReadback { closest, any })
     }
 
-    /// Copies every instance's nodes, slot triangles and positions into the scene's buffers and uploads the
-    /// instances.
+    /// Copies every instance's nodes, slot ids, vertex indices and positions into the scene's buffers and
+    /// uploads the instances.
     fn gather(
         &mut self,
         ctx: &GpuContext,
@@ -177,7 +181,8 @@ impl ResidentScene {
         }
         for (what, buf, bytes) in [
             ("scene nodes", &mut self.blas, nodes * 32),
-            ("scene slot triangles", &mut self.slot_tris, slots * 16),
+            ("scene slot ids", &mut self.ids, slots * 4),
+            ("scene indices", &mut self.indices, slots * 12),
             ("scene corners", &mut self.corners, vertices * 12),
             ("scene instances", &mut self.by_id, live.len() as u64 * 144),
             ("scene instances", &mut self.sorted, live.len() as u64 * 144),
@@ -192,7 +197,7 @@ impl ResidentScene {
         }
         self.by_id.write(ctx, &self.up_instances);
         self.forward.write(ctx, &self.up_forward);
-        let (mut nodes, mut slots, mut vertices) = (0u64, 0u64, 0u64);
+        let (mut nodes, mut slots, mut tris, mut vertices) = (0u64, 0u64, 0u64, 0u64);
         for inst in live {
             let bvh = inst.mesh.bvh();
             let parts = [
@@ -203,10 +208,16 @@ impl ResidentScene {
                     bvh.node_count() as u64 * 32,
                 ),
                 (
-                    bvh.slot_tris(),
-                    &self.slot_tris,
+                    bvh.slot_ids(),
+                    &self.ids,
                     &mut slots,
-                    bvh.triangle_count() as u64 * 16,
+                    bvh.triangle_count() as u64 * 4,
+                ),
+                (
+                    bvh.indices(),
+                    &self.indices,
+                    &mut tris,
+                    bvh.triangle_count() as u64 * 12,
                 ),
                 (
                     bvh.positions(),
@@ -250,7 +261,7 @@ impl ResidentScene {
                 self.blas.binding(),
                 self.by_id.binding(),
                 self.forward.binding(),
-                tlas.slot_tris().as_entire_binding(),
+                tlas.slot_ids().as_entire_binding(),
                 tlas.positions().as_entire_binding(),
                 self.sorted.binding(),
                 wgpu::BindingResource::Buffer(wgpu::BufferBinding {
