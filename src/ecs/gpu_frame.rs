@@ -70,23 +70,27 @@ type ResidentData<'a> = (
     Option<&'a MotionHint>,
 );
 
-/// Whether `policy` rebuilds a resident tree in the state `input` describes (see the module docs).
-#[cfg(feature = "gpu")]
-fn rebuild_due(policy: &RebuildPolicy, input: &PolicyInput<'_>) -> bool {
-    static FALLBACK_SAID: std::sync::Once = std::sync::Once::new();
-    match policy {
-        RebuildPolicy::Lauterbach { threshold } => input.degradation > *threshold,
-        RebuildPolicy::Custom(policy) => policy(input) != Decision::Keep,
-        RebuildPolicy::Adaptive { .. } => {
-            FALLBACK_SAID.call_once(|| {
-                log::warn!(
-                    "kinetrace: the GPU-resident frame has no SAH costs or query times per mesh for the \
-                     adaptive policy: its trees rebuild at degradation 0.40"
-                )
-            });
-            input.degradation > super::config::THESIS_THRESHOLD
-        }
-    }
+/// What the GPU-resident frame did in a frame ([`TraceStats::resident`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ResidentStats {
+    /// Trees refitted on the GPU.
+    pub refits: usize,
+    /// Trees built or rebuilt on the GPU.
+    pub rebuilds: usize,
+    /// Candidate collider pairs: colliders on interacting layers, and each self-colliding one with itself.
+    pub pair_candidates: usize,
+    /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (see
+    /// [`gpu_collide`](super::gpu_collide)).
+    pub pairs_traversed: usize,
+    /// Of those, the pairs traversed for the first time: each makes its traversal's buffers and uploads
+    /// their round parameters once (33 KiB); a pair's traversal is kept while both colliders exist.
+    pub pairs_created: usize,
+    /// Of the pair traversals published this frame (those of [`Contacts::frame`]), those that overflowed
+    /// their buffers: answered by the CPU's traversal of the read-back trees, their buffers grown for the
+    /// next frame.
+    pub pair_overflows: usize,
+    /// The largest leaf-pair buffer of the pair traversals kept, in leaf pairs.
+    pub pair_capacity: u32,
 }
 
 /// What the resident frame publishes besides the ray answers: the contacts and their messages.
@@ -119,6 +123,7 @@ pub(crate) fn resident_frame_system(
     use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
     let t = std::time::Instant::now();
     let next_frame = config.latency == Latency::NextFrame;
+    stats.resident = ResidentStats::default();
     if next_frame {
         let blocking = gpu.in_flight() >= IN_FLIGHT;
         publish(
@@ -131,6 +136,15 @@ pub(crate) fn resident_frame_system(
     let rays_last_frame = stats.rays_last_frame;
     // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
     let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
+    let build = match sah {
+        Some(_) => crate::adaptive::Build {
+            builder: config.builder,
+            device: crate::adaptive::Device::Gpu,
+        },
+        None => crate::adaptive::Build::GPU_LBVH,
+    };
+    let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
+    let mut done_here = ResidentStats::default();
     let ctx = gpu.context().clone();
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
     let resident = gpu.resident();
@@ -148,13 +162,17 @@ pub(crate) fn resident_frame_system(
             let weights = gpu_skin
                 .as_ref()
                 .map(|s| (&*s.weights, s.joint_matrices.len()));
-            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
+            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|mut m| {
+                if adaptive {
+                    m.measure_costs(&ctx);
+                }
                 resident.meshes.insert(e, m);
             })
         } else {
             Ok(())
         };
         let state = resident.meshes.get_mut(&e);
+        let policies = &mut resident.policies;
         let update = match (&gpu_skin, &positions) {
             (Some(s), _) if state.as_ref().is_some_and(|m| m.skinned()) => {
                 (fresh || s.is_changed()).then_some(MeshUpdate::Joints(&s.joint_matrices))
@@ -179,13 +197,24 @@ pub(crate) fn resident_frame_system(
                     motion_incoherence: refit.incoherence(),
                     gpu: true,
                 };
-                let rule =
-                    |refit: &crate::gpu::RefitState| rebuild_due(&config.policy, &input(refit));
-                state.record(&ctx, &mut enc, update, rule)?;
-                Ok(tr)
+                let rule = |refit: &crate::gpu::RefitState| match config.policy {
+                    RebuildPolicy::Lauterbach { threshold } => refit.degradation > threshold,
+                    RebuildPolicy::Custom(policy) => policy(&input(refit)) != Decision::Keep,
+                    RebuildPolicy::Adaptive { .. } => {
+                        let asset = super::maintain::asset_of(&mesh.0);
+                        policies.rebuild(e, asset, build, refit, rays_last_frame)
+                    }
+                };
+                match state.record(&ctx, &mut enc, update, rule)? {
+                    crate::gpu::Maintained::Refit => done_here.refits += 1,
+                    crate::gpu::Maintained::Rebuilt => done_here.rebuilds += 1,
+                    crate::gpu::Maintained::Kept => {}
+                }
+                let world = state.bound().map(|b| crate::gpu::world_bound(&b, &tr));
+                Ok((tr, world))
             });
         match done {
-            Ok(tr) => {
+            Ok((tr, world)) => {
                 if let Some(&collider) = collider
                     && mesh.0.triangle_count() > 0
                 {
@@ -194,9 +223,10 @@ pub(crate) fn resident_frame_system(
                         collider,
                         mesh: mesh.0.clone(),
                         transform: tr,
+                        world,
                     });
                 }
-                placed.push((e, tr, layers.0));
+                placed.push((e, tr, layers.0, world));
             }
             Err(err) => {
                 resident.meshes.remove(&e);
@@ -209,9 +239,13 @@ pub(crate) fn resident_frame_system(
         let live: std::collections::HashSet<Entity> = placed.iter().map(|p| p.0).collect();
         resident.meshes.retain(|e, _| live.contains(e));
     }
+    if adaptive {
+        let boxes: Vec<_> = placed.iter().map(|p| (p.0, p.3)).collect();
+        resident.policies.set_shares(&boxes);
+    }
     let instances: Vec<FrameInstance> = placed
         .iter()
-        .map(|&(e, transform, layers)| FrameInstance {
+        .map(|&(e, transform, layers, _)| FrameInstance {
             id: e.to_bits(),
             mesh: &resident.meshes[&e],
             transform,
@@ -229,10 +263,16 @@ pub(crate) fn resident_frame_system(
     }
     let contacts = (!colliders.is_empty()).then(|| {
         let meshes = &resident.meshes;
-        super::gpu_collide::record(&ctx, &mut enc, &mut resident.pairs, colliders, |e| {
-            &meshes[&e]
-        })
+        super::gpu_collide::record(
+            &ctx,
+            &mut enc,
+            &mut resident.pairs,
+            colliders,
+            |e| &meshes[&e],
+            &mut done_here,
+        )
     });
+    done_here.pair_capacity = resident.pairs.largest_capacity();
     let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);
@@ -242,6 +282,10 @@ pub(crate) fn resident_frame_system(
             log::error!("kinetrace: GPU-resident frame's collider pairs lost: {e}");
             None
         }
+    };
+    stats.resident = ResidentStats {
+        pair_overflows: stats.resident.pair_overflows,
+        ..done_here
     };
     match recorded {
         Ok(readback) => gpu.push_pending(pending, readback, contacts, phases),
@@ -287,14 +331,15 @@ fn publish(
                     log::error!("kinetrace: GPU-resident frame's contacts lost: {e}");
                     return;
                 }
-                None => Vec::new(),
+                None => Default::default(),
             };
+            stats.resident.pair_overflows = found.overflows;
             let o = &mut *out;
             let (contacts, state) = (&mut *o.contacts, &mut *o.state);
             let frame = results.frame;
             super::gpu_collide::publish(
                 frame,
-                &found,
+                &found.pairs,
                 contacts,
                 state,
                 &mut o.started,

@@ -9,12 +9,16 @@
 //! scene's buffers (device bandwidth, not the bus). The top level is rebuilt every frame: an LBVH over a few
 //! hundred boxes costs a handful of dispatches, less than tracking which boxes moved.
 
+mod bound;
 mod mesh;
 mod pairs;
+mod sah;
 mod timer;
 
-pub use mesh::{Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub(crate) use bound::world as world_bound;
+pub use mesh::{CostReading, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
+pub use sah::SahReading;
 pub use timer::GpuPhases;
 pub(crate) use timer::{FrameTimer, PhasesReadback};
 

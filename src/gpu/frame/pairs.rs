@@ -27,9 +27,19 @@ pub(crate) struct FrameCollider<'a> {
 
 /// The pair traversals kept from frame to frame, one per pair of collider ids (their buffers grow with
 /// the pair's contact and are reused).
-#[derive(Default)]
 pub(crate) struct ResidentPairs {
     traversals: HashMap<(u64, u64), GpuPairs>,
+    /// Capacity of a new pair's buffers (queued pairs, leaf pairs).
+    capacity: u32,
+}
+
+impl Default for ResidentPairs {
+    fn default() -> Self {
+        Self {
+            traversals: HashMap::new(),
+            capacity: PAIR_CAPACITY,
+        }
+    }
 }
 
 /// A collider's tree on its way back, with what the CPU needs to pair it with its mesh.
@@ -60,6 +70,8 @@ struct PairReadback {
 pub(crate) struct FrameContacts {
     trees: Vec<TreeReadback>,
     pairs: Vec<PairReadback>,
+    /// Pairs traversed for the first time (their traversals made this frame).
+    pub created: usize,
 }
 
 /// What came back for one candidate pair: the leaf pairs the GPU found, or `None` when the traversal
@@ -80,10 +92,26 @@ pub(crate) struct ReadTrees {
 }
 
 impl ResidentPairs {
+    /// Test hook (feature `testing`): new pairs' buffers start with room for `capacity` queued pairs and
+    /// leaf pairs (rounded up to the buffers' 256-byte minimum), so that tests reach the overflow path.
+    #[cfg(feature = "testing")]
+    pub fn start_capacity(&mut self, capacity: u32) {
+        self.capacity = capacity;
+    }
+
+    /// The largest leaf-pair buffer among the traversals kept, in leaf pairs (0 with none).
+    pub fn largest_capacity(&self) -> u32 {
+        (self.traversals.values())
+            .map(|t| t.capacity().1)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// Records the traversal of each of `pairs` (indices into `colliders`; `(i, i)` for self-collision)
     /// on the resident trees, `b` placed in `a`'s frame, and the read-back of every collider's tree: 36
     /// bytes per triangle and 12 per vertex down per frame, plus 8 per leaf pair found. Traversals of pairs
-    /// no longer listed are dropped.
+    /// not listed are kept while both colliders are (a pair culled this frame may be traversed the next,
+    /// and a new traversal uploads its round parameters, 33 KiB); those of colliders gone are dropped.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
@@ -94,15 +122,16 @@ impl ResidentPairs {
         let mut out = FrameContacts {
             trees: Vec::with_capacity(colliders.len()),
             pairs: Vec::with_capacity(pairs.len()),
+            created: 0,
         };
         let mut used = HashMap::with_capacity(pairs.len());
         for &(a, b) in pairs {
             let (ca, cb) = (&colliders[a], &colliders[b]);
             let key = (ca.id, cb.id);
-            let mut traversal = self
-                .traversals
-                .remove(&key)
-                .unwrap_or_else(|| GpuPairs::with_capacity(ctx, PAIR_CAPACITY, PAIR_CAPACITY));
+            let mut traversal = self.traversals.remove(&key).unwrap_or_else(|| {
+                out.created += 1;
+                GpuPairs::with_capacity(ctx, self.capacity, self.capacity)
+            });
             let other = (a != b).then(|| {
                 let b_to_a = ca.transform.inverse() * cb.transform;
                 (cb.mesh.bvh().tree(), b_to_a)
@@ -114,7 +143,9 @@ impl ResidentPairs {
             });
             used.insert(key, traversal);
         }
-        self.traversals = used;
+        let live: std::collections::HashSet<u64> = colliders.iter().map(|c| c.id).collect();
+        (self.traversals).retain(|(a, b), _| live.contains(a) && live.contains(b));
+        self.traversals.extend(used);
         for c in colliders {
             let bvh = c.mesh.bvh();
             let (nodes, tris) = (bvh.node_count() as usize, bvh.triangle_count() as usize);
