@@ -105,6 +105,8 @@ struct Crowd {
     colliders: bool,
     /// Starting capacity of the resident frame's pair buffers (the test hook), if forced.
     pair_capacity: Option<u32>,
+    /// Characters with two blend shapes at nonzero weights.
+    morphs: bool,
 }
 
 impl Crowd {
@@ -117,6 +119,7 @@ impl Crowd {
             spacing: 0.9,
             colliders: false,
             pair_capacity: None,
+            morphs: false,
         }
     }
 }
@@ -138,7 +141,12 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
     {
         gpu.start_pair_capacity(c);
     }
-    let asset = Arc::new(humanoid(triangles));
+    let asset = humanoid(triangles);
+    let asset = Arc::new(if crowd.morphs {
+        with_morphs(asset)
+    } else {
+        asset
+    });
     // A static ground under the crowd: a mesh the resident frame uploads once and never touches again.
     let ground = kinetrace::Mesh::new(
         [(-2.0, -2.0), (5.0, -2.0), (5.0, 3.0), (-2.0, 3.0)].map(|(x, z)| Vec3::new(x, 0.0, z)),
@@ -224,6 +232,23 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
         .filter(|&&e| cpu_world.contains(e))
         .count();
     out
+}
+
+/// `asset` with two blend shapes (a widening and a ripple) at weights 0.8 and -0.5.
+fn with_morphs(mut asset: kinetrace::anim::CharacterAsset) -> kinetrace::anim::CharacterAsset {
+    let rest = asset.mesh.positions();
+    let widen = rest
+        .iter()
+        .map(|p| Vec3::new(p.x, 0.0, p.z) * 0.1)
+        .collect();
+    let ripple = (rest.iter())
+        .map(|p| Vec3::Y * 0.05 * (7.0 * p.x).sin())
+        .collect();
+    asset.morphs = Some(Arc::new(kinetrace::anim::MorphTargets {
+        deltas: vec![widen, ripple],
+        default_weights: vec![0.8, -0.5],
+    }));
+    asset
 }
 
 /// Every frame's GPU answers equal the CPU mode's, and the requests are not all misses or all hits.
@@ -409,6 +434,7 @@ const COLLIDING: Crowd = Crowd {
     spacing: 0.45,
     colliders: true,
     pair_capacity: None,
+    morphs: false,
 };
 
 impl Crowd {
@@ -577,20 +603,23 @@ fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
 }
 
 /// A resident mesh's SAH cost, reduced on the GPU and read back without blocking, equals the CPU's
-/// `Bvh::sah_cost` and root area of the same tree read back (after the build and after refits), and its
-/// CPU-side bound from the joint matrices holds every vertex the GPU skinned: random rigid joint motions
-/// of a humanoid, a fresh pose each frame.
+/// `Bvh::sah_cost` and root area of the same tree read back (after the build and after refits); its
+/// vertices, morphed by two blend shapes and skinned on the GPU, equal the CPU's morphing and skinning;
+/// and its CPU-side bound from the joint matrices and blend-shape weights holds every vertex: random
+/// rigid joint motions and weights in [-1, 1] on a humanoid, a fresh pose each frame.
 #[test]
 fn resident_costs_and_bounds_match_the_gpu_tree() {
     use glam::{Mat4, Quat};
     use kinetrace::gpu::{MeshUpdate, ResidentMesh};
+    use rand::Rng;
     let Some(ctx) = gpu_or_skip() else {
         return;
     };
-    let asset = humanoid(600);
+    let asset = with_morphs(humanoid(600));
+    let morphs = asset.morphs.as_deref().unwrap();
     let joints = asset.skeleton.joints.len();
-    let mut mesh =
-        ResidentMesh::new(&ctx, &asset.mesh, Some((&asset.weights, joints)), None).unwrap();
+    let skin = Some((&*asset.weights, joints, Some(morphs)));
+    let mut mesh = ResidentMesh::new(&ctx, &asset.mesh, skin, None).unwrap();
     mesh.measure_costs(&ctx);
     let mut r = rng(1519);
     let mut readings = 0;
@@ -604,23 +633,34 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
                 Mat4::from_rotation_translation(turn, rand_vec(&mut r, -0.3, 0.3))
             })
             .collect();
+        let weights = [r.random_range(-1.0..1.0), r.random_range(-1.0..1.0)];
+        let update = MeshUpdate::Joints {
+            matrices: &matrices,
+            morph_weights: &weights,
+        };
         let mut enc = ctx.encoder();
         let mut seen = None;
-        mesh.record(&ctx, &mut enc, MeshUpdate::Joints(&matrices), |s| {
+        mesh.record(&ctx, &mut enc, update, |s| {
             seen = s.cost;
             false
         })
         .unwrap();
         ctx.submit(enc);
         ctx.wait().unwrap();
-        // The bound holds this frame's skinned vertices (read back as the oracle).
-        let bound = mesh.bound().expect("weights in [0, 1]");
+        // The GPU morphed and skinned as the CPU does (to the rounding of a few dozen operations on
+        // coordinates of a few metres), and the bound holds every vertex.
         let positions = mesh.bvh().read_positions(&ctx).unwrap();
-        for (i, p) in positions.iter().enumerate() {
-            assert!(
-                bound.contains_point(*p),
-                "frame {frame} vertex {i}: {p} outside {bound:?}"
-            );
+        let mut morphed = vec![Vec3::ZERO; positions.len()];
+        morphs.apply(asset.mesh.positions(), &weights, &mut morphed);
+        let mut expected = vec![Vec3::ZERO; positions.len()];
+        kinetrace::anim::skin_positions(&morphed, &asset.weights, &matrices, &mut expected)
+            .unwrap();
+        let bound = mesh.bound().expect("weights in [0, 1]");
+        for (i, (p, q)) in positions.iter().zip(&expected).enumerate() {
+            let tol = 64.0 * f32::EPSILON * (1.0 + q.abs().max_element());
+            let at = format!("frame {frame} vertex {i}");
+            assert!((*p - *q).abs().max_element() <= tol, "{at}: {p} vs {q}");
+            assert!(bound.contains_point(*p), "{at}: {p} outside {bound:?}");
         }
         // A frame's reading (a build's, then refits') arrives with the next frame's record: compare it
         // with the tree read back right after its own frame.
@@ -640,4 +680,33 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
         last = Some((tree.sah_cost(), tree.bounds().half_area_f64()));
     }
     assert_eq!(readings, 5);
+}
+
+/// Blend shapes on the GPU: characters with two blend shapes at nonzero weights, skinned on the GPU
+/// (`GpuOnly`: no CPU mirror), give the CPU mode's answers, where the CPU morphs and skins; after the
+/// first frame only the weights go up besides the joints (4 bytes per target), never vertex data.
+#[test]
+fn blend_shapes_on_the_gpu_equal_the_cpu_mode() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let crowd = Crowd {
+        morphs: true,
+        ..Crowd::queries(600, false)
+    };
+    let cpu = run(TraceConfig::default(), crowd);
+    let gpu = run(
+        resident(Latency::NextFrame),
+        Crowd {
+            gpu_only: true,
+            ..crowd
+        },
+    );
+    assert_same_answers(&cpu, &gpu, "blend shapes");
+    let joints = humanoid(600).skeleton.joints.len();
+    let expected =
+        CHARACTERS * (64 * joints + 2 * 4) + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    for (f, c) in gpu.counters.iter().enumerate().skip(1) {
+        assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
+    }
 }

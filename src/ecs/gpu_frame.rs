@@ -4,12 +4,14 @@
 //! of [`Collider`]s, whose exact tests run on the CPU when the answers come back (`gpu_collide`): contacts
 //! arrive with the ray answers, [`GpuOnly`] colliders included.
 //!
-//! What moves per frame: joint matrices of changed skins (64 bytes per joint), every instance (208 bytes:
+//! What moves per frame: joint matrices of changed skins (64 bytes per joint) and their blend shapes'
+//! weights (4 bytes per target: the GPU skin applies the blend shapes), every instance (208 bytes:
 //! transform, inverse, offsets, layers), the requests (96 bytes each) and one relative transform per
-//! candidate collider pair (80 bytes) up; the answers (48 bytes each), one degradation metric per refitted
-//! mesh (8 bytes) and each collider's tree and positions (36 bytes per triangle, 12 per vertex) down. Vertices go up once, when a mesh is first
-//! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
-//! with active blend shapes, which the GPU skin does not apply).
+//! collider pair traversed (80 bytes; pairs whose world boxes are apart are culled on the CPU first) up;
+//! the answers (48 bytes each), one degradation metric per refitted mesh (8 bytes; under the adaptive
+//! policy 40 more for its SAH cost) and each collider's tree and positions (36 bytes per triangle, 12 per
+//! vertex) down. Vertices (and blend shapes' displacements) go up once, when a mesh is first seen, and
+//! again only for meshes deformed on the CPU ([`VertexPositions`] without a skin).
 //!
 //! The rebuild rule is the configured policy's, on the metric of an earlier refit read back without
 //! blocking: a mesh rebuilds one frame after the refit whose metric made the policy ask for it, or later
@@ -18,11 +20,12 @@
 //! degradation and `frames_since_rebuild` are those of the resident tree as last read back, whose
 //! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; any
 //! rebuild it asks for (a partial one included) is a whole rebuild with the mesh's builder.
-//! [`RebuildPolicy::Adaptive`] needs the tree's SAH cost and per-mesh query times, which do not come back
-//! on this path: it falls back to the thesis's 0.40 (said once in the log; the CPU mirror still runs it
-//! for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one submission (LBVH
-//! over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per
-//! round).
+//! [`RebuildPolicy::Adaptive`] runs its planner per resident mesh on what comes back one frame late: the
+//! tree's SAH cost reduced on the GPU beside the metric, and query and rebuild work counted in a model
+//! instead of measured seconds (module `gpu_policy`; the CPU mirror still runs its own planner in
+//! seconds for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one
+//! submission (LBVH over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a
+//! read-back per round).
 //!
 //! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
 //! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
@@ -41,8 +44,8 @@ use super::*;
 use bevy_ecs::prelude::*;
 
 /// Drops an entity's CPU mirror in the GPU-resident frame (see [`gpu_frame`](self)): it is skinned and
-/// maintained on the GPU only and seen only by batched requests answered there. Blend shapes need the
-/// mirror (the GPU skin does not apply them). Outside the resident frame it still keeps the entity out
+/// maintained on the GPU only and seen only by batched requests answered there (blend shapes included:
+/// the GPU skin applies them). Outside the resident frame it still keeps the entity out
 /// of [`TraceSystems::Skin`] and [`TraceSystems::Maintain`], so nothing sees it: do not add it there.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct GpuOnly;
@@ -155,13 +158,11 @@ pub(crate) fn resident_frame_system(
     let mut placed = Vec::with_capacity(meshes.iter().len());
     let mut colliders = Vec::new();
     for (e, mesh, skin, positions, transform, layers, collider, hint) in &meshes {
-        // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
-        let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
         let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
         let made = if fresh {
-            let weights = gpu_skin
+            let weights = skin
                 .as_ref()
-                .map(|s| (&*s.weights, s.joint_matrices.len()));
+                .map(|s| (&*s.weights, s.joint_matrices.len(), s.morphs.as_deref()));
             ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|mut m| {
                 if adaptive {
                     m.measure_costs(&ctx);
@@ -173,9 +174,12 @@ pub(crate) fn resident_frame_system(
         };
         let state = resident.meshes.get_mut(&e);
         let policies = &mut resident.policies;
-        let update = match (&gpu_skin, &positions) {
+        let update = match (&skin, &positions) {
             (Some(s), _) if state.as_ref().is_some_and(|m| m.skinned()) => {
-                (fresh || s.is_changed()).then_some(MeshUpdate::Joints(&s.joint_matrices))
+                (fresh || s.is_changed()).then_some(MeshUpdate::Joints {
+                    matrices: &s.joint_matrices,
+                    morph_weights: &s.morph_weights,
+                })
             }
             (_, Some(p)) if !p.0.is_empty() => {
                 (fresh || p.is_changed()).then_some(MeshUpdate::Positions(&p.0))

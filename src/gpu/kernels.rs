@@ -192,7 +192,7 @@ impl Kernels {
                 device,
                 "skin",
                 shader!("skin.wgsl"),
-                &[Read, Read, Read, Read, Write, Uniform],
+                &[Read, Read, Read, Read, Write, Uniform, Read, Read],
                 &["skin"],
             ),
             frame: Module::new(

@@ -3,7 +3,7 @@
 
 use super::bound::{self, SkinBound};
 use super::sah::{SahReadback, SahReading, SahReduction};
-use crate::anim::SkinWeights;
+use crate::anim::{MorphTargets, SkinWeights};
 use crate::gpu::{
     DegradationReadback, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, GpuSkin,
 };
@@ -15,8 +15,14 @@ use glam::{Mat4, Vec3};
 pub enum MeshUpdate<'a> {
     /// Nothing: its tree stays as it is (rigid and static meshes, a skin whose matrices did not change).
     Unchanged,
-    /// New joint matrices for its [`GpuSkin`] (uploads 64 bytes per joint).
-    Joints(&'a [Mat4]),
+    /// New joint matrices for its [`GpuSkin`] (uploads 64 bytes per joint) and, for a skin made with
+    /// blend shapes, their weights (4 bytes per target; empty without).
+    Joints {
+        /// The palette.
+        matrices: &'a [Mat4],
+        /// One weight per blend shape of the skin.
+        morph_weights: &'a [f32],
+    },
     /// New vertex positions from the CPU (uploads 12 bytes per vertex): meshes deformed by gameplay code
     /// or by blend shapes, which the GPU skin does not apply.
     Positions(&'a [Vec3]),
@@ -94,14 +100,15 @@ pub struct ResidentMesh {
 }
 
 impl ResidentMesh {
-    /// Uploads `mesh` (and, with `skin`, its rest pose, weights and a palette of `joints` matrices) and
-    /// allocates its tree, and with `sah` that builder's scratch; nothing is built until the first
-    /// [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36 more per
-    /// vertex for a skin) and about 112 bytes of GPU memory per triangle, plus the SAH builder's scratch.
+    /// Uploads `mesh` (and, with `skin`, its rest pose, weights, a palette of `joints` matrices and any
+    /// blend shapes) and allocates its tree, and with `sah` that builder's scratch; nothing is built until
+    /// the first [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36
+    /// more per vertex for a skin, 12 per vertex per blend shape) and about 112 bytes of GPU memory per
+    /// triangle, plus the SAH builder's scratch.
     pub fn new(
         ctx: &GpuContext,
         mesh: &Mesh,
-        skin: Option<(&SkinWeights, usize)>,
+        skin: Option<(&SkinWeights, usize, Option<&MorphTargets>)>,
         sah: Option<GpuSahOptions>,
     ) -> Result<Self> {
         let bvh = GpuMeshBvh::new(ctx, mesh)?;
@@ -110,10 +117,15 @@ impl ResidentMesh {
             None => None,
         };
         let (skin, skin_bound) = match skin {
-            Some((weights, joints)) => (
-                Some(GpuSkin::new(ctx, mesh.positions(), weights, joints, &bvh)?),
-                SkinBound::new(mesh.positions(), weights, joints),
-            ),
+            Some((weights, joints, morphs)) => {
+                let rest = mesh.positions();
+                (
+                    Some(GpuSkin::new_morphed(
+                        ctx, rest, weights, joints, morphs, &bvh,
+                    )?),
+                    SkinBound::new(rest, weights, joints, morphs),
+                )
+            }
             None => (None, None),
         };
         Ok(Self {
@@ -193,13 +205,20 @@ impl ResidentMesh {
         match (update, &self.skin) {
             (MeshUpdate::Unchanged, _) if self.built => return Ok(Maintained::Kept),
             (MeshUpdate::Unchanged, _) => {}
-            (MeshUpdate::Joints(m), Some(skin)) => {
-                skin.record(ctx, encoder, m)?;
+            (
+                MeshUpdate::Joints {
+                    matrices,
+                    morph_weights,
+                },
+                Some(skin),
+            ) => {
+                skin.set_morph_weights(ctx, morph_weights)?;
+                skin.record(ctx, encoder, matrices)?;
                 if let Some(b) = &self.skin_bound {
-                    self.bound = b.bound(m);
+                    self.bound = b.bound(matrices, morph_weights);
                 }
             }
-            (MeshUpdate::Joints(_), None) => {
+            (MeshUpdate::Joints { .. }, None) => {
                 return Err(crate::Error::InvalidOption(
                     "joint matrices for a mesh without a GPU skin".into(),
                 ));
