@@ -1,6 +1,6 @@
 // The SAH cost of a resident tree (src/gpu/frame/sah.rs), reduced on the GPU beside the degradation
 // metric: Σ_inner A(n)/A(root) + Σ_leaf A(l)/A(root) · N(l), as Bvh::sah_cost with C_TRAV = C_ISECT = 1.
-// Appended to reduce.wgsl (its `pairs`, `params`, `acc` and `fold`): `sah_blocks` folds 256 nodes' terms
+// Appended to reduce.wgsl (its `pairs`, `params` and `store_block`): `sah_blocks` folds 256 nodes' terms
 // per workgroup into a double-float pair, reduce.wgsl's `sum_pairs` folds the pairs.
 
 @group(0) @binding(3) var<storage, read> nodes: array<Node>;
@@ -25,9 +25,7 @@ fn sah_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_i
               @builtin(num_workgroups) nwg: vec3<u32>) {
     let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
-    var v = vec2<f32>(0.0);
-    if i < params.n { v = vec2<f32>(sah_term(i), 0.0); }
-    acc[lid.x] = v;
-    fold(lid.x);
-    if lid.x == 0u && block * WG < params.n { pairs[block] = acc[0]; }
+    var v = 0.0;
+    if i < params.n { v = sah_term(i); }
+    store_block(v, lid.x, block);
 }

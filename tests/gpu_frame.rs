@@ -298,6 +298,15 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
     }
 }
 
+/// Bytes a resident frame after the first uploads for the queries-only crowd: per character its joint
+/// matrices (64 bytes each) and `per_character` more; per instance (the characters and the ground) 144
+/// bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three 16-byte
+/// parameter blocks. The humanoid's joint count does not depend on its triangle count.
+fn uploads_after_the_first_frame(per_character: usize) -> usize {
+    let joints = humanoid(500).skeleton.joints.len();
+    CHARACTERS * (64 * joints + per_character) + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48
+}
+
 fn resident(latency: Latency) -> TraceConfig {
     TraceConfig {
         mode: TraceMode::GpuRequired,
@@ -324,11 +333,8 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     // After the first frame no vertex data goes up: uploads do not depend on the triangle count.
     let big = run(resident(Latency::NextFrame), Crowd::queries(1500, true));
     assert!(big.counters[0].uploaded_bytes > gpu.counters[0].uploaded_bytes);
-    // Exactly: per character its joint matrices (64 bytes each); per instance (the characters and the
-    // ground) 144 bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three
-    // 16-byte parameter blocks.
-    let joints = humanoid(600).skeleton.joints.len();
-    let expected = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    // Exactly the joints, instances, requests and parameters.
+    let expected = uploads_after_the_first_frame(0);
     for f in 1..FRAMES as usize {
         let (small, big) = (gpu.counters[f], big.counters[f]);
         assert_eq!(small.uploaded_bytes, big.uploaded_bytes, "frame {}", f + 1);
@@ -406,8 +412,7 @@ fn colliders_and_queries_equal_the_cpu_mode_over_300_frames() {
     assert!(lo < hi, "{traversed:?}");
     // A pair traversed for the first time makes its traversal (a fixed block of round parameters goes
     // up once); otherwise uploads are exactly the joints, instances, requests and the pairs' transforms.
-    let joints = humanoid(500).skeleton.joints.len();
-    let base = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    let base = uploads_after_the_first_frame(0);
     let mut per_new = std::collections::BTreeSet::new();
     for (f, c) in gpu.counters.iter().enumerate() {
         assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
@@ -513,8 +518,7 @@ fn the_adaptive_policy_decides_on_the_resident_trees() {
         "{rebuilds} rebuilds, {refits} refits"
     );
     assert_eq!(rebuilds + refits, CHARACTERS * later.len());
-    let joints = humanoid(600).skeleton.joints.len();
-    let expected = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    let expected = uploads_after_the_first_frame(0);
     for (f, c) in gpu.counters.iter().enumerate().skip(1) {
         assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
         assert_eq!(c.blocking_waits, 0, "frame {}", f + 1);
@@ -703,9 +707,8 @@ fn blend_shapes_on_the_gpu_equal_the_cpu_mode() {
         },
     );
     assert_same_answers(&cpu, &gpu, "blend shapes");
-    let joints = humanoid(600).skeleton.joints.len();
-    let expected =
-        CHARACTERS * (64 * joints + 2 * 4) + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    // Two blend-shape weights per character.
+    let expected = uploads_after_the_first_frame(2 * 4);
     for (f, c) in gpu.counters.iter().enumerate().skip(1) {
         assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
     }

@@ -8,14 +8,15 @@
 //! the CPU when the frame is recorded, without a read-back (`gpu::frame::bound`): from the joint
 //! matrices for a GPU skin (each joint's bind-pose box of the vertices it moves, carried by the joint's
 //! matrix), from the positions for a mesh deformed on the CPU, then through the transform; conservative by
-//! construction and widened by a relative 2^-16 for the GPU's rounding, so a culled pair has no contact
-//! (the box is also no tighter than that: a joint's box turns with the joint). Culling on the GPU from
-//! the top level instead would still record every pair's rounds (up to 130 dispatches each after a GPU
-//! build) and read back every pair's answers; culled on the CPU, a pair apart costs nothing but
-//! `O(joints)` per collider and one box test. A skin whose weights cannot be bounded (negative or
-//! non-finite) is never culled. `GpuOnly` colliders take part: their trees and skinned positions come back
-//! with the answers (36 bytes per triangle and 12 per vertex of every collider per frame, plus 8 per leaf
-//! pair found). Contacts arrive with the frame's ray answers ([`Latency`](super::Latency)), tagged
+//! construction and widened by a relative 2^-16 for the GPU's rounding, so a culled pair has no contact.
+//! It is looser than the vertices' own box (a turned joint's box is carried whole), so some pairs apart
+//! are still traversed. Culling on the GPU from the top level instead would still record every pair's
+//! rounds (up to 130 dispatches each after a GPU build) and read back every pair's answers; culled on
+//! the CPU, a pair apart costs one box test (O(n²) for n colliders, cheap beside a traversal) after
+//! `O(joints)` per collider. A skin whose weights cannot be bounded (negative or non-finite) is never
+//! culled. `GpuOnly` colliders take part: the trees and skinned positions of the colliders in a pair
+//! traversed come back with the answers (36 bytes per triangle and 12 per vertex, plus 8 per leaf pair
+//! found). Contacts arrive with the frame's ray answers ([`Latency`](super::Latency)), tagged
 //! with their frame in [`Contacts::frame`](super::Contacts). Continuous colliders are tested at this frame's
 //! positions (discrete); collision fronts are not used.
 
@@ -112,13 +113,17 @@ impl PendingContacts {
     /// traversal overflowed. Pairs in entity order.
     pub fn finish(self, ctx: &GpuContext) -> Result<Found> {
         let ReadTrees { trees, pairs } = self.readback.wait(ctx)?;
-        let meshes = (self.colliders.iter().zip(trees))
-            .map(|((_, mesh, _), (_, tree))| {
-                let mesh = mesh.with_positions(tree.positions)?;
-                Ok(MeshBvh::from_tree(&mesh, tree.bvh))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let placed = |i: usize| Placed::new(&meshes[i], self.colliders[i].2);
+        // Only the colliders of pairs traversed came back.
+        let mut meshes: Vec<Option<MeshBvh>> = self.colliders.iter().map(|_| None).collect();
+        for (i, tree) in trees {
+            let mesh = self.colliders[i].1.with_positions(tree.positions)?;
+            meshes[i] = Some(MeshBvh::from_tree(&mesh, tree.bvh));
+        }
+        let placed = |i: usize| {
+            let missing = || crate::Error::Gpu(format!("collider {i}'s tree was not read back"));
+            let mesh = meshes[i].as_ref().ok_or_else(missing)?;
+            Ok::<_, crate::Error>(Placed::new(mesh, self.colliders[i].2))
+        };
         let mut query = PairQuery::new();
         let mut out = Vec::with_capacity(pairs.len());
         let overflows = pairs.iter().filter(|p| p.leaves.is_none()).count();
@@ -126,12 +131,12 @@ impl PendingContacts {
             let (a, b) = p.pair;
             let mut contacts = Vec::new();
             match (&p.leaves, a == b) {
-                (Some(l), true) => query.itself_from_leaf_pairs(placed(a), l, &mut contacts)?,
+                (Some(l), true) => query.itself_from_leaf_pairs(placed(a)?, l, &mut contacts)?,
                 (Some(l), false) => {
-                    query.meshes_from_leaf_pairs(placed(a), placed(b), l, &mut contacts)?
+                    query.meshes_from_leaf_pairs(placed(a)?, placed(b)?, l, &mut contacts)?
                 }
-                (None, true) => query.itself(placed(a), &mut contacts)?,
-                (None, false) => query.meshes(placed(a), placed(b), &mut contacts)?,
+                (None, true) => query.itself(placed(a)?, &mut contacts)?,
+                (None, false) => query.meshes(placed(a)?, placed(b)?, &mut contacts)?,
             };
             out.push(((self.colliders[a].0, self.colliders[b].0), contacts));
         }

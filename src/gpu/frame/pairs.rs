@@ -44,7 +44,8 @@ impl Default for ResidentPairs {
 
 /// A collider's tree on its way back, with what the CPU needs to pair it with its mesh.
 struct TreeReadback {
-    id: u64,
+    /// Index into the frame's colliders.
+    index: usize,
     /// Nodes (8 words each), then the slots' triangle ids, then the positions (3 words each).
     words: Readback<u32>,
     nodes: usize,
@@ -85,8 +86,8 @@ pub(crate) struct PairLeaves {
 
 /// A frame's collider trees and pair traversals, read back.
 pub(crate) struct ReadTrees {
-    /// Per collider, its id and tree.
-    pub trees: Vec<(u64, PairTree)>,
+    /// Per collider in a pair traversed, its index into the frame's colliders and its tree.
+    pub trees: Vec<(usize, PairTree)>,
     /// Per candidate pair, what the traversal found.
     pub pairs: Vec<PairLeaves>,
 }
@@ -108,8 +109,9 @@ impl ResidentPairs {
     }
 
     /// Records the traversal of each of `pairs` (indices into `colliders`; `(i, i)` for self-collision)
-    /// on the resident trees, `b` placed in `a`'s frame, and the read-back of every collider's tree: 36
-    /// bytes per triangle and 12 per vertex down per frame, plus 8 per leaf pair found. Traversals of pairs
+    /// on the resident trees, `b` placed in `a`'s frame, and the read-back of the tree of every collider
+    /// in one of `pairs`: 36 bytes per triangle and 12 per vertex down per frame, plus 8 per leaf pair
+    /// found. Traversals of pairs
     /// not listed are kept while both colliders are (a pair culled this frame may be traversed the next,
     /// and a new traversal uploads its round parameters, 33 KiB); those of colliders gone are dropped.
     pub fn record(
@@ -146,7 +148,11 @@ impl ResidentPairs {
         let live: std::collections::HashSet<u64> = colliders.iter().map(|c| c.id).collect();
         (self.traversals).retain(|(a, b), _| live.contains(a) && live.contains(b));
         self.traversals.extend(used);
-        for c in colliders {
+        let mut paired = vec![false; colliders.len()];
+        for &(a, b) in pairs {
+            (paired[a], paired[b]) = (true, true);
+        }
+        for (index, c) in colliders.iter().enumerate().filter(|(i, _)| paired[*i]) {
             let bvh = c.mesh.bvh();
             let (nodes, tris) = (bvh.node_count() as usize, bvh.triangle_count() as usize);
             let words = Readback::record_parts(
@@ -159,7 +165,7 @@ impl ResidentPairs {
                 ],
             );
             out.trees.push(TreeReadback {
-                id: c.id,
+                index,
                 words,
                 nodes,
                 tris,
@@ -189,7 +195,7 @@ impl FrameContacts {
                 bvh: Bvh::from_parts(nodes, ids.to_vec()),
                 positions,
             };
-            trees.push((t.id, tree));
+            trees.push((t.index, tree));
         }
         let mut pairs = Vec::with_capacity(self.pairs.len());
         for p in self.pairs {
