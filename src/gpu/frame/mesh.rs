@@ -1,5 +1,6 @@
 //! One mesh of the GPU-resident frame: its tree, its skin, and the refit-or-rebuild rule fed by the
-//! degradation metric read back one frame late.
+//! degradation metric (and, measured, the SAH cost) read back one frame late, and a CPU-side box of its
+//! vertices.
 
 use super::bound::{self, SkinBound};
 use super::sah::{SahReadback, SahReading, SahReduction};
