@@ -82,8 +82,8 @@ pub struct ResidentStats {
     pub rebuilds: usize,
     /// Candidate collider pairs: colliders on interacting layers, and each self-colliding one with itself.
     pub pair_candidates: usize,
-    /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (see
-    /// [`gpu_collide`](super::gpu_collide)).
+    /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (module
+    /// `gpu_collide`).
     pub pairs_traversed: usize,
     /// Of those, the pairs traversed for the first time: each makes its traversal's buffers and uploads
     /// their round parameters once (33 KiB); a pair's traversal is kept while both colliders exist.
