@@ -163,10 +163,7 @@ pub(crate) fn resident_frame_system(
             let weights = skin
                 .as_ref()
                 .map(|s| (&*s.weights, s.joint_matrices.len(), s.morphs.as_deref()));
-            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|mut m| {
-                if adaptive {
-                    m.measure_costs(&ctx);
-                }
+            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
                 resident.meshes.insert(e, m);
             })
         } else {
@@ -190,6 +187,10 @@ pub(crate) fn resident_frame_system(
             .and_then(|()| checked_transform(transform))
             .and_then(|tr| {
                 let state = state.expect("made above");
+                // From the first frame under the adaptive policy (it may be chosen at run time).
+                if adaptive {
+                    state.measure_costs(&ctx);
+                }
                 let update = update.unwrap_or(MeshUpdate::Unchanged);
                 let input = |refit: &crate::gpu::RefitState| PolicyInput {
                     hint: hint.copied().unwrap_or_default(),

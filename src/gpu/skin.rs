@@ -104,18 +104,15 @@ impl GpuSkin {
         })
     }
 
-    /// Uploads the blend shapes' weights for the next skinning passes (4 bytes per target); errors for a
-    /// count other than the skin's targets.
-    pub fn set_morph_weights(&self, ctx: &GpuContext, weights: &[f32]) -> Result<()> {
-        if weights.len() != self.targets as usize {
-            return Err(Error::InvalidOption(format!(
-                "{} morph weights for a skin of {} targets",
-                weights.len(),
-                self.targets
-            )));
+    /// Uploads the blend shapes' weights for the next skinning passes (4 bytes per target; nothing for a
+    /// skin without blend shapes). Missing weights count as 0 and extra ones are ignored, as in
+    /// [`MorphTargets::apply`].
+    pub fn set_morph_weights(&self, ctx: &GpuContext, weights: &[f32]) {
+        let mut all = vec![0.0f32; self.targets as usize];
+        for (w, v) in all.iter_mut().zip(weights) {
+            *w = *v;
         }
-        self.morph_weights.write(ctx, weights);
-        Ok(())
+        self.morph_weights.write(ctx, &all);
     }
 
     /// Uploads this frame's joint matrices and records the skinning dispatch.

@@ -213,7 +213,7 @@ impl ResidentMesh {
                 },
                 Some(skin),
             ) => {
-                skin.set_morph_weights(ctx, morph_weights)?;
+                skin.set_morph_weights(ctx, morph_weights);
                 skin.record(ctx, encoder, matrices)?;
                 if let Some(b) = &self.skin_bound {
                     self.bound = b.bound(matrices, morph_weights);
