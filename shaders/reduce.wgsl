@@ -33,17 +33,22 @@ fn fold(lid: u32) {
     workgroupBarrier();
 }
 
+// Folds the workgroup's values (`v` from each invocation) and stores the block's pair. Blocks past the end
+// of a folded (x, y) dispatch write nothing (a clamped index would race).
+fn store_block(v: f32, lid: u32, block: u32) {
+    acc[lid] = vec2<f32>(v, 0.0);
+    fold(lid);
+    if lid == 0u && block * WG < params.n { pairs[block] = acc[0]; }
+}
+
 @compute @workgroup_size(256)
 fn sum_blocks(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
               @builtin(num_workgroups) nwg: vec3<u32>) {
     let block = linear_group(wid, nwg);
     let i = block * WG + lid.x;
-    var v = vec2<f32>(0.0);
-    if i < params.n { v = vec2<f32>(values[i], 0.0); }
-    acc[lid.x] = v;
-    fold(lid.x);
-    // Blocks past the end of a folded (x, y) dispatch write nothing (a clamped index would race).
-    if lid.x == 0u && block * WG < params.n { pairs[block] = acc[0]; }
+    var v = 0.0;
+    if i < params.n { v = values[i]; }
+    store_block(v, lid.x, block);
 }
 
 @compute @workgroup_size(256)

@@ -1,7 +1,9 @@
-// Linear-blend skinning, 4 joints per vertex: p' = Σ w_k · (M_{j_k} · (p, 1)). Writes the positions that
-// the refit and LBVH kernels read, in the same flat xyz layout, with no CPU round trip.
+// Linear-blend skinning, 4 joints per vertex: p' = Σ w_k · (M_{j_k} · (p, 1)), with p the rest position
+// plus the blend shapes, p = rest + Σ_t weight_t · delta_t (added in target order, as the CPU's
+// MorphTargets::apply). Writes the positions that the refit and LBVH kernels read, in the same flat xyz
+// layout, with no CPU round trip.
 
-struct SkinParams { vertices: u32, _a: u32, _b: u32, _c: u32 }
+struct SkinParams { vertices: u32, targets: u32, _b: u32, _c: u32 }
 
 @group(0) @binding(0) var<storage, read> rest: array<f32>;
 @group(0) @binding(1) var<storage, read> joints: array<vec4<u32>>;
@@ -9,12 +11,23 @@ struct SkinParams { vertices: u32, _a: u32, _b: u32, _c: u32 }
 @group(0) @binding(3) var<storage, read> matrices: array<mat4x4<f32>>;
 @group(0) @binding(4) var<storage, read_write> positions: array<f32>;
 @group(0) @binding(5) var<uniform> params: SkinParams;
+// deltas[(t · vertices + i) · 3 ..]: target t's displacement of vertex i; one weight per target.
+@group(0) @binding(6) var<storage, read> deltas: array<f32>;
+@group(0) @binding(7) var<storage, read> morph_weights: array<f32>;
 
 @compute @workgroup_size(256)
 fn skin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if i >= params.vertices { return; }
-    let p = vec4<f32>(rest[3u * i], rest[3u * i + 1u], rest[3u * i + 2u], 1.0);
+    var r = vec3<f32>(rest[3u * i], rest[3u * i + 1u], rest[3u * i + 2u]);
+    for (var t = 0u; t < params.targets; t++) {
+        let w = morph_weights[t];
+        if w != 0.0 {
+            let d = 3u * (t * params.vertices + i);
+            r += vec3<f32>(deltas[d], deltas[d + 1u], deltas[d + 2u]) * w;
+        }
+    }
+    let p = vec4<f32>(r, 1.0);
     let j = joints[i];
     let w = weights[i];
     let q = w.x * (matrices[j.x] * p) + w.y * (matrices[j.y] * p) + w.z * (matrices[j.z] * p)

@@ -64,6 +64,8 @@ struct Run {
     answers: Answers,
     /// Per frame the GPU traffic counted.
     counters: Vec<GpuCounters>,
+    /// Per frame what the resident frame did.
+    resident: Vec<ResidentStats>,
     /// Per frame the world triangles (CPU mode only), for judging ties.
     triangles: BTreeMap<u64, Placed>,
     /// The characters in spawn order (entity ids differ between worlds: resources are entities too).
@@ -101,6 +103,10 @@ struct Crowd {
     spacing: f32,
     /// Characters are colliders (the first also with itself).
     colliders: bool,
+    /// Starting capacity of the resident frame's pair buffers (the test hook), if forced.
+    pair_capacity: Option<u32>,
+    /// Characters with two blend shapes at nonzero weights.
+    morphs: bool,
 }
 
 impl Crowd {
@@ -112,6 +118,8 @@ impl Crowd {
             frames: FRAMES,
             spacing: 0.9,
             colliders: false,
+            pair_capacity: None,
+            morphs: false,
         }
     }
 }
@@ -128,7 +136,17 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
     let next_frame = config.latency == Latency::NextFrame;
     let cpu = config.mode == TraceMode::Cpu;
     let (mut world, mut schedule) = app_with(config);
-    let asset = Arc::new(humanoid(triangles));
+    // The CPU mode has no GPU state: the capacity concerns the resident run only.
+    if let (Some(c), Some(mut gpu)) = (crowd.pair_capacity, world.get_resource_mut::<GpuQueries>())
+    {
+        gpu.start_pair_capacity(c);
+    }
+    let asset = humanoid(triangles);
+    let asset = Arc::new(if crowd.morphs {
+        with_morphs(asset)
+    } else {
+        asset
+    });
     // A static ground under the crowd: a mesh the resident frame uploads once and never touches again.
     let ground = kinetrace::Mesh::new(
         [(-2.0, -2.0), (5.0, -2.0), (5.0, 3.0), (-2.0, 3.0)].map(|(x, z)| Vec3::new(x, 0.0, z)),
@@ -155,6 +173,7 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
     let mut out = Run {
         answers: Answers::new(),
         counters: Vec::new(),
+        resident: Vec::new(),
         triangles: BTreeMap::new(),
         spawned,
         on_cpu: 0,
@@ -199,6 +218,7 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
         }
         if frame <= frames {
             out.counters.push(world.resource::<TraceStats>().gpu);
+            out.resident.push(world.resource::<TraceStats>().resident);
             if cpu {
                 out.triangles
                     .insert(frame, world_triangles(&mut world, &QueryFilter::default()));
@@ -212,6 +232,23 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
         .filter(|&&e| cpu_world.contains(e))
         .count();
     out
+}
+
+/// `asset` with two blend shapes (a widening and a ripple) at weights 0.8 and -0.5.
+fn with_morphs(mut asset: kinetrace::anim::CharacterAsset) -> kinetrace::anim::CharacterAsset {
+    let rest = asset.mesh.positions();
+    let widen = rest
+        .iter()
+        .map(|p| Vec3::new(p.x, 0.0, p.z) * 0.1)
+        .collect();
+    let ripple = (rest.iter())
+        .map(|p| Vec3::Y * 0.05 * (7.0 * p.x).sin())
+        .collect();
+    asset.morphs = Some(Arc::new(kinetrace::anim::MorphTargets {
+        deltas: vec![widen, ripple],
+        default_weights: vec![0.8, -0.5],
+    }));
+    asset
 }
 
 /// Every frame's GPU answers equal the CPU mode's, and the requests are not all misses or all hits.
@@ -261,6 +298,15 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
     }
 }
 
+/// Bytes a resident frame after the first uploads for the queries-only crowd: per character its joint
+/// matrices (64 bytes each) and `per_character` more; per instance (the characters and the ground) 144
+/// bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three 16-byte
+/// parameter blocks. The humanoid's joint count does not depend on its triangle count.
+fn uploads_after_the_first_frame(per_character: usize) -> usize {
+    let joints = humanoid(500).skeleton.joints.len();
+    CHARACTERS * (64 * joints + per_character) + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48
+}
+
 fn resident(latency: Latency) -> TraceConfig {
     TraceConfig {
         mode: TraceMode::GpuRequired,
@@ -287,11 +333,8 @@ fn next_frame_answers_equal_the_cpu_mode_without_waiting() {
     // After the first frame no vertex data goes up: uploads do not depend on the triangle count.
     let big = run(resident(Latency::NextFrame), Crowd::queries(1500, true));
     assert!(big.counters[0].uploaded_bytes > gpu.counters[0].uploaded_bytes);
-    // Exactly: per character its joint matrices (64 bytes each); per instance (the characters and the
-    // ground) 144 bytes plus a 64-byte transform; per request a ray (80 bytes) and its filter (16); three
-    // 16-byte parameter blocks.
-    let joints = humanoid(600).skeleton.joints.len();
-    let expected = CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48;
+    // Exactly the joints, instances, requests and parameters.
+    let expected = uploads_after_the_first_frame(0);
     for f in 1..FRAMES as usize {
         let (small, big) = (gpu.counters[f], big.counters[f]);
         assert_eq!(small.uploaded_bytes, big.uploaded_bytes, "frame {}", f + 1);
@@ -327,27 +370,14 @@ fn same_frame_answers_equal_the_cpu_mode_with_one_wait() {
 /// frame by frame — the same touching entity pairs, with the same triangle pairs between two characters
 /// — with one submission,
 /// no blocking wait, and after the first frame uploads of exactly the joints, instances, requests and
-/// one 80-byte relative transform per candidate pair.
+/// one 80-byte relative transform per pair traversed (pairs whose world boxes are apart are culled).
 #[test]
 fn colliders_and_queries_equal_the_cpu_mode_over_300_frames() {
     if gpu_or_skip().is_none() {
         return;
     }
-    let crowd = Crowd {
-        triangles: 500,
-        gpu_only: true,
-        frames: 300,
-        spacing: 0.45,
-        colliders: true,
-    };
-    let cpu = run(
-        TraceConfig::default(),
-        Crowd {
-            gpu_only: false,
-            ..crowd
-        },
-    );
-    let gpu = run(resident(Latency::NextFrame), crowd);
+    let cpu = run(TraceConfig::default(), COLLIDING.with_mirror());
+    let gpu = run(resident(Latency::NextFrame), COLLIDING);
     assert_same_answers(&cpu, &gpu, "colliders, GPU only");
     let touching = |r: &Run| r.contacts.values().filter(|p| !p.is_empty()).count();
     let between = (cpu.contacts.values())
@@ -362,29 +392,136 @@ fn colliders_and_queries_equal_the_cpu_mode_over_300_frames() {
         between > 0 && between < 300,
         "{between} frames with contacts between characters"
     );
-    // The same touching pairs; between two characters, the same triangle pairs. A character against
-    // itself touches where its capsules meet at the joints, along coincident surfaces whose triangle pairs
-    // touch or not by the rounding of the skinning, which differs between the devices: there only the
-    // pair is compared.
+    assert_same_contacts(&cpu, &gpu, 300);
+    // Pairs whose world boxes are apart are culled before the traversal (the contacts above are those
+    // of every candidate pair in the CPU mode): the self pair is always traversed, the others as the
+    // characters sway in and out of reach.
+    let pairs = CHARACTERS * (CHARACTERS - 1) / 2 + 1;
+    let traversed: Vec<usize> = gpu.resident.iter().map(|s| s.pairs_traversed).collect();
+    eprintln!("pairs traversed per frame: {traversed:?}");
+    assert!(
+        gpu.resident.iter().all(|s| s.pair_candidates == pairs),
+        "{:?}",
+        gpu.resident
+    );
+    assert!(
+        traversed.iter().all(|&t| (1..=pairs).contains(&t)),
+        "{traversed:?}"
+    );
+    let (lo, hi) = (traversed.iter().min(), traversed.iter().max());
+    assert!(lo < hi, "{traversed:?}");
+    // A pair traversed for the first time makes its traversal (a fixed block of round parameters goes
+    // up once); otherwise uploads are exactly the joints, instances, requests and the pairs' transforms.
+    let base = uploads_after_the_first_frame(0);
+    let mut per_new = std::collections::BTreeSet::new();
+    for (f, c) in gpu.counters.iter().enumerate() {
+        assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
+        assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
+        if f > 0 {
+            let extra = c.uploaded_bytes as usize - (base + traversed[f] * 80);
+            match gpu.resident[f].pairs_created {
+                0 => assert_eq!(extra, 0, "frame {}", f + 1),
+                n => _ = per_new.insert((extra / n, extra % n)),
+            }
+        }
+    }
+    assert!(
+        per_new.len() <= 1 && per_new.iter().all(|p| p.1 == 0),
+        "{per_new:?}"
+    );
+}
+
+/// The crowd of the collider tests: close enough to brush together.
+const COLLIDING: Crowd = Crowd {
+    triangles: 500,
+    gpu_only: true,
+    frames: 300,
+    spacing: 0.45,
+    colliders: true,
+    pair_capacity: None,
+    morphs: false,
+};
+
+impl Crowd {
+    /// The same crowd with CPU mirrors (for the CPU mode).
+    const fn with_mirror(self) -> Self {
+        Crowd {
+            gpu_only: false,
+            ..self
+        }
+    }
+}
+
+/// Frames `1..=frames` have the same touching pairs in both runs; between two characters, the same
+/// triangle pairs. A character against itself touches where its capsules meet at the joints, along
+/// coincident surfaces whose triangle pairs touch or not by the rounding of the skinning, which differs
+/// between the devices: there only the pair is compared.
+fn assert_same_contacts(cpu: &Run, gpu: &Run, frames: u64) {
     let strip = |pairs: &ContactPairs| -> ContactPairs {
         (pairs.iter())
             .map(|(a, b, t)| (*a, *b, if a == b { Vec::new() } else { t.clone() }))
             .collect()
     };
-    for f in 1..=300 {
+    for f in 1..=frames {
         let (c, g) = (&cpu.contacts[&f], &gpu.contacts[&f]);
         assert_eq!(strip(c), strip(g), "frame {f}");
     }
-    let joints = humanoid(500).skeleton.joints.len();
-    let pairs = CHARACTERS * (CHARACTERS - 1) / 2 + 1;
-    let expected =
-        CHARACTERS * 64 * joints + (CHARACTERS + 1) * 208 + (RAYS + SHADOWS) * 96 + 48 + pairs * 80;
-    for (f, c) in gpu.counters.iter().enumerate() {
-        assert_eq!(c.submissions, 1, "frame {}: {c:?}", f + 1);
-        assert_eq!(c.blocking_waits, 0, "frame {}: {c:?}", f + 1);
-        if f > 0 {
-            assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
-        }
+}
+
+/// With pair buffers forced tiny (room for 64 leaf pairs, the buffers' minimum), the traversals of
+/// touching pairs overflow: those frames are answered by the CPU's traversal of the read-back trees, the
+/// buffers grow, and the contacts still equal the CPU mode's, frame by frame.
+#[test]
+fn overflowing_pair_buffers_grow_and_contacts_equal_the_cpu_mode() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let crowd = Crowd {
+        frames: 60,
+        pair_capacity: Some(1),
+        ..COLLIDING
+    };
+    let cpu = run(TraceConfig::default(), crowd.with_mirror());
+    let gpu = run(resident(Latency::NextFrame), crowd);
+    assert_same_contacts(&cpu, &gpu, 60);
+    let overflows: usize = gpu.resident.iter().map(|s| s.pair_overflows).sum();
+    let start = gpu.resident[0].pair_capacity;
+    let end = gpu.resident.last().unwrap().pair_capacity;
+    eprintln!("{overflows} overflows; leaf-pair capacity {start} -> {end}");
+    assert!(overflows > 0, "{:?}", gpu.resident);
+    assert!(end > start, "{start} -> {end}");
+}
+
+/// The adaptive policy on the resident frame: every changed mesh's planner is fed the SAH cost reduced on
+/// the GPU (one frame late) and counted query work, and decides refit or rebuild; the first frame builds
+/// every tree, later frames refit and rebuild some (neither never nor always), the answers still equal
+/// the CPU mode's, and after the first frame uploads are exactly the joints, instances and requests.
+#[test]
+fn the_adaptive_policy_decides_on_the_resident_trees() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let cpu = run(TraceConfig::default(), Crowd::queries(600, false));
+    let config = TraceConfig {
+        policy: RebuildPolicy::ADAPTIVE,
+        ..resident(Latency::NextFrame)
+    };
+    let gpu = run(config, Crowd::queries(600, true));
+    assert_same_answers(&cpu, &gpu, "adaptive policy");
+    eprintln!("{:?}", gpu.resident);
+    assert_eq!(gpu.resident[0].rebuilds, CHARACTERS + 1);
+    let later = &gpu.resident[1..];
+    let rebuilds: usize = later.iter().map(|s| s.rebuilds).sum();
+    let refits: usize = later.iter().map(|s| s.refits).sum();
+    assert!(
+        rebuilds > 0 && refits > 0,
+        "{rebuilds} rebuilds, {refits} refits"
+    );
+    assert_eq!(rebuilds + refits, CHARACTERS * later.len());
+    let expected = uploads_after_the_first_frame(0);
+    for (f, c) in gpu.counters.iter().enumerate().skip(1) {
+        assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
+        assert_eq!(c.blocking_waits, 0, "frame {}", f + 1);
     }
 }
 
@@ -466,5 +603,113 @@ fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
             eprintln!("frame {f}: {p:?}");
             assert!(p.maintain + p.top_level + p.queries + p.pairs > std::time::Duration::ZERO);
         }
+    }
+}
+
+/// A resident mesh's SAH cost, reduced on the GPU and read back without blocking, equals the CPU's
+/// `Bvh::sah_cost` and root area of the same tree read back (after the build and after refits); its
+/// vertices, morphed by two blend shapes and skinned on the GPU, equal the CPU's morphing and skinning;
+/// and its CPU-side bound from the joint matrices and blend-shape weights holds every vertex: random
+/// rigid joint motions and weights in [-1, 1] on a humanoid, a fresh pose each frame.
+#[test]
+fn resident_costs_and_bounds_match_the_gpu_tree() {
+    use glam::{Mat4, Quat};
+    use kinetrace::gpu::{MeshUpdate, ResidentMesh};
+    use rand::Rng;
+    let Some(ctx) = gpu_or_skip() else {
+        return;
+    };
+    let asset = with_morphs(humanoid(600));
+    let morphs = asset.morphs.as_deref().unwrap();
+    let joints = asset.skeleton.joints.len();
+    let skin = Some((&*asset.weights, joints, Some(morphs)));
+    let mut mesh = ResidentMesh::new(&ctx, &asset.mesh, skin, None).unwrap();
+    mesh.measure_costs(&ctx);
+    let mut r = rng(1519);
+    let mut readings = 0;
+    // The CPU's SAH cost and root area of the tree as the last frame left it.
+    let mut last: Option<(f64, f64)> = None;
+    for frame in 0..6 {
+        let matrices: Vec<Mat4> = (0..joints)
+            .map(|_| {
+                let axis = rand_vec(&mut r, -1.0, 1.0).normalize_or(Vec3::Y);
+                let turn = Quat::from_axis_angle(axis, 0.4 * frame as f32);
+                Mat4::from_rotation_translation(turn, rand_vec(&mut r, -0.3, 0.3))
+            })
+            .collect();
+        let weights = [r.random_range(-1.0..1.0), r.random_range(-1.0..1.0)];
+        let update = MeshUpdate::Joints {
+            matrices: &matrices,
+            morph_weights: &weights,
+        };
+        let mut enc = ctx.encoder();
+        let mut seen = None;
+        mesh.record(&ctx, &mut enc, update, |s| {
+            seen = s.cost;
+            false
+        })
+        .unwrap();
+        ctx.submit(enc);
+        ctx.wait().unwrap();
+        // The GPU morphed and skinned as the CPU does (to the rounding of a few dozen operations on
+        // coordinates of a few metres), and the bound holds every vertex.
+        let positions = mesh.bvh().read_positions(&ctx).unwrap();
+        let mut morphed = vec![Vec3::ZERO; positions.len()];
+        morphs.apply(asset.mesh.positions(), &weights, &mut morphed);
+        let mut expected = vec![Vec3::ZERO; positions.len()];
+        kinetrace::anim::skin_positions(&morphed, &asset.weights, &matrices, &mut expected)
+            .unwrap();
+        let bound = mesh.bound().expect("weights in [0, 1]");
+        for (i, (p, q)) in positions.iter().zip(&expected).enumerate() {
+            let tol = 64.0 * f32::EPSILON * (1.0 + q.abs().max_element());
+            let at = format!("frame {frame} vertex {i}");
+            assert!((*p - *q).abs().max_element() <= tol, "{at}: {p} vs {q}");
+            assert!(bound.contains_point(*p), "{at}: {p} outside {bound:?}");
+        }
+        // A frame's reading (a build's, then refits') arrives with the next frame's record: compare it
+        // with the tree read back right after its own frame.
+        if let Some(c) = seen {
+            let (sah, area) = last.take().expect("a tree was recorded before");
+            assert_eq!(c.rebuilt, frame == 1, "frame {frame}");
+            let rel = |a: f64, b: f64| (a - b).abs() / b;
+            assert!(
+                rel(c.reading.sah, sah) <= 1e-5,
+                "frame {frame}: {} vs {sah}",
+                c.reading.sah
+            );
+            assert!(rel(c.reading.root_half_area, area) <= 1e-6, "frame {frame}");
+            readings += 1;
+        }
+        let tree = mesh.bvh().read_tree(&ctx).unwrap();
+        last = Some((tree.sah_cost(), tree.bounds().half_area_f64()));
+    }
+    assert_eq!(readings, 5);
+}
+
+/// Blend shapes on the GPU: characters with two blend shapes at nonzero weights, skinned on the GPU
+/// (`GpuOnly`: no CPU mirror), give the CPU mode's answers, where the CPU morphs and skins; after the
+/// first frame only the weights go up besides the joints (4 bytes per target), never vertex data.
+#[test]
+fn blend_shapes_on_the_gpu_equal_the_cpu_mode() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let crowd = Crowd {
+        morphs: true,
+        ..Crowd::queries(600, false)
+    };
+    let cpu = run(TraceConfig::default(), crowd);
+    let gpu = run(
+        resident(Latency::NextFrame),
+        Crowd {
+            gpu_only: true,
+            ..crowd
+        },
+    );
+    assert_same_answers(&cpu, &gpu, "blend shapes");
+    // Two blend-shape weights per character.
+    let expected = uploads_after_the_first_frame(2 * 4);
+    for (f, c) in gpu.counters.iter().enumerate().skip(1) {
+        assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
     }
 }

@@ -3,8 +3,10 @@
 //! shadow rays: per frame the bytes uploaded and read back, the submissions and blocking waits (means over
 //! the frames after the first, which uploads the meshes), and the time per frame. The full run measures
 //! 16, 64 and 256 characters of 10k triangles with 10k rays; `--quick` 4 and 16 of 2k with 1k. Crowds of at
-//! most 16 also run with every character a `Collider` (the resident frame traverses every pair on the GPU:
-//! O(n²) pairs, so not the larger crowds). On a device with timestamp queries the resident runs add the
+//! most 16 also run with every character a `Collider` (the resident frame traverses on the GPU the pairs
+//! whose world boxes overlap, culled on the CPU: O(n²) box tests, rows `pairs traversed / frame`). The
+//! resident frame also runs under `RebuildPolicy::ADAPTIVE` (row `rebuilds / frame` for each resident
+//! run). On a device with timestamp queries the resident runs add the
 //! GPU's time per phase (means of `TraceStats::gpu_phases`). Where the
 //! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
 
@@ -49,21 +51,39 @@ pub fn run(rec: &mut Records) {
         let scene = format!("{n} characters x {triangles} tris + {rays} rays");
         println!("\n{scene}");
         for resident in [false, true] {
-            crowd(rec, &scene, &asset, (n, false), rays, frames, resident);
+            crowd(
+                rec,
+                &scene,
+                &asset,
+                (n, false, false),
+                rays,
+                frames,
+                resident,
+            );
             if n <= 16 {
-                crowd(rec, &scene, &asset, (n, true), rays, frames, resident);
+                crowd(
+                    rec,
+                    &scene,
+                    &asset,
+                    (n, true, false),
+                    rays,
+                    frames,
+                    resident,
+                );
             }
         }
+        crowd(rec, &scene, &asset, (n, false, true), rays, frames, true);
     }
 }
 
-/// `frames` frames of `n` characters of `asset` on a grid (colliders when `colliders`), each queried with
-/// `rays` closest-hit rays and as many shadow rays; records the per-frame means.
+/// `frames` frames of `n` characters of `asset` on a grid (colliders when `colliders`, under the adaptive
+/// policy when `adaptive`), each queried with `rays` closest-hit rays and as many shadow rays; records the
+/// per-frame means.
 fn crowd(
     rec: &mut Records,
     scene: &str,
     asset: &Arc<kinetrace::anim::CharacterAsset>,
-    (n, colliders): (usize, bool),
+    (n, colliders, adaptive): (usize, bool, bool),
     rays: usize,
     frames: usize,
     resident: bool,
@@ -76,6 +96,11 @@ fn crowd(
         },
         latency: Latency::NextFrame,
         resident,
+        policy: if adaptive {
+            RebuildPolicy::ADAPTIVE
+        } else {
+            RebuildPolicy::default()
+        },
         ..Default::default()
     };
     let mut world = World::new();
@@ -124,6 +149,8 @@ fn crowd(
     let (mut up, mut down, mut submissions, mut waits, mut seconds) = (0, 0, 0, 0, 0.0);
     // GPU seconds per phase and the frames that reported them.
     let (mut phases, mut timed) = ([0.0; 4], 0);
+    // Pairs traversed and trees rebuilt by the resident frame.
+    let (mut traversed, mut rebuilds) = (0, 0);
     for frame in 0..frames {
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, (ray, to, light)) in requests.iter().enumerate() {
@@ -140,6 +167,8 @@ fn crowd(
             (up, down) = (up + c.uploaded_bytes, down + c.read_back_bytes);
             (submissions, waits) = (submissions + c.submissions, waits + c.blocking_waits);
             seconds += elapsed;
+            let done = world.resource::<TraceStats>().resident;
+            (traversed, rebuilds) = (traversed + done.pairs_traversed, rebuilds + done.rebuilds);
             if let Some(p) = world.resource::<TraceStats>().gpu_phases {
                 let spans = [p.maintain, p.top_level, p.queries, p.pairs];
                 for (sum, d) in phases.iter_mut().zip(spans) {
@@ -150,11 +179,12 @@ fn crowd(
         }
     }
     let per = (frames - 1) as f64;
-    let subject = match (resident, colliders) {
-        (true, false) => "GPU-resident",
-        (true, true) => "GPU-resident + colliders",
-        (false, false) => "CPU mode",
-        (false, true) => "CPU mode + colliders",
+    let subject = match (resident, colliders, adaptive) {
+        (true, _, true) => "GPU-resident, adaptive",
+        (true, false, _) => "GPU-resident",
+        (true, true, _) => "GPU-resident + colliders",
+        (false, false, _) => "CPU mode",
+        (false, true, _) => "CPU mode + colliders",
     };
     rec.add(
         SUITE,
@@ -197,6 +227,18 @@ fn crowd(
             waits as f64 / per,
             "",
         );
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "rebuilds / frame",
+            rebuilds as f64 / per,
+            "",
+        );
+        if colliders {
+            let pairs = traversed as f64 / per;
+            rec.add(SUITE, scene, subject, "pairs traversed / frame", pairs, "");
+        }
         for (metric, sum) in PHASE_METRICS.into_iter().zip(phases) {
             if timed > 0 {
                 rec.add(

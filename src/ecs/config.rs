@@ -227,7 +227,7 @@ pub struct TraceConfig {
     /// Keep the frame on the GPU (false by default; takes effect in a GPU mode that found an adapter): the
     /// GPU-resident frame of [`gpu_frame`](super::gpu_frame). Every mesh is uploaded once; per frame one
     /// submission skins, refits or rebuilds (with [`builder`](Self::builder) where the GPU has it, else
-    /// GPU LBVH; Lauterbach's rule on the degradation metric read back one frame late), builds the top
+    /// GPU LBVH; the policy's rule on the degradation metric and SAH cost read back one frame late), builds the top
     /// level and answers the batched requests, and the CPU uploads only joint matrices, transforms and
     /// rays. Under [`Latency::NextFrame`] the CPU never waits for the GPU (answers arrive as soon as a
     /// later frame finds them done, normally the next one); under [`Latency::SameFrame`] it waits once per

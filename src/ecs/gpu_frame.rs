@@ -4,12 +4,14 @@
 //! of [`Collider`]s, whose exact tests run on the CPU when the answers come back (`gpu_collide`): contacts
 //! arrive with the ray answers, [`GpuOnly`] colliders included.
 //!
-//! What moves per frame: joint matrices of changed skins (64 bytes per joint), every instance (208 bytes:
+//! What moves per frame: joint matrices of changed skins (64 bytes per joint) and their blend shapes'
+//! weights (4 bytes per target: the GPU skin applies the blend shapes), every instance (208 bytes:
 //! transform, inverse, offsets, layers), the requests (96 bytes each) and one relative transform per
-//! candidate collider pair (80 bytes) up; the answers (48 bytes each), one degradation metric per refitted
-//! mesh (8 bytes) and each collider's tree and positions (36 bytes per triangle, 12 per vertex) down. Vertices go up once, when a mesh is first
-//! seen, and again only for meshes deformed on the CPU ([`VertexPositions`] without a GPU skin, or a skin
-//! with active blend shapes, which the GPU skin does not apply).
+//! collider pair traversed (80 bytes; pairs whose world boxes are apart are culled on the CPU first) up;
+//! the answers (48 bytes each), one degradation metric per refitted mesh (8 bytes; under the adaptive
+//! policy 40 more for its SAH cost) and each collider's tree and positions (36 bytes per triangle, 12 per
+//! vertex) down. Vertices (and blend shapes' displacements) go up once, when a mesh is first seen, and
+//! again only for meshes deformed on the CPU ([`VertexPositions`] without a skin).
 //!
 //! The rebuild rule is the configured policy's, on the metric of an earlier refit read back without
 //! blocking: a mesh rebuilds one frame after the refit whose metric made the policy ask for it, or later
@@ -18,11 +20,12 @@
 //! degradation and `frames_since_rebuild` are those of the resident tree as last read back, whose
 //! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; any
 //! rebuild it asks for (a partial one included) is a whole rebuild with the mesh's builder.
-//! [`RebuildPolicy::Adaptive`] needs the tree's SAH cost and per-mesh query times, which do not come back
-//! on this path: it falls back to the thesis's 0.40 (said once in the log; the CPU mirror still runs it
-//! for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one submission (LBVH
-//! over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a read-back per
-//! round).
+//! [`RebuildPolicy::Adaptive`] runs its planner per resident mesh on what comes back one frame late: the
+//! tree's SAH cost reduced on the GPU beside the metric, and query and rebuild work counted in a model
+//! instead of measured seconds (module `gpu_policy`; the CPU mirror still runs its own planner in
+//! seconds for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one
+//! submission (LBVH over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a
+//! read-back per round).
 //!
 //! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
 //! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
@@ -41,8 +44,8 @@ use super::*;
 use bevy_ecs::prelude::*;
 
 /// Drops an entity's CPU mirror in the GPU-resident frame (see [`gpu_frame`](self)): it is skinned and
-/// maintained on the GPU only and seen only by batched requests answered there. Blend shapes need the
-/// mirror (the GPU skin does not apply them). Outside the resident frame it still keeps the entity out
+/// maintained on the GPU only and seen only by batched requests answered there (blend shapes included:
+/// the GPU skin applies them). Outside the resident frame it still keeps the entity out
 /// of [`TraceSystems::Skin`] and [`TraceSystems::Maintain`], so nothing sees it: do not add it there.
 #[derive(Component, Clone, Copy, Debug, Default)]
 pub struct GpuOnly;
@@ -70,23 +73,27 @@ type ResidentData<'a> = (
     Option<&'a MotionHint>,
 );
 
-/// Whether `policy` rebuilds a resident tree in the state `input` describes (see the module docs).
-#[cfg(feature = "gpu")]
-fn rebuild_due(policy: &RebuildPolicy, input: &PolicyInput<'_>) -> bool {
-    static FALLBACK_SAID: std::sync::Once = std::sync::Once::new();
-    match policy {
-        RebuildPolicy::Lauterbach { threshold } => input.degradation > *threshold,
-        RebuildPolicy::Custom(policy) => policy(input) != Decision::Keep,
-        RebuildPolicy::Adaptive { .. } => {
-            FALLBACK_SAID.call_once(|| {
-                log::warn!(
-                    "kinetrace: the GPU-resident frame has no SAH costs or query times per mesh for the \
-                     adaptive policy: its trees rebuild at degradation 0.40"
-                )
-            });
-            input.degradation > super::config::THESIS_THRESHOLD
-        }
-    }
+/// What the GPU-resident frame did in a frame ([`TraceStats::resident`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ResidentStats {
+    /// Trees refitted on the GPU.
+    pub refits: usize,
+    /// Trees built or rebuilt on the GPU.
+    pub rebuilds: usize,
+    /// Candidate collider pairs: colliders on interacting layers, and each self-colliding one with itself.
+    pub pair_candidates: usize,
+    /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (module
+    /// `gpu_collide`).
+    pub pairs_traversed: usize,
+    /// Of those, the pairs traversed for the first time: each makes its traversal's buffers and uploads
+    /// their round parameters once (33 KiB); a pair's traversal is kept while both colliders exist.
+    pub pairs_created: usize,
+    /// Of the pair traversals published this frame (those of [`Contacts::frame`]), those that overflowed
+    /// their buffers: answered by the CPU's traversal of the read-back trees, their buffers grown for the
+    /// next frame.
+    pub pair_overflows: usize,
+    /// The largest leaf-pair buffer of the pair traversals kept, in leaf pairs.
+    pub pair_capacity: u32,
 }
 
 /// What the resident frame publishes besides the ray answers: the contacts and their messages.
@@ -119,6 +126,7 @@ pub(crate) fn resident_frame_system(
     use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
     let t = std::time::Instant::now();
     let next_frame = config.latency == Latency::NextFrame;
+    stats.resident = ResidentStats::default();
     if next_frame {
         let blocking = gpu.in_flight() >= IN_FLIGHT;
         publish(
@@ -131,6 +139,15 @@ pub(crate) fn resident_frame_system(
     let rays_last_frame = stats.rays_last_frame;
     // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
     let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
+    let build = match sah {
+        Some(_) => crate::adaptive::Build {
+            builder: config.builder,
+            device: crate::adaptive::Device::Gpu,
+        },
+        None => crate::adaptive::Build::GPU_LBVH,
+    };
+    let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
+    let mut done_here = ResidentStats::default();
     let ctx = gpu.context().clone();
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
     let resident = gpu.resident();
@@ -141,13 +158,11 @@ pub(crate) fn resident_frame_system(
     let mut placed = Vec::with_capacity(meshes.iter().len());
     let mut colliders = Vec::new();
     for (e, mesh, skin, positions, transform, layers, collider, hint) in &meshes {
-        // The GPU skin applies no blend shapes: a skin with active ones is deformed on the CPU.
-        let gpu_skin = skin.filter(|s| s.morph_weights.iter().all(|&w| w == 0.0));
         let fresh = mesh.is_changed() || !resident.meshes.contains_key(&e);
         let made = if fresh {
-            let weights = gpu_skin
+            let weights = skin
                 .as_ref()
-                .map(|s| (&*s.weights, s.joint_matrices.len()));
+                .map(|s| (&*s.weights, s.joint_matrices.len(), s.morphs.as_deref()));
             ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
                 resident.meshes.insert(e, m);
             })
@@ -155,9 +170,13 @@ pub(crate) fn resident_frame_system(
             Ok(())
         };
         let state = resident.meshes.get_mut(&e);
-        let update = match (&gpu_skin, &positions) {
+        let policies = &mut resident.policies;
+        let update = match (&skin, &positions) {
             (Some(s), _) if state.as_ref().is_some_and(|m| m.skinned()) => {
-                (fresh || s.is_changed()).then_some(MeshUpdate::Joints(&s.joint_matrices))
+                (fresh || s.is_changed()).then_some(MeshUpdate::Joints {
+                    matrices: &s.joint_matrices,
+                    morph_weights: &s.morph_weights,
+                })
             }
             (_, Some(p)) if !p.0.is_empty() => {
                 (fresh || p.is_changed()).then_some(MeshUpdate::Positions(&p.0))
@@ -168,6 +187,10 @@ pub(crate) fn resident_frame_system(
             .and_then(|()| checked_transform(transform))
             .and_then(|tr| {
                 let state = state.expect("made above");
+                // From the first frame under the adaptive policy (it may be chosen at run time).
+                if adaptive {
+                    state.measure_costs(&ctx);
+                }
                 let update = update.unwrap_or(MeshUpdate::Unchanged);
                 let input = |refit: &crate::gpu::RefitState| PolicyInput {
                     hint: hint.copied().unwrap_or_default(),
@@ -179,13 +202,24 @@ pub(crate) fn resident_frame_system(
                     motion_incoherence: refit.incoherence(),
                     gpu: true,
                 };
-                let rule =
-                    |refit: &crate::gpu::RefitState| rebuild_due(&config.policy, &input(refit));
-                state.record(&ctx, &mut enc, update, rule)?;
-                Ok(tr)
+                let rule = |refit: &crate::gpu::RefitState| match config.policy {
+                    RebuildPolicy::Lauterbach { threshold } => refit.degradation > threshold,
+                    RebuildPolicy::Custom(policy) => policy(&input(refit)) != Decision::Keep,
+                    RebuildPolicy::Adaptive { .. } => {
+                        let asset = super::maintain::asset_of(&mesh.0);
+                        policies.rebuild(e, asset, build, refit, rays_last_frame)
+                    }
+                };
+                match state.record(&ctx, &mut enc, update, rule)? {
+                    crate::gpu::Maintained::Refit => done_here.refits += 1,
+                    crate::gpu::Maintained::Rebuilt => done_here.rebuilds += 1,
+                    crate::gpu::Maintained::Kept => {}
+                }
+                let world = state.bound().map(|b| crate::gpu::world_bound(&b, &tr));
+                Ok((tr, world))
             });
         match done {
-            Ok(tr) => {
+            Ok((tr, world)) => {
                 if let Some(&collider) = collider
                     && mesh.0.triangle_count() > 0
                 {
@@ -194,9 +228,10 @@ pub(crate) fn resident_frame_system(
                         collider,
                         mesh: mesh.0.clone(),
                         transform: tr,
+                        world,
                     });
                 }
-                placed.push((e, tr, layers.0));
+                placed.push((e, tr, layers.0, world));
             }
             Err(err) => {
                 resident.meshes.remove(&e);
@@ -209,9 +244,13 @@ pub(crate) fn resident_frame_system(
         let live: std::collections::HashSet<Entity> = placed.iter().map(|p| p.0).collect();
         resident.meshes.retain(|e, _| live.contains(e));
     }
+    if adaptive {
+        let boxes: Vec<_> = placed.iter().map(|p| (p.0, p.3)).collect();
+        resident.policies.set_shares(&boxes);
+    }
     let instances: Vec<FrameInstance> = placed
         .iter()
-        .map(|&(e, transform, layers)| FrameInstance {
+        .map(|&(e, transform, layers, _)| FrameInstance {
             id: e.to_bits(),
             mesh: &resident.meshes[&e],
             transform,
@@ -229,10 +268,16 @@ pub(crate) fn resident_frame_system(
     }
     let contacts = (!colliders.is_empty()).then(|| {
         let meshes = &resident.meshes;
-        super::gpu_collide::record(&ctx, &mut enc, &mut resident.pairs, colliders, |e| {
-            &meshes[&e]
-        })
+        super::gpu_collide::record(
+            &ctx,
+            &mut enc,
+            &mut resident.pairs,
+            colliders,
+            |e| &meshes[&e],
+            &mut done_here,
+        )
     });
+    done_here.pair_capacity = resident.pairs.largest_capacity();
     let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);
@@ -242,6 +287,10 @@ pub(crate) fn resident_frame_system(
             log::error!("kinetrace: GPU-resident frame's collider pairs lost: {e}");
             None
         }
+    };
+    stats.resident = ResidentStats {
+        pair_overflows: stats.resident.pair_overflows,
+        ..done_here
     };
     match recorded {
         Ok(readback) => gpu.push_pending(pending, readback, contacts, phases),
@@ -287,14 +336,15 @@ fn publish(
                     log::error!("kinetrace: GPU-resident frame's contacts lost: {e}");
                     return;
                 }
-                None => Vec::new(),
+                None => Default::default(),
             };
+            stats.resident.pair_overflows = found.overflows;
             let o = &mut *out;
             let (contacts, state) = (&mut *o.contacts, &mut *o.state);
             let frame = results.frame;
             super::gpu_collide::publish(
                 frame,
-                &found,
+                &found.pairs,
                 contacts,
                 state,
                 &mut o.started,

@@ -55,7 +55,7 @@ mod imp {
     /// pairs.
     pub(crate) struct Answers {
         pub(crate) rays: RayResults,
-        pub(crate) contacts: Option<crate::Result<Vec<crate::ecs::gpu_collide::FoundPair>>>,
+        pub(crate) contacts: Option<crate::Result<crate::ecs::gpu_collide::Found>>,
         pub(crate) phases: Option<crate::Result<crate::gpu::GpuPhases>>,
     }
 
@@ -66,6 +66,8 @@ mod imp {
         pub(crate) pairs: ResidentPairs,
         /// `None` where the device has no timestamp queries.
         pub(crate) timer: Option<FrameTimer>,
+        /// The meshes' planners under the adaptive policy.
+        pub(crate) policies: crate::ecs::gpu_policy::ResidentPolicies,
     }
 
     pub(crate) struct Inner {
@@ -232,6 +234,13 @@ mod imp {
             self.inner.pending.push_back(p);
         }
 
+        /// Test hook (feature `testing`): the resident frame's new collider pairs start with buffers for
+        /// `capacity` queued pairs and leaf pairs, so that tests reach the overflow path.
+        #[cfg(feature = "testing")]
+        pub fn start_pair_capacity(&mut self, capacity: u32) {
+            self.resident().pairs.start_capacity(capacity);
+        }
+
         /// The resident frame's state, made at its first frame.
         pub(crate) fn resident(&mut self) -> &mut Resident {
             let ctx = &self.inner.ctx;
@@ -240,6 +249,7 @@ mod imp {
                 scene: ResidentScene::new(ctx),
                 pairs: ResidentPairs::default(),
                 timer: FrameTimer::new(ctx),
+                policies: Default::default(),
             })
         }
 

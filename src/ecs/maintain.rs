@@ -611,7 +611,7 @@ fn adaptive_policy(
 
 /// A mesh's asset for the shared costs: its topology, which every entity spawned from the same [`Mesh`]
 /// shares (another [`Mesh::new`] of the same triangles counts as another asset and is measured again).
-fn asset_of(mesh: &Mesh) -> Asset {
+pub(super) fn asset_of(mesh: &Mesh) -> Asset {
     Asset {
         triangles: mesh.triangle_count(),
         id: topology_id(mesh),

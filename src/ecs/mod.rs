@@ -65,6 +65,8 @@ mod filter;
 #[cfg(feature = "gpu")]
 mod gpu_collide;
 pub mod gpu_frame;
+#[cfg(feature = "gpu")]
+mod gpu_policy;
 mod gpu_queries;
 mod maintain;
 mod params;
@@ -95,7 +97,7 @@ pub use config::{
     lauterbach_policy,
 };
 pub use filter::{QueryFilter, RayHit};
-pub use gpu_frame::GpuOnly;
+pub use gpu_frame::{GpuOnly, ResidentStats};
 pub use gpu_queries::GpuQueries;
 pub use params::SpatialRays;
 #[doc(hidden)]

@@ -216,4 +216,7 @@ pub struct TraceStats {
     /// otherwise.
     #[cfg(feature = "gpu")]
     pub gpu_phases: Option<crate::gpu::GpuPhases>,
+    /// What the GPU-resident frame did this frame (all zero outside it).
+    #[cfg(feature = "gpu")]
+    pub resident: super::ResidentStats,
 }

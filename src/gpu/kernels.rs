@@ -111,6 +111,8 @@ pub(crate) struct Kernels {
     pub scene: Module,
     pub skin: Module,
     pub frame: Module,
+    /// The resident frame's SAH cost reduction (reduce.wgsl with `sah_blocks` appended).
+    pub frame_sah: Module,
     pub histogram: Module,
     pub collide: Module,
     pub sah: Module,
@@ -192,7 +194,7 @@ impl Kernels {
                 device,
                 "skin",
                 shader!("skin.wgsl"),
-                &[Read, Read, Read, Read, Write, Uniform],
+                &[Read, Read, Read, Read, Write, Uniform, Read, Read],
                 &["skin"],
             ),
             frame: Module::new(
@@ -201,6 +203,17 @@ impl Kernels {
                 shader!("frame.wgsl"),
                 &[Read, Read, Read, Read, Write, Write, Uniform],
                 &["instance_boxes", "order_instances"],
+            ),
+            frame_sah: Module::new(
+                device,
+                "frame_sah",
+                concat!(
+                    include_str!("../../shaders/common.wgsl"),
+                    include_str!("../../shaders/reduce.wgsl"),
+                    include_str!("../../shaders/frame_sah.wgsl")
+                ),
+                &[Read, Write, Uniform, Read],
+                &["sah_blocks", "sum_pairs"],
             ),
             histogram: Module::new(
                 device,

@@ -54,11 +54,13 @@ pub use context::shared_for_tests;
 pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
+pub use frame::{
+    CostReading, GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh, SahReading,
+};
 pub(crate) use frame::{
     FrameCollider, FrameContacts, FrameInstance, FrameReadback, FrameTimer, PhasesReadback,
-    ReadTrees, ResidentPairs, ResidentScene,
+    ReadTrees, ResidentPairs, ResidentScene, world_bound,
 };
-pub use frame::{GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub use ploc::{GpuPloc, PlocBuildCounts};
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]

@@ -1,12 +1,14 @@
 //! One mesh of the GPU-resident frame: its tree, its skin, and the refit-or-rebuild rule fed by the
-//! degradation metric read back one frame late.
+//! degradation metric (and, measured, the SAH cost) read back one frame late, and a CPU-side box of its
+//! vertices.
 
-use crate::Mesh;
-use crate::Result;
-use crate::anim::SkinWeights;
+use super::bound::{self, SkinBound};
+use super::sah::{SahReadback, SahReading, SahReduction};
+use crate::anim::{MorphTargets, SkinWeights};
 use crate::gpu::{
     DegradationReadback, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, GpuSkin,
 };
+use crate::{Aabb, Mesh, Result};
 use glam::{Mat4, Vec3};
 
 /// What changed about a resident mesh this frame.
@@ -14,8 +16,14 @@ use glam::{Mat4, Vec3};
 pub enum MeshUpdate<'a> {
     /// Nothing: its tree stays as it is (rigid and static meshes, a skin whose matrices did not change).
     Unchanged,
-    /// New joint matrices for its [`GpuSkin`] (uploads 64 bytes per joint).
-    Joints(&'a [Mat4]),
+    /// New joint matrices for its [`GpuSkin`] (uploads 64 bytes per joint) and, for a skin made with
+    /// blend shapes, their weights (4 bytes per target; empty without).
+    Joints {
+        /// The palette.
+        matrices: &'a [Mat4],
+        /// One weight per blend shape of the skin.
+        morph_weights: &'a [f32],
+    },
     /// New vertex positions from the CPU (uploads 12 bytes per vertex): meshes deformed by gameplay code
     /// or by blend shapes, which the GPU skin does not apply.
     Positions(&'a [Vec3]),
@@ -40,6 +48,18 @@ pub struct RefitState {
     pub degradation: f32,
     /// Refits recorded since the tree was last built.
     pub frames_since_rebuild: u32,
+    /// With [`ResidentMesh::measure_costs`], the SAH cost read back since the last call (of a refitted
+    /// tree, or of a rebuilt one: [`CostReading::rebuilt`]); each reading is given once.
+    pub cost: Option<CostReading>,
+}
+
+/// A tree's SAH cost as read back for [`RefitState::cost`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CostReading {
+    /// The cost and root area.
+    pub reading: SahReading,
+    /// Whether it is the cost of a fresh build (else of a refit).
+    pub rebuilt: bool,
 }
 
 impl RefitState {
@@ -68,17 +88,28 @@ pub struct ResidentMesh {
     degradation: f32,
     /// Refits since the last build.
     refits: u32,
+    /// The SAH cost reduction, with [`measure_costs`](Self::measure_costs).
+    costs: Option<SahReduction>,
+    /// The last cost recorded, not yet read back, and whether it is a rebuild's.
+    pending_cost: Option<(SahReadback, bool)>,
+    /// A cost read back and not yet given to the rule.
+    unread: Option<CostReading>,
+    /// The skin's bound from joint matrices (`None` without a skin or for weights it cannot bound).
+    skin_bound: Option<SkinBound>,
+    /// A box of this frame's vertices ([`bound`](Self::bound)).
+    bound: Aabb,
 }
 
 impl ResidentMesh {
-    /// Uploads `mesh` (and, with `skin`, its rest pose, weights and a palette of `joints` matrices) and
-    /// allocates its tree, and with `sah` that builder's scratch; nothing is built until the first
-    /// [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36 more per
-    /// vertex for a skin) and about 112 bytes of GPU memory per triangle, plus the SAH builder's scratch.
+    /// Uploads `mesh` (and, with `skin`, its rest pose, weights, a palette of `joints` matrices and any
+    /// blend shapes) and allocates its tree, and with `sah` that builder's scratch; nothing is built until
+    /// the first [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36
+    /// more per vertex for a skin, 12 per vertex per blend shape) and about 112 bytes of GPU memory per
+    /// triangle, plus the SAH builder's scratch.
     pub fn new(
         ctx: &GpuContext,
         mesh: &Mesh,
-        skin: Option<(&SkinWeights, usize)>,
+        skin: Option<(&SkinWeights, usize, Option<&MorphTargets>)>,
         sah: Option<GpuSahOptions>,
     ) -> Result<Self> {
         let bvh = GpuMeshBvh::new(ctx, mesh)?;
@@ -86,11 +117,17 @@ impl ResidentMesh {
             Some(options) => Some(GpuSahBuilder::new(ctx, &bvh, options)?),
             None => None,
         };
-        let skin = match skin {
-            Some((weights, joints)) => {
-                Some(GpuSkin::new(ctx, mesh.positions(), weights, joints, &bvh)?)
+        let (skin, skin_bound) = match skin {
+            Some((weights, joints, morphs)) => {
+                let rest = mesh.positions();
+                (
+                    Some(GpuSkin::new_morphed(
+                        ctx, rest, weights, joints, morphs, &bvh,
+                    )?),
+                    SkinBound::new(rest, weights, joints, morphs),
+                )
             }
-            None => None,
+            None => (None, None),
         };
         Ok(Self {
             bvh,
@@ -100,7 +137,29 @@ impl ResidentMesh {
             pending: None,
             degradation: 0.0,
             refits: 0,
+            costs: None,
+            pending_cost: None,
+            unread: None,
+            skin_bound,
+            bound: bound::of_points(mesh.positions()),
         })
+    }
+
+    /// Reduces the tree's SAH cost on the GPU after every rebuild and refit from now on, read back
+    /// without blocking into [`RefitState::cost`] (one reading in flight at a time: a refit recorded while
+    /// one is on its way is not measured). Costs two dispatches over the nodes and 40 bytes read back per
+    /// measured update, 8 bytes of GPU memory per 256 nodes. The adaptive policy's input.
+    pub fn measure_costs(&mut self, ctx: &GpuContext) {
+        if self.costs.is_none() {
+            self.costs = Some(SahReduction::new(ctx, &self.bvh));
+        }
+    }
+
+    /// A box of the vertices as of the last [`record`](Self::record), known on the CPU without a
+    /// read-back (see `bound`): from the joint matrices for a GPU skin (empty where the skin's weights
+    /// cannot be bounded: negative or non-finite), from the positions otherwise. Object space.
+    pub fn bound(&self) -> Option<Aabb> {
+        (self.skin.is_none() || self.skin_bound.is_some()).then_some(self.bound)
     }
 
     /// Whether the GPU skins this mesh.
@@ -135,20 +194,45 @@ impl ResidentMesh {
             self.degradation = metric?;
             self.pending = None;
         }
+        if let Some((r, rebuilt)) = &self.pending_cost
+            && let Some(reading) = r.try_take(ctx)
+        {
+            self.unread = Some(CostReading {
+                reading: reading?,
+                rebuilt: *rebuilt,
+            });
+            self.pending_cost = None;
+        }
         match (update, &self.skin) {
             (MeshUpdate::Unchanged, _) if self.built => return Ok(Maintained::Kept),
             (MeshUpdate::Unchanged, _) => {}
-            (MeshUpdate::Joints(m), Some(skin)) => skin.record(ctx, encoder, m)?,
-            (MeshUpdate::Joints(_), None) => {
+            (
+                MeshUpdate::Joints {
+                    matrices,
+                    morph_weights,
+                },
+                Some(skin),
+            ) => {
+                skin.set_morph_weights(ctx, morph_weights);
+                skin.record(ctx, encoder, matrices)?;
+                if let Some(b) = &self.skin_bound {
+                    self.bound = b.bound(matrices, morph_weights);
+                }
+            }
+            (MeshUpdate::Joints { .. }, None) => {
                 return Err(crate::Error::InvalidOption(
                     "joint matrices for a mesh without a GPU skin".into(),
                 ));
             }
-            (MeshUpdate::Positions(p), _) => self.bvh.upload_positions(ctx, p)?,
+            (MeshUpdate::Positions(p), _) => {
+                self.bvh.upload_positions(ctx, p)?;
+                self.bound = bound::of_points(p);
+            }
         }
         let state = RefitState {
             degradation: self.degradation,
             frames_since_rebuild: self.refits,
+            cost: self.unread.take(),
         };
         if !self.built || rebuild(&state) {
             match &self.sah {
@@ -160,6 +244,7 @@ impl ResidentMesh {
             self.refits = 0;
             // A metric of the tree before the rebuild says nothing about the new one.
             self.pending = None;
+            self.record_cost(ctx, encoder, true);
             return Ok(Maintained::Rebuilt);
         }
         self.bvh.record_refit(ctx, encoder)?;
@@ -167,6 +252,18 @@ impl ResidentMesh {
         if self.pending.is_none() {
             self.pending = Some(self.bvh.record_degradation(ctx, encoder));
         }
+        self.record_cost(ctx, encoder, false);
         Ok(Maintained::Refit)
+    }
+
+    /// Records the SAH cost's reduction and read-back, if measured and none is on its way (always after a
+    /// rebuild: a cost of the tree before it says nothing about the new one).
+    fn record_cost(&mut self, ctx: &GpuContext, encoder: &mut wgpu::CommandEncoder, rebuilt: bool) {
+        if let Some(costs) = &self.costs
+            && (rebuilt || self.pending_cost.is_none())
+        {
+            let r = costs.record(ctx, encoder, &self.bvh);
+            self.pending_cost = Some((r, rebuilt));
+        }
     }
 }

@@ -3,18 +3,22 @@
 //! top-level tree built on the GPU over the instances' world boxes, then the batched closest-hit and any-hit
 //! queries of [`ResidentScene`] — with the answers copied to staging and mapped without blocking.
 //!
-//! Per frame the CPU uploads only joint matrices (64 bytes per joint of a changed skin), the instances
-//! (144 bytes of transforms, offsets and layers plus a 64-byte transform each) and the rays (80 + 16 bytes
-//! each); positions only for meshes deformed on the CPU. The meshes' trees are copied on the GPU into the
+//! Per frame the CPU uploads only joint matrices (64 bytes per joint of a changed skin, plus 4 per blend
+//! shape for its weight), the instances (144 bytes of transforms, offsets and layers plus a 64-byte
+//! transform each) and the rays (80 + 16 bytes each); positions only for meshes deformed on the CPU. The meshes' trees are copied on the GPU into the
 //! scene's buffers (device bandwidth, not the bus). The top level is rebuilt every frame: an LBVH over a few
 //! hundred boxes costs a handful of dispatches, less than tracking which boxes moved.
 
+mod bound;
 mod mesh;
 mod pairs;
+mod sah;
 mod timer;
 
-pub use mesh::{Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub(crate) use bound::world as world_bound;
+pub use mesh::{CostReading, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
+pub use sah::SahReading;
 pub use timer::GpuPhases;
 pub(crate) use timer::{FrameTimer, PhasesReadback};
 

@@ -27,14 +27,25 @@ pub(crate) struct FrameCollider<'a> {
 
 /// The pair traversals kept from frame to frame, one per pair of collider ids (their buffers grow with
 /// the pair's contact and are reused).
-#[derive(Default)]
 pub(crate) struct ResidentPairs {
     traversals: HashMap<(u64, u64), GpuPairs>,
+    /// Capacity of a new pair's buffers (queued pairs, leaf pairs).
+    capacity: u32,
+}
+
+impl Default for ResidentPairs {
+    fn default() -> Self {
+        Self {
+            traversals: HashMap::new(),
+            capacity: PAIR_CAPACITY,
+        }
+    }
 }
 
 /// A collider's tree on its way back, with what the CPU needs to pair it with its mesh.
 struct TreeReadback {
-    id: u64,
+    /// Index into the frame's colliders.
+    index: usize,
     /// Nodes (8 words each), then the slots' triangle ids, then the positions (3 words each).
     words: Readback<u32>,
     nodes: usize,
@@ -60,6 +71,8 @@ struct PairReadback {
 pub(crate) struct FrameContacts {
     trees: Vec<TreeReadback>,
     pairs: Vec<PairReadback>,
+    /// Pairs traversed for the first time (their traversals made this frame).
+    pub created: usize,
 }
 
 /// What came back for one candidate pair: the leaf pairs the GPU found, or `None` when the traversal
@@ -73,17 +86,34 @@ pub(crate) struct PairLeaves {
 
 /// A frame's collider trees and pair traversals, read back.
 pub(crate) struct ReadTrees {
-    /// Per collider, its id and tree.
-    pub trees: Vec<(u64, PairTree)>,
+    /// Per collider in a pair traversed, its index into the frame's colliders and its tree.
+    pub trees: Vec<(usize, PairTree)>,
     /// Per candidate pair, what the traversal found.
     pub pairs: Vec<PairLeaves>,
 }
 
 impl ResidentPairs {
+    /// Test hook (feature `testing`): new pairs' buffers start with room for `capacity` queued pairs and
+    /// leaf pairs (rounded up to the buffers' 256-byte minimum), so that tests reach the overflow path.
+    #[cfg(feature = "testing")]
+    pub fn start_capacity(&mut self, capacity: u32) {
+        self.capacity = capacity;
+    }
+
+    /// The largest leaf-pair buffer among the traversals kept, in leaf pairs (0 with none).
+    pub fn largest_capacity(&self) -> u32 {
+        (self.traversals.values())
+            .map(|t| t.capacity().1)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// Records the traversal of each of `pairs` (indices into `colliders`; `(i, i)` for self-collision)
-    /// on the resident trees, `b` placed in `a`'s frame, and the read-back of every collider's tree: 36
-    /// bytes per triangle and 12 per vertex down per frame, plus 8 per leaf pair found. Traversals of pairs
-    /// no longer listed are dropped.
+    /// on the resident trees, `b` placed in `a`'s frame, and the read-back of the tree of every collider
+    /// in one of `pairs`: 36 bytes per triangle and 12 per vertex down per frame, plus 8 per leaf pair
+    /// found. Traversals of pairs
+    /// not listed are kept while both colliders are (a pair culled this frame may be traversed the next,
+    /// and a new traversal uploads its round parameters, 33 KiB); those of colliders gone are dropped.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
@@ -94,15 +124,16 @@ impl ResidentPairs {
         let mut out = FrameContacts {
             trees: Vec::with_capacity(colliders.len()),
             pairs: Vec::with_capacity(pairs.len()),
+            created: 0,
         };
         let mut used = HashMap::with_capacity(pairs.len());
         for &(a, b) in pairs {
             let (ca, cb) = (&colliders[a], &colliders[b]);
             let key = (ca.id, cb.id);
-            let mut traversal = self
-                .traversals
-                .remove(&key)
-                .unwrap_or_else(|| GpuPairs::with_capacity(ctx, PAIR_CAPACITY, PAIR_CAPACITY));
+            let mut traversal = self.traversals.remove(&key).unwrap_or_else(|| {
+                out.created += 1;
+                GpuPairs::with_capacity(ctx, self.capacity, self.capacity)
+            });
             let other = (a != b).then(|| {
                 let b_to_a = ca.transform.inverse() * cb.transform;
                 (cb.mesh.bvh().tree(), b_to_a)
@@ -114,8 +145,14 @@ impl ResidentPairs {
             });
             used.insert(key, traversal);
         }
-        self.traversals = used;
-        for c in colliders {
+        let live: std::collections::HashSet<u64> = colliders.iter().map(|c| c.id).collect();
+        (self.traversals).retain(|(a, b), _| live.contains(a) && live.contains(b));
+        self.traversals.extend(used);
+        let mut paired = vec![false; colliders.len()];
+        for &(a, b) in pairs {
+            (paired[a], paired[b]) = (true, true);
+        }
+        for (index, c) in colliders.iter().enumerate().filter(|(i, _)| paired[*i]) {
             let bvh = c.mesh.bvh();
             let (nodes, tris) = (bvh.node_count() as usize, bvh.triangle_count() as usize);
             let words = Readback::record_parts(
@@ -128,7 +165,7 @@ impl ResidentPairs {
                 ],
             );
             out.trees.push(TreeReadback {
-                id: c.id,
+                index,
                 words,
                 nodes,
                 tris,
@@ -158,7 +195,7 @@ impl FrameContacts {
                 bvh: Bvh::from_parts(nodes, ids.to_vec()),
                 positions,
             };
-            trees.push((t.id, tree));
+            trees.push((t.index, tree));
         }
         let mut pairs = Vec::with_capacity(self.pairs.len());
         for p in self.pairs {
