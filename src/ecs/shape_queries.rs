@@ -321,6 +321,9 @@ impl TraceWorld {
             return;
         }
         let bounds = shape.bounds();
+        // Entities met in ascending order (one, say), each with its run sorted, leave a sorted list.
+        let mut last: Option<Entity> = None;
+        let mut in_order = true;
         traverse_by(
             self.tlas.nodes(),
             (),
@@ -331,15 +334,19 @@ impl TraceWorld {
                     if let Some((e, inst)) = self.accepted(s, filter) {
                         let start = out.len();
                         inst.overlapping(shape, |t| out.push((e, t)));
-                        sort_triangles(&mut out[start..]);
+                        if out.len() > start {
+                            sort_triangles(&mut out[start..]);
+                            in_order &= last.is_none_or(|l| l < e);
+                            last = Some(e);
+                        }
                     }
                 }
                 false
             },
         );
-        // Each entity's run is sorted: entities met in ascending order (one, say) leave a sorted list, which
-        // this only checks.
-        out.sort_unstable();
+        if !in_order {
+            out.sort_unstable();
+        }
     }
 
     /// Writes into `out` (cleared first, sorted) the accepted entities whose closed meshes hold `p`, by
