@@ -35,6 +35,17 @@ fn used_lanes(node: &WideNode) -> u32 {
     (0..WIDTH).fold(0, |m, i| m | (u32::from(node.child[i] != EMPTY_LANE) << i))
 }
 
+/// `mask` without the node's unused lanes. Only a test against an unbounded limit can keep an unused lane
+/// (its empty box is infinitely far, and overlaps no finite box), so the payloads are read only then.
+#[inline(always)]
+fn keep_used(mask: u32, node: &WideNode, unbounded: bool) -> u32 {
+    if unbounded {
+        mask & used_lanes(node)
+    } else {
+        mask
+    }
+}
+
 impl WideBvh {
     /// Walks the leaves whose boxes lie within squared distance `bound` of `p`, nearest box first:
     /// `leaf(slots, bound)` may lower `*bound` (the best squared distance found so far) and later boxes
@@ -61,8 +72,8 @@ impl WideBvh {
                 limit = bound_f32(bound);
             } else {
                 let node = &self.nodes[cur as usize];
-                let (d2, mut mask) = dist4(node, p, limit);
-                mask &= used_lanes(node);
+                let (d2, mask) = dist4(node, p, limit);
+                let mask = keep_used(mask, node, limit == f32::INFINITY);
                 if mask != 0 {
                     self.prefetch_lanes(node, mask, slot_data);
                     cur = nearest_first(&node.child, mask, &d2, &mut stack, &mut sp);
@@ -118,7 +129,9 @@ impl WideBvh {
     /// Calls `leaf` with the slots of every leaf whose box overlaps `b` (touching counts), in tree order.
     /// The same comparisons as [`Aabb::overlaps`], four lanes at a time.
     pub(crate) fn walk_overlapping(&self, b: &Aabb, leaf: impl FnMut(Range<usize>)) {
-        self.walk_lanes(|node| overlap4(node, b), leaf);
+        // An unused lane's empty box overlaps no box with finite corners.
+        let unbounded = !(b.min.is_finite() && b.max.is_finite());
+        self.walk_lanes(|node| keep_used(overlap4(node, b), node, unbounded), leaf);
     }
 
     /// Calls `leaf` with the slots of every leaf whose box may lie within squared distance `bound` of `p`
@@ -126,10 +139,14 @@ impl WideBvh {
     /// must be finite.
     pub(crate) fn walk_within(&self, p: Vec3, bound: f64, leaf: impl FnMut(Range<usize>)) {
         let limit = bound_f32(bound);
-        self.walk_lanes(|node| dist4(node, p, limit).1, leaf);
+        let unbounded = limit == f32::INFINITY;
+        self.walk_lanes(
+            |node| keep_used(dist4(node, p, limit).1, node, unbounded),
+            leaf,
+        );
     }
 
-    /// Depth-first walk into the lanes `test` keeps (bit `i` for lane `i`; unused lanes are dropped here).
+    /// Depth-first walk into the lanes `test` keeps (bit `i` for lane `i`; `test` must drop unused lanes).
     #[inline(always)]
     fn walk_lanes(&self, test: impl Fn(&WideNode) -> u32, mut leaf: impl FnMut(Range<usize>)) {
         if self.nodes.is_empty() {
@@ -140,7 +157,7 @@ impl WideBvh {
         while sp > 0 {
             sp -= 1;
             let node = &self.nodes[stack[sp] as usize];
-            let mut mask = test(node) & used_lanes(node);
+            let mut mask = test(node);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
