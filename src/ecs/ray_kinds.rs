@@ -92,6 +92,14 @@ const PRIORS: [(SecondaryStrategy, f64, f64); 4] = [
     (SecondaryStrategy::Crsh, 4.0, 1.0),
 ];
 
+impl Choice<SecondaryStrategy> {
+    /// A secondary batch's planner, as [`SecondaryRays`] keeps one per [`RayBatch`]: the BVH in use first,
+    /// the others with the priors above. Teach it each batch's seconds with [`Choice::served`].
+    pub fn secondary() -> Self {
+        Choice::new(&PRIORS).expect("four options")
+    }
+}
+
 /// How secondary batches are traced: a fixed strategy, or (the default) the strategy each batch's
 /// planner ([`Choice`]) learns is cheapest from the measured seconds per ray of each, whatever the
 /// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
@@ -129,7 +137,7 @@ impl SecondaryRays {
     ) -> Result<Self> {
         layout.validate()?;
         crate::raysort::hierarchy::check_shape(branching, depth)?;
-        let planner = Choice::new(&PRIORS).expect("four options");
+        let planner = Choice::secondary();
         Ok(Self {
             fixed,
             layout,
