@@ -57,7 +57,7 @@ pub enum RayBatch {
 pub enum SecondaryStrategy {
     /// Each ray through the two-level BVH, in request order: no sort.
     Bvh,
-    /// The same traversal in key order: costs the keys and the sort (a few ns per ray), pays where
+    /// The same traversal in key order: costs the keys and the sort (24–33 ns a ray on the crowd), pays where
     /// request order is incoherent.
     SortedBvh,
     /// The rays in key order, traced as packets of [`SORTED_PACKET`] consecutive rays with the same
