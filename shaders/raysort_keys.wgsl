@@ -28,8 +28,6 @@ struct KeyParams { n: u32, bits: u32, _pad0: u32, _pad1: u32 }
 @group(0) @binding(4) var<storage, read_write> bounds: array<atomic<u32>, 6>;
 @group(0) @binding(5) var<uniform> params: KeyParams;
 
-const PI: f32 = 3.14159265358979323846;
-
 fn finite(x: f32) -> bool { return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u; }
 fn is_nan(x: f32) -> bool { return !finite(x) && (bitcast<u32>(x) & 0x007fffffu) != 0u; }
 
@@ -77,40 +75,16 @@ fn interleave3(a: u32, b: u32, c: u32, bits: u32) -> u32 {
     return out;
 }
 
-// atan of t in [0, 1] (Cephes' atanf: one reduction, a degree-9 odd polynomial, a few ulps). WGSL's own
-// `atan2`/`acos` may be 4096 ulps off (the Vulkan bound; lavapipe's move keys by a step of 2^-14 π).
-fn atan_unit(t: f32) -> f32 {
-    var base = 0.0;
-    var x = t;
-    if t > 0.41421356 {
-        base = PI / 4.0;
-        x = (t - 1.0) / (t + 1.0);
-    }
-    let z = x * x;
-    return base + (((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z
-        - 3.33329491539e-1) * z * x + x;
-}
-
-// atan2 with IEEE's signed zeros: the sign bits of y and x pick the quadrant, so atan2(-0, -0) = -π.
-fn atan2_exactish(y: f32, x: f32) -> f32 {
-    let ay = abs(y);
-    let ax = abs(x);
-    var a = 0.0;
-    if ay > ax {
-        a = PI / 2.0 - atan_unit(ax / ay);
-    } else if ax > 0.0 {
-        a = atan_unit(ay / ax);
-    }
-    if (bitcast<u32>(x) & 0x80000000u) != 0u { a = PI - a; }
-    if (bitcast<u32>(y) & 0x80000000u) != 0u { a = -a; }
-    return a;
-}
-
+// The polar step (cos θ in equal steps from +z) and the azimuth step (the diamond angle of (x, y) from -x,
+// 1 + x' for y <= 0 and 3 - x' above, x' = x / (|x| + |y|), -1 along ±z), as key.rs's `direction`.
 fn direction(d: vec3<f32>, bits: u32) -> u32 {
-    let z = clamp(d.z / sqrt(dot(d, d)), -1.0, 1.0);
-    let theta = quantise(atan2_exactish(sqrt(max(1.0 - z * z, 0.0)), z) / PI, bits);
-    let phi = quantise((atan2_exactish(d.y, d.x) + PI) / (2.0 * PI), bits);
-    return interleave2(theta, phi, bits);
+    let polar = quantise((1.0 - d.z / sqrt(dot(d, d))) * 0.5, bits);
+    let s = abs(d.x) + abs(d.y);
+    var x = -1.0;
+    if s > 0.0 { x = d.x / s; }
+    var diamond = 3.0 - x;
+    if d.y <= 0.0 { diamond = 1.0 + x; }
+    return interleave2(polar, quantise(diamond * 0.25, bits), bits);
 }
 
 fn shl(x: u32, s: u32) -> u32 { return select(x << s, 0u, s >= 32u); }

@@ -108,9 +108,9 @@ fn fields(key: u32, kind: RayKind) -> (i64, i64, u32) {
     (theta, phi, key >> (2 * bits))
 }
 
-/// The GPU key's angles come from a few-ulp polynomial and WGSL division and square root, not correctly
-/// rounded ones, so a ray whose angle lies within rounding of a step boundary may quantise to the
-/// neighbouring step on the GPU. Everything else
+/// The GPU key's steps come from WGSL division and square root, not correctly rounded ones, so a ray
+/// whose direction lies within rounding of a step boundary may quantise to the neighbouring step on the
+/// GPU. Everything else
 /// must agree: the same valid rays, the same light or origin cell, angles at most one step apart; and
 /// where every key agrees the order is the CPU sort's exactly.
 #[test]
@@ -145,23 +145,28 @@ fn gpu_keys_match_cpu_keys_up_to_one_angle_step() {
     }
 }
 
-/// Directions at the centre of a 14-bit angle step (half a step, 1e-4 rad, from any boundary of either
-/// layout) and origins on the corners of their bounds: keys, order and chunks equal the CPU sort's exactly.
+/// Directions at the centre of a 14-bit polar and azimuth step (half a step from any boundary: far beyond
+/// rounding) and origins on the corners of their bounds: keys, order and chunks equal the CPU sort's exactly.
 #[test]
 fn gpu_sort_equals_cpu_sort_on_exact_keys() {
     let Some(g) = gpu_or_skip() else { return };
     let mut r = rng(5);
-    use std::f32::consts::PI;
-    let step = |m: u32| (m as f32 + 0.5) / 16384.0;
+    let centre = |m: u32| (m as f32 + 0.5) / 16384.0;
     let dirs: Vec<Vec3> = (0..40)
         .map(|_| {
-            let theta = step(r.random_range(0..16384)) * PI;
-            let phi = step(r.random_range(0..16384)) * 2.0 * PI - PI;
-            Vec3::new(
-                theta.sin() * phi.cos(),
-                theta.sin() * phi.sin(),
-                theta.cos(),
-            )
+            // cos θ in equal steps from +z; the diamond angle (four units a turn, from -x) back to (x, y)
+            // with |x| + |y| = 1, then scaled to sin θ.
+            let cos = 1.0 - 2.0 * centre(r.random_range(0..16384));
+            let diamond = 4.0 * centre(r.random_range(0..16384));
+            let (x, y) = if diamond <= 2.0 {
+                let x = diamond - 1.0;
+                (x, x.abs() - 1.0)
+            } else {
+                let x = 3.0 - diamond;
+                (x, 1.0 - x.abs())
+            };
+            let k = (1.0 - cos * cos).max(0.0).sqrt() / (x * x + y * y).sqrt();
+            Vec3::new(x * k, y * k, cos)
         })
         .collect();
     let corners = [Vec3::ZERO, Vec3::ONE, Vec3::new(1.0, 0.0, 1.0)];

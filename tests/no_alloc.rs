@@ -316,3 +316,38 @@ fn warm_shape_query_batches_do_not_allocate() {
         *world.resource_mut::<ShapeResults>() = results;
     }
 }
+
+/// A warm ray sort (its [`SortedRays`](kinetrace::raysort::SortedRays) and scratch kept from a batch as
+/// large) allocates nothing on one thread, and gives the order a fresh sort gives.
+#[test]
+fn warm_ray_sort_does_not_allocate() {
+    use kinetrace::raysort::{
+        KeyLayout, RayKind, SecondaryRay, SortScratch, SortedRays, sort_rays,
+    };
+    let _alone = alone();
+    let mut r = rng(3);
+    let rays: Vec<SecondaryRay> = (0..5000u32)
+        .map(|i| SecondaryRay {
+            ray: if i % 101 == 0 {
+                Ray::new(Vec3::ZERO, Vec3::ZERO) // trimmed
+            } else {
+                Ray::new(rand_vec(&mut r, -1.0, 1.0), rand_dir(&mut r))
+            },
+            kind: if i % 3 == 0 {
+                RayKind::Reflection
+            } else {
+                RayKind::Shadow { light: i % 4 }
+            },
+            tag: i,
+        })
+        .collect();
+    let layout = KeyLayout::default();
+    let (mut sorted, mut scratch) = (SortedRays::default(), SortScratch::default());
+    sorted.sort(&rays, &layout, false, &mut scratch).unwrap();
+    for half in [&rays[..2500], &rays[..]] {
+        let before = allocations();
+        sorted.sort(half, &layout, false, &mut scratch).unwrap();
+        assert_eq!(allocations() - before, 0);
+        assert_eq!(sorted, sort_rays(half, &layout, false).unwrap());
+    }
+}

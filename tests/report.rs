@@ -19,6 +19,8 @@ mod plots;
 mod scale;
 #[path = "../examples/report/scenes.rs"]
 mod scenes;
+#[path = "../examples/report/secondary_rows.rs"]
+mod secondary_rows;
 
 use plotters::coord::ranged1d::Ranged;
 use std::path::{Path, PathBuf};
@@ -128,6 +130,25 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             r.scene,
             r.strategy
         );
+    }
+    // Secondary rays: per scene two batches of rays, each with the four fixed strategies and the planner;
+    // every strategy's answers equal the BVH's, whose sample equals brute force; the section is in the
+    // summary.
+    assert_eq!(report.secondary.len(), scenes.len() * 2 * 5);
+    assert!(summary.contains("## Secondary rays"));
+    for r in &report.secondary {
+        assert_eq!(
+            r.mismatches, 0,
+            "{} / {} / {}: answers differ from the BVH's or brute force",
+            r.scene, r.batch, r.strategy
+        );
+        assert!(
+            r.rays > 0 && r.mrays > 0.0 && r.tests_per_ray > 0.0,
+            "{} / {}",
+            r.scene,
+            r.batch
+        );
+        assert!(summary.contains(&format!("| {} | {} | {} |", r.scene, r.batch, r.strategy)));
     }
     // Rebuilding with binned SAH every frame is the reference itself.
     for r in report.rows.iter().filter(|r| r.strategy == "rebuild-sah") {

@@ -194,6 +194,11 @@ fn frame_rays(bounds: &Aabb, n: usize, frame: u32) -> Vec<Ray> {
         .collect()
 }
 
+/// A frame's light: above and aside of its bounds, as far from the centre as the bounds' diagonal.
+pub fn frame_light(bounds: &Aabb) -> Vec3 {
+    bounds.center() + Vec3::new(0.3, 1.0, 0.2) * bounds.extent().length()
+}
+
 /// A structure the fixed ray load runs through, and how its work counts as traversal steps.
 pub trait Traced {
     fn closest(&self, ray: &Ray, stats: &mut TraversalStats) -> Option<Hit>;
@@ -370,7 +375,7 @@ pub fn run_scene(
         let sah = build(&mesh, Builder::SAH);
         let bounds = sah.bvh().bounds();
         let rays = frame_rays(&bounds, settings.rays, f);
-        let light = bounds.center() + Vec3::new(0.3, 1.0, 0.2) * bounds.extent().length();
+        let light = frame_light(&bounds);
         let (_, steps) = query(&sah, &rays, light);
         let reference = Reference {
             sah: sah.bvh().sah_cost(),

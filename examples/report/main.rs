@@ -10,7 +10,8 @@
 //! options: --frames N --triangles N --rays N --runs N --out DIR --assets DIR
 //!          --scenes NAME,NAME --strategies NAME,NAME
 //! (--runs N: every scene N times, each strategy's median run reported; 1 by default;
-//!  --scenes / --strategies: only those, by the names the summary prints; all by default)
+//!  --scenes / --strategies: only those, by the names the summary prints; all by default; the
+//!  secondary-ray section runs unless --strategies leaves out `secondary`)
 //! ```
 
 mod grid_rows;
@@ -21,6 +22,7 @@ mod planner;
 mod plots;
 mod scale;
 mod scenes;
+mod secondary_rows;
 
 use harness::Settings;
 use std::path::PathBuf;
@@ -74,7 +76,9 @@ fn main() {
             for s in &report.skipped {
                 eprintln!("{s}");
             }
-            let bad: u32 = report.rows.iter().map(|r| r.mismatches).sum();
+            let bad: u32 = (report.rows.iter().map(|r| r.mismatches))
+                .chain(report.secondary.iter().map(|r| r.mismatches))
+                .sum();
             println!(
                 "wrote {} files to {} ({} strategies per scene, {} mismatches against brute force)",
                 report.files.len(),

@@ -8,6 +8,7 @@ use super::option_rows;
 use super::planner;
 use super::plots;
 use super::scenes::Scene;
+use super::secondary_rows::{self, SecondaryRow};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -66,10 +67,13 @@ pub struct Report {
     pub skipped: Vec<String>,
     /// The strategies run, in the order of each scene's rows.
     pub strategies: Vec<Strategy>,
+    /// The secondary-ray section's rows (none when `--strategies` leaves out `secondary`).
+    pub secondary: Vec<SecondaryRow>,
 }
 
 /// Which scenes and strategies to run, by name; an empty list runs them all. A scene filter also leaves
-/// out the 256-instance crowd unless it names `crowd`. For measuring a change on the scenes it concerns
+/// out the 256-instance crowd unless it names `crowd`; a strategy filter leaves out the secondary-ray
+/// section unless it names `secondary`. For measuring a change on the scenes it concerns
 /// without paying for the others.
 #[derive(Clone, Debug, Default)]
 pub struct Only {
@@ -113,7 +117,11 @@ pub fn write_report(
     let (mut rows, mut files) = (Vec::new(), Vec::new());
     let mut cold = Vec::new();
     let mut picks = Vec::new();
+    let mut secondary = Vec::new();
     for scene in &scenes {
+        if Only::keeps(&only.strategies, "secondary") {
+            secondary.extend(secondary_rows::run(scene, settings));
+        }
         let runs = (0..settings.runs.max(1))
             .map(|_| run_scene(scene, settings, &strategies, gpu.as_ref()))
             .collect();
@@ -164,8 +172,10 @@ pub fn write_report(
     } else {
         planner::instance_crowd_table(&crowds)
     };
-    let planner_sections =
-        planner::cold_start_table(&cold) + &crowd_table + &option_rows::picks_table(&picks);
+    let planner_sections = planner::cold_start_table(&cold)
+        + &crowd_table
+        + &option_rows::picks_table(&picks)
+        + &secondary_rows::table(&secondary);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);
@@ -185,6 +195,7 @@ pub fn write_report(
         files,
         skipped,
         strategies,
+        secondary,
     })
 }
 

@@ -31,6 +31,28 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
     parallel: bool,
     key: impl Fn(&T) -> u64 + Sync + Send,
 ) {
+    sort_by_bits_with(items, &mut RadixScratch::default(), bits, parallel, key);
+}
+
+/// The buffers of one sort, kept by callers that sort every frame so that a warm sort allocates nothing.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RadixScratch<T> {
+    /// The scatter target, swapped with the items each pass.
+    out: Vec<T>,
+    /// Per chunk, per pass, digit counts.
+    hist: Vec<Vec<[u32; BUCKETS]>>,
+    /// Per chunk, the next place of each digit.
+    at: Vec<[u32; BUCKETS]>,
+}
+
+/// [`sort_by_bits`] with its buffers in `scratch`.
+pub(crate) fn sort_by_bits_with<T: Copy + Default + Send + Sync>(
+    items: &mut Vec<T>,
+    scratch: &mut RadixScratch<T>,
+    bits: u32,
+    parallel: bool,
+    key: impl Fn(&T) -> u64 + Sync + Send,
+) {
     let n = items.len();
     if n < 2 || bits == 0 {
         return;
@@ -45,8 +67,13 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
     let chunks = n.div_ceil(chunk);
     let range = |c: usize| c * chunk..((c + 1) * chunk).min(n);
     // Per chunk, per pass, the count of each digit among the chunk's items in the current order.
-    let mut hist = vec![vec![[0u32; BUCKETS]; passes]; chunks];
-    crate::parallel::for_each_mut(parallel, &mut hist, |c, h| {
+    let RadixScratch { out, hist, at } = scratch;
+    hist.resize_with(chunks, Vec::new);
+    for h in hist.iter_mut() {
+        h.clear();
+        h.resize(passes, [0; BUCKETS]);
+    }
+    crate::parallel::for_each_mut(parallel, hist, |c, h| {
         for x in &items[range(c)] {
             let k = key(x);
             for (p, h) in h.iter_mut().enumerate() {
@@ -55,16 +82,18 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
         }
     });
     // A digit every key shares is skipped (totals do not depend on the order).
-    let skip: Vec<bool> = (0..passes)
-        .map(|p| (0..BUCKETS).any(|d| hist.iter().map(|h| h[p][d] as usize).sum::<usize>() == n))
-        .collect();
-    let mut out = vec![T::default(); n];
-    let mut at = vec![[0u32; BUCKETS]; chunks];
+    let mut skip = [false; 64usize.div_ceil(DIGIT_BITS as usize)];
+    for (p, s) in skip.iter_mut().enumerate().take(passes) {
+        *s = (0..BUCKETS).any(|d| hist.iter().map(|h| h[p][d] as usize).sum::<usize>() == n);
+    }
+    out.clear();
+    out.resize(n, T::default());
+    at.resize(chunks, [0; BUCKETS]);
     let mut moved = false;
     for p in (0..passes).filter(|&p| !skip[p]) {
         if moved && chunks > 1 {
             // A pass moved items between chunks: count this digit again, chunk by chunk.
-            crate::parallel::for_each_mut(parallel, &mut hist, |c, h| {
+            crate::parallel::for_each_mut(parallel, hist, |c, h| {
                 h[p] = [0; BUCKETS];
                 for x in &items[range(c)] {
                     h[p][((key(x) >> (p as u32 * DIGIT_BITS)) as usize) & (BUCKETS - 1)] += 1;
@@ -75,7 +104,7 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
         // Where each chunk's first item of each digit goes: digits in order, chunks in order within one.
         let mut sum = 0u32;
         for d in 0..BUCKETS {
-            for (a, h) in at.iter_mut().zip(&hist) {
+            for (a, h) in at.iter_mut().zip(hist.iter()) {
                 a[d] = sum;
                 sum += h[p][d];
             }
@@ -83,7 +112,7 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
         let shift = p as u32 * DIGIT_BITS;
         let dst = Scatter(out.as_mut_ptr());
         let src = &items[..];
-        crate::parallel::for_each_mut(parallel, &mut at, |c, a| {
+        crate::parallel::for_each_mut(parallel, at, |c, a| {
             for x in &src[range(c)] {
                 let d = ((key(x) >> shift) as usize) & (BUCKETS - 1);
                 // SAFETY: the chunks' ranges of places are disjoint and each lies within `out` (the
@@ -92,7 +121,7 @@ pub(crate) fn sort_by_bits<T: Copy + Default + Send + Sync>(
                 a[d] += 1;
             }
         });
-        std::mem::swap(items, &mut out);
+        std::mem::swap(items, out);
     }
 }
 

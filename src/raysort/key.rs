@@ -5,14 +5,20 @@
 //! - shadow: `light (light_bits) | direction (2 · shadow_direction_bits)`
 //! - reflection: `origin (3 · origin_bits) | direction (2 · reflection_direction_bits)`
 //!
-//! The direction field interleaves the bits of θ and φ (θ's bit first in each pair: a 2D Morton code), where
-//! θ ∈ [0, π] is the polar angle of the direction from +z and φ ∈ (-π, π] its azimuth from +x, each cut
-//! into `2^bits` equal steps. The origin field interleaves x, y, z (a 3D Morton code) of the origin's cell
-//! in a grid of `2^origin_bits` cells per axis over the batch's origin bounds (the virtual grid of
-//! Garanzha & Loop). The seed gives neither the bit counts nor the order of the fields; ours interleave
-//! because a θ-major key sorts a run of rays into a thin ring of directions around the whole circle of φ,
-//! a cone wider than the request order's (measured in `bench raysort`: 1.75× RAH's tests for one light
-//! before, fewer after). The defaults fill 32 bits per kind. Cost: one `acos` and one `atan2` per ray.
+//! The direction field interleaves the bits of a polar step and an azimuth step (the polar step's bit first
+//! in each pair: a 2D Morton code). The polar step cuts `cos θ` (θ ∈ [0, π], the polar angle from +z) into
+//! `2^bits` equal steps from +z (step 0) to -z: bands of equal solid angle. The azimuth step cuts the
+//! diamond angle of `(x, y)` — a piecewise-linear stand-in for φ ∈ (-π, π], the azimuth from +x, that rises
+//! with φ and meets it at every multiple of π/2 — into `2^bits` equal steps from φ = -π (step 0, the -x
+//! axis, y = ±0 alike) on. Both steps rise with their angle, so the keys sort rays as θ and φ would; only
+//! the step boundaries differ from equal angle steps. A direction along ±z (x = y = 0) takes azimuth step 0.
+//! The origin field interleaves x, y, z (a 3D Morton code) of the origin's cell in a grid of
+//! `2^origin_bits` cells per axis over the batch's origin bounds (the virtual grid of Garanzha & Loop). The
+//! seed gives neither the bit counts nor the order of the fields; ours interleave because a θ-major key
+//! sorts a run of rays into a thin ring of directions around the whole circle of φ, a cone wider than the
+//! request order's (measured in `bench raysort`: 1.75× RAH's tests for one light before, fewer after). The
+//! defaults fill 32 bits per kind. Cost: one square root and two divisions per ray, and bit spreads by
+//! masks (no `acos`/`atan2`, no loop over bits): a few ns.
 
 use crate::geometry::Aabb;
 use crate::{Error, Result};
@@ -84,7 +90,7 @@ impl KeyLayout {
                     };
                     quantise(f, b)
                 };
-                let origin = interleave(&[cell(0), cell(1), cell(2)], b);
+                let origin = (spread3(cell(0)) << 2) | (spread3(cell(1)) << 1) | spread3(cell(2));
                 let dir = direction(d, self.reflection_direction_bits);
                 ((origin << (2 * self.reflection_direction_bits)) | dir) as u32
             }
@@ -102,24 +108,35 @@ fn quantise(f: f32, bits: u32) -> u64 {
     ((f * steps).max(0.0) as u64).min(mask(bits))
 }
 
-/// The bits of `fields` (`bits` each) interleaved, the first field's bit most significant in each group.
-fn interleave(fields: &[u64], bits: u32) -> u64 {
-    let mut out = 0;
-    for bit in (0..bits).rev() {
-        for f in fields {
-            out = (out << 1) | ((f >> bit) & 1);
-        }
-    }
-    out
+/// The low 16 bits of `x` moved to the even bit places (bit `i` to bit `2i`).
+fn spread2(x: u64) -> u64 {
+    let mut x = x & 0xffff;
+    x = (x | x << 8) & 0x00ff_00ff;
+    x = (x | x << 4) & 0x0f0f_0f0f;
+    x = (x | x << 2) & 0x3333_3333;
+    (x | x << 1) & 0x5555_5555
 }
 
-/// θ and φ of a non-zero direction, `bits` each, interleaved.
+/// The low 10 bits of `x` moved to every third bit place (bit `i` to bit `3i`).
+fn spread3(x: u64) -> u64 {
+    let mut x = x & 0x3ff;
+    x = (x | x << 16) & 0x0300_00ff;
+    x = (x | x << 8) & 0x0300_f00f;
+    x = (x | x << 4) & 0x030c_30c3;
+    (x | x << 2) & 0x0924_9249
+}
+
+/// The polar and azimuth steps of a non-zero direction, `bits` each (at most 16), interleaved.
 fn direction(d: Vec3, bits: u32) -> u64 {
-    use std::f32::consts::PI;
-    let z = (d.z / d.length()).clamp(-1.0, 1.0);
-    let theta = quantise(z.acos() / PI, bits);
-    let phi = quantise((d.y.atan2(d.x) + PI) / (2.0 * PI), bits);
-    interleave(&[theta, phi], bits)
+    let cos_theta = d.z / d.length();
+    let polar = quantise((1.0 - cos_theta) * 0.5, bits);
+    // The diamond angle from -x, in [0, 4] (one unit per quarter turn): with x' = x / (|x| + |y|), 1 + x'
+    // on the half turn y ≤ 0 and 3 - x' on y > 0. Along ±z, x' = -1: step 0.
+    let s = d.x.abs() + d.y.abs();
+    let x = if s > 0.0 { d.x / s } else { -1.0 };
+    let diamond = if d.y <= 0.0 { 1.0 + x } else { 3.0 - x };
+    let azimuth = quantise(diamond * 0.25, bits);
+    (spread2(polar) << 1) | spread2(azimuth)
 }
 
 #[cfg(test)]
@@ -139,19 +156,106 @@ mod tests {
     fn fields_land_where_documented() {
         let l = KeyLayout::default();
         let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
-        // +z: θ = 0; φ = atan2(0, 0) = 0, the middle of (-π, π].
-        let k = l.key(&ray(Vec3::ZERO, Vec3::Z, RayKind::Shadow { light: 3 }), &b);
-        assert_eq!(k, (3 << 28) | (1 << 26)); // φ's top bit, interleaved to bit 26
-        // -z: θ = π, the last step, in the odd bits; -Vec3::Z has x = y = -0, so φ = atan2(-0, -0) = -π,
-        // the first step; light 19 keeps its low 4 bits.
-        let k = l.key(
-            &ray(Vec3::ZERO, -Vec3::Z, RayKind::Shadow { light: 19 }),
-            &b,
+        let key = |o: Vec3, d: Vec3, kind| l.key(&ray(o, d, kind), &b);
+        // +z: polar step 0; x = y = 0: azimuth step 0.
+        assert_eq!(
+            key(Vec3::ZERO, Vec3::Z, RayKind::Shadow { light: 3 }),
+            3 << 28
         );
+        // -z: the last polar step, in the odd bits; light 19 keeps its low 4 bits.
+        let k = key(Vec3::ZERO, -Vec3::Z, RayKind::Shadow { light: 19 });
         assert_eq!(k, (3 << 28) | 0x0aaa_aaaa);
+        // +x: cos θ = 0, the middle polar step (bit 13, interleaved to bit 27); φ = 0, half a turn from
+        // -x: the middle azimuth step (bit 13, to bit 26).
+        let k = key(Vec3::ZERO, Vec3::X, RayKind::Shadow { light: 0 });
+        assert_eq!(k, (1 << 27) | (1 << 26));
+        // +y: φ = π/2, three quarter turns from -x: azimuth bits 13 and 12, to bits 26 and 24.
+        let k = key(Vec3::ZERO, Vec3::Y, RayKind::Shadow { light: 1 });
+        assert_eq!(k, (1 << 28) | (1 << 27) | (1 << 26) | (1 << 24));
+        // -x: azimuth step 0.
+        let k = key(Vec3::ZERO, -Vec3::X, RayKind::Shadow { light: 0 });
+        assert_eq!(k, 1 << 27);
         // Origin at the box's max corner: the last cell on each axis.
-        let k = l.key(&ray(Vec3::ONE, Vec3::Z, RayKind::Reflection), &b);
-        assert_eq!(k >> 20, 0xfff);
+        assert_eq!(key(Vec3::ONE, Vec3::Z, RayKind::Reflection) >> 20, 0xfff);
+        // Origin cell (1, 0, 1) of 16 per axis at bit 0 of each coordinate: bits 2 and 0 of the field.
+        let o = Vec3::new(1.5, 0.2, 1.5) / 16.0;
+        assert_eq!(key(o, Vec3::Z, RayKind::Reflection) >> 20, 0b101);
+    }
+
+    /// The steps rise with θ and φ, against f64 `acos` and `atan2`: sorted by the true angle, a step
+    /// never falls, except between directions within rounding (1e-5 rad) of each other; the azimuth
+    /// step lies in the quarter turn that `atan2` gives, and the polar step is `(1 - cos θ) / 2` in
+    /// 2^14 steps, up to one step where that value lies within rounding of a boundary.
+    #[test]
+    fn steps_rise_with_the_angles() {
+        let bits = 14;
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut dirs: Vec<(f64, f64, u64, u64)> = (0..20_000)
+            .map(|i| {
+                let mut d = Vec3::new(next() as f32, next() as f32, next() as f32);
+                // Some directions in the planes of the axes, where a quarter turn ends.
+                match i % 7 {
+                    0 => d.x = 0.0,
+                    1 => d.y = 0.0,
+                    2 => d.z = 0.0,
+                    _ => {}
+                }
+                let (x, y, z) = (d.x as f64, d.y as f64, d.z as f64);
+                let theta = (z / (x * x + y * y + z * z).sqrt()).acos();
+                // φ = π (y = +0, x < 0) is the -x axis, which the key counts from -π.
+                let phi = y.atan2(x);
+                let phi = if phi == std::f64::consts::PI {
+                    -phi
+                } else {
+                    phi
+                };
+                let k = direction(d, bits);
+                let (mut polar, mut azimuth) = (0, 0);
+                for b in 0..bits {
+                    azimuth |= ((k >> (2 * b)) & 1) << b;
+                    polar |= ((k >> (2 * b + 1)) & 1) << b;
+                }
+                (theta, phi, polar, azimuth)
+            })
+            .filter(|d| d.0.is_finite())
+            .collect();
+        let steps = (1u64 << bits) as f64;
+        for &(theta, phi, polar, azimuth) in &dirs {
+            let exact = (1.0 - theta.cos()) / 2.0 * steps;
+            let near_edge = (exact - exact.round()).abs() < 1e-2;
+            let want = (exact as u64).min(steps as u64 - 1);
+            assert!(
+                polar == want || (near_edge && polar.abs_diff(want) <= 1),
+                "θ {theta}: step {polar}, want {want}"
+            );
+            let quarter = ((phi + std::f64::consts::PI) / std::f64::consts::FRAC_PI_2).floor();
+            let on_edge =
+                ((phi + std::f64::consts::PI) / std::f64::consts::FRAC_PI_2 - quarter) < 1e-6;
+            let got = (azimuth as f64 / (steps / 4.0)).floor();
+            assert!(
+                got == quarter.min(3.0) || (on_edge && (got - quarter).abs() <= 1.0),
+                "φ {phi}: step {azimuth} in quarter {got}, atan2's quarter {quarter}"
+            );
+        }
+        for (angle, step) in [(0usize, 2usize), (1, 3)] {
+            let key = |d: &(f64, f64, u64, u64)| [d.0, d.1][angle];
+            let step_of = |d: &(f64, f64, u64, u64)| [0, 0, d.2, d.3][step];
+            dirs.sort_by(|a, b| key(a).total_cmp(&key(b)));
+            for w in dirs.windows(2) {
+                assert!(
+                    step_of(&w[1]) >= step_of(&w[0]) || key(&w[1]) - key(&w[0]) < 1e-5,
+                    "angle {angle}: {:?} then {:?}",
+                    w[0],
+                    w[1]
+                );
+            }
+        }
     }
 
     #[test]

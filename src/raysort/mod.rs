@@ -39,7 +39,7 @@ pub use gpu::sort_rays_gpu;
 pub use gpu_crsh::trace_crsh_gpu;
 pub use hierarchy::RayHierarchy;
 pub use key::KeyLayout;
-pub use sort::{SortedRays, sort_rays};
+pub use sort::{SortScratch, SortedRays, sort_rays};
 pub use trace::{Answer, RayScene, RayTestStats, Strategy, Traced};
 
 use crate::Ray;

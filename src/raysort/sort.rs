@@ -2,11 +2,13 @@
 //! key into chunks, radix-sort the chunks by key, decompress the chunks into ray order.
 //!
 //! Stable (rays of equal key keep their request order) and a permutation. Cost: one key per ray (in parallel
-//! with the `parallel` feature), then O(n) compression and decompression and a radix sort of the chunks only:
-//! batches in coherent request order have far fewer chunks than rays.
+//! with the `parallel` feature), then O(n) compression and decompression and a radix sort of the chunks only
+//! (three 11-bit passes over 8-byte words: key and chunk number packed): batches in coherent request order
+//! have far fewer chunks than rays. [`SortedRays::sort`] with a kept [`SortScratch`] allocates nothing once
+//! its buffers have grown to the batch; [`sort_rays`] allocates them afresh.
 
 use super::{KeyLayout, SecondaryRay};
-use crate::bvh::radix_sort::sort_pairs;
+use crate::bvh::radix_sort::{RadixScratch, sort_by_bits_with};
 use crate::geometry::Aabb;
 use crate::{Result, parallel};
 
@@ -22,53 +24,88 @@ pub struct SortedRays {
     pub chunks: usize,
 }
 
+/// The working buffers of [`SortedRays::sort`]; keep one beside the [`SortedRays`] of a per-frame batch.
+#[derive(Clone, Debug, Default)]
+pub struct SortScratch {
+    /// Request index of each valid ray, in request order.
+    valid: Vec<u32>,
+    /// Key of each valid ray, in request order.
+    keys: Vec<u32>,
+    /// Per chunk, its key (high 32 bits) and its number (low 32 bits); sorted by key.
+    chunks: Vec<u64>,
+    /// Per chunk number, its first position in `valid`; then `valid.len()`.
+    starts: Vec<u32>,
+    radix: RadixScratch<u64>,
+}
+
 impl SortedRays {
     /// The number of valid rays, which come first in [`order`](Self::order).
     pub fn valid(&self) -> usize {
         self.keys.len()
     }
+
+    /// Sorts `rays` by their keys under `layout` into `self`, reusing its buffers and `scratch`'s.
+    /// `Error::InvalidOption` for a layout over 32 bits.
+    pub fn sort(
+        &mut self,
+        rays: &[SecondaryRay],
+        layout: &KeyLayout,
+        parallel: bool,
+        scratch: &mut SortScratch,
+    ) -> Result<()> {
+        layout.validate()?;
+        let s = scratch;
+        // Trim: the valid rays, in request order, and their origins' bounds.
+        s.valid.clear();
+        let mut origins = Aabb::EMPTY;
+        for (i, r) in rays.iter().enumerate() {
+            if r.ray.is_valid() {
+                s.valid.push(i as u32);
+                origins.grow(r.ray.origin);
+            }
+        }
+        s.keys.clear();
+        s.keys.resize(s.valid.len(), 0);
+        let valid = &s.valid;
+        parallel::fill(parallel, &mut s.keys, 4096, |j| {
+            layout.key(&rays[valid[j] as usize], &origins)
+        });
+        // Compress: one word per run of equal key.
+        s.chunks.clear();
+        s.starts.clear();
+        let mut last = None;
+        for (j, &k) in s.keys.iter().enumerate() {
+            if last != Some(k) {
+                last = Some(k);
+                s.chunks.push((k as u64) << 32 | s.starts.len() as u64);
+                s.starts.push(j as u32);
+            }
+        }
+        s.starts.push(s.valid.len() as u32);
+        sort_by_bits_with(&mut s.chunks, &mut s.radix, 32, parallel, |&w| w >> 32);
+        // Decompress: each sorted chunk's rays, in order; then the trimmed rays.
+        self.order.clear();
+        self.keys.clear();
+        for &w in &s.chunks {
+            let c = w as u32 as usize;
+            let range = s.starts[c] as usize..s.starts[c + 1] as usize;
+            self.keys
+                .extend(std::iter::repeat_n((w >> 32) as u32, range.len()));
+            self.order.extend_from_slice(&s.valid[range]);
+        }
+        if s.valid.len() < rays.len() {
+            let trimmed = (0..rays.len() as u32).filter(|&i| !rays[i as usize].ray.is_valid());
+            self.order.extend(trimmed);
+        }
+        self.chunks = s.chunks.len();
+        Ok(())
+    }
 }
 
-/// Sorts `rays` by their keys under `layout`; `Error::InvalidOption` for a layout over 32 bits.
+/// Sorts `rays` by their keys under `layout`; `Error::InvalidOption` for a layout over 32 bits. Allocates
+/// its buffers: per frame, keep a [`SortedRays`] and a [`SortScratch`] and call [`SortedRays::sort`].
 pub fn sort_rays(rays: &[SecondaryRay], layout: &KeyLayout, parallel: bool) -> Result<SortedRays> {
-    layout.validate()?;
-    // Trim: the valid rays, in request order.
-    let (valid, trimmed): (Vec<u32>, Vec<u32>) =
-        (0..rays.len() as u32).partition(|&i| rays[i as usize].ray.is_valid());
-    let origins = valid.iter().fold(Aabb::EMPTY, |mut b, &i| {
-        b.grow(rays[i as usize].ray.origin);
-        b
-    });
-    let mut keys = vec![0u32; valid.len()];
-    parallel::fill(parallel, &mut keys, 4096, |j| {
-        layout.key(&rays[valid[j] as usize], &origins)
-    });
-    // Compress: chunk key and the chunk's first position in `valid`; sizes follow from the starts.
-    let mut chunk_keys = Vec::new();
-    let mut chunk_base = Vec::new();
-    for (j, &k) in keys.iter().enumerate() {
-        if j == 0 || keys[j - 1] != k {
-            chunk_keys.push(k as u64);
-            chunk_base.push(j as u32);
-        }
-    }
-    let chunks = chunk_keys.len();
-    let chunk_end = |c: usize| chunk_base.get(c + 1).map_or(valid.len(), |&b| b as usize);
-    let mut sorted_chunks: Vec<u32> = (0..chunks as u32).collect();
-    sort_pairs(&mut chunk_keys, &mut sorted_chunks, 32);
-    // Decompress: each sorted chunk's rays, in order.
-    let mut order = Vec::with_capacity(rays.len());
-    let mut sorted_keys = Vec::with_capacity(valid.len());
-    for (&c, &k) in sorted_chunks.iter().zip(&chunk_keys) {
-        let c = c as usize;
-        let range = chunk_base[c] as usize..chunk_end(c);
-        sorted_keys.extend(std::iter::repeat_n(k as u32, range.len()));
-        order.extend_from_slice(&valid[range]);
-    }
-    order.extend_from_slice(&trimmed);
-    Ok(SortedRays {
-        order,
-        keys: sorted_keys,
-        chunks,
-    })
+    let mut sorted = SortedRays::default();
+    sorted.sort(rays, layout, parallel, &mut SortScratch::default())?;
+    Ok(sorted)
 }

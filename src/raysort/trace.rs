@@ -2,7 +2,7 @@
 //!
 //! - [`Strategy::Bvh`]: each ray through the mesh's BVH, in request order.
 //! - [`Strategy::SortedBvh`]: the same traversal in key order ([`sort_rays`]); pays where request order is
-//!   incoherent, costs the sort (a few ns per ray).
+//!   incoherent, costs the sort (24–33 ns a ray on the crowd at 512², loaded 2-core VM).
 //! - [`Strategy::SortedPackets`]: the rays in key order, each kind apart, as packets of consecutive rays
 //!   ([`MeshBvh::closest_hits_packet`], [`MeshBvh::any_hits_packet`]): neighbours in key order start near
 //!   each other and point the same way, so a packet shares its node visits where the rays allow: on the
