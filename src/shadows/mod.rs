@@ -36,6 +36,7 @@
 //! without a depth edge (a slope below the light's horizon) are missed.
 
 mod classify;
+mod deltas;
 mod penumbra;
 mod shadow_map;
 
@@ -44,6 +45,7 @@ pub use shadow_map::ShadowMap;
 
 use crate::{Error, Result, parallel};
 use classify::Class;
+use deltas::Deltas;
 use glam::Vec3;
 use std::time::{Duration, Instant};
 
@@ -165,11 +167,31 @@ impl ShadowStats {
     }
 }
 
+/// Image rows one worker classifies at a time (and composites: the band's marked pixels are its own list),
+/// in blocks of `BAND × BAND` pixels: neighbouring pixels fall on neighbouring texels, so a block reads a
+/// compact patch of the map rather than a texel from a different map row for every pixel along an image
+/// row.
+const BAND: usize = 8;
+
+/// One band of pixels' share of a pass's classification.
+#[derive(Clone, Debug, Default)]
+struct Chunk {
+    /// Its marked pixels, ascending.
+    marked: Vec<u32>,
+    /// Where they start in the pass's dense list of marked pixels.
+    start: usize,
+    /// Its pixels showing a surface that faces the light.
+    facing: usize,
+}
+
 /// One hard-shadow pass, kept between frames so a warm pass does not allocate (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct HardShadows {
     map: ShadowMap,
-    class: Vec<Class>,
+    /// The map's `Δ` per texel (hard selective passes).
+    deltas: Deltas,
+    /// Per band of [`BAND`] image rows, its marked pixels.
+    chunks: Vec<Chunk>,
     /// Indices of the pixels that get shadow rays (dense), and the fraction of each one's rays that reach
     /// the light.
     marked: Vec<u32>,
@@ -221,11 +243,14 @@ impl HardShadows {
             }
         }
         let t1 = Instant::now();
-        let (map, mask) = (&self.map, &self.mask);
+        let edge = s.edge_texels * self.map.texel_size();
+        if s.mode == ShadowMode::Selective && !soft {
+            self.deltas.find(&self.map, par);
+        }
+        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
         let horizon = s.light_angle.sin();
-        self.class.resize(n, Class::Empty);
-        parallel::fill(par, &mut self.class, 4096, |i| {
+        let classify = |i: usize| {
             let nrm = gbuffer.normals[i];
             if nrm == Vec3::ZERO {
                 return Class::Empty;
@@ -241,24 +266,51 @@ impl HardShadows {
                 ShadowMode::Selective if soft && cos <= horizon => Class::Marked,
                 ShadowMode::Selective if soft => classify::soft(map, mask, p, cos, s.bias_texels),
                 ShadowMode::Selective => {
-                    let edge = s.edge_texels * map.texel_size();
-                    classify::selective(map, p, cos, s.bias_texels, edge)
+                    classify::selective(map, deltas, p, cos, s.bias_texels, edge)
                 }
             }
-        });
-        // One pass compacts the marked pixels and writes the map's verdict everywhere.
+        };
+        // One parallel pass classifies, writes the map's verdict everywhere and lists each chunk's marked
+        // pixels; the lists are then concatenated into the dense ray list.
+        let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
+        self.visibility.resize(n, 1.0);
+        self.chunks
+            .resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
+        parallel::fill_chunks_with(
+            par,
+            &mut self.visibility,
+            chunk,
+            &mut self.chunks,
+            |c, vis, out| {
+                out.marked.clear();
+                out.facing = 0;
+                let rows = vis.len() / w;
+                for x0 in (0..w).step_by(BAND) {
+                    for y in 0..rows {
+                        for k in y * w + x0..y * w + (x0 + BAND).min(w) {
+                            let i = c * chunk + k;
+                            let class = classify(i);
+                            vis[k] = match class {
+                                Class::Empty | Class::Lit => 1.0,
+                                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
+                            };
+                            out.facing +=
+                                !matches!(class, Class::Empty | Class::FacingAway) as usize;
+                            if class == Class::Marked {
+                                out.marked.push(i as u32);
+                            }
+                        }
+                    }
+                }
+                out.marked.sort_unstable();
+            },
+        );
         self.marked.clear();
-        self.visibility.clear();
         let mut facing = 0;
-        for (i, c) in self.class.iter().enumerate() {
-            self.visibility.push(match c {
-                Class::Empty | Class::Lit => 1.0,
-                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
-            });
-            facing += !matches!(c, Class::Empty | Class::FacingAway) as usize;
-            if *c == Class::Marked {
-                self.marked.push(i as u32);
-            }
+        for chunk in &mut self.chunks {
+            chunk.start = self.marked.len();
+            self.marked.extend_from_slice(&chunk.marked);
+            facing += chunk.facing;
         }
         let t2 = Instant::now();
         self.lit.resize(self.marked.len(), 0.0);
@@ -282,9 +334,18 @@ impl HardShadows {
                 .count();
             reach as f32 / samples as f32
         });
-        for (&i, &l) in self.marked.iter().zip(&self.lit) {
-            self.visibility[i as usize] = l;
-        }
+        let lit = &self.lit;
+        parallel::fill_chunks_with(
+            par,
+            &mut self.visibility,
+            chunk,
+            &mut self.chunks,
+            |c, vis, out| {
+                for (&i, &l) in out.marked.iter().zip(&lit[out.start..]) {
+                    vis[i as usize - c * chunk] = l;
+                }
+            },
+        );
         self.stats = ShadowStats {
             pixels: n,
             facing,
