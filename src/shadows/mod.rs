@@ -273,6 +273,12 @@ impl HardShadows {
         // One parallel pass classifies, writes the map's verdict everywhere and lists each chunk's marked
         // pixels; the lists are then concatenated into the dense ray list.
         let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
+        // Blocks where the map is read; whole rows (the marked pixels come out in order) where it is not.
+        let block = if s.mode == ShadowMode::RayTraced {
+            w
+        } else {
+            BAND
+        };
         self.visibility.resize(n, 1.0);
         self.chunks
             .resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
@@ -285,9 +291,9 @@ impl HardShadows {
                 out.marked.clear();
                 out.facing = 0;
                 let rows = vis.len() / w;
-                for x0 in (0..w).step_by(BAND) {
+                for x0 in (0..w).step_by(block.max(1)) {
                     for y in 0..rows {
-                        for k in y * w + x0..y * w + (x0 + BAND).min(w) {
+                        for k in y * w + x0..y * w + (x0 + block).min(w) {
                             let i = c * chunk + k;
                             let class = classify(i);
                             vis[k] = match class {
@@ -302,7 +308,9 @@ impl HardShadows {
                         }
                     }
                 }
-                out.marked.sort_unstable();
+                if block < w {
+                    out.marked.sort_unstable();
+                }
             },
         );
         self.marked.clear();
