@@ -10,10 +10,13 @@
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked. Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
+//!    incorrect* and marked (`Δ` is computed for every texel beforehand, in one vectorised pass over the
+//!    map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels read neighbouring texels).
+//!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
-//! 3. compaction of the marked pixels into a dense list;
+//! 3. compaction of the marked pixels into a dense list (fused with step 2: each band of image rows lists
+//!    its own, in parallel, and the lists are concatenated);
 //! 4. shadow rays for the marked pixels only, in parallel: one towards a point-like light, or
 //!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]);
 //! 5. the composite: the map's verdict where it was trusted, the fraction of rays that reach the light
@@ -23,9 +26,11 @@
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
-//! classification cost about as much as hard shadow rays that mostly escape to the sky, so on the crowd
-//! selective hard shadows are only 1.4–1.6× faster than a ray per pixel (see the `shadows` bench suite in
-//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
+//! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
+//! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
+//! shadow ray's cost, so on the crowd selective hard shadows are only about 1.5× faster than a ray per
+//! pixel (same threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows,
+//! 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
@@ -293,10 +298,12 @@ impl HardShadows {
                 let rows = vis.len() / w;
                 for x0 in (0..w).step_by(block.max(1)) {
                     for y in 0..rows {
-                        for k in y * w + x0..y * w + (x0 + block).min(w) {
-                            let i = c * chunk + k;
+                        let start = y * w + x0;
+                        let run = &mut vis[start..y * w + (x0 + block).min(w)];
+                        for (k, v) in run.iter_mut().enumerate() {
+                            let i = c * chunk + start + k;
                             let class = classify(i);
-                            vis[k] = match class {
+                            *v = match class {
                                 Class::Empty | Class::Lit => 1.0,
                                 Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
                             };
