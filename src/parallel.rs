@@ -93,6 +93,35 @@ pub(crate) fn threads() -> usize {
     1
 }
 
+/// [`fill_chunks`] with a state per chunk: calls `f(c, chunk, &mut state[c])` (`state` needs at least one
+/// item per chunk), e.g. a list per chunk that is concatenated afterwards.
+pub(crate) fn fill_chunks_with<T: Send, S: Send>(
+    parallel: bool,
+    out: &mut [T],
+    chunk: usize,
+    state: &mut [S],
+    f: impl Fn(usize, &mut [T], &mut S) + Sync + Send,
+) {
+    let chunk = chunk.max(1);
+    assert!(
+        state.len() >= out.len().div_ceil(chunk),
+        "one state per chunk"
+    );
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        out.par_chunks_mut(chunk)
+            .zip(state.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, (o, s))| f(c, o, s));
+        return;
+    }
+    let _ = parallel;
+    for (c, (o, s)) in out.chunks_mut(chunk).zip(state).enumerate() {
+        f(c, o, s);
+    }
+}
+
 /// Calls `f(c, chunk)` for every chunk `c` of `chunk` items of `out` (the last may be shorter), in parallel
 /// when the feature is on and `parallel` is true.
 pub(crate) fn fill_chunks<T: Send>(

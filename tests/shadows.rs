@@ -163,6 +163,158 @@ fn selective_matches_ray_traced_on_crowd_frames() {
     }
 }
 
+/// The pixels the selective classification (thesis §6.3.3) marks, recomputed from the pass's shadow map
+/// through its public accessors alone: the texel under the receiver, `Δ` from its eight neighbours read one
+/// by one, the slope-scaled tolerances and the `[d̂, d]` against `[s − Δ, s + Δ]` overlap — the oracle for
+/// the pass, which reads `Δ` from a table computed for every texel beforehand and takes short cuts in the
+/// verdict.
+fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> Vec<u32> {
+    let map = pass.shadow_map();
+    let (res, w) = (map.resolution(), map.texel_size());
+    let towards = s.towards_light.normalize();
+    let edge = s.edge_texels * w;
+    let mut marked = Vec::new();
+    for (k, (&p, &n)) in g.positions.iter().zip(&g.normals).enumerate() {
+        let cos = n.dot(towards);
+        if n == Vec3::ZERO || cos <= 0.0 {
+            continue;
+        }
+        let q = map.project(p);
+        let (i, j) = (q.x.floor(), q.y.floor());
+        if !(i >= 1.0 && j >= 1.0 && i < (res - 1) as f32 && j < (res - 1) as f32) {
+            marked.push(k as u32);
+            continue;
+        }
+        let (i, j) = (i as usize, j as usize);
+        let depth = map.depth(i, j);
+        if !depth.is_finite() {
+            marked.push(k as u32);
+            continue;
+        }
+        let mut delta = 0f32;
+        for y in j - 1..=j + 1 {
+            for x in i - 1..=i + 1 {
+                delta = delta.max((map.depth(x, y) - depth).abs());
+            }
+        }
+        let c = cos.max(1.0 / 64.0);
+        let reach = w * std::f32::consts::SQRT_2 * ((1.0 - c * c).max(0.0).sqrt() / c);
+        let bias = w * s.bias_texels + reach;
+        let d = q.z;
+        if delta > edge && d - reach - bias <= depth + delta && d + bias >= depth - delta {
+            marked.push(k as u32);
+        }
+    }
+    marked
+}
+
+/// A scene built to trip a classification that skips work: over a ground that leaves an empty strip
+/// (empty texels), a field of 0.07-wide square towers whose neighbouring heights differ by half, just
+/// under, just over and twice the edge threshold (at every offset against the map's texels and rows),
+/// and slivers thinner than a texel high above (single-texel spikes, or nothing); receivers at random
+/// places on the tower tops, just under them and on the ground, with random normals (some facing away,
+/// some pixels empty).
+fn adversarial_scene(seed: u64, towards: Vec3) -> (Vec<[Vec3; 3]>, GBuffer) {
+    use rand::Rng;
+    let mut r = common::rng(seed);
+    let quad = |x0: f32, z0: f32, x1: f32, z1: f32, y: f32| {
+        let [a, b, c, d] =
+            [(x0, z0), (x1, z0), (x1, z1), (x0, z1)].map(|(x, z)| Vec3::new(x, y, z));
+        [[a, c, b], [a, d, c]]
+    };
+    let mut tris: Vec<[Vec3; 3]> = quad(-0.8, -1.0, 1.0, 1.0, 0.0).to_vec();
+    // The threshold in world units: 1.5 texels of a 64-texel map over the receivers' ~2-unit span.
+    let edge = 1.5 * 2.0 / 62.0;
+    let (cell, cells) = (0.07, 24);
+    let mut heights = vec![0.0f32; cells * cells];
+    for k in 0..cells * cells {
+        let step = [0.5, 0.999, 1.001, 2.0][r.random_range(0..4)] * edge;
+        let prev = if k % cells == 0 { 0.3 } else { heights[k - 1] };
+        heights[k] = (prev + if r.random_bool(0.5) { step } else { -step }).clamp(0.1, 0.9);
+    }
+    let origin = -0.84;
+    for (k, &h) in heights.iter().enumerate() {
+        let (x0, z0) = (
+            origin + cell * (k % cells) as f32,
+            origin + cell * (k / cells) as f32,
+        );
+        tris.extend(quad(x0, z0, x0 + cell, z0 + cell, h));
+    }
+    for _ in 0..60 {
+        let (x, z) = (r.random_range(-0.9..0.9), r.random_range(-0.9..0.9));
+        tris.extend(quad(x, z, x + 0.004, z + 0.2, 1.2));
+    }
+    let height = |x: f32, z: f32| {
+        let (i, j) = (((x - origin) / cell).floor(), ((z - origin) / cell).floor());
+        if (0.0..cells as f32).contains(&i) && (0.0..cells as f32).contains(&j) {
+            heights[j as usize * cells + i as usize]
+        } else {
+            0.0
+        }
+    };
+    let n = 64;
+    let mut g = GBuffer::new(n, n);
+    for k in 0..n * n {
+        if r.random_bool(0.05) {
+            continue; // no surface
+        }
+        let (x, z) = (r.random_range(-1.0..1.0), r.random_range(-1.0..1.0));
+        let y = match r.random_range(0..3) {
+            0 => height(x, z),
+            1 => height(x, z) - r.random_range(0.0..2.0 * edge),
+            _ => 0.0,
+        };
+        let normal =
+            (towards * r.random_range(-0.3..1.0) + common::rand_dir(&mut r)).normalize_or(towards);
+        g.set(k, Vec3::new(x, y, z), normal);
+    }
+    (tris, g)
+}
+
+/// The pass marks exactly the pixels the full classification marks — in particular it never skips one the
+/// full classification marks — on crowd frames and on adversarial depth maps, on one thread and on all.
+#[test]
+fn selective_marks_what_the_full_classification_marks() {
+    let never = |_: Vec3, _: Vec3| false;
+    let mut checked = 0;
+    for (frames, world, g) in crowd_frames() {
+        for parallel in [false, true] {
+            let s = ShadowSettings {
+                parallel,
+                ..settings(ShadowMode::Selective, crowd::sun())
+            };
+            let mut pass = HardShadows::new();
+            crowd::sun_visibility(&world, &g, &s, &mut pass, &mut Vec::new()).unwrap();
+            let want = full_classification(&pass, &s, &g);
+            assert!(!want.is_empty(), "frame {frames} marks pixels");
+            assert_eq!(
+                pass.marked(),
+                &want[..],
+                "frame {frames}, parallel {parallel}"
+            );
+            checked += want.len();
+        }
+    }
+    for seed in 0..6 {
+        let towards = [Vec3::Y, Vec3::new(0.6, 1.0, 0.3)][seed as usize % 2];
+        let (tris, g) = adversarial_scene(seed, towards.normalize());
+        for parallel in [false, true] {
+            let s = ShadowSettings {
+                map_resolution: 64,
+                parallel,
+                ..settings(ShadowMode::Selective, towards)
+            };
+            let mut pass = HardShadows::new();
+            pass.run(&s, &tris, &g, never).unwrap();
+            let want = full_classification(&pass, &s, &g);
+            assert!(want.len() > 200, "seed {seed}: {} marked", want.len());
+            assert_eq!(pass.marked(), &want[..], "seed {seed}, parallel {parallel}");
+            checked += want.len();
+        }
+    }
+    println!("{checked} marked pixels agree");
+}
+
 /// Every pixel of the fully ray-traced image that faces the sun is lit exactly when the brute-force oracle
 /// finds no triangle on its shadow ray (exact arithmetic over every triangle of the scene).
 #[test]

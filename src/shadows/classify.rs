@@ -2,6 +2,7 @@
 //! incorrect (a shadow ray decides).
 
 use super::ShadowMap;
+use super::deltas::Deltas;
 use glam::Vec3;
 
 /// What the shadow map says about one pixel.
@@ -54,19 +55,6 @@ fn texel(map: &ShadowMap, x: f32, y: f32) -> Option<(usize, usize)> {
     (i < res - 1 && j < res - 1).then_some((i, j))
 }
 
-/// `Δ` at texel `(i, j)` (interior) of finite depth `s`: the largest depth difference to its eight
-/// neighbours, infinite next to an empty texel.
-fn delta(map: &ShadowMap, i: usize, j: usize, s: f32) -> f32 {
-    let mut delta = 0f32;
-    for row in map.rows3(i, j) {
-        for n in row {
-            // A finite s makes an empty neighbour's difference infinite, never NaN.
-            delta = delta.max((n - s).abs());
-        }
-    }
-    delta
-}
-
 /// The shadow map's verdict alone for the receiver at `p` (no edge test): lit when it is at most the bias
 /// behind the nearest surface the light sees, or off the map.
 pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f32) -> Class {
@@ -78,9 +66,10 @@ pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f
 }
 
 /// The map's verdict for a receiver at depth `d` over a texel of depth `s`: lit when it is at most the
-/// bias behind it.
+/// bias behind it. A receiver within the constant part of the bias is lit without the slope's square root
+/// (the slope-scaled part only adds to it).
 fn verdict(map: &ShadowMap, d: f32, s: f32, cos: f32, bias_texels: f32) -> Class {
-    if d <= s + tolerances(map, cos, bias_texels).bias {
+    if d <= s + map.texel_size() * bias_texels || d <= s + tolerances(map, cos, bias_texels).bias {
         Class::Lit
     } else {
         Class::Shadowed
@@ -104,17 +93,23 @@ pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texel
 /// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the
 /// receiver is marked when its depth span within one texel, `[d̂, d]`, overlaps the occluders' span
 /// `[s − Δ, s + Δ]`, else the map decides. Off the map or over an empty texel (geometry too thin for the
-/// map): marked.
-pub(super) fn selective(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f32, edge: f32) -> Class {
+/// map): marked. `deltas` holds the map's depth and `Δ` per texel.
+pub(super) fn selective(
+    map: &ShadowMap,
+    deltas: &Deltas,
+    p: Vec3,
+    cos: f32,
+    bias_texels: f32,
+    edge: f32,
+) -> Class {
     let q = map.project(p);
     let Some((i, j)) = texel(map, q.x, q.y) else {
         return Class::Marked;
     };
-    let s = map.depth(i, j);
+    let [s, delta] = deltas.at(i, j);
     if !s.is_finite() {
         return Class::Marked;
     }
-    let delta = delta(map, i, j, s);
     let tol = tolerances(map, cos, bias_texels);
     let d = q.z;
     if delta <= edge {

@@ -10,10 +10,13 @@
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked. Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
+//!    incorrect* and marked (`Δ` is computed for every texel beforehand, in one vectorised pass over the
+//!    map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels read neighbouring texels).
+//!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
-//! 3. compaction of the marked pixels into a dense list;
+//! 3. compaction of the marked pixels into a dense list (fused with step 2: each band of image rows lists
+//!    its own, in parallel, and the lists are concatenated);
 //! 4. shadow rays for the marked pixels only, in parallel: one towards a point-like light, or
 //!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]);
 //! 5. the composite: the map's verdict where it was trusted, the fraction of rays that reach the light
@@ -23,9 +26,11 @@
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
-//! classification cost about as much as hard shadow rays that mostly escape to the sky, so on the crowd
-//! selective hard shadows are only 1.4–1.6× faster than a ray per pixel (see the `shadows` bench suite in
-//! docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
+//! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
+//! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
+//! shadow ray's cost, so on the crowd selective hard shadows are only about 1.5× faster than a ray per
+//! pixel (same threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows,
+//! 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
@@ -36,6 +41,7 @@
 //! without a depth edge (a slope below the light's horizon) are missed.
 
 mod classify;
+mod deltas;
 mod penumbra;
 mod shadow_map;
 
@@ -44,6 +50,7 @@ pub use shadow_map::ShadowMap;
 
 use crate::{Error, Result, parallel};
 use classify::Class;
+use deltas::Deltas;
 use glam::Vec3;
 use std::time::{Duration, Instant};
 
@@ -165,11 +172,31 @@ impl ShadowStats {
     }
 }
 
+/// Image rows one worker classifies at a time (and composites: the band's marked pixels are its own list),
+/// in blocks of `BAND × BAND` pixels: neighbouring pixels fall on neighbouring texels, so a block reads a
+/// compact patch of the map rather than a texel from a different map row for every pixel along an image
+/// row.
+const BAND: usize = 8;
+
+/// One band of pixels' share of a pass's classification.
+#[derive(Clone, Debug, Default)]
+struct Chunk {
+    /// Its marked pixels, ascending.
+    marked: Vec<u32>,
+    /// Where they start in the pass's dense list of marked pixels.
+    start: usize,
+    /// Its pixels showing a surface that faces the light.
+    facing: usize,
+}
+
 /// One hard-shadow pass, kept between frames so a warm pass does not allocate (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct HardShadows {
     map: ShadowMap,
-    class: Vec<Class>,
+    /// The map's `Δ` per texel (hard selective passes).
+    deltas: Deltas,
+    /// Per band of [`BAND`] image rows, its marked pixels.
+    chunks: Vec<Chunk>,
     /// Indices of the pixels that get shadow rays (dense), and the fraction of each one's rays that reach
     /// the light.
     marked: Vec<u32>,
@@ -221,11 +248,14 @@ impl HardShadows {
             }
         }
         let t1 = Instant::now();
-        let (map, mask) = (&self.map, &self.mask);
+        let edge = s.edge_texels * self.map.texel_size();
+        if s.mode == ShadowMode::Selective && !soft {
+            self.deltas.find(&self.map, par);
+        }
+        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
         let horizon = s.light_angle.sin();
-        self.class.resize(n, Class::Empty);
-        parallel::fill(par, &mut self.class, 4096, |i| {
+        let classify = |i: usize| {
             let nrm = gbuffer.normals[i];
             if nrm == Vec3::ZERO {
                 return Class::Empty;
@@ -241,24 +271,61 @@ impl HardShadows {
                 ShadowMode::Selective if soft && cos <= horizon => Class::Marked,
                 ShadowMode::Selective if soft => classify::soft(map, mask, p, cos, s.bias_texels),
                 ShadowMode::Selective => {
-                    let edge = s.edge_texels * map.texel_size();
-                    classify::selective(map, p, cos, s.bias_texels, edge)
+                    classify::selective(map, deltas, p, cos, s.bias_texels, edge)
                 }
             }
-        });
-        // One pass compacts the marked pixels and writes the map's verdict everywhere.
+        };
+        // One parallel pass classifies, writes the map's verdict everywhere and lists each chunk's marked
+        // pixels; the lists are then concatenated into the dense ray list.
+        let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
+        // Blocks where the map is read; whole rows (the marked pixels come out in order) where it is not.
+        let block = if s.mode == ShadowMode::RayTraced {
+            w
+        } else {
+            BAND
+        };
+        self.visibility.resize(n, 1.0);
+        self.chunks
+            .resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
+        parallel::fill_chunks_with(
+            par,
+            &mut self.visibility,
+            chunk,
+            &mut self.chunks,
+            |c, vis, out| {
+                out.marked.clear();
+                out.facing = 0;
+                let rows = vis.len() / w;
+                for x0 in (0..w).step_by(block.max(1)) {
+                    for y in 0..rows {
+                        let start = y * w + x0;
+                        let run = &mut vis[start..y * w + (x0 + block).min(w)];
+                        for (k, v) in run.iter_mut().enumerate() {
+                            let i = c * chunk + start + k;
+                            let class = classify(i);
+                            *v = match class {
+                                Class::Empty | Class::Lit => 1.0,
+                                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
+                            };
+                            out.facing +=
+                                !matches!(class, Class::Empty | Class::FacingAway) as usize;
+                            if class == Class::Marked {
+                                out.marked.push(i as u32);
+                            }
+                        }
+                    }
+                }
+                if block < w {
+                    out.marked.sort_unstable();
+                }
+            },
+        );
         self.marked.clear();
-        self.visibility.clear();
         let mut facing = 0;
-        for (i, c) in self.class.iter().enumerate() {
-            self.visibility.push(match c {
-                Class::Empty | Class::Lit => 1.0,
-                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
-            });
-            facing += !matches!(c, Class::Empty | Class::FacingAway) as usize;
-            if *c == Class::Marked {
-                self.marked.push(i as u32);
-            }
+        for chunk in &mut self.chunks {
+            chunk.start = self.marked.len();
+            self.marked.extend_from_slice(&chunk.marked);
+            facing += chunk.facing;
         }
         let t2 = Instant::now();
         self.lit.resize(self.marked.len(), 0.0);
@@ -282,9 +349,18 @@ impl HardShadows {
                 .count();
             reach as f32 / samples as f32
         });
-        for (&i, &l) in self.marked.iter().zip(&self.lit) {
-            self.visibility[i as usize] = l;
-        }
+        let lit = &self.lit;
+        parallel::fill_chunks_with(
+            par,
+            &mut self.visibility,
+            chunk,
+            &mut self.chunks,
+            |c, vis, out| {
+                for (&i, &l) in out.marked.iter().zip(&lit[out.start..]) {
+                    vis[i as usize - c * chunk] = l;
+                }
+            },
+        );
         self.stats = ShadowStats {
             pixels: n,
             facing,
