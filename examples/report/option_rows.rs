@@ -8,8 +8,11 @@
 //! - `planned-options`: per frame, the structure (`Choice::structure`, the profile rule's pick of the
 //!   first frame as prior; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
 //!   lauterbach-0.4's rule while it answers), then for the BVH the wide tree and packets
-//!   (`Choice::wide`, `Choice::packets`), each learning the frame's measured update and query seconds
-//!   (the structure not the first frame's update nor a switch's, which catches the BVH up). Its picks (frames per option) are in the summary's planned-options section.
+//!   (`Choice::wide`, `Choice::incoherent_packets`: the rays are incoherent), each learning the
+//!   frame's measured update and query seconds (the structure not the first frame's update nor a
+//!   switch's, which catches the BVH up, and nothing from a frame in which the wide tree or packets are
+//!   tried; while the BVH is tried, those two are held as settled, `Choice::hold`). Its picks (frames
+//!   per option) are in the summary's planned-options section.
 //!
 //! Same error terms and brute-force checks as every row: the answers checked are those the timed run gave.
 
@@ -95,7 +98,7 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         Planners {
             structure: Choice::structure(prior.structure),
             wide: Choice::wide(),
-            packets: Choice::packets(),
+            packets: Choice::incoherent_packets(),
         }
     });
     let build = |mesh, wide| {
@@ -116,6 +119,10 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         let n = rays.len() as f64;
         let (kind, wide, packets) = match (&mut planners, strategy) {
             (Some(p), _) => match p.structure.decide(n) {
+                // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
+                StructureKind::Bvh if p.structure.explored() => {
+                    (StructureKind::Bvh, p.wide.hold(), p.packets.hold())
+                }
                 StructureKind::Bvh => (StructureKind::Bvh, p.wide.decide(n), p.packets.decide(n)),
                 StructureKind::Grid => (StructureKind::Grid, p.wide.current(), false),
             },
@@ -154,12 +161,16 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         };
         if let Some(p) = &mut planners {
             // The first frame has no update, and a switch's frame pays the catch-up of a BVH refitted
-            // under the grid: neither is what the structure costs per frame.
-            if f > 0 && previous == Some(kind) {
+            // under the grid: neither is what the structure costs per frame. A frame in which the
+            // wide tree or packets are tried measures that try, not the structure: it teaches only them.
+            let sub_try = kind == StructureKind::Bvh && (p.wide.explored() || p.packets.explored());
+            if f > 0 && previous == Some(kind) && !sub_try {
                 p.structure.kept(kind, update_s);
             }
             previous = Some(kind);
-            p.structure.served(kind, n, query_s);
+            if !sub_try {
+                p.structure.served(kind, n, query_s);
+            }
             picks.frames += 1;
             picks.grid += (kind == StructureKind::Grid) as usize;
             if kind == StructureKind::Bvh {

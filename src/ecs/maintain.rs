@@ -216,10 +216,29 @@ pub(crate) fn maintain_system(
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
+        let measured = t.elapsed().as_secs_f64();
+        // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
+        let hold = inst.kept.structure.as_ref().is_some_and(Choice::explored);
+        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
+            let wide = plan_wide(inst, t, script.as_ref(), e, hold);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Wide(wide.current()),
+                tried: wide.explored(),
+            });
+            let packets = plan_packets(inst, hold);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Packets(packets.current()),
+                tried: packets.explored(),
+            });
+        }
+        // A frame in which the wide tree or packets are tried measures that try: it teaches the
+        // structure nothing.
+        let sub_try = structure == StructureKind::Bvh && inst.sub_option_tried();
         if let Some(choice) = inst.kept.structure.as_mut() {
             let option = PlannedOption::Structure(structure);
-            let measured = t.elapsed().as_secs_f64();
-            if !switched {
+            if !switched && !sub_try {
                 choice.kept(
                     structure,
                     scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
@@ -229,20 +248,6 @@ pub(crate) fn maintain_system(
                 entity: e,
                 option,
                 tried: choice.explored(),
-            });
-        }
-        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
-            let wide = plan_wide(inst, t, script.as_ref(), e);
-            stats.options.push(OptionStats {
-                entity: e,
-                option: PlannedOption::Wide(wide.current()),
-                tried: wide.explored(),
-            });
-            let packets = plan_packets(inst);
-            stats.options.push(OptionStats {
-                entity: e,
-                option: PlannedOption::Packets(packets.current()),
-                tried: packets.explored(),
             });
         }
         stats.structures.push(StructureStats {
@@ -338,17 +343,22 @@ fn start_from_sibling(
 }
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
-/// first call, [`Choice::wide`]): the option is applied (a collapse when the tree comes back) and
-/// charged this frame's maintenance of the mesh since `start`, its rays are charged by
-/// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+/// first call, [`Choice::wide`]; with `hold`, the settled option, no try): the option is applied (a
+/// collapse when the tree comes back) and charged this frame's maintenance of the mesh since `start`,
+/// its rays are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
     start: Instant,
     script: Option<&CostScript>,
     e: Entity,
+    hold: bool,
 ) -> &'a Choice<bool> {
     let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
-    let on = wide.decide(inst.rays);
+    let on = if hold {
+        wide.hold()
+    } else {
+        wide.decide(inst.rays)
+    };
     inst.bvh.set_wide(on);
     let measured = start.elapsed().as_secs_f64();
     wide.kept(
@@ -361,11 +371,15 @@ fn plan_wide<'a>(
 }
 
 /// Whether packet requests meet the mesh as packets from this frame on, decided by its [`Choice`] (made
-/// at its first call, [`Choice::packets`]). Its rays are charged by [`TraceWorld::attribute_queries`] to the
-/// option in use. O(1).
-fn plan_packets(inst: &mut Instance) -> &Choice<bool> {
+/// at its first call, [`Choice::packets`]; with `hold`, the settled option, no try). Its rays are
+/// charged by [`TraceWorld::attribute_queries`] to the option in use. O(1).
+fn plan_packets(inst: &mut Instance, hold: bool) -> &Choice<bool> {
     let packets = (inst.kept.packets).get_or_insert_with(Choice::packets);
-    packets.decide(inst.rays);
+    if hold {
+        packets.hold();
+    } else {
+        packets.decide(inst.rays);
+    }
     packets
 }
 

@@ -157,6 +157,14 @@ impl Instance {
         }
     }
 
+    /// Whether the mesh's wide-tree or packet choice tried an option at its last decision: such a frame
+    /// measures the try, and teaches the mesh's structure choice nothing.
+    pub(super) fn sub_option_tried(&self) -> bool {
+        let tried =
+            |c: &Option<crate::adaptive::Choice<bool>>| c.as_ref().is_some_and(|c| c.explored());
+        tried(&self.kept.wide) || tried(&self.kept.packets)
+    }
+
     /// Whether packet requests meet the mesh as packets: its planner's pick under the adaptive policy,
     /// always otherwise.
     fn packets_on(&self) -> bool {
@@ -366,7 +374,8 @@ impl TraceWorld {
             let share = seconds * p * bvh_sah(inst) / work;
             let rays = inst.rays;
             let learned = |option| scripted(script, e, option, share, |c| c.per_ray_s * rays);
-            if let Some(structure) = inst.kept.structure.as_mut() {
+            let sub_try = inst.structure == StructureKind::Bvh && inst.sub_option_tried();
+            if let Some(structure) = inst.kept.structure.as_mut().filter(|_| !sub_try) {
                 let kind = inst.structure;
                 structure.served(kind, rays, learned(PlannedOption::Structure(kind)));
             }
