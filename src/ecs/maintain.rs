@@ -2,7 +2,7 @@
 //! on the chosen device — and feed the adaptive policy what it measured.
 
 use super::config::lauterbach;
-use super::planned::{CostScript, plan_structure, scripted, structure_for};
+use super::planned::{CostScript, plan_overlap, plan_structure, scripted, structure_for};
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
@@ -212,13 +212,33 @@ pub(crate) fn maintain_system(
         // A switch's frame pays a catch-up (a BVH only refitted under the grid may be rebuilt now): not
         // what the structure costs per frame, so its overhead is not learned.
         let switched = inst.structure != structure;
-        if let Err(err) = inst.keep_structure(structure, why, &config.grid, mesh, positions) {
+        // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
+        let hold = inst.kept.structure.as_ref().is_some_and(Choice::explored);
+        let grid = match structure {
+            StructureKind::Grid => plan_overlap(inst, &config.grid, hold),
+            StructureKind::Bvh => config.grid,
+        };
+        let built = Instant::now();
+        if let Err(err) = inst.keep_structure(structure, why, &grid, mesh, positions) {
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
         let measured = t.elapsed().as_secs_f64();
-        // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
-        let hold = inst.kept.structure.as_ref().is_some_and(Choice::explored);
+        if let Some(overlap) = inst.kept.overlap.as_mut()
+            && structure == StructureKind::Grid
+        {
+            let option = PlannedOption::Overlap(grid.overlap_test);
+            let seconds = built.elapsed().as_secs_f64();
+            overlap.kept(
+                grid.overlap_test,
+                scripted(script.as_ref(), e, option, seconds, |c| c.overhead_s),
+            );
+            stats.options.push(OptionStats {
+                entity: e,
+                option,
+                tried: overlap.explored(),
+            });
+        }
         if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
             let wide = plan_wide(inst, t, script.as_ref(), e, hold);
             stats.options.push(OptionStats {
@@ -314,16 +334,19 @@ fn start_from_sibling(
         return Ok(false);
     }
     let topology = topology_id(&mesh.0);
-    let Some((bvh, policy, wide, packets, structure)) = world.instances.values().find_map(|i| {
-        let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
-        Some((
-            i.bvh.clone(),
-            policy.sibling(),
-            i.kept.wide.clone(),
-            i.kept.packets.clone(),
-            i.kept.structure.clone(),
-        ))
-    }) else {
+    let Some((bvh, policy, wide, packets, structure, overlap)) =
+        world.instances.values().find_map(|i| {
+            let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
+            Some((
+                i.bvh.clone(),
+                policy.sibling(),
+                i.kept.wide.clone(),
+                i.kept.packets.clone(),
+                i.kept.structure.clone(),
+                i.kept.overlap.clone(),
+            ))
+        })
+    else {
         return Ok(false);
     };
     checked_transform(transform)?;
@@ -332,6 +355,7 @@ fn start_from_sibling(
         wide,
         packets,
         structure,
+        overlap,
         ..Kept::default()
     };
     let mut inst = Instance::new(bvh, topology, kept);
@@ -396,8 +420,19 @@ impl Instance {
         positions: &[glam::Vec3],
     ) -> Result<(), Error> {
         if structure == StructureKind::Grid {
+            let same = |g: &UniformGrid| {
+                let o = GridOptions {
+                    overlap_test: options.overlap_test,
+                    ..*g.options()
+                };
+                o == *options
+            };
             let grid = match &mut self.kept.grid {
-                Some(g) if g.options() == options => g,
+                // The overlap test (a planned option) switches without new buffers.
+                Some(g) if same(g) => {
+                    g.set_overlap_test(options.overlap_test);
+                    g
+                }
                 slot => slot.insert(UniformGrid::new(*options)?),
             };
             grid.rebuild_deformed(&mesh.0, positions)?;

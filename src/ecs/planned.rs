@@ -49,7 +49,7 @@ use super::stats::PlannedOption;
 use super::world::Instance;
 use super::{Structure, StructureWhy};
 use crate::adaptive::Choice;
-use crate::grid::{ChoiceInput, ChoiceReason, StructureKind, choose_structure};
+use crate::grid::{ChoiceInput, ChoiceReason, GridOptions, StructureKind, choose_structure};
 use bevy_ecs::entity::Entity;
 use std::sync::Arc;
 
@@ -95,6 +95,27 @@ pub(crate) fn structure_for(
             });
             (choice.structure, StructureWhy::Rule(choice.reason))
         }
+    }
+}
+
+/// The grid options of a mesh kept as a grid this frame: `options` with the
+/// [overlap test](GridOptions::overlap_test) as the mesh's [`Choice::overlap`] picks it (made at its first
+/// grid frame; with `hold`, the settled option, no try) where the planner chooses the mesh's structure —
+/// the configured value is then only the planner's concern — else `options` as they are. Its rebuild
+/// seconds and its share of the query time teach the choice. O(1).
+pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: bool) -> GridOptions {
+    if inst.kept.structure.is_none() {
+        return *options;
+    }
+    let overlap = (inst.kept.overlap).get_or_insert_with(Choice::overlap);
+    let overlap_test = if hold {
+        overlap.hold()
+    } else {
+        overlap.decide(inst.rays)
+    };
+    GridOptions {
+        overlap_test,
+        ..*options
     }
 }
 

@@ -152,6 +152,13 @@ impl UniformGrid {
         &self.options
     }
 
+    /// Turns the [triangle–cell overlap test](GridOptions::overlap_test) on or off from the next
+    /// [`rebuild`](Self::rebuild) on, keeping the grid's buffers (what a planner that switches it per
+    /// frame needs). O(1).
+    pub fn set_overlap_test(&mut self, on: bool) {
+        self.options.overlap_test = on;
+    }
+
     /// Cells per axis.
     pub fn resolution(&self) -> UVec3 {
         self.res
