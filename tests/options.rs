@@ -1,5 +1,5 @@
 //! The per-mesh options the planner picks in the ECS (structure under `Structure::Auto`, wide tree,
-//! packets), with scripted costs (`TraceWorld::script_costs`, the test hook): whichever option is picked,
+//! packets, the grid's overlap test), with scripted costs (`TraceWorld::script_costs`, the test hook): whichever option is picked,
 //! batched answers equal world-space brute force; the cheaper scripted option is taken and shows in
 //! `TraceStats::options`, also against the profile rule's prior; with ±10% noise around equal costs no
 //! option changes more often than `Choice` documents (a try and a return per other option). No timing is
@@ -17,12 +17,16 @@ use std::collections::HashMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+/// The option kinds a mesh can report.
+const KINDS: usize = 4;
+
 /// The option kinds a mesh reports, as indices.
 fn kind(o: PlannedOption) -> usize {
     match o {
         PlannedOption::Structure(_) => 0,
         PlannedOption::Wide(_) => 1,
         PlannedOption::Packets(_) => 2,
+        PlannedOption::Overlap(_) => 3,
         PlannedOption::Secondary(..) => {
             panic!("only primary rays are queued: no secondary batch to plan")
         }
@@ -68,7 +72,7 @@ fn frame(
     meshes: &[(Entity, Mesh)],
     f: u32,
     check: bool,
-) -> HashMap<Entity, [Option<PlannedOption>; 3]> {
+) -> HashMap<Entity, [Option<PlannedOption>; KINDS]> {
     for (e, m) in meshes {
         let mut vp = world.get_mut::<VertexPositions>(*e).unwrap();
         for (p, q) in vp.0.iter_mut().zip(m.positions()) {
@@ -109,7 +113,7 @@ fn frame(
     }
     assert!(hits > 40, "frame {f}: {hits} hits");
     let stats = world.resource::<TraceStats>();
-    let mut picks: HashMap<Entity, [Option<PlannedOption>; 3]> = HashMap::new();
+    let mut picks: HashMap<Entity, [Option<PlannedOption>; KINDS]> = HashMap::new();
     for o in &stats.options {
         let slot = &mut picks.entry(o.entity).or_default()[kind(o.option)];
         assert!(slot.is_none(), "frame {f}: {:?} reported twice", o.option);
@@ -228,7 +232,7 @@ fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_ba
                 per_ray_s: 1e-6 * (1.0 + 0.1 * noise(&c)),
             })
         })));
-    let mut previous: HashMap<Entity, [Option<PlannedOption>; 3]> = HashMap::new();
+    let mut previous: HashMap<Entity, [Option<PlannedOption>; KINDS]> = HashMap::new();
     let mut changes: HashMap<(Entity, usize), u32> = HashMap::new();
     let mut tries = 0;
     // Frames each mesh's rays met the structure its prior did not pick (the torus's grid, the soup's BVH).
@@ -248,7 +252,7 @@ fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_ba
         }
         for (e, now) in picks {
             let before = previous.entry(e).or_default();
-            for k in 0..3 {
+            for k in 0..KINDS {
                 if let (Some(a), Some(b)) = (before[k], now[k])
                     && a != b
                 {
@@ -311,4 +315,116 @@ fn a_spiky_structure_in_use_is_left_for_one_cheaper_on_average() {
         }
     }
     assert_eq!(on_bvh, [8; 4], "frames 24..32 on the BVH, per mesh");
+}
+
+/// Issue 12: the frames in which a structure is tried must measure it as it would answer once chosen —
+/// with the mesh's wide-tree and packet options as settled. The BVH's tried frames were also the first
+/// frames of those two choices, which tried the binary tree and ray-by-ray packets there and charged
+/// them to the BVH (the report's explosion and soup kept a slower grid 891 of 900 frames). Scripted
+/// equal costs, so that each soup (the rule's prior: the grid) tries the BVH; in no frame is another
+/// option of a mesh tried beside its structure's try.
+#[test]
+fn a_structure_being_tried_meets_its_other_options_as_settled() {
+    let (mut world, mut schedule, meshes) = scene();
+    world
+        .resource_mut::<TraceWorld>()
+        .script_costs(Some(Arc::new(|_, _| {
+            Some(ScriptedCost {
+                overhead_s: 1e-6,
+                per_ray_s: 1e-6,
+            })
+        })));
+    let mut bvh_tries = [0u32; 4];
+    for f in 0..16 {
+        frame(&mut world, &mut schedule, &meshes, f, f % 8 == 0);
+        let stats = world.resource::<TraceStats>();
+        for (i, (e, _)) in meshes.iter().enumerate() {
+            let rows: Vec<_> = stats.options.iter().filter(|o| o.entity == *e).collect();
+            let trying = rows
+                .iter()
+                .find(|o| o.tried && matches!(o.option, PlannedOption::Structure(_)));
+            let Some(trying) = trying else {
+                continue;
+            };
+            bvh_tries[i] += (trying.option == PlannedOption::Structure(StructureKind::Bvh)) as u32;
+            let beside: Vec<_> = (rows.iter())
+                .filter(|o| o.tried && !matches!(o.option, PlannedOption::Structure(_)))
+                .collect();
+            assert!(
+                beside.is_empty(),
+                "frame {f} mesh {i}: {beside:?} tried beside {trying:?}"
+            );
+        }
+    }
+    // The soups (odd meshes) tried the BVH, for its three tries: the scenario exercises the case.
+    assert_eq!([bvh_tries[1], bvh_tries[3]], [3, 3], "{bvh_tries:?}");
+}
+
+/// Issue 12: the grid's triangle–cell overlap test is a planned option of a mesh kept as a grid. Scripted:
+/// the grid answers every mesh's rays at half the BVH's cost; with the overlap test, meshes 0 and 1 answer
+/// at half the cost per ray (fewer references), meshes 2 and 3 pay a hundred times the rebuild. Each mesh
+/// tries the other setting and ends on the cheaper one, reported in `TraceStats::options`, and its grid
+/// really bins with (or without) the test; every answer equals brute force.
+#[test]
+fn scripted_costs_plan_the_grids_overlap_test() {
+    let (mut world, mut schedule, meshes) = scene();
+    let gains: Vec<Entity> = meshes.iter().take(2).map(|(e, _)| *e).collect();
+    world
+        .resource_mut::<TraceWorld>()
+        .script_costs(Some(Arc::new(move |e, option| {
+            let gains = gains.contains(&e);
+            Some(match option {
+                PlannedOption::Structure(StructureKind::Bvh) => ScriptedCost {
+                    overhead_s: 1e-6,
+                    per_ray_s: 2e-6,
+                },
+                PlannedOption::Overlap(true) if gains => ScriptedCost {
+                    overhead_s: 1e-6,
+                    per_ray_s: 0.5e-6,
+                },
+                PlannedOption::Overlap(true) => ScriptedCost {
+                    overhead_s: 1e-4,
+                    per_ray_s: 1e-6,
+                },
+                _ => ScriptedCost {
+                    overhead_s: 1e-6,
+                    per_ray_s: 1e-6,
+                },
+            })
+        })));
+    let mut used = [[false; 2]; 4];
+    let mut last = HashMap::new();
+    for f in 0..32 {
+        last = frame(&mut world, &mut schedule, &meshes, f, true);
+        for (i, (e, _)) in meshes.iter().enumerate() {
+            if let Some(PlannedOption::Overlap(on)) = last[e][3] {
+                used[i][on as usize] = true;
+            }
+        }
+    }
+    let stats = world.resource::<TraceStats>();
+    for (i, (e, _)) in meshes.iter().enumerate() {
+        let on = i < 2;
+        assert_eq!(
+            last[e][0],
+            Some(PlannedOption::Structure(StructureKind::Grid)),
+            "mesh {i}: {:?}",
+            last[e]
+        );
+        assert_eq!(last[e][3], Some(PlannedOption::Overlap(on)), "mesh {i}");
+        let row = (stats.options.iter())
+            .find(|o| o.entity == *e && o.option == PlannedOption::Overlap(on))
+            .unwrap();
+        assert!(!row.tried, "mesh {i} picks on measurements");
+        let grid = world
+            .resource::<TraceWorld>()
+            .grid(*e)
+            .expect("kept as a grid");
+        assert_eq!(grid.options().overlap_test, on, "mesh {i}'s grid");
+        assert_eq!(
+            used[i],
+            [true, true],
+            "mesh {i}: both settings answered some frame"
+        );
+    }
 }

@@ -12,6 +12,9 @@
 //! triangles the parallel build's task overhead exceeds its work, and on a loaded machine its time varied
 //! by an order of magnitude from frame to frame.
 //!
+//! `grid-overlap` is `grid-single` with the triangle–cell overlap test in the build
+//! ([`GridOptions::overlap_test`]): a slower build for fewer references per cell.
+//!
 //! `grid-packets` traces the report's rays in packets of 16 consecutive rays (a 4×4 tile's size), and the
 //! shadow rays of their hits the same way. The report's rays run from random points on a sphere around
 //! the scene to random points inside it, so they are *incoherent*: most packets fail the direction-sign
@@ -35,9 +38,10 @@ use kinetrace::{MeshBvh, Ray};
 use std::time::Instant;
 
 /// The structure strategies, in their rows' order.
-pub const STRATEGIES: [StructureStrategy; 3] = [
+pub const STRATEGIES: [StructureStrategy; 4] = [
     StructureStrategy::GridSingle,
     StructureStrategy::GridPackets,
+    StructureStrategy::GridOverlap,
     StructureStrategy::Auto,
 ];
 
@@ -51,6 +55,8 @@ pub enum StructureStrategy {
     GridSingle,
     /// A grid rebuilt every frame, packets of [`PACKET`] rays.
     GridPackets,
+    /// A grid rebuilt every frame with the triangle–cell overlap test, single rays.
+    GridOverlap,
     /// The structure rule's choice from the first frame's profile.
     Auto,
 }
@@ -60,6 +66,7 @@ impl StructureStrategy {
         match self {
             StructureStrategy::GridSingle => "grid-single",
             StructureStrategy::GridPackets => "grid-packets",
+            StructureStrategy::GridOverlap => "grid-overlap",
             StructureStrategy::Auto => "auto-structure",
         }
     }
@@ -72,8 +79,9 @@ impl StructureStrategy {
 /// Runs `strategy` over a scene's `frames`.
 pub fn run(strategy: StructureStrategy, frames: &[Frame], settings: &Settings) -> Vec<FrameRecord> {
     match strategy {
-        StructureStrategy::GridSingle => run_grid(frames, settings, false),
-        StructureStrategy::GridPackets => run_grid(frames, settings, true),
+        StructureStrategy::GridSingle => run_grid(frames, settings, false, false),
+        StructureStrategy::GridPackets => run_grid(frames, settings, true, false),
+        StructureStrategy::GridOverlap => run_grid(frames, settings, false, true),
         StructureStrategy::Auto => run_auto(frames, settings),
     }
 }
@@ -97,18 +105,24 @@ fn run_auto(frames: &[Frame], settings: &Settings) -> Vec<FrameRecord> {
         choice.structure
     );
     let mut records = match choice.structure {
-        StructureKind::Grid => run_grid(frames, settings, false),
+        StructureKind::Grid => run_grid(frames, settings, false, false),
         StructureKind::Bvh => run_strategy(Strategy::Lauterbach(0.4), frames, settings, None),
     };
     records[0].update_s += profile_s;
     records
 }
 
-/// A grid rebuilt every frame (the first build, like every strategy's, is not timed), queried with single
-/// rays or packets.
-fn run_grid(frames: &[Frame], settings: &Settings, packets: bool) -> Vec<FrameRecord> {
+/// A grid rebuilt every frame (the first build, like every strategy's, is not timed), with or without
+/// the overlap test, queried with single rays or packets.
+fn run_grid(
+    frames: &[Frame],
+    settings: &Settings,
+    packets: bool,
+    overlap_test: bool,
+) -> Vec<FrameRecord> {
     let options = GridOptions {
         parallel: false,
+        overlap_test,
         ..Default::default()
     };
     let mut grid = UniformGrid::new(options).expect("λ 5, macrocells of 6: valid");

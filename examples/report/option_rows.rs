@@ -8,8 +8,12 @@
 //! - `planned-options`: per frame, the structure (`Choice::structure`, the profile rule's pick of the
 //!   first frame as prior; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
 //!   lauterbach-0.4's rule while it answers), then for the BVH the wide tree and packets
-//!   (`Choice::wide`, `Choice::packets`), each learning the frame's measured update and query seconds
-//!   (the structure not the first frame's update nor a switch's, which catches the BVH up). Its picks (frames per option) are in the summary's planned-options section.
+//!   (`Choice::wide`, `Choice::incoherent_packets`: the rays are incoherent), for the grid its
+//!   overlap test (`Choice::overlap`), each learning the frame's measured update and query seconds
+//!   (the structure not the first frame's update nor a switch's, which catches the BVH up, and nothing
+//!   from a frame in which an option under it is tried; while a structure is tried, the options under
+//!   it are held as settled, `Choice::hold`). Its picks (frames per option) are in the summary's
+//!   planned-options section.
 //!
 //! Same error terms and brute-force checks as every row: the answers checked are those the timed run gave.
 
@@ -53,8 +57,9 @@ impl OptionStrategy {
     }
 }
 
-/// Frames of `planned-options` on each option: grid, wide off, packets on (of `frames`; wide and
-/// packets counted over the BVH's frames, `bvh_frames`).
+/// Frames of `planned-options` on each option: grid, wide off, packets on, overlap test on (of
+/// `frames`; wide and packets counted over the BVH's frames, `bvh_frames`, the overlap test over the
+/// grid's).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Picks {
     pub frames: usize,
@@ -62,6 +67,7 @@ pub struct Picks {
     pub bvh_frames: usize,
     pub wide_off: usize,
     pub packets: usize,
+    pub overlap: usize,
 }
 
 /// The picks of every `planned-options` run since the last [`take_picks`], in run order.
@@ -76,6 +82,7 @@ pub fn take_picks() -> Picks {
         bvh_frames: a.bvh_frames + p.bvh_frames,
         wide_off: a.wide_off + p.wide_off,
         packets: a.packets + p.packets,
+        overlap: a.overlap + p.overlap,
     })
 }
 
@@ -84,6 +91,7 @@ struct Planners {
     structure: Choice<StructureKind>,
     wide: Choice<bool>,
     packets: Choice<bool>,
+    overlap: Choice<bool>,
 }
 
 /// Runs `strategy` over a scene's `frames`.
@@ -95,7 +103,8 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         Planners {
             structure: Choice::structure(prior.structure),
             wide: Choice::wide(),
-            packets: Choice::packets(),
+            packets: Choice::incoherent_packets(),
+            overlap: Choice::overlap(),
         }
     });
     let build = |mesh, wide| {
@@ -114,15 +123,36 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
     let mut records = Vec::with_capacity(frames.len());
     for (f, (mesh, rays, light, reference)) in frames.iter().enumerate() {
         let n = rays.len() as f64;
-        let (kind, wide, packets) = match (&mut planners, strategy) {
+        let (kind, wide, packets, overlap) = match (&mut planners, strategy) {
             (Some(p), _) => match p.structure.decide(n) {
-                StructureKind::Bvh => (StructureKind::Bvh, p.wide.decide(n), p.packets.decide(n)),
-                StructureKind::Grid => (StructureKind::Grid, p.wide.current(), false),
+                // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
+                StructureKind::Bvh if p.structure.explored() => {
+                    (StructureKind::Bvh, p.wide.hold(), p.packets.hold(), false)
+                }
+                StructureKind::Bvh => (
+                    StructureKind::Bvh,
+                    p.wide.decide(n),
+                    p.packets.decide(n),
+                    false,
+                ),
+                StructureKind::Grid if p.structure.explored() => (
+                    StructureKind::Grid,
+                    p.wide.current(),
+                    false,
+                    p.overlap.hold(),
+                ),
+                StructureKind::Grid => (
+                    StructureKind::Grid,
+                    p.wide.current(),
+                    false,
+                    p.overlap.decide(n),
+                ),
             },
             (None, s) => (
                 StructureKind::Bvh,
                 s != OptionStrategy::WideOff,
                 s == OptionStrategy::BvhPackets,
+                false,
             ),
         };
         let start = Instant::now();
@@ -139,6 +169,7 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         }
         bvh.set_wide(wide);
         if kind == StructureKind::Grid {
+            grid.set_overlap_test(overlap);
             grid.rebuild(mesh).expect("scene meshes are valid");
             rebuilt = true;
         }
@@ -154,12 +185,19 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
         };
         if let Some(p) = &mut planners {
             // The first frame has no update, and a switch's frame pays the catch-up of a BVH refitted
-            // under the grid: neither is what the structure costs per frame.
-            if f > 0 && previous == Some(kind) {
+            // under the grid: neither is what the structure costs per frame. A frame in which the
+            // wide tree or packets are tried measures that try, not the structure: it teaches only them.
+            let sub_try = match kind {
+                StructureKind::Bvh => p.wide.explored() || p.packets.explored(),
+                StructureKind::Grid => p.overlap.explored(),
+            };
+            if f > 0 && previous == Some(kind) && !sub_try {
                 p.structure.kept(kind, update_s);
             }
             previous = Some(kind);
-            p.structure.served(kind, n, query_s);
+            if !sub_try {
+                p.structure.served(kind, n, query_s);
+            }
             picks.frames += 1;
             picks.grid += (kind == StructureKind::Grid) as usize;
             if kind == StructureKind::Bvh {
@@ -169,6 +207,10 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
                 picks.bvh_frames += 1;
                 picks.wide_off += !wide as usize;
                 picks.packets += packets as usize;
+            } else if f > 0 {
+                p.overlap.kept(overlap, update_s);
+                p.overlap.served(overlap, n, query_s);
+                picks.overlap += overlap as usize;
             }
         }
         let checked = &rays[..settings.checked_rays.min(rays.len())];
@@ -210,8 +252,15 @@ pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
     };
     let planned = ms("planned-options");
     let mut s = format!(
-        "| {scene} | grid {}/{} | wide off {}/{} | packets {}/{} | {planned:.3} |",
-        picks.grid, picks.frames, picks.wide_off, picks.bvh_frames, picks.packets, picks.bvh_frames
+        "| {scene} | grid {}/{} | wide off {}/{} | packets {}/{} | overlap {}/{} | {planned:.3} |",
+        picks.grid,
+        picks.frames,
+        picks.wide_off,
+        picks.bvh_frames,
+        picks.packets,
+        picks.bvh_frames,
+        picks.overlap,
+        picks.grid
     );
     for alt in ALTERNATIVES {
         let _ = write!(s, " {:.3} ({:.2}) |", ms(alt), planned / ms(alt));
@@ -220,21 +269,30 @@ pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
 }
 
 /// The fixed alternatives of the planned options, in the section's columns.
-const ALTERNATIVES: [&str; 4] = ["lauterbach-0.4", "grid-single", "wide-off", "bvh-packets"];
+const ALTERNATIVES: [&str; 5] = [
+    "lauterbach-0.4",
+    "grid-single",
+    "grid-overlap",
+    "wide-off",
+    "bvh-packets",
+];
 
 /// The planned-options section of the summary, around the scenes' [`picks_row`]s.
 pub fn picks_table(lines: &[String]) -> String {
     let mut s = String::from(
         "\n## Planned options\n\nThe ECS planner's per-mesh options (`planned-options`: structure, wide \
          tree, packets, each a `Choice` learning measured seconds) against each fixed alternative, all on \
-         lauterbach-0.4 maintenance. Picks in frames (wide and packets over the BVH's frames); mean ms \
+         lauterbach-0.4 maintenance. Picks in frames (wide and packets over the BVH's frames, the \
+         overlap test over the grid's); mean ms \
          per frame, the planner's over the alternative's in parentheses.\n\n\
-         | scene | structure | wide | packets | planned ms |",
+         | scene | structure | wide | packets | overlap | planned ms |",
     );
     for alt in ALTERNATIVES {
         let _ = write!(s, " {alt} ms (planned /) |");
     }
-    s.push_str("\n|---|---|---|---|---|---|---|---|---|\n");
+    s.push('\n');
+    s.push_str(&"|---".repeat(6 + ALTERNATIVES.len()));
+    s.push_str("|\n");
     for l in lines {
         s.push_str(l);
         s.push('\n');

@@ -177,6 +177,15 @@ impl<T: Copy + PartialEq> Choice<T> {
         ))
     }
 
+    /// The option settled on, trying nothing, for a frame in which a choice this one lies under tries an
+    /// option: a structure being tried is measured with its wide-tree and packet options as settled, not
+    /// with one of theirs being tried too, whose cost would be charged to the structure (issue 12). O(1).
+    pub fn hold(&mut self) -> T {
+        self.current = self.settled;
+        self.explored = false;
+        self.current
+    }
+
     /// The option to use for a frame with `units` of work: among the measured options the cheapest
     /// predicted, the one chosen before kept unless another beats it by `z` standard deviations of the
     /// difference of their means and by [`MIN_GAIN`]; or an
@@ -259,9 +268,28 @@ impl Choice<bool> {
         Choice::new(&[(true, 0.7, 1.0), (false, 1.0, 0.7)]).expect("two options")
     }
 
-    /// Whether packet requests meet a mesh as packets: on first, as without the planner; 0.8 × single
-    /// rays' seconds per ray, no overhead either way.
+    /// Whether packet requests (coherent: camera tiles, rays toward one point) meet a mesh as packets:
+    /// on first, as without the planner; 0.8 × single rays' seconds per ray, no overhead either way.
     pub fn packets() -> Self {
         Choice::new(&[(true, 0.8, 1.0), (false, 1.0, 1.0)]).expect("two options")
+    }
+
+    /// [`packets`](Self::packets) for batches of *incoherent* rays cut into packets (the report's rays
+    /// from random points around a scene to random points inside it): single rays first, packets 1.5 ×
+    /// their seconds per ray — they measured 1.4–1.75 × on such rays (docs/BENCHMARKS.md, stop 24),
+    /// since most packets fail the common-direction test and pay their lane bookkeeping for nothing.
+    /// With that prior packets are never tried (even optimistic by a spread they cost more), so a
+    /// structure tried under it is measured ray by ray, as it will answer.
+    pub fn incoherent_packets() -> Self {
+        Choice::new(&[(false, 1.0, 1.0), (true, 1.5, 1.0)]).expect("two options")
+    }
+
+    /// Whether a mesh's grid bins triangles with the triangle–cell overlap test: off first, as
+    /// [`GridOptions`](crate::grid::GridOptions)' default; on, 0.92 × its seconds per ray and 2.4 × its
+    /// rebuild (`bench grid --quick`: queries 0–16% faster, builds 2.2–2.6× slower). Tried only while a
+    /// rebuild costs under about two fifths of the grid's query time (`0.75 · (0.92 q + 2.4 o) < q + o`):
+    /// with few rays per rebuild it is never built.
+    pub fn overlap() -> Self {
+        Choice::new(&[(false, 1.0, 1.0), (true, 0.92, 2.4)]).expect("two options")
     }
 }

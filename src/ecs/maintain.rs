@@ -2,7 +2,7 @@
 //! on the chosen device — and feed the adaptive policy what it measured.
 
 use super::config::lauterbach;
-use super::planned::{CostScript, plan_structure, scripted, structure_for};
+use super::planned::{CostScript, plan_overlap, plan_structure, scripted, structure_for};
 use super::systems::{checked_transform, fail};
 use super::world::{Instance, Kept, topology_id};
 use super::*;
@@ -212,14 +212,53 @@ pub(crate) fn maintain_system(
         // A switch's frame pays a catch-up (a BVH only refitted under the grid may be rebuilt now): not
         // what the structure costs per frame, so its overhead is not learned.
         let switched = inst.structure != structure;
-        if let Err(err) = inst.keep_structure(structure, why, &config.grid, mesh, positions) {
+        // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
+        let hold = inst.kept.structure.as_ref().is_some_and(Choice::explored);
+        let grid = match structure {
+            StructureKind::Grid => plan_overlap(inst, &config.grid, hold),
+            StructureKind::Bvh => config.grid,
+        };
+        let built = Instant::now();
+        if let Err(err) = inst.keep_structure(structure, why, &grid, mesh, positions) {
             fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
             continue;
         }
+        let measured = t.elapsed().as_secs_f64();
+        if let Some(overlap) = inst.kept.overlap.as_mut()
+            && structure == StructureKind::Grid
+        {
+            let option = PlannedOption::Overlap(grid.overlap_test);
+            let seconds = built.elapsed().as_secs_f64();
+            overlap.kept(
+                grid.overlap_test,
+                scripted(script.as_ref(), e, option, seconds, |c| c.overhead_s),
+            );
+            stats.options.push(OptionStats {
+                entity: e,
+                option,
+                tried: overlap.explored(),
+            });
+        }
+        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
+            let wide = plan_wide(inst, t, script.as_ref(), e, hold);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Wide(wide.current()),
+                tried: wide.explored(),
+            });
+            let packets = plan_packets(inst, hold);
+            stats.options.push(OptionStats {
+                entity: e,
+                option: PlannedOption::Packets(packets.current()),
+                tried: packets.explored(),
+            });
+        }
+        // A frame in which the wide tree or packets are tried measures that try: it teaches the
+        // structure nothing.
+        let sub_try = structure == StructureKind::Bvh && inst.sub_option_tried();
         if let Some(choice) = inst.kept.structure.as_mut() {
             let option = PlannedOption::Structure(structure);
-            let measured = t.elapsed().as_secs_f64();
-            if !switched {
+            if !switched && !sub_try {
                 choice.kept(
                     structure,
                     scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
@@ -229,20 +268,6 @@ pub(crate) fn maintain_system(
                 entity: e,
                 option,
                 tried: choice.explored(),
-            });
-        }
-        if structure == StructureKind::Bvh && inst.kept.adaptive.is_some() {
-            let wide = plan_wide(inst, t, script.as_ref(), e);
-            stats.options.push(OptionStats {
-                entity: e,
-                option: PlannedOption::Wide(wide.current()),
-                tried: wide.explored(),
-            });
-            let packets = plan_packets(inst);
-            stats.options.push(OptionStats {
-                entity: e,
-                option: PlannedOption::Packets(packets.current()),
-                tried: packets.explored(),
             });
         }
         stats.structures.push(StructureStats {
@@ -309,16 +334,19 @@ fn start_from_sibling(
         return Ok(false);
     }
     let topology = topology_id(&mesh.0);
-    let Some((bvh, policy, wide, packets, structure)) = world.instances.values().find_map(|i| {
-        let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
-        Some((
-            i.bvh.clone(),
-            policy.sibling(),
-            i.kept.wide.clone(),
-            i.kept.packets.clone(),
-            i.kept.structure.clone(),
-        ))
-    }) else {
+    let Some((bvh, policy, wide, packets, structure, overlap)) =
+        world.instances.values().find_map(|i| {
+            let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
+            Some((
+                i.bvh.clone(),
+                policy.sibling(),
+                i.kept.wide.clone(),
+                i.kept.packets.clone(),
+                i.kept.structure.clone(),
+                i.kept.overlap.clone(),
+            ))
+        })
+    else {
         return Ok(false);
     };
     checked_transform(transform)?;
@@ -327,6 +355,7 @@ fn start_from_sibling(
         wide,
         packets,
         structure,
+        overlap,
         ..Kept::default()
     };
     let mut inst = Instance::new(bvh, topology, kept);
@@ -338,17 +367,22 @@ fn start_from_sibling(
 }
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
-/// first call, [`Choice::wide`]): the option is applied (a collapse when the tree comes back) and
-/// charged this frame's maintenance of the mesh since `start`, its rays are charged by
-/// [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+/// first call, [`Choice::wide`]; with `hold`, the settled option, no try): the option is applied (a
+/// collapse when the tree comes back) and charged this frame's maintenance of the mesh since `start`,
+/// its rays are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
     start: Instant,
     script: Option<&CostScript>,
     e: Entity,
+    hold: bool,
 ) -> &'a Choice<bool> {
     let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
-    let on = wide.decide(inst.rays);
+    let on = if hold {
+        wide.hold()
+    } else {
+        wide.decide(inst.rays)
+    };
     inst.bvh.set_wide(on);
     let measured = start.elapsed().as_secs_f64();
     wide.kept(
@@ -361,11 +395,15 @@ fn plan_wide<'a>(
 }
 
 /// Whether packet requests meet the mesh as packets from this frame on, decided by its [`Choice`] (made
-/// at its first call, [`Choice::packets`]). Its rays are charged by [`TraceWorld::attribute_queries`] to the
-/// option in use. O(1).
-fn plan_packets(inst: &mut Instance) -> &Choice<bool> {
+/// at its first call, [`Choice::packets`]; with `hold`, the settled option, no try). Its rays are
+/// charged by [`TraceWorld::attribute_queries`] to the option in use. O(1).
+fn plan_packets(inst: &mut Instance, hold: bool) -> &Choice<bool> {
     let packets = (inst.kept.packets).get_or_insert_with(Choice::packets);
-    packets.decide(inst.rays);
+    if hold {
+        packets.hold();
+    } else {
+        packets.decide(inst.rays);
+    }
     packets
 }
 
@@ -382,8 +420,19 @@ impl Instance {
         positions: &[glam::Vec3],
     ) -> Result<(), Error> {
         if structure == StructureKind::Grid {
+            let same = |g: &UniformGrid| {
+                let o = GridOptions {
+                    overlap_test: options.overlap_test,
+                    ..*g.options()
+                };
+                o == *options
+            };
             let grid = match &mut self.kept.grid {
-                Some(g) if g.options() == options => g,
+                // The overlap test (a planned option) switches without new buffers.
+                Some(g) if same(g) => {
+                    g.set_overlap_test(options.overlap_test);
+                    g
+                }
                 slot => slot.insert(UniformGrid::new(*options)?),
             };
             grid.rebuild_deformed(&mesh.0, positions)?;

@@ -43,13 +43,28 @@
 //! the grid, as here) and here: the frame of a switch, which catches a BVH refitted under the grid up
 //! (a rebuild), does not teach the structure's overhead. `tests/options.rs` scripts the spiky case.
 //!
+//! That was not all: the BVH's tried frames were also the first frames of its wide-tree and packet
+//! choices, which tried the binary tree and ray-by-ray packets there and charged those tries to the BVH
+//! (logged in the report, explosion: the first try measured with packets on, 49 ms of queries against
+//! the grid's 6 ms; the next two with the binary tree). Now a structure being tried meets the options
+//! under it as settled ([`Choice::hold`]), and a frame in which one of those is tried teaches the
+//! structure nothing; the report, whose rays are incoherent, plans its packets with
+//! [`Choice::incoherent_packets`] (single rays first), where the ECS's packet requests are coherent
+//! tiles ([`Choice::packets`]). `tests/options.rs` checks that no option is tried beside a structure's
+//! try.
+//!
+//! **The overlap test** ([`GridOptions::overlap_test`]) is planned per mesh kept as a grid
+//! ([`plan_overlap`], [`Choice::overlap`]): its slower rebuild (the grid's rebuild seconds, as overhead)
+//! against its seconds per ray (the grid's share of the query time), reported as
+//! [`PlannedOption::Overlap`].
+//!
 //! Cost: a few arithmetic operations per mesh and frame; the grid is built only in frames it is in use.
 
 use super::stats::PlannedOption;
 use super::world::Instance;
 use super::{Structure, StructureWhy};
 use crate::adaptive::Choice;
-use crate::grid::{ChoiceInput, ChoiceReason, StructureKind, choose_structure};
+use crate::grid::{ChoiceInput, ChoiceReason, GridOptions, StructureKind, choose_structure};
 use bevy_ecs::entity::Entity;
 use std::sync::Arc;
 
@@ -95,6 +110,27 @@ pub(crate) fn structure_for(
             });
             (choice.structure, StructureWhy::Rule(choice.reason))
         }
+    }
+}
+
+/// The grid options of a mesh kept as a grid this frame: `options` with the
+/// [overlap test](GridOptions::overlap_test) as the mesh's [`Choice::overlap`] picks it (made at its first
+/// grid frame; with `hold`, the settled option, no try) where the planner chooses the mesh's structure —
+/// the configured value is then only the planner's concern — else `options` as they are. Its rebuild
+/// seconds and its share of the query time teach the choice. O(1).
+pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: bool) -> GridOptions {
+    if inst.kept.structure.is_none() {
+        return *options;
+    }
+    let overlap = (inst.kept.overlap).get_or_insert_with(Choice::overlap);
+    let overlap_test = if hold {
+        overlap.hold()
+    } else {
+        overlap.decide(inst.rays)
+    };
+    GridOptions {
+        overlap_test,
+        ..*options
     }
 }
 

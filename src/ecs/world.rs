@@ -58,6 +58,9 @@ pub(crate) struct Kept {
     /// Under [`RebuildPolicy::Adaptive`](super::RebuildPolicy) and [`Structure::Auto`](super::Structure):
     /// whether the mesh's rays meet its BVH or its grid (see `planned`).
     pub structure: Option<crate::adaptive::Choice<StructureKind>>,
+    /// Under the planner's structure choice: whether the mesh's grid uses the triangle–cell overlap
+    /// test (see `planned`).
+    pub overlap: Option<crate::adaptive::Choice<bool>>,
     /// The mesh's GPU build buffers, made at its first GPU rebuild (same topology only).
     #[cfg(feature = "gpu")]
     pub gpu: Option<crate::gpu::GpuMeshBvh>,
@@ -154,6 +157,18 @@ impl Instance {
         match self.structure {
             StructureKind::Grid => self.kept.grid.as_ref(),
             StructureKind::Bvh => None,
+        }
+    }
+
+    /// Whether a choice under the structure in use (the wide tree and packets for the BVH, the overlap
+    /// test for the grid) tried an option at its last decision: such a frame measures the try, and
+    /// teaches the mesh's structure choice nothing.
+    pub(super) fn sub_option_tried(&self) -> bool {
+        let tried =
+            |c: &Option<crate::adaptive::Choice<bool>>| c.as_ref().is_some_and(|c| c.explored());
+        match self.structure {
+            StructureKind::Bvh => tried(&self.kept.wide) || tried(&self.kept.packets),
+            StructureKind::Grid => tried(&self.kept.overlap),
         }
     }
 
@@ -366,9 +381,16 @@ impl TraceWorld {
             let share = seconds * p * bvh_sah(inst) / work;
             let rays = inst.rays;
             let learned = |option| scripted(script, e, option, share, |c| c.per_ray_s * rays);
-            if let Some(structure) = inst.kept.structure.as_mut() {
+            let sub_try = inst.sub_option_tried();
+            if let Some(structure) = inst.kept.structure.as_mut().filter(|_| !sub_try) {
                 let kind = inst.structure;
                 structure.served(kind, rays, learned(PlannedOption::Structure(kind)));
+            }
+            if let Some(overlap) = inst.kept.overlap.as_mut()
+                && inst.structure == StructureKind::Grid
+            {
+                let on = overlap.current();
+                overlap.served(on, rays, learned(PlannedOption::Overlap(on)));
             }
             if let Some(policy) = inst.kept.adaptive.as_mut()
                 && inst.structure == StructureKind::Bvh

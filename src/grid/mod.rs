@@ -19,6 +19,8 @@
 //! references on the crowd and the 200k surface (2% on the explosion's small triangles), queries 0–16% faster,
 //! the build 1.2–2.6× slower. A grid rebuilt every frame and queried by a few thousand rays loses more in the
 //! build than it gains in the queries, hence off by default; turn it on for large query batches per build.
+//! Under the ECS's planner (`Structure::Auto` with the adaptive policy) it is planned per mesh from the
+//! measured rebuild and query seconds ([`Choice::overlap`](crate::adaptive::Choice::overlap)).
 //!
 //! **Answers.** The same watertight triangle test as the BVH and the same closest-hit rule: smallest `t`, and
 //! among triangles hit at exactly that `t` the lowest index the traversal tested. Triangles are binned by
@@ -150,6 +152,13 @@ impl UniformGrid {
     /// The options the grid was made with.
     pub fn options(&self) -> &GridOptions {
         &self.options
+    }
+
+    /// Turns the [triangle–cell overlap test](GridOptions::overlap_test) on or off from the next
+    /// [`rebuild`](Self::rebuild) on, keeping the grid's buffers (what a planner that switches it per
+    /// frame needs). O(1).
+    pub fn set_overlap_test(&mut self, on: bool) {
+        self.options.overlap_test = on;
     }
 
     /// Cells per axis.
