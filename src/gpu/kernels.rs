@@ -122,6 +122,8 @@ pub(crate) struct Kernels {
     pub taskpool: Module,
     /// DACRT on the task pool.
     pub dacrt: Module,
+    /// The BVH build on the task pool.
+    pub pool_build: Module,
 }
 
 impl Kernels {
@@ -276,6 +278,24 @@ impl Kernels {
                 concat!(
                     shader!(rays "taskpool.wgsl"),
                     include_str!("../../shaders/taskpool_dacrt.wgsl")
+                ),
+                &[
+                    Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
+                ],
+                &[
+                    "pool_plan",
+                    "pool_size",
+                    "pool_work",
+                    "pool_advance",
+                    "pool_finish",
+                ],
+            ),
+            pool_build: Module::new(
+                device,
+                "pool_build",
+                concat!(
+                    shader!("taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_build.wgsl")
                 ),
                 &[
                     Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
