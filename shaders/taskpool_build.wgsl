@@ -62,8 +62,8 @@ fn tri_box(id: u32) -> array<vec3<f32>, 2> {
     return array<vec3<f32>, 2>(min(a, min(b, c)), max(a, max(b, c)));
 }
 
-// The centroid a split compares: its box's centre, computed the same way wherever it is read.
-fn centroid(b: array<vec3<f32>, 2>) -> vec3<f32> { return b[0] * 0.5 + b[1] * 0.5; }
+// The centroid a split compares: its box's centre, rounded as the CPU's `Prim::centroid` rounds it.
+fn centroid(b: array<vec3<f32>, 2>) -> vec3<f32> { return (b[0] + b[1]) * 0.5; }
 
 fn grow(acc: ptr<function, Bounds>, b: array<vec3<f32>, 2>) {
     let c = centroid(b);
@@ -122,8 +122,16 @@ fn inner_node(i: u32, left: u32, b: Bounds, l: Bounds, r: Bounds) {
     nodes[i] = Node(b.lo, left, b.hi, sa_ratio(b.lo, b.hi, l.lo, l.hi, r.lo, r.hi));
 }
 
-// Builds the subtree of ids lo..hi (at most SMALL, read from array `src`) in this invocation: the same splits
-// as the tasks', nodes at `node` and from `desc` on, the ids in leaf order into ids_a[lo..hi).
+// Whether triangle x comes before y in the object median's order: centroid along `axis`, then id.
+fn before(x: u32, y: u32, axis: u32) -> bool {
+    let cx = ordered(centroid(tri_box(x))[axis]);
+    let cy = ordered(centroid(tri_box(y))[axis]);
+    return cx < cy || (cx == cy && x < y);
+}
+
+// Builds the subtree of ids lo..hi (at most SMALL, read from array `src`) in this invocation: the same
+// middle splits as the tasks' and, where they cannot split (or from depth BALANCED on), the CPU median
+// builder's object median; nodes at `node` and from `desc` on, the ids in leaf order into ids_a[lo..hi).
 fn build_small(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32) {
     var ids: array<u32, SMALL>;
     let k = hi - lo;
@@ -146,7 +154,7 @@ fn build_small(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32) {
             continue;
         }
         let axis = longest(b.chi - b.clo);
-        let mid = b.clo[axis] * 0.5 + b.chi[axis] * 0.5;
+        let mid = (b.clo[axis] + b.chi[axis]) * 0.5;
         var m = e.x;
         if d < BALANCED && mid > b.clo[axis] {
             for (var i = e.x; i < e.y; i++) {
@@ -158,7 +166,19 @@ fn build_small(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32) {
                 }
             }
         }
-        if m == e.x || m == e.y { m = e.x + (e.y - e.x) / 2u; }
+        if m == e.x || m == e.y {
+            // The CPU's object median: the first half in (centroid, id) order, by insertion.
+            for (var i = e.x + 1u; i < e.y; i++) {
+                let x = ids[i];
+                var j = i;
+                while j > e.x && before(x, ids[j - 1u], axis) {
+                    ids[j] = ids[j - 1u];
+                    j--;
+                }
+                ids[j] = x;
+            }
+            m = e.x + (e.y - e.x) / 2u;
+        }
         var l = empty_bounds();
         for (var i = e.x; i < m; i++) { grow(&l, tri_box(ids[i])); }
         var r = empty_bounds();
@@ -240,7 +260,7 @@ fn plan(t: u32) {
     }
     let b = read_bounds(t, OWN);
     let axis = longest(b.chi - b.clo);
-    let mid = b.clo[axis] * 0.5 + b.chi[axis] * 0.5;
+    let mid = (b.clo[axis] + b.chi[axis]) * 0.5;
     if field(t, 6u) >= BALANCED || !(mid > b.clo[axis]) {
         halve(t, src);
         return;
