@@ -202,32 +202,35 @@ fn init_task(c: u32, src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u3
     set_field(c, 7u, src);
 }
 
-// A child whose bounds are unknown: built here when small, else a task that first runs a BOUNDS step.
-fn spawn_unknown(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32) {
+// A child over ids lo..hi with bounds `b`: built here when small (returns NONE), else a new task's id (NONE
+// too when the pool is full).
+fn new_child(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32, b: Bounds) -> u32 {
     if hi - lo <= SMALL {
         build_small(src, lo, hi, node, desc, depth);
-        return;
+        return NONE;
     }
     let c = alloc_tasks(1u);
+    if c != NONE {
+        init_task(c, src, lo, hi, node, desc, depth);
+        set_bounds(c, OWN, b);
+    }
+    return c;
+}
+
+// A child whose bounds are unknown: a task first runs a BOUNDS step. (Not merged with spawn_known, which
+// plans, since plan → halve → spawn_unknown would make the call graph cyclic, which WGSL forbids.)
+fn spawn_unknown(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32) {
+    let c = new_child(src, lo, hi, node, desc, depth, empty_bounds());
     if c == NONE { return; }
-    init_task(c, src, lo, hi, node, desc, depth);
-    set_bounds(c, OWN, empty_bounds());
     set_field(c, 2u, BOUNDS);
     set_field(c, 3u, groups(hi - lo, ELEMS));
     push_next(c);
 }
 
-// A child whose bounds `b` its parent's split accumulated: built here when small, else planned at once.
+// A child whose bounds `b` its parent's split accumulated: a task is planned at once.
 fn spawn_known(src: u32, lo: u32, hi: u32, node: u32, desc: u32, depth: u32, b: Bounds) {
-    if hi - lo <= SMALL {
-        build_small(src, lo, hi, node, desc, depth);
-        return;
-    }
-    let c = alloc_tasks(1u);
-    if c == NONE { return; }
-    init_task(c, src, lo, hi, node, desc, depth);
-    set_bounds(c, OWN, b);
-    plan(c);
+    let c = new_child(src, lo, hi, node, desc, depth, b);
+    if c != NONE { plan(c); }
 }
 
 // Halves task t's range of array `src` in slot order; the node's ratio waits for the parked round.

@@ -179,16 +179,7 @@ fn pool_build_at_every_size_answers_as_brute_force() {
 fn pool_build_on_extreme_scenes() {
     let Some(g) = gpu_or_skip() else { return };
     let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(300)).unwrap();
-    let line = Mesh::new(
-        (0..600)
-            .map(|i| Vec3::new(i as f32 * 0.5, 0.0, 0.0))
-            .collect::<Vec<Vec3>>(),
-        (0..600u32)
-            .map(|i| [i, (i + 1) % 600, (i + 2) % 600])
-            .collect::<Vec<_>>()
-            .concat(),
-    )
-    .unwrap();
+    let line = collinear_zero_area(600);
     // Centroids at powers of 1.1 along x: every middle split peels off the farthest few.
     let far = Mesh::new(
         (0..300)

@@ -100,6 +100,15 @@ macro_rules! shader {
     };
 }
 
+/// The entry points of every task-pool module (shaders/taskpool.wgsl's core).
+const POOL_ENTRIES: &[&str] = &[
+    "pool_plan",
+    "pool_size",
+    "pool_work",
+    "pool_advance",
+    "pool_finish",
+];
+
 /// All kernels of the crate.
 pub(crate) struct Kernels {
     pub scan: Module,
@@ -282,13 +291,7 @@ impl Kernels {
                 &[
                     Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
                 ],
-                &[
-                    "pool_plan",
-                    "pool_size",
-                    "pool_work",
-                    "pool_advance",
-                    "pool_finish",
-                ],
+                POOL_ENTRIES,
             ),
             pool_build: Module::new(
                 device,
@@ -300,13 +303,7 @@ impl Kernels {
                 &[
                     Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
                 ],
-                &[
-                    "pool_plan",
-                    "pool_size",
-                    "pool_work",
-                    "pool_advance",
-                    "pool_finish",
-                ],
+                POOL_ENTRIES,
             ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(
@@ -317,13 +314,7 @@ impl Kernels {
                     include_str!("../../shaders/taskpool_sum.wgsl")
                 ),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
-                &[
-                    "pool_plan",
-                    "pool_size",
-                    "pool_work",
-                    "pool_advance",
-                    "pool_finish",
-                ],
+                POOL_ENTRIES,
             ),
         }
     }
