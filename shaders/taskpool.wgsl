@@ -144,6 +144,16 @@ fn pool_advance(@builtin(global_invocation_id) gid: vec3<u32>) {
 
 fn groups(n: u32, size: u32) -> u32 { return (n + size - 1u) / size; }
 
+// f32 → u32 keeping the order (task kinds accumulate coordinates with atomic min / max), and back.
+fn ordered(f: f32) -> u32 {
+    let b = bitcast<u32>(f);
+    return select(~b, b | 0x80000000u, (b & 0x80000000u) == 0u);
+}
+
+fn unordered(u: u32) -> f32 {
+    return bitcast<f32>(select(~u, u & 0x7fffffffu, (u & 0x80000000u) != 0u));
+}
+
 @compute @workgroup_size(1)
 fn pool_finish() {
     var n = atomicLoad(&state[1]);

@@ -73,16 +73,6 @@ fn ray_sides(t: u32, r: u32, axis: u32, mid: f32) -> u32 {
 
 fn child_slot(child: u32, f: u32) -> u32 { return atomicAdd(&tasks[child * STRIDE + f], 1u); }
 
-// f32 → u32 keeping the order (for atomic min / max of coordinates), and back.
-fn ordered(f: f32) -> u32 {
-    let b = bitcast<u32>(f);
-    return select(~b, b | 0x80000000u, (b & 0x80000000u) == 0u);
-}
-
-fn unordered(u: u32) -> f32 {
-    return bitcast<f32>(select(~u, u & 0x7fffffffu, (u & 0x80000000u) != 0u));
-}
-
 fn grow_bounds(c: u32, lo: vec3<f32>, hi: vec3<f32>) {
     for (var k = 0u; k < 3u; k++) {
         atomicMin(&tasks[c * STRIDE + 24u + k], ordered(lo[k]));

@@ -23,6 +23,8 @@ mod gpu;
 mod gpu_dacrt;
 #[path = "../examples/bench/gpu_ploc.rs"]
 mod gpu_ploc;
+#[path = "../examples/bench/gpu_pool.rs"]
+mod gpu_pool;
 #[path = "../examples/bench/gpu_sah.rs"]
 mod gpu_sah;
 #[path = "../examples/bench/grid.rs"]

@@ -24,16 +24,7 @@ fn scenes() -> Vec<(&'static str, Mesh)> {
     pos.extend_from_slice(stadium.positions());
     idx.extend(stadium.indices().iter().map(|i| i + off));
     let same = Mesh::new(vec![Vec3::ZERO, Vec3::X, Vec3::Y], [0u32, 1, 2].repeat(300)).unwrap();
-    let line = Mesh::new(
-        (0..600)
-            .map(|i| Vec3::new(i as f32 * 0.5, 0.0, 0.0))
-            .collect::<Vec<Vec3>>(),
-        (0..600u32)
-            .map(|i| [i, (i + 1) % 600, (i + 2) % 600])
-            .collect::<Vec<_>>()
-            .concat(),
-    )
-    .unwrap();
+    let line = collinear_zero_area(600);
     vec![
         ("icosphere", icosphere(3)),
         ("cube sphere", cube_sphere(6)),

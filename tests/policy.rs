@@ -288,6 +288,11 @@ fn always_gpu_ploc(_: &PolicyInput<'_>) -> Decision {
     Decision::Rebuild(Build::GPU_PLOC)
 }
 
+#[cfg(feature = "gpu")]
+fn always_gpu_median(_: &PolicyInput<'_>) -> Decision {
+    Decision::Rebuild(Build::GPU_MEDIAN)
+}
+
 fn always_gpu_sah(_: &PolicyInput<'_>) -> Decision {
     Decision::Rebuild(Build {
         builder: Builder::SAH,
@@ -358,13 +363,14 @@ fn with_a_gpu_the_adaptive_policy_tries_it_and_answers_stay_exact() {
     let (f, build, reason) = built[1];
     assert_eq!((build, reason), (Build::GPU_LBVH, RebuildReason::Policy));
     assert_ne!(stats[f].prediction.map(|p| p.verdict), Some(Verdict::Keep));
-    // A policy may ask for the GPU every time: LBVH, 16-bin SAH, the hybrid and PLOC run there, other GPU
+    // A policy may ask for the GPU every time: LBVH, 16-bin SAH, the hybrid, PLOC and the median run there, other GPU
     // builds (here 8-bin SAH) on the CPU.
     for (policy, expect) in [
         (always_gpu_lbvh as Policy, Build::GPU_LBVH),
         (always_gpu_sah, Build::GPU_SAH),
         (always_gpu_hybrid, Build::gpu_hybrid(6)),
         (always_gpu_ploc, Build::GPU_PLOC),
+        (always_gpu_median, Build::GPU_MEDIAN),
         (always_gpu_sah8, Build::cpu(Builder::Sah { bins: 8 })),
     ] {
         let stats = run(RebuildPolicy::Custom(policy), TraceMode::GpuRequired, 6);

@@ -1,4 +1,5 @@
-//! Suite `gpu`: LBVH build (and the work-queue SAH and hybrid builds, [`crate::gpu_sah`]), refit, DACRT
+//! Suite `gpu`: LBVH build (and the work-queue SAH and hybrid builds, [`crate::gpu_sah`], PLOC and the
+//! task-pool build, [`crate::gpu_pool`]), refit, DACRT
 //! against build + trace ([`crate::gpu_dacrt`]), and
 //! closest/any-hit throughput on the GPU, for 100k, 1M and 4M
 //! triangles (quick: 100k), with 1M coherent and 1M random rays (quick: 64k). Wall-clock per submitted
@@ -109,6 +110,7 @@ fn scene(rec: &mut Records, ctx: &GpuContext, name: &str, mesh: &Mesh, ray_count
     crate::gpu_sah::rows(rec, ctx, name, mesh);
 
     crate::gpu_ploc::rows(rec, ctx, name, mesh);
+    crate::gpu_pool::rows(rec, ctx, name, mesh);
 
     let [(_, camera), (_, random)] = crate::rays::camera_and_random(mesh, ray_count);
     let mut gr = GpuRays::new(ctx);

@@ -29,6 +29,7 @@ mod ecs_gpu;
 mod gpu;
 mod gpu_dacrt;
 mod gpu_ploc;
+mod gpu_pool;
 mod gpu_sah;
 mod grid;
 mod peers;

@@ -11,8 +11,9 @@ pub enum Device {
     #[default]
     Cpu,
     /// On the GPU (feature `gpu`), which builds LBVH over 30-bit codes ([`Build::GPU_LBVH`]), 16-bin SAH
-    /// ([`Build::GPU_SAH`]), their hybrid ([`Build::gpu_hybrid`]) and PLOC (`Builder::Ploc` of any radius,
-    /// [`Build::GPU_PLOC`]); the tree is read back so that CPU queries can use it.
+    /// ([`Build::GPU_SAH`]), their hybrid ([`Build::gpu_hybrid`]), PLOC (`Builder::Ploc` of any radius,
+    /// [`Build::GPU_PLOC`]) and the spatial median on the task pool ([`Build::GPU_MEDIAN`]); the tree is
+    /// read back so that CPU queries can use it.
     Gpu,
 }
 
@@ -58,6 +59,14 @@ impl Build {
     /// PLOC with the paper's radius 16 on the GPU: the same tree as the CPU's PLOC, node for node.
     pub const GPU_PLOC: Build = Build {
         builder: Builder::PLOC,
+        device: Device::Gpu,
+    };
+
+    /// The spatial median on the GPU task pool (`gpu::taskpool::build_bvh`): the CPU median builder's tree
+    /// with one triangle per leaf (node for node where no range of more than 32 triangles needs its
+    /// fallback cut), and a few pool rounds per level of the tree.
+    pub const GPU_MEDIAN: Build = Build {
+        builder: Builder::Median,
         device: Device::Gpu,
     };
 

@@ -552,8 +552,9 @@ impl Rebuilder<'_> {
         Ok((bvh, Build::cpu(build.builder), t.elapsed().as_secs_f64()))
     }
 
-    /// LBVH, binned SAH or the hybrid on the GPU ([`Build::GPU_LBVH`], [`Build::GPU_SAH`],
-    /// [`Build::gpu_hybrid`]), read back for CPU queries; `None` (said once in the log) where it cannot
+    /// LBVH, binned SAH, the hybrid, PLOC or the spatial median (the task pool's build) on the GPU
+    /// ([`Build::GPU_LBVH`], [`Build::GPU_SAH`], [`Build::gpu_hybrid`], [`Build::GPU_PLOC`],
+    /// [`Build::GPU_MEDIAN`]), read back for CPU queries; `None` (said once in the log) where it cannot
     /// run. A clustered mesh's hybrid gets fewer LBVH levels ([`crate::gpu::hybrid_levels`]). The mesh's
     /// GPU buffers (and a SAH builder's scratch) are made at its first GPU build of that kind.
     #[cfg(feature = "gpu")]
@@ -569,7 +570,12 @@ impl Rebuilder<'_> {
             return None;
         };
         let sah = crate::gpu::GpuSahOptions::for_builder(build.builder, clustered);
-        if sah.is_none() && !matches!(build.builder, crate::bvh::Builder::Ploc { .. }) {
+        if sah.is_none()
+            && !matches!(
+                build.builder,
+                crate::bvh::Builder::Ploc { .. } | crate::bvh::Builder::Median
+            )
+        {
             self.fallbacks.not_lbvh(build);
             return None;
         }
@@ -579,6 +585,12 @@ impl Rebuilder<'_> {
         }
         let ctx = gpu.context();
         let mut run = || -> crate::Result<(MeshBvh, Build, f64)> {
+            if build.builder == crate::bvh::Builder::Median {
+                // The task pool's build makes its buffers per build: nothing to keep.
+                let t = Instant::now();
+                let bvh = crate::gpu::taskpool::build_bvh(ctx, current)?.bvh;
+                return Ok((bvh, build, t.elapsed().as_secs_f64()));
+            }
             if let crate::bvh::Builder::Ploc { radius } = build.builder {
                 let tree = match &mut kept.gpu_ploc {
                     Some(tree) if tree.radius() == radius => tree,
@@ -626,7 +638,7 @@ impl Rebuilder<'_> {
 }
 
 /// A new mesh's adaptive policy: `builders` on the CPU, plus GPU LBVH when a GPU context exists (second,
-/// after the cheapest CPU build) and the GPU twins of the SAH, hybrid and PLOC builders among them (last),
+/// after the cheapest CPU build) and the GPU twins of the SAH, hybrid, PLOC and median builders among them (last),
 /// learning into the world's shared `costs` under the mesh's `asset`.
 fn adaptive_policy(
     builders: &[crate::bvh::Builder],
@@ -643,11 +655,13 @@ fn adaptive_policy(
             builders
                 .iter()
                 .filter(|&&b| {
-                    matches!(b, crate::bvh::Builder::Ploc { .. })
-                        || matches!(
-                            crate::gpu::GpuSahOptions::for_builder(b, false),
-                            Some(Some(_))
-                        )
+                    matches!(
+                        b,
+                        crate::bvh::Builder::Ploc { .. } | crate::bvh::Builder::Median
+                    ) || matches!(
+                        crate::gpu::GpuSahOptions::for_builder(b, false),
+                        Some(Some(_))
+                    )
                 })
                 .map(|&builder| Build {
                     builder,

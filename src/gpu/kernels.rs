@@ -100,6 +100,15 @@ macro_rules! shader {
     };
 }
 
+/// The entry points of every task-pool module (shaders/taskpool.wgsl's core).
+const POOL_ENTRIES: &[&str] = &[
+    "pool_plan",
+    "pool_size",
+    "pool_work",
+    "pool_advance",
+    "pool_finish",
+];
+
 /// All kernels of the crate.
 pub(crate) struct Kernels {
     pub scan: Module,
@@ -124,6 +133,8 @@ pub(crate) struct Kernels {
     pub taskpool: Module,
     /// DACRT on the task pool.
     pub dacrt: Module,
+    /// The BVH build on the task pool.
+    pub pool_build: Module,
 }
 
 impl Kernels {
@@ -295,13 +306,19 @@ impl Kernels {
                 &[
                     Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
                 ],
+                POOL_ENTRIES,
+            ),
+            pool_build: Module::new(
+                device,
+                "pool_build",
+                concat!(
+                    shader!("taskpool.wgsl"),
+                    include_str!("../../shaders/taskpool_build.wgsl")
+                ),
                 &[
-                    "pool_plan",
-                    "pool_size",
-                    "pool_work",
-                    "pool_advance",
-                    "pool_finish",
+                    Read, Write, Write, Write, Write, Uniform, Write, Read, Write, Write, Write,
                 ],
+                POOL_ENTRIES,
             ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(
@@ -312,13 +329,7 @@ impl Kernels {
                     include_str!("../../shaders/taskpool_sum.wgsl")
                 ),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
-                &[
-                    "pool_plan",
-                    "pool_size",
-                    "pool_work",
-                    "pool_advance",
-                    "pool_finish",
-                ],
+                POOL_ENTRIES,
             ),
         }
     }

@@ -275,6 +275,20 @@ pub fn even_soup(n: usize, s: f32, decades: f32) -> Mesh {
     Mesh::new(pos, (0..3 * n as u32).collect::<Vec<_>>()).unwrap()
 }
 
+/// `n` zero-area triangles on one line (x from 0 to n / 2), each over three consecutive points.
+pub fn collinear_zero_area(n: u32) -> Mesh {
+    Mesh::new(
+        (0..n)
+            .map(|i| Vec3::new(i as f32 * 0.5, 0.0, 0.0))
+            .collect::<Vec<Vec3>>(),
+        (0..n)
+            .map(|i| [i, (i + 1) % n, (i + 2) % n])
+            .collect::<Vec<_>>()
+            .concat(),
+    )
+    .unwrap()
+}
+
 /// A 1e-6 icosphere of subdivision `subdiv` (the teapot) at (0.25, 0.25, 0.25) inside a 1e4 box (the
 /// stadium): the clustered scene of the thesis. The teapot's triangles come first.
 pub fn teapot_in_stadium(subdiv: u32) -> Mesh {

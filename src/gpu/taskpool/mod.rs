@@ -28,7 +28,7 @@
 //! # Task kinds
 //!
 //! A kind appends its WGSL to the pool's core and defines its record, chunks and phase changes:
-//! [`dacrt`] (divide-and-conquer ray tracing, public) and the toy `sum_tree` (a test hook, feature
+//! [`build_bvh`] (a BVH build, public), [`dacrt`] (divide-and-conquer ray tracing, public) and the toy `sum_tree` (a test hook, feature
 //! `testing`). When to use the pool: for divide-and-conquer work whose parallelism changes shape as it
 //! runs (few large tasks, then many small ones) without a host round trip per level. Cost per round: 6
 //! dispatches plus the scan's (2 per factor of 256 live tasks), no host work; one submission and a
@@ -43,9 +43,13 @@
 //! advances every live task, a task kind gives each task finitely many phases, and parked tasks run once
 //! more, so a run ends.
 
+mod build;
 mod dacrt;
 #[cfg(feature = "testing")]
 mod sum_tree;
+#[cfg(feature = "testing")]
+pub use build::build_bvh_from_capacity;
+pub use build::{POOL_SMALL, PoolBuild, build_bvh};
 pub use dacrt::{DacrtHit, DacrtOptions, dacrt};
 #[cfg(feature = "testing")]
 pub use sum_tree::{SumTask, sum_tree};
@@ -234,6 +238,17 @@ impl TaskPool {
             pass.set_pipeline(k.pipeline("pool_finish"));
             pass.dispatch_workgroups(1, 1, 1);
         }
+    }
+
+    /// GPU memory the pool holds: task records, lists, offsets, state, arguments and the scan's scratch.
+    pub fn memory_bytes(&self) -> u64 {
+        [&self.tasks, &self.live, &self.state, &self.args]
+            .into_iter()
+            .chain(&self._scratch)
+            .map(|b| b.buffer().size())
+            .sum::<u64>()
+            + self.scan.memory_bytes()
+            + self._params.memory_bytes()
     }
 
     /// Reads back the words of the first `count` task records (blocking).
