@@ -10,6 +10,7 @@ use bevy_ecs::prelude::*;
 use common::ecs::{agree, app_with, brute};
 use common::*;
 use glam::{Affine3A, Vec3};
+use kinetrace::adaptive::Choice;
 use kinetrace::ecs::*;
 use kinetrace::scenes::bumpy_torus;
 use kinetrace::{Mesh, Ray};
@@ -425,6 +426,45 @@ fn scripted_costs_plan_the_grids_overlap_test() {
             used[i],
             [true, true],
             "mesh {i}: both settings answered some frame"
+        );
+    }
+}
+
+/// Issue 12: an option measured clearly cheaper in its three tries, but on frames too noisy for a margin
+/// resting on three samples, was never measured again, and the option in use was kept for good — the
+/// report's explosion kept a grid its BVH had measured 19% cheaper for 300 frames. Here the costs
+/// cycle through 0.3, 1 and 1.7 times their mean (any three frames average it exactly), the second option
+/// costing 0.81 of the first: it must be in use at the end, and on every frame from 40 on but for the
+/// first's remaining tries. With equal costs and ±10% noise (issue 19's stationary scene) the option in
+/// use changes at most to a try and back, on every one of 40 seeds.
+#[test]
+fn an_option_measured_clearly_cheaper_on_noisy_frames_is_measured_until_it_wins() {
+    let mut choice = Choice::new(&[('a', 1.0, 1.0), ('b', 1.0, 1.0)]).unwrap();
+    let mut late_on_a = 0;
+    for f in 0..80 {
+        let option = choice.decide(1.0);
+        let mean = if option == 'a' { 1.0 } else { 0.81 };
+        choice.served(option, 1.0, mean * [0.3, 1.0, 1.7][f % 3]);
+        late_on_a += (f >= 40 && option == 'a') as u32;
+    }
+    assert!(
+        late_on_a <= 3,
+        "{late_on_a} of frames 40..80 on the dearer option"
+    );
+    assert_eq!(choice.decide(1.0), 'b', "the cheaper option in use");
+    for seed in 0..40u64 {
+        let counter = AtomicU64::new(seed * 1000);
+        let mut choice = Choice::new(&[('a', 1.0, 1.0), ('b', 1.0, 1.0)]).unwrap();
+        let (mut changes, mut last) = (0, 'a');
+        for _ in 0..80 {
+            let option = choice.decide(1.0);
+            choice.served(option, 1.0, 1.0 + 0.1 * noise(&counter));
+            changes += (option != last) as u32;
+            last = option;
+        }
+        assert!(
+            changes <= 2,
+            "seed {seed}: {changes} changes around equal costs"
         );
     }
 }

@@ -58,6 +58,12 @@ impl Estimate {
         (self.n as f64).min((2.0 - LEARN) / LEARN)
     }
 
+    /// Whether the mean rests on as many samples as it ever will ([`effective_samples`](Self::effective_samples)
+    /// at its bound): more frames of the same quantity no longer make it surer.
+    pub fn saturated(&self) -> bool {
+        self.n as f64 >= (2.0 - LEARN) / LEARN
+    }
+
     /// The standard deviation of one sample: the measured one, and while fewer than three samples were
     /// seen at least a prior 25% of the mean (0 before any sample).
     pub fn spread(&self) -> f64 {
