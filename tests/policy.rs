@@ -681,7 +681,7 @@ fn guard_script(ceiling: f64, rise: f64, seed: u64) -> (usize, f64) {
 /// The guard rebuilds for the bound, not for its own uncertainty (issue 19: on the report's soup 224 of
 /// 226 rebuilds were the guard's while the refitted tree never passed 1.254 × a fresh binned-SAH tree):
 /// a refitted tree whose true ratio levels off at 1.3, with the fresh cost drifting slowly and every
-/// LBVH or hybrid tree 5% off its build's mean, is rebuilt by the guard at most a few times in 300
+/// LBVH or hybrid tree up to 5% off its build's mean, is rebuilt by the guard at most 4 times in 300
 /// frames. Where the ratio keeps rising (by 0.5% a frame on top), the guard does rebuild, and no tree
 /// answers a frame above the bound.
 #[test]
@@ -689,8 +689,9 @@ fn the_guard_rebuilds_rarely_below_the_bound_and_always_before_it() {
     let _serial = measured_time();
     for seed in 0..4 {
         let (guards, worst) = guard_script(1.3, 0.0, 60 + seed);
+        eprintln!("seed {seed}: {guards} guard rebuilds, true ratio at most {worst:.3}");
         assert!(worst <= 1.3 + 1e-12, "seed {seed}: {worst}");
-        assert!(guards <= 5, "seed {seed}: {guards} guard rebuilds");
+        assert!(guards <= 4, "seed {seed}: {guards} guard rebuilds");
         let (guards, worst) = guard_script(1.3, 0.005, 60 + seed);
         assert!(guards >= 1, "seed {seed}: the rise passes the bound");
         assert!(
