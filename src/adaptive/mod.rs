@@ -46,7 +46,7 @@
 //!   more), so short scenes explore little and long ones what can repay itself. One exception: the first
 //!   rebuild due on an asset with no binned-SAH tree measured builds one, because the bound is stated
 //!   against it. A build tried is measured against the last binned-SAH tree of the mesh carried forward
-//!   at the mean drift (an exact anchor); without one, against the reference carried forward by the
+//!   by the guard's factor for it (an exact anchor, carried conservatively); without one, against the reference carried forward by the
 //!   guard's (conservative) factor, so an error in it errs towards an earlier guard. Before an interval
 //!   between rebuilds was measured, a build tried is priced over the frames the current one has lasted,
 //!   and a rebuild that tried a build teaches no interval. The first build of an asset

@@ -315,6 +315,7 @@ impl AdaptivePolicy {
                     sah: sah_cost,
                     area: self.area_built,
                     frames: 0,
+                    carried: 1.0,
                 });
             }
         }
@@ -361,15 +362,16 @@ impl AdaptivePolicy {
                 }
             }
             _ => {
-                // Unmeasured: compare with the last binned-SAH tree carried forward at the mean drift
-                // (an exact anchor, off only by the walk since); without one, with where the guard
+                // Unmeasured: compare with the last binned-SAH tree carried forward as the guard did
+                // (an exact anchor, off only by the walk, trend and spread since, which err towards an
+                // earlier guard: an explosion's fresh cost falls fast); without one, with where the guard
                 // assumed the reference had fallen to (an error then makes this build look worse and the
                 // guard earlier, never later), or start the unit here. No drift is learned from an
                 // assumption.
                 let exact = self.exact.filter(|_| old > 0.0).and_then(|e| {
                     let t = self.costs.lock();
                     let unit = t.quality(&self.asset, e.build)?.mean()?;
-                    Some(e.sah * self.view(&t).mean_drift(e.frames) / unit)
+                    Some(e.sah * e.carried / unit)
                 });
                 let now = match exact {
                     Some(unit) => unit,
@@ -439,6 +441,7 @@ impl AdaptivePolicy {
         let mut guard_factor = 1.0;
         // The fresh cost were the last rebuild's tree exactly of its build's mean quality.
         let mut unerring = 0.0;
+        let mut exact_carried = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
                 let carried = v
@@ -459,6 +462,7 @@ impl AdaptivePolicy {
                     let carried = v.guard_drift(e.frames).min(spread);
                     p.fresh_sah = p.fresh_sah.max(e.sah * carried);
                     unerring = unerring.max(e.sah * carried);
+                    exact_carried = carried;
                 }
                 ratio = sah_cost / p.fresh_sah;
             }
@@ -496,6 +500,9 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        if let Some(e) = &mut self.exact {
+            e.carried = exact_carried;
+        }
         self.guard_factor = guard_factor;
         self.excess = excess;
         self.last_ratio = ratio;
@@ -598,6 +605,8 @@ struct Exact {
     area: Option<f64>,
     /// Frames since it was built.
     frames: u32,
+    /// The factor the guard last carried its cost forward by (trend, walk and spread).
+    carried: f64,
 }
 
 /// The error of the anchor the guard predicts the fresh binned-SAH cost from. After a rebuild with
