@@ -4,6 +4,8 @@
 //! suite.
 #![cfg(all(feature = "parallel", feature = "gpu"))]
 
+#[path = "../examples/report/camera.rs"]
+mod camera;
 #[path = "../examples/bench/cli.rs"]
 mod cli;
 #[path = "../examples/bench/collide.rs"]

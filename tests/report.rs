@@ -2,6 +2,8 @@
 //! every scene and strategy is reported, no sampled ray differs from brute force, and every figure is a
 //! PNG of its size with text, a legend entry per strategy and data drawn.
 
+#[path = "../examples/report/camera.rs"]
+mod camera;
 mod common;
 #[path = "../examples/report/grid_rows.rs"]
 mod grid_rows;

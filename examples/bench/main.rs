@@ -18,6 +18,8 @@
 //! array. Speed is only ever compared within one run: the tables print kinetrace/peer ratios, which
 //! survive a noisy shared machine far better than times.
 
+#[path = "../report/camera.rs"]
+mod camera;
 mod cli;
 mod collide;
 mod cpu;

@@ -5,6 +5,7 @@
 //! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
 
+use crate::camera::Camera;
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
 use crate::report_scenes::Scene;
@@ -204,24 +205,22 @@ fn secondary_rays(
         c + Vec3::new(-0.1, 0.9, 0.9) * size,
     ];
     let (mut one, mut four, mut reflect) = (Vec::new(), Vec::new(), Vec::new());
-    for pixel in 0..side * side {
-        let (x, y) = (
-            (pixel % side) as f32 / side as f32 - 0.5,
-            (pixel / side) as f32 / side as f32 - 0.5,
-        );
-        let primary = Ray::new(eye, fwd + right * x + up * y);
-        let Some(h) = scene.bvh().closest_hit(&primary) else {
-            continue;
-        };
+    let camera = Camera {
+        eye,
+        fwd,
+        right,
+        up,
+        side,
+    };
+    camera.hits(scene, |tag, primary, h| {
         let p = primary.at(h.t);
-        let tag = pixel as u32;
         let shadow = |l: usize| SecondaryRay {
             ray: Ray::with_range(lights[l], p - lights[l], 0.0, 1.0 - 1e-4),
             kind: RayKind::Shadow { light: l as u32 },
             tag,
         };
         one.push(shadow(0));
-        four.push(shadow(pixel % 4));
+        four.push(shadow(tag as usize % 4));
         let d = primary.dir();
         let r = d - 2.0 * d.dot(h.normal) * h.normal;
         reflect.push(SecondaryRay {
@@ -229,7 +228,7 @@ fn secondary_rays(
             kind: RayKind::Reflection,
             tag,
         });
-    }
+    });
     [
         ("shadow 1 light", one),
         ("shadow 4 lights", four),

@@ -14,6 +14,7 @@
 //!  secondary-ray section runs unless --strategies leaves out `secondary`)
 //! ```
 
+mod camera;
 mod grid_rows;
 mod harness;
 mod option_rows;

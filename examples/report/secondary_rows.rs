@@ -10,6 +10,7 @@
 //! ray (coarse + exact), and mismatches: answers unlike the BVH's (every ray; hits by distance and
 //! triangle) plus, for the BVH row, sampled rays whose answer differs from brute force.
 
+use super::camera::Camera;
 use super::harness::{Settings, frame_light, mismatches};
 use super::scenes::Scene;
 use glam::Vec3;
@@ -186,17 +187,15 @@ fn secondary_rays(rs: &RayScene, side: usize) -> [(&'static str, Vec<SecondaryRa
     let right = fwd.cross(Vec3::Y).normalize_or(Vec3::X);
     let up = right.cross(fwd);
     let (mut shadow, mut reflect) = (Vec::new(), Vec::new());
-    for pixel in 0..side * side {
-        let (x, y) = (
-            (pixel % side) as f32 / side as f32 - 0.5,
-            (pixel / side) as f32 / side as f32 - 0.5,
-        );
-        let primary = Ray::new(eye, fwd + right * x + up * y);
-        let Some(h) = rs.bvh().closest_hit(&primary) else {
-            continue;
-        };
+    let camera = Camera {
+        eye,
+        fwd,
+        right,
+        up,
+        side,
+    };
+    camera.hits(rs, |tag, primary, h| {
         let p = primary.at(h.t);
-        let tag = pixel as u32;
         shadow.push(SecondaryRay {
             ray: Ray::with_range(light, p - light, 0.0, 1.0 - 1e-4),
             kind: RayKind::Shadow { light: 0 },
@@ -214,7 +213,7 @@ fn secondary_rays(rs: &RayScene, side: usize) -> [(&'static str, Vec<SecondaryRa
             kind: RayKind::Reflection,
             tag,
         });
-    }
+    });
     [("shadow", shadow), ("reflection", reflect)]
 }
 
