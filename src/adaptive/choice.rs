@@ -249,7 +249,7 @@ impl<T: Copy + PartialEq> Choice<T> {
         self.current
     }
 
-    /// A measured option cheaper than `chosen` by more than [`MIN_GAIN`] whose mean still rests on
+    /// Once `chosen` rests on [`TRIES`] samples, a measured option cheaper by more than [`MIN_GAIN`] whose mean still rests on
     /// too few samples to beat it by the margin: used again, frame after frame, until its mean either
     /// passes the margin or rests on as many samples as an estimate keeps (then it is chosen), or rises
     /// within [`MIN_GAIN`] of `chosen`'s (then it stops).
@@ -259,8 +259,9 @@ impl<T: Copy + PartialEq> Choice<T> {
     /// nothing on average; costs that only jitter around equal ones never qualify (their means stay
     /// within 15%, see the module docs), so hysteresis is unchanged.
     fn challenger(&self, chosen: T, units: f64) -> Option<T> {
+        // The option in use is measured first: until its own spread is, it is what is unsure.
         let kept = match self.predict(chosen, units)? {
-            (c, true) => c.cost_s,
+            (c, true) if self.arm(chosen)?.per_unit.samples() >= TRIES => c.cost_s,
             _ => return None,
         };
         (self.arms.iter())
