@@ -4,42 +4,16 @@ use glam::Vec3;
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Aabb, Mesh, Ray};
 
-/// A pinhole camera outside a mesh, looking at the centre of its box from direction `from`, at `distance`
-/// box diagonals: the box, its centre and diagonal, and the camera's eye and unit axes.
-pub struct Orbit {
-    pub bounds: Aabb,
-    pub centre: Vec3,
-    pub size: f32,
-    pub eye: Vec3,
-    pub fwd: Vec3,
-    pub right: Vec3,
-    pub up: Vec3,
-}
+pub use crate::camera::Orbit;
 
 impl Orbit {
+    /// The camera around `mesh`'s box.
     pub fn of(mesh: &Mesh, from: Vec3, distance: f32) -> Orbit {
         let bounds = mesh
             .triangle_bounds()
             .iter()
             .fold(Aabb::EMPTY, |a, t| a.union(t));
         Orbit::around(bounds, from, distance)
-    }
-
-    /// The same camera around a box.
-    pub fn around(bounds: Aabb, from: Vec3, distance: f32) -> Orbit {
-        let (centre, size) = (bounds.center(), bounds.extent().length());
-        let eye = centre + from.normalize() * size * distance;
-        let fwd = (centre - eye).normalize();
-        let right = fwd.cross(Vec3::Y).normalize();
-        Orbit {
-            bounds,
-            centre,
-            size,
-            eye,
-            fwd,
-            right,
-            up: right.cross(fwd),
-        }
     }
 }
 

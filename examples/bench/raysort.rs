@@ -5,7 +5,6 @@
 //! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
 
-use crate::camera::Camera;
 use crate::cpu::one_thread;
 use crate::record::{Records, best_of};
 use crate::report_scenes::Scene;
@@ -189,15 +188,8 @@ fn secondary_rays(
     scene: &RayScene,
     side: usize,
 ) -> [(&'static str, Vec<SecondaryRay>); 3] {
-    let crate::rays::Orbit {
-        centre: c,
-        size,
-        eye,
-        fwd,
-        right,
-        up,
-        ..
-    } = crate::rays::Orbit::of(mesh, Vec3::new(0.3, 0.5, 0.8), 0.9);
+    let orbit = crate::rays::Orbit::of(mesh, Vec3::new(0.3, 0.5, 0.8), 0.9);
+    let (c, size) = (orbit.bounds.center(), orbit.size);
     let lights = [
         c + Vec3::new(0.2, 1.0, 0.3) * size,
         c + Vec3::new(-0.8, 0.6, 0.1) * size,
@@ -205,14 +197,7 @@ fn secondary_rays(
         c + Vec3::new(-0.1, 0.9, 0.9) * size,
     ];
     let (mut one, mut four, mut reflect) = (Vec::new(), Vec::new(), Vec::new());
-    let camera = Camera {
-        eye,
-        fwd,
-        right,
-        up,
-        side,
-    };
-    camera.hits(scene, |tag, primary, h| {
+    orbit.hits(scene, side, |tag, primary, h| {
         let p = primary.at(h.t);
         let shadow = |l: usize| SecondaryRay {
             ray: Ray::with_range(lights[l], p - lights[l], 0.0, 1.0 - 1e-4),

@@ -10,7 +10,7 @@
 //! ray (coarse + exact), and mismatches: answers unlike the BVH's (every ray; hits by distance and
 //! triangle) plus, for the BVH row, sampled rays whose answer differs from brute force.
 
-use super::camera::Camera;
+use super::camera::Orbit;
 use super::harness::{Settings, frame_light, mismatches};
 use super::scenes::Scene;
 use glam::Vec3;
@@ -179,22 +179,10 @@ fn against_brute_force(rs: &RayScene, mesh: &Mesh, rays: &[SecondaryRay], k: usi
 /// hair (1e-4 of the mesh's size) off the surface on their side, with their range from 0, so that brute
 /// force (which has no lower bound) sees the same rays.
 fn secondary_rays(rs: &RayScene, side: usize) -> [(&'static str, Vec<SecondaryRay>); 2] {
-    let bounds = rs.bvh().bvh().bounds();
-    let (c, size) = (bounds.center(), bounds.extent().length().max(1e-3));
-    let light = frame_light(&bounds);
-    let eye = c + Vec3::new(0.3, 0.5, 0.8).normalize() * size * 0.9;
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize_or(Vec3::X);
-    let up = right.cross(fwd);
+    let orbit = Orbit::around(rs.bvh().bvh().bounds(), Vec3::new(0.3, 0.5, 0.8), 0.9);
+    let (light, size) = (frame_light(&orbit.bounds), orbit.size);
     let (mut shadow, mut reflect) = (Vec::new(), Vec::new());
-    let camera = Camera {
-        eye,
-        fwd,
-        right,
-        up,
-        side,
-    };
-    camera.hits(rs, |tag, primary, h| {
+    orbit.hits(rs, side, |tag, primary, h| {
         let p = primary.at(h.t);
         shadow.push(SecondaryRay {
             ray: Ray::with_range(light, p - light, 0.0, 1.0 - 1e-4),
