@@ -8,8 +8,8 @@
 //! resident frame also runs under `RebuildPolicy::ADAPTIVE` (row `rebuilds / frame` for each resident
 //! run, and `SAH/hybrid rebuilds / frame`: those of them with the builds the planner chose over GPU
 //! LBVH). Each crowd also runs resident with every character keeping its CPU mirror (no `GpuOnly`, the
-//! default): what immediate queries cost a resident crowd (the CPU's skinning and maintenance beside the
-//! GPU's). On a device with timestamp queries the resident runs add the
+//! default): what immediate queries cost a resident crowd, the CPU's skinning and maintenance beside the
+//! GPU's (row `CPU skin + maintain / frame`). On a device with timestamp queries the resident runs add the
 //! GPU's time per phase (means of `TraceStats::gpu_phases`). Where the
 //! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
 
@@ -157,6 +157,8 @@ fn crowd(
     let (mut phases, mut timed) = ([0.0; 4], 0);
     // Pairs traversed and trees rebuilt by the resident frame.
     let (mut traversed, mut rebuilds, mut sah_rebuilds) = (0, 0, 0);
+    // The CPU's skinning and maintenance (the CPU mirror's cost in a resident run), seconds.
+    let mut mirror_s = 0.0;
     for frame in 0..frames {
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, (ray, to, light)) in requests.iter().enumerate() {
@@ -176,6 +178,8 @@ fn crowd(
             let done = world.resource::<TraceStats>().resident;
             (traversed, rebuilds) = (traversed + done.pairs_traversed, rebuilds + done.rebuilds);
             sah_rebuilds += done.sah_rebuilds;
+            let stats = world.resource::<TraceStats>();
+            mirror_s += (stats.skin_time + stats.maintain_time).as_secs_f64();
             if let Some(p) = world.resource::<TraceStats>().gpu_phases {
                 let spans = [p.maintain, p.top_level, p.queries, p.pairs];
                 for (sum, d) in phases.iter_mut().zip(spans) {
@@ -243,6 +247,17 @@ fn crowd(
             rebuilds as f64 / per,
             "",
         );
+        if mirror {
+            let ms = mirror_s / per * 1e3;
+            rec.add(
+                SUITE,
+                scene,
+                subject,
+                "CPU skin + maintain / frame",
+                ms,
+                "ms",
+            );
+        }
         if adaptive {
             let sah = sah_rebuilds as f64 / per;
             rec.add(
