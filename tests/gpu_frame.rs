@@ -38,11 +38,11 @@ type Placed = (Vec<(Entity, u32)>, Vec<[Vec3; 3]>);
 /// Answers by the frame they answer.
 type Answers = BTreeMap<u64, RayResults>;
 
-/// Frame `f`'s rays and shadow segments: aimed from in front of the crowd through it.
-fn requests(f: u64) -> (Vec<Ray>, Vec<(Vec3, Vec3)>) {
+/// Frame `f`'s `rays` rays and [`SHADOWS`] shadow segments: aimed from in front of the crowd through it.
+fn requests(f: u64, rays: usize) -> (Vec<Ray>, Vec<(Vec3, Vec3)>) {
     let mut r = rng(15 + f);
     let spread = |r: &mut _, lo, hi, scale: Vec3, shift: Vec3| rand_vec(r, lo, hi) * scale + shift;
-    let rays = (0..RAYS)
+    let rays = (0..rays)
         .map(|_| {
             let from = spread(&mut r, -1.0, 3.5, Vec3::new(1.0, 0.6, 0.0), Vec3::Z * -3.0);
             let to = spread(&mut r, -0.5, 3.2, Vec3::new(1.0, 0.7, 0.3), Vec3::ZERO);
@@ -64,8 +64,9 @@ struct Run {
     answers: Answers,
     /// Per frame the GPU traffic counted.
     counters: Vec<GpuCounters>,
-    /// Per frame what the resident frame did.
+    /// Per frame what the resident frame did, in all and per mesh.
     resident: Vec<ResidentStats>,
+    meshes: Vec<Vec<MeshStats>>,
     /// Per frame the world triangles (CPU mode only), for judging ties.
     triangles: BTreeMap<u64, Placed>,
     /// The characters in spawn order (entity ids differ between worlds: resources are entities too).
@@ -107,6 +108,8 @@ struct Crowd {
     pair_capacity: Option<u32>,
     /// Characters with two blend shapes at nonzero weights.
     morphs: bool,
+    /// Batched rays per frame.
+    rays: usize,
 }
 
 impl Crowd {
@@ -120,6 +123,7 @@ impl Crowd {
             colliders: false,
             pair_capacity: None,
             morphs: false,
+            rays: RAYS,
         }
     }
 }
@@ -174,6 +178,7 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
         answers: Answers::new(),
         counters: Vec::new(),
         resident: Vec::new(),
+        meshes: Vec::new(),
         triangles: BTreeMap::new(),
         spawned,
         on_cpu: 0,
@@ -185,7 +190,7 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
     {
         frame += 1;
         if frame <= frames {
-            let (rays, shadows) = requests(frame);
+            let (rays, shadows) = requests(frame, crowd.rays);
             let mut queue = world.resource_mut::<RayQueue>();
             for (i, ray) in rays.into_iter().enumerate() {
                 queue.cast(i as u64, ray, QueryFilter::default());
@@ -218,7 +223,9 @@ fn run(config: TraceConfig, crowd: Crowd) -> Run {
         }
         if frame <= frames {
             out.counters.push(world.resource::<TraceStats>().gpu);
-            out.resident.push(world.resource::<TraceStats>().resident);
+            let stats = world.resource::<TraceStats>();
+            out.resident.push(stats.resident);
+            out.meshes.push(stats.resident_meshes.clone());
             if cpu {
                 out.triangles
                     .insert(frame, world_triangles(&mut world, &QueryFilter::default()));
@@ -272,7 +279,7 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
         assert_eq!(c.hits.len(), RAYS, "{what} frame {f}");
         assert_eq!(g.hits.len(), RAYS, "{what} frame {f}");
         let (keys, tris) = &cpu.triangles[&f];
-        let (rays, _) = requests(f);
+        let (rays, _) = requests(f, RAYS);
         for ((tag, ch), (gtag, gh)) in c.hits.iter().zip(&g.hits) {
             assert_eq!(tag, gtag);
             let at = format!("{what} frame {f} ray {tag}");
@@ -440,6 +447,7 @@ const COLLIDING: Crowd = Crowd {
     colliders: true,
     pair_capacity: None,
     morphs: false,
+    rays: RAYS,
 };
 
 impl Crowd {
@@ -493,9 +501,12 @@ fn overflowing_pair_buffers_grow_and_contacts_equal_the_cpu_mode() {
 }
 
 /// The adaptive policy on the resident frame: every changed mesh's planner is fed the SAH cost reduced on
-/// the GPU (one frame late) and counted query work, and decides refit or rebuild; the first frame builds
-/// every tree, later frames refit and rebuild some (neither never nor always), the answers still equal
-/// the CPU mode's, and after the first frame uploads are exactly the joints, instances and requests.
+/// the GPU (one frame late) and counted query work, and decides refit or rebuild and with which GPU
+/// builder; the first frame builds every tree with binned SAH (the planner's first build of an asset
+/// nobody measured), later frames refit and rebuild some (neither never nor always), each rebuild with
+/// the build the planner named in that frame, the answers still equal the CPU mode's, no frame waits, and
+/// after the first frame uploads are exactly the joints, instances and requests — but in a frame where a
+/// mesh first builds with a SAH or hybrid builder, which uploads that builder's parameters once.
 #[test]
 fn the_adaptive_policy_decides_on_the_resident_trees() {
     if gpu_or_skip().is_none() {
@@ -510,6 +521,13 @@ fn the_adaptive_policy_decides_on_the_resident_trees() {
     assert_same_answers(&cpu, &gpu, "adaptive policy");
     eprintln!("{:?}", gpu.resident);
     assert_eq!(gpu.resident[0].rebuilds, CHARACTERS + 1);
+    for m in &gpu.meshes[0] {
+        let first = MeshAction::Rebuild {
+            build: Build::GPU_SAH,
+            reason: RebuildReason::New,
+        };
+        assert_eq!(m.action, first);
+    }
     let later = &gpu.resident[1..];
     let rebuilds: usize = later.iter().map(|s| s.rebuilds).sum();
     let refits: usize = later.iter().map(|s| s.refits).sum();
@@ -518,11 +536,41 @@ fn the_adaptive_policy_decides_on_the_resident_trees() {
         "{rebuilds} rebuilds, {refits} refits"
     );
     assert_eq!(rebuilds + refits, CHARACTERS * later.len());
+    let first_uses = builds_first_used(&gpu);
     let expected = uploads_after_the_first_frame(0);
     for (f, c) in gpu.counters.iter().enumerate().skip(1) {
-        assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
+        if !first_uses.contains(&f) {
+            assert_eq!(c.uploaded_bytes, expected as u64, "frame {}", f + 1);
+        }
         assert_eq!(c.blocking_waits, 0, "frame {}", f + 1);
+        let stats = &gpu.meshes[f];
+        assert_eq!(stats.len(), CHARACTERS, "frame {}", f + 1);
+        for m in stats {
+            if let MeshAction::Rebuild { build, reason } = m.action {
+                assert_eq!(reason, RebuildReason::Policy);
+                let why = m.prediction.expect("the planner's grounds");
+                assert_ne!(why.verdict, Verdict::Keep, "frame {}", f + 1);
+                assert_eq!(why.build, build, "frame {}", f + 1);
+            }
+        }
     }
+}
+
+/// The frames (0-based) in which some mesh first rebuilt with a SAH or hybrid build.
+fn builds_first_used(run: &Run) -> Vec<usize> {
+    let mut seen = std::collections::HashSet::new();
+    let mut frames = Vec::new();
+    for (f, stats) in run.meshes.iter().enumerate() {
+        for m in stats {
+            if let MeshAction::Rebuild { build, .. } = m.action
+                && build != Build::GPU_LBVH
+                && seen.insert((m.entity, build))
+            {
+                frames.push(f);
+            }
+        }
+    }
+    frames
 }
 
 /// `frames_since_rebuild` of every call of [`every_third_frame`], in call order.
@@ -591,7 +639,7 @@ fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
         ));
     eprintln!("timestamps: {}", ctx.has_timestamps());
     for f in 1..=4 {
-        let (rays, _) = requests(f);
+        let (rays, _) = requests(f, RAYS);
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, ray) in rays.into_iter().enumerate() {
             queue.cast(i as u64, ray, QueryFilter::default());
@@ -607,14 +655,17 @@ fn gpu_phase_times_come_with_the_answers_where_the_device_has_them() {
 }
 
 /// A resident mesh's SAH cost, reduced on the GPU and read back without blocking, equals the CPU's
-/// `Bvh::sah_cost` and root area of the same tree read back (after the build and after refits); its
+/// `Bvh::sah_cost` and root area of the same tree read back (after builds and after refits); every
+/// builder the frame offers (LBVH, binned SAH, the hybrid, then LBVH again over the SAH builder's
+/// scratch) rebuilds the resident tree in place into a valid tree over the frame's vertices (every
+/// triangle once, every box holding its children and its triangles); its
 /// vertices, morphed by two blend shapes and skinned on the GPU, equal the CPU's morphing and skinning;
 /// and its CPU-side bound from the joint matrices and blend-shape weights holds every vertex: random
 /// rigid joint motions and weights in [-1, 1] on a humanoid, a fresh pose each frame.
 #[test]
 fn resident_costs_and_bounds_match_the_gpu_tree() {
     use glam::{Mat4, Quat};
-    use kinetrace::gpu::{MeshUpdate, ResidentMesh};
+    use kinetrace::gpu::{FrameBuilder, GpuSahOptions, Maintained, MeshUpdate, ResidentMesh};
     use rand::Rng;
     let Some(ctx) = gpu_or_skip() else {
         return;
@@ -623,13 +674,20 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
     let morphs = asset.morphs.as_deref().unwrap();
     let joints = asset.skeleton.joints.len();
     let skin = Some((&*asset.weights, joints, Some(morphs)));
-    let mut mesh = ResidentMesh::new(&ctx, &asset.mesh, skin, None).unwrap();
+    let mut mesh = ResidentMesh::new(&ctx, &asset.mesh, skin).unwrap();
+    // Rebuilt in frames 0, 2, 4 and 6, refitted in between.
+    let builders = [
+        FrameBuilder::Lbvh,
+        FrameBuilder::Sah(GpuSahOptions::SAH),
+        FrameBuilder::Sah(GpuSahOptions::hybrid(6)),
+        FrameBuilder::Lbvh,
+    ];
     mesh.measure_costs(&ctx);
     let mut r = rng(1519);
     let mut readings = 0;
     // The CPU's SAH cost and root area of the tree as the last frame left it.
     let mut last: Option<(f64, f64)> = None;
-    for frame in 0..6 {
+    for frame in 0..8 {
         let matrices: Vec<Mat4> = (0..joints)
             .map(|_| {
                 let axis = rand_vec(&mut r, -1.0, 1.0).normalize_or(Vec3::Y);
@@ -644,11 +702,16 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
         };
         let mut enc = ctx.encoder();
         let mut seen = None;
-        mesh.record(&ctx, &mut enc, update, |s| {
-            seen = s.cost;
-            false
-        })
-        .unwrap();
+        let asked = (frame % 2 == 0).then(|| builders[frame / 2]);
+        let done = mesh
+            .record(&ctx, &mut enc, update, |s| {
+                assert_eq!(s.first_build, frame == 0);
+                seen = s.cost;
+                asked
+            })
+            .unwrap();
+        let expected_done = asked.map_or(Maintained::Refit, Maintained::Rebuilt);
+        assert_eq!(done, expected_done, "frame {frame}");
         ctx.submit(enc);
         ctx.wait().unwrap();
         // The GPU morphed and skinned as the CPU does (to the rounding of a few dozen operations on
@@ -670,7 +733,7 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
         // with the tree read back right after its own frame.
         if let Some(c) = seen {
             let (sah, area) = last.take().expect("a tree was recorded before");
-            assert_eq!(c.rebuilt, frame == 1, "frame {frame}");
+            assert_eq!(c.rebuilt, frame % 2 == 1, "frame {frame}");
             let rel = |a: f64, b: f64| (a - b).abs() / b;
             assert!(
                 rel(c.reading.sah, sah) <= 1e-5,
@@ -681,9 +744,12 @@ fn resident_costs_and_bounds_match_the_gpu_tree() {
             readings += 1;
         }
         let tree = mesh.bvh().read_tree(&ctx).unwrap();
+        let posed = kinetrace::Mesh::new(positions, asset.mesh.indices().to_vec()).unwrap();
+        tree.validate(Some(&posed.triangle_bounds()))
+            .unwrap_or_else(|e| panic!("frame {frame}: {e}"));
         last = Some((tree.sah_cost(), tree.bounds().half_area_f64()));
     }
-    assert_eq!(readings, 5);
+    assert_eq!(readings, 7);
 }
 
 /// Blend shapes on the GPU: characters with two blend shapes at nonzero weights, skinned on the GPU

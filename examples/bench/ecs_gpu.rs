@@ -6,7 +6,10 @@
 //! most 16 also run with every character a `Collider` (the resident frame traverses on the GPU the pairs
 //! whose world boxes overlap, culled on the CPU: O(n²) box tests, rows `pairs traversed / frame`). The
 //! resident frame also runs under `RebuildPolicy::ADAPTIVE` (row `rebuilds / frame` for each resident
-//! run). On a device with timestamp queries the resident runs add the
+//! run, and `SAH/hybrid rebuilds / frame`: those of them with the builds the planner chose over GPU
+//! LBVH). Each crowd also runs resident with every character keeping its CPU mirror (no `GpuOnly`, the
+//! default): what immediate queries cost a resident crowd, the CPU's skinning and maintenance beside the
+//! GPU's (row `CPU skin + maintain / frame`). On a device with timestamp queries the resident runs add the
 //! GPU's time per phase (means of `TraceStats::gpu_phases`). Where the
 //! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
 
@@ -55,7 +58,7 @@ pub fn run(rec: &mut Records) {
                 rec,
                 &scene,
                 &asset,
-                (n, false, false),
+                (n, false, false, false),
                 rays,
                 frames,
                 resident,
@@ -65,25 +68,28 @@ pub fn run(rec: &mut Records) {
                     rec,
                     &scene,
                     &asset,
-                    (n, true, false),
+                    (n, true, false, false),
                     rays,
                     frames,
                     resident,
                 );
             }
         }
-        crowd(rec, &scene, &asset, (n, false, true), rays, frames, true);
+        let adaptive = (n, false, true, false);
+        crowd(rec, &scene, &asset, adaptive, rays, frames, true);
+        let mirrored = (n, false, false, true);
+        crowd(rec, &scene, &asset, mirrored, rays, frames, true);
     }
 }
 
 /// `frames` frames of `n` characters of `asset` on a grid (colliders when `colliders`, under the adaptive
-/// policy when `adaptive`), each queried with `rays` closest-hit rays and as many shadow rays; records the
-/// per-frame means.
+/// policy when `adaptive`, resident characters keeping their CPU mirror when `mirror`), each queried with
+/// `rays` closest-hit rays and as many shadow rays; records the per-frame means.
 fn crowd(
     rec: &mut Records,
     scene: &str,
     asset: &Arc<kinetrace::anim::CharacterAsset>,
-    (n, colliders, adaptive): (usize, bool, bool),
+    (n, colliders, adaptive, mirror): (usize, bool, bool, bool),
     rays: usize,
     frames: usize,
     resident: bool,
@@ -123,7 +129,7 @@ fn crowd(
             0.1 * i as f32,
         ));
         e.insert(TraceTransform(Affine3A::from_translation(at)));
-        if resident {
+        if resident && !mirror {
             e.insert(GpuOnly);
         }
         if colliders {
@@ -150,7 +156,9 @@ fn crowd(
     // GPU seconds per phase and the frames that reported them.
     let (mut phases, mut timed) = ([0.0; 4], 0);
     // Pairs traversed and trees rebuilt by the resident frame.
-    let (mut traversed, mut rebuilds) = (0, 0);
+    let (mut traversed, mut rebuilds, mut sah_rebuilds) = (0, 0, 0);
+    // The CPU's skinning and maintenance (the CPU mirror's cost in a resident run), seconds.
+    let mut mirror_s = 0.0;
     for frame in 0..frames {
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, (ray, to, light)) in requests.iter().enumerate() {
@@ -169,6 +177,9 @@ fn crowd(
             seconds += elapsed;
             let done = world.resource::<TraceStats>().resident;
             (traversed, rebuilds) = (traversed + done.pairs_traversed, rebuilds + done.rebuilds);
+            sah_rebuilds += done.sah_rebuilds;
+            let stats = world.resource::<TraceStats>();
+            mirror_s += (stats.skin_time + stats.maintain_time).as_secs_f64();
             if let Some(p) = world.resource::<TraceStats>().gpu_phases {
                 let spans = [p.maintain, p.top_level, p.queries, p.pairs];
                 for (sum, d) in phases.iter_mut().zip(spans) {
@@ -181,6 +192,7 @@ fn crowd(
     let per = (frames - 1) as f64;
     let subject = match (resident, colliders, adaptive) {
         (true, _, true) => "GPU-resident, adaptive",
+        (true, false, _) if mirror => "GPU-resident + CPU mirror",
         (true, false, _) => "GPU-resident",
         (true, true, _) => "GPU-resident + colliders",
         (false, false, _) => "CPU mode",
@@ -235,6 +247,28 @@ fn crowd(
             rebuilds as f64 / per,
             "",
         );
+        if mirror {
+            let ms = mirror_s / per * 1e3;
+            rec.add(
+                SUITE,
+                scene,
+                subject,
+                "CPU skin + maintain / frame",
+                ms,
+                "ms",
+            );
+        }
+        if adaptive {
+            let sah = sah_rebuilds as f64 / per;
+            rec.add(
+                SUITE,
+                scene,
+                subject,
+                "SAH/hybrid rebuilds / frame",
+                sah,
+                "",
+            );
+        }
         if colliders {
             let pairs = traversed as f64 / per;
             rec.add(SUITE, scene, subject, "pairs traversed / frame", pairs, "");

@@ -18,14 +18,18 @@
 //! when the GPU is behind. [`RebuildPolicy::Lauterbach`] compares it with its threshold;
 //! [`RebuildPolicy::Custom`] is called per changed mesh per frame with a [`PolicyInput`] whose
 //! degradation and `frames_since_rebuild` are those of the resident tree as last read back, whose
-//! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; any
-//! rebuild it asks for (a partial one included) is a whole rebuild with the mesh's builder.
+//! `motion_incoherence` is the mean rise per refit since its build, with no profile and `gpu` true; a
+//! [`Decision::Rebuild`] with a build the frame runs in its submission (LBVH over 30-bit codes, 16-bin
+//! SAH or hybrid: [`FrameBuilder`](crate::gpu::FrameBuilder)) rebuilds with it, any other rebuild it asks
+//! for (a partial one included) is a whole rebuild with the configured builder.
 //! [`RebuildPolicy::Adaptive`] runs its planner per resident mesh on what comes back one frame late: the
 //! tree's SAH cost reduced on the GPU beside the metric, and query and rebuild work counted in a model
 //! instead of measured seconds (module `gpu_policy`; the CPU mirror still runs its own planner in
-//! seconds for its own trees). Rebuilds use [`TraceConfig::builder`] where the GPU has it in one
-//! submission (LBVH over 30-bit codes, 16-bin SAH or hybrid), GPU LBVH otherwise (PLOC's GPU build needs a
-//! read-back per round).
+//! seconds for its own trees); it chooses per mesh both when to rebuild and with which of GPU LBVH and
+//! the GPU twins of its builders that the frame runs (binned SAH, hybrids). Under the other policies
+//! rebuilds use [`TraceConfig::builder`] where the frame has it, GPU LBVH otherwise (PLOC's GPU build
+//! needs a read-back per round). Each mesh's refit or rebuild, with its build, is listed in
+//! [`TraceStats::resident_meshes`].
 //!
 //! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
 //! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
@@ -80,6 +84,9 @@ pub struct ResidentStats {
     pub refits: usize,
     /// Trees built or rebuilt on the GPU.
     pub rebuilds: usize,
+    /// Of those, the builds with binned SAH or a hybrid (the others are LBVH); which mesh was built with
+    /// what is in [`TraceStats::resident_meshes`].
+    pub sah_rebuilds: usize,
     /// Candidate collider pairs: colliders on interacting layers, and each self-colliding one with itself.
     pub pair_candidates: usize,
     /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (module
@@ -122,8 +129,9 @@ pub(crate) fn resident_frame_system(
     mut errors: MessageWriter<TraceErrorMessage>,
     mut contact_out: ContactOutput,
 ) {
+    use super::gpu_policy::{build_of, frame_builder};
     use super::systems::{attribute, checked_transform, fail, finish};
-    use crate::gpu::{FrameInstance, MeshUpdate, ResidentMesh};
+    use crate::gpu::{FrameBuilder, FrameInstance, Maintained, MeshUpdate, ResidentMesh};
     let t = std::time::Instant::now();
     let next_frame = config.latency == Latency::NextFrame;
     stats.resident = ResidentStats::default();
@@ -137,16 +145,14 @@ pub(crate) fn resident_frame_system(
         );
     }
     let rays_last_frame = stats.rays_last_frame;
-    // The configured builder where the GPU has it (LBVH, 16-bin SAH or hybrid), else LBVH.
-    let sah = crate::gpu::GpuSahOptions::for_builder(config.builder, false).flatten();
-    let build = match sah {
-        Some(_) => crate::adaptive::Build {
-            builder: config.builder,
-            device: crate::adaptive::Device::Gpu,
-        },
-        None => crate::adaptive::Build::GPU_LBVH,
+    // The configured builder where the frame has it (LBVH, 16-bin SAH or hybrid), else LBVH; under the
+    // adaptive policy, each mesh's planner's choice among the builds offered.
+    let configured = FrameBuilder::of(config.builder, false).unwrap_or(FrameBuilder::Lbvh);
+    let (adaptive, offered) = match config.policy {
+        RebuildPolicy::Adaptive { builders } => (true, super::gpu_policy::offered(builders)),
+        _ => (false, Vec::new()),
     };
-    let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
+    let mut mesh_stats = Vec::with_capacity(meshes.iter().len());
     let mut done_here = ResidentStats::default();
     let ctx = gpu.context().clone();
     let pending = super::gpu_queries::Pending::new(&world, &queue, stats.frame);
@@ -163,7 +169,7 @@ pub(crate) fn resident_frame_system(
             let weights = skin
                 .as_ref()
                 .map(|s| (&*s.weights, s.joint_matrices.len(), s.morphs.as_deref()));
-            ResidentMesh::new(&ctx, &mesh.0, weights, sah).map(|m| {
+            ResidentMesh::new(&ctx, &mesh.0, weights).map(|m| {
                 resident.meshes.insert(e, m);
             })
         } else {
@@ -202,18 +208,56 @@ pub(crate) fn resident_frame_system(
                     motion_incoherence: refit.incoherence(),
                     gpu: true,
                 };
+                let mut judged = None;
                 let rule = |refit: &crate::gpu::RefitState| match config.policy {
-                    RebuildPolicy::Lauterbach { threshold } => refit.degradation > threshold,
-                    RebuildPolicy::Custom(policy) => policy(&input(refit)) != Decision::Keep,
                     RebuildPolicy::Adaptive { .. } => {
                         let asset = super::maintain::asset_of(&mesh.0);
-                        policies.rebuild(e, asset, build, refit, rays_last_frame)
+                        let (build, why) =
+                            policies.rebuild(e, asset, &offered, refit, rays_last_frame);
+                        judged = why;
+                        build.map(frame_builder)
                     }
+                    _ if refit.first_build => Some(configured),
+                    RebuildPolicy::Lauterbach { threshold } => {
+                        (refit.degradation > threshold).then_some(configured)
+                    }
+                    RebuildPolicy::Custom(policy) => match policy(&input(refit)) {
+                        Decision::Keep => None,
+                        Decision::Rebuild(b) => {
+                            Some(FrameBuilder::of(b.builder, false).unwrap_or(configured))
+                        }
+                        Decision::PartialRebuild => Some(configured),
+                    },
                 };
-                match state.record(&ctx, &mut enc, update, rule)? {
-                    crate::gpu::Maintained::Refit => done_here.refits += 1,
-                    crate::gpu::Maintained::Rebuilt => done_here.rebuilds += 1,
-                    crate::gpu::Maintained::Kept => {}
+                let first = !state.built();
+                let action = match state.record(&ctx, &mut enc, update, rule)? {
+                    Maintained::Refit => {
+                        done_here.refits += 1;
+                        Some(MeshAction::Refit)
+                    }
+                    Maintained::Rebuilt(builder) => {
+                        done_here.rebuilds += 1;
+                        done_here.sah_rebuilds += usize::from(builder != FrameBuilder::Lbvh);
+                        let reason = if first {
+                            RebuildReason::New
+                        } else {
+                            RebuildReason::Policy
+                        };
+                        Some(MeshAction::Rebuild {
+                            build: build_of(builder),
+                            reason,
+                        })
+                    }
+                    Maintained::Kept => None,
+                };
+                if let Some(action) = action {
+                    mesh_stats.push(MeshStats {
+                        entity: e,
+                        action,
+                        degradation: state.degradation(),
+                        time: std::time::Duration::ZERO,
+                        prediction: judged,
+                    });
                 }
                 let world = state.bound().map(|b| crate::gpu::world_bound(&b, &tr));
                 Ok((tr, world))
@@ -292,6 +336,7 @@ pub(crate) fn resident_frame_system(
         pair_overflows: stats.resident.pair_overflows,
         ..done_here
     };
+    stats.resident_meshes = mesh_stats;
     match recorded {
         Ok(readback) => gpu.push_pending(pending, readback, contacts, phases),
         Err(e) => log::error!("kinetrace: GPU-resident frame's queries lost: {e}"),

@@ -19,15 +19,28 @@
 //!   visit's work per triangle. Our model, not a measurement: GPU timestamps per mesh and GPU visit
 //!   counters would replace it (not done).
 //!
-//! The rent rule, the guard and the margin are the planner's ([`crate::adaptive`]); the only build
-//! offered is the mesh's resident builder ([`TraceConfig::builder`](super::TraceConfig) where the GPU
-//! has it in one submission, else GPU LBVH), so the planner decides when to rebuild, not with what, and
-//! its guard rests on its priors (no binned-SAH tree is measured unless that is the builder). Cost: a
-//! few dozen arithmetic operations per changed mesh per frame, two dispatches over the nodes and 40 bytes
-//! read back per measured update.
+//! The rent rule, the guard, the margin and the builder's choice are the planner's
+//! ([`crate::adaptive`]). The builds offered ([`offered`]) are those the frame runs in its one submission
+//! ([`FrameBuilder`]): GPU LBVH, and the GPU twins of the policy's builders that the GPU builds there
+//! (16-bin SAH, 16-bin hybrids over 30-bit codes; not PLOC, which reads back per round, nor the task
+//! pool's median). Each mesh's planner picks among them as on the CPU: the build of least predicted
+//! work per frame (its rebuild's work over the interval between rebuilds plus a frame's query work on
+//! its fresh tree, whose SAH cost every rebuild reads back), kept unless another beats it by the margin,
+//! and a build no mesh of the asset measured tried when its expected saving repays it. So a mesh that
+//! many rays meet gets the better tree (hybrid or SAH), one that few meet the cheaper build (LBVH) (a
+//! scripted test below; on `tests/gpu_frame.rs`'s walking crowd the guard rebuilds every second frame
+//! and the planner settles on binned SAH whatever the rays, and in `bench ecs-gpu --quick` 1,000 rays over the
+//! crowd repay no better tree: every rebuild there is LBVH). The first
+//! build of an asset is binned SAH where offered (the guard's bound is stated against it). Cost: a few
+//! dozen arithmetic operations per changed mesh per frame, two dispatches over the nodes and 40 bytes
+//! read back per measured update, and a SAH builder's scratch (about 42 bytes per triangle) on each mesh
+//! that builds with one.
 
-use crate::adaptive::{AdaptivePolicy, Asset, Build, CostTable, TreeCost, costs::size_unit};
-use crate::gpu::RefitState;
+use crate::adaptive::{
+    AdaptivePolicy, Asset, Build, CostTable, Prediction, TreeCost, costs::size_unit,
+};
+use crate::bvh::Builder;
+use crate::gpu::{FrameBuilder, RefitState};
 use bevy_ecs::entity::Entity;
 use std::collections::HashMap;
 
@@ -40,10 +53,43 @@ pub(crate) struct ResidentPolicies {
 
 struct Plan {
     policy: AdaptivePolicy,
-    /// A rebuild the policy asked for, not yet recorded.
-    due: bool,
+    /// A rebuild the policy asked for, not yet recorded, with its build.
+    due: Option<Build>,
+    /// The build of the last rebuild recorded: a rebuilt tree's cost read back is of that build's tree
+    /// (a later rebuild replaces a reading still on its way).
+    built_with: Build,
     /// Share of the scene's rays, from last frame's boxes (1 until known).
     share: f64,
+}
+
+/// The builds the resident frame offers the planner for the policy's `builders`: GPU LBVH first, then
+/// the GPU twins of those the frame builds in one submission ([`FrameBuilder`]), each once.
+pub(crate) fn offered(builders: &[Builder]) -> Vec<Build> {
+    let mut builds = vec![Build::GPU_LBVH];
+    for &builder in builders {
+        let build = Build {
+            builder,
+            device: crate::adaptive::Device::Gpu,
+        };
+        if FrameBuilder::of(builder, false).is_some() && !builds.contains(&build) {
+            builds.push(build);
+        }
+    }
+    builds
+}
+
+/// How the frame runs `build` (one of [`offered`]'s; LBVH for any other).
+pub(crate) fn frame_builder(build: Build) -> FrameBuilder {
+    FrameBuilder::of(build.builder, false).unwrap_or(FrameBuilder::Lbvh)
+}
+
+/// The build `builder` is, as [`TraceStats`](super::TraceStats) names it.
+pub(crate) fn build_of(builder: FrameBuilder) -> Build {
+    match builder {
+        FrameBuilder::Lbvh => Build::GPU_LBVH,
+        FrameBuilder::Sah(o) if o.lbvh_levels == 0 => Build::GPU_SAH,
+        FrameBuilder::Sah(o) => Build::gpu_hybrid(o.lbvh_levels),
+    }
 }
 
 /// The work of a rebuild of `triangles` with `build` (see the module docs).
@@ -52,22 +98,26 @@ pub(crate) fn rebuild_work(build: Build, triangles: usize) -> f64 {
 }
 
 impl ResidentPolicies {
-    /// Feeds mesh `e`'s planner the reading in `state` (if a new one came back) and says whether to
-    /// rebuild now; `rays` is the last frame's batched ray count.
+    /// Feeds mesh `e`'s planner (choosing among `builds`, [`offered`]) the reading in `state` (if a new
+    /// one came back) and says with which build to rebuild now, if at all: always for a first build
+    /// (the planner's [`next_build`](AdaptivePolicy::next_build)); `rays` is the last frame's batched ray
+    /// count. With it, the planner's grounds when a refitted tree's reading was judged this call.
     pub fn rebuild(
         &mut self,
         e: Entity,
         asset: Asset,
-        build: Build,
+        builds: &[Build],
         state: &RefitState,
         rays: usize,
-    ) -> bool {
+    ) -> (Option<Build>, Option<Prediction>) {
         let table = &self.table;
         let plan = self.meshes.entry(e).or_insert_with(|| Plan {
-            policy: AdaptivePolicy::shared(&[build], table, asset),
-            due: false,
+            policy: AdaptivePolicy::shared(builds, table, asset),
+            due: None,
+            built_with: Build::GPU_LBVH,
             share: 1.0,
         });
+        let mut judged = None;
         if let Some(c) = state.cost {
             let cost = TreeCost {
                 sah: c.reading.sah,
@@ -75,19 +125,31 @@ impl ResidentPolicies {
             };
             let rays = rays as f64 * plan.share;
             if c.rebuilt {
+                let build = plan.built_with;
                 (plan.policy).built(
                     build,
                     asset.triangles,
                     rebuild_work(build, asset.triangles),
                     cost,
                 );
-                plan.due = false;
             } else {
                 plan.policy.queried(rays, cost.sah, rays * cost.sah);
-                plan.due |= plan.policy.after_refit(cost, rays);
+                if plan.policy.after_refit(cost, rays) {
+                    plan.due = Some(plan.policy.prediction().build);
+                }
+                judged = Some(plan.policy.prediction());
             }
         }
-        std::mem::take(&mut plan.due)
+        let due = if state.first_build {
+            Some(plan.policy.next_build())
+        } else {
+            plan.due
+        };
+        plan.due = None;
+        if let Some(b) = due {
+            plan.built_with = b;
+        }
+        (due, judged)
     }
 
     /// Sets every planned mesh's share of the rays from this frame's world boxes (`None` where a mesh's
@@ -109,5 +171,104 @@ impl ResidentPolicies {
             }
         }
         self.meshes = kept;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Aabb;
+    use crate::gpu::{CostReading, SahReading};
+    use glam::Vec3;
+
+    /// The scripted SAH cost of a fresh tree of `b`: binned SAH 10, the hybrid 10.3, LBVH 11.5.
+    fn fresh(b: Build) -> f64 {
+        match b.builder {
+            Builder::Sah { .. } => 10.0,
+            Builder::Hybrid { .. } => 10.3,
+            _ => 11.5,
+        }
+    }
+
+    /// One mesh's tree as the script keeps it: its cost, whether last frame rebuilt it, and with what.
+    struct Tree {
+        e: Entity,
+        cost: f64,
+        rebuilt: bool,
+        last: Option<Build>,
+        since: u32,
+    }
+
+    impl Tree {
+        /// One frame: the planner is given last frame's reading; a rebuild resets the cost to the fresh
+        /// tree's, a refit lets it rise by 3%.
+        fn frame(&mut self, p: &mut ResidentPolicies, builds: &[Build], asset: Asset, rays: usize) {
+            let cost = self.last.map(|_| CostReading {
+                reading: SahReading {
+                    sah: self.cost,
+                    root_half_area: 1.0,
+                },
+                rebuilt: self.rebuilt,
+            });
+            let state = RefitState {
+                degradation: 0.0,
+                frames_since_rebuild: self.since,
+                cost,
+                first_build: self.last.is_none(),
+            };
+            let (build, _) = p.rebuild(self.e, asset, builds, &state, rays);
+            self.rebuilt = build.is_some();
+            match build {
+                Some(b) => {
+                    (self.cost, self.last, self.since) = (fresh(b), Some(b), 0);
+                }
+                None => (self.cost, self.since) = (self.cost * 1.03, self.since + 1),
+            }
+        }
+    }
+
+    /// Two meshes of one asset whose trees cost the same, scripted: one the whole batch of rays meets,
+    /// the other a hundredth of it (its box's share of the scene's area). Both try the builds (the first
+    /// build is binned SAH, the guard's reference); then the mesh with 10⁴ rays a frame rebuilds with a
+    /// better tree than LBVH's, whose saved query work (rays × SAH cost) repays its 2.5–5 times LBVH's
+    /// build work, and the mesh with 100 rays with LBVH, whose build work is least. Counted work only: no
+    /// timing.
+    #[test]
+    fn each_mesh_gets_the_builder_its_counted_query_work_favours() {
+        let builds = offered(&[Builder::LBVH, Builder::HYBRID, Builder::SAH, Builder::PLOC]);
+        assert_eq!(
+            builds,
+            [Build::GPU_LBVH, Build::gpu_hybrid(6), Build::GPU_SAH],
+            "PLOC is not built in the frame's submission"
+        );
+        let asset = Asset {
+            triangles: 600,
+            id: 1,
+        };
+        let mut p = ResidentPolicies::default();
+        let tree = |i| Tree {
+            e: Entity::from_raw_u32(i).unwrap(),
+            cost: 0.0,
+            rebuilt: false,
+            last: None,
+            since: 0,
+        };
+        let (mut busy, mut quiet) = (tree(1), tree(2));
+        let boxes = [
+            (busy.e, Some(Aabb::new(Vec3::ZERO, Vec3::splat(10.0)))),
+            (quiet.e, Some(Aabb::new(Vec3::ZERO, Vec3::splat(1.0)))),
+        ];
+        for frame in 0..60 {
+            for t in [&mut busy, &mut quiet] {
+                t.frame(&mut p, &builds, asset, 10_000);
+                if frame == 0 {
+                    assert_eq!(t.last, Some(Build::GPU_SAH));
+                }
+            }
+            p.set_shares(&boxes);
+        }
+        let busy_build = busy.last.unwrap();
+        assert!(fresh(busy_build) < fresh(Build::GPU_LBVH), "{busy_build}");
+        assert_eq!(quiet.last, Some(Build::GPU_LBVH));
     }
 }

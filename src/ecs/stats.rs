@@ -223,4 +223,9 @@ pub struct TraceStats {
     /// What the GPU-resident frame did this frame (all zero outside it).
     #[cfg(feature = "gpu")]
     pub resident: super::ResidentStats,
+    /// In the GPU-resident frame, the GPU's work per mesh this frame: refitted, or rebuilt with which GPU
+    /// build and why; under the adaptive policy with the planner's grounds for a refitted tree judged
+    /// this frame (its `time` is zero: the GPU's time per phase is in `gpu_phases`). Empty outside it.
+    #[cfg(feature = "gpu")]
+    pub resident_meshes: Vec<MeshStats>,
 }

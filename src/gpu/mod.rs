@@ -55,7 +55,8 @@ pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
 pub use frame::{
-    CostReading, GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh, SahReading,
+    CostReading, FrameBuilder, GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh,
+    SahReading,
 };
 pub(crate) use frame::{
     FrameCollider, FrameContacts, FrameInstance, FrameReadback, FrameTimer, PhasesReadback,

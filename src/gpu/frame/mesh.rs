@@ -5,6 +5,7 @@
 use super::bound::{self, SkinBound};
 use super::sah::{SahReadback, SahReading, SahReduction};
 use crate::anim::{MorphTargets, SkinWeights};
+use crate::bvh::Builder;
 use crate::gpu::{
     DegradationReadback, GpuContext, GpuMeshBvh, GpuSahBuilder, GpuSahOptions, GpuSkin,
 };
@@ -36,8 +37,30 @@ pub enum Maintained {
     Kept,
     /// Refitted, with the degradation metric on its way back.
     Refit,
-    /// Rebuilt with its builder: the first build, or the last known degradation was above the threshold.
-    Rebuilt,
+    /// Rebuilt with this builder: the first build, or the rule asked for it.
+    Rebuilt(FrameBuilder),
+}
+
+/// A GPU builder that rebuilds a resident tree inside the frame's one submission, writing into the
+/// mesh's own buffers. PLOC (a read-back per round), the task pool's median build (a tree for the CPU)
+/// and builds over other bin counts or 63-bit codes are not among them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrameBuilder {
+    /// LBVH over 30-bit codes ([`GpuMeshBvh::record_build`]): the cheapest build, no scratch beyond the
+    /// tree's own.
+    Lbvh,
+    /// 16-bin SAH or the hybrid ([`GpuSahBuilder`] with these options): better trees, about five (SAH)
+    /// or two and a half (hybrid) times LBVH's work, and about 42 bytes of scratch per triangle per
+    /// options used, made at the mesh's first build with them and kept.
+    Sah(GpuSahOptions),
+}
+
+impl FrameBuilder {
+    /// How the frame runs `builder` (a hybrid on a `clustered` mesh with fewer LBVH levels,
+    /// [`hybrid_levels`](crate::gpu::hybrid_levels)); `None` where it cannot in one submission.
+    pub fn of(builder: Builder, clustered: bool) -> Option<FrameBuilder> {
+        GpuSahOptions::for_builder(builder, clustered).map(|o| o.map_or(Self::Lbvh, Self::Sah))
+    }
 }
 
 /// What a resident mesh knows of its tree when it decides whether to rebuild: the metric of an earlier
@@ -51,6 +74,8 @@ pub struct RefitState {
     /// With [`ResidentMesh::measure_costs`], the SAH cost read back since the last call (of a refitted
     /// tree, or of a rebuilt one: [`CostReading::rebuilt`]); each reading is given once.
     pub cost: Option<CostReading>,
+    /// Whether the tree was never built: the rule must name a builder (`None` then builds with LBVH).
+    pub first_build: bool,
 }
 
 /// A tree's SAH cost as read back for [`RefitState::cost`].
@@ -74,13 +99,12 @@ impl RefitState {
 ///
 /// The refit-or-rebuild rule is the caller's, on the metric of an earlier refit ([`RefitState`]): the
 /// metric of frame n's refit comes back without blocking and decides frame n+1 (or later, if the GPU is
-/// behind): a rebuild one frame late. Rebuilds use GPU LBVH, or the binned SAH or hybrid builder
-/// ([`GpuSahBuilder`]) the mesh was made with.
+/// behind): a rebuild one frame late. Each rebuild uses the [`FrameBuilder`] the rule names.
 pub struct ResidentMesh {
     bvh: GpuMeshBvh,
     skin: Option<GpuSkin>,
-    /// The SAH or hybrid builder, `None` for LBVH.
-    sah: Option<GpuSahBuilder>,
+    /// The SAH and hybrid builders used so far, one per options (their scratch is bound to `bvh`).
+    sah: Vec<GpuSahBuilder>,
     built: bool,
     /// The last refit's metric, not yet read back.
     pending: Option<DegradationReadback>,
@@ -102,21 +126,16 @@ pub struct ResidentMesh {
 
 impl ResidentMesh {
     /// Uploads `mesh` (and, with `skin`, its rest pose, weights, a palette of `joints` matrices and any
-    /// blend shapes) and allocates its tree, and with `sah` that builder's scratch; nothing is built until
-    /// the first [`record`](Self::record). Costs the uploads (12 bytes per vertex and 12 per triangle, 36
-    /// more per vertex for a skin, 12 per vertex per blend shape) and about 112 bytes of GPU memory per
-    /// triangle, plus the SAH builder's scratch.
+    /// blend shapes) and allocates its tree; nothing is built until the first [`record`](Self::record).
+    /// Costs the uploads (12 bytes per vertex and 12 per triangle, 36 more per vertex for a skin, 12 per
+    /// vertex per blend shape) and about 112 bytes of GPU memory per triangle, plus a SAH or hybrid
+    /// builder's scratch once one is used ([`FrameBuilder::Sah`]).
     pub fn new(
         ctx: &GpuContext,
         mesh: &Mesh,
         skin: Option<(&SkinWeights, usize, Option<&MorphTargets>)>,
-        sah: Option<GpuSahOptions>,
     ) -> Result<Self> {
         let bvh = GpuMeshBvh::new(ctx, mesh)?;
-        let sah = match sah {
-            Some(options) => Some(GpuSahBuilder::new(ctx, &bvh, options)?),
-            None => None,
-        };
         let (skin, skin_bound) = match skin {
             Some((weights, joints, morphs)) => {
                 let rest = mesh.positions();
@@ -132,7 +151,7 @@ impl ResidentMesh {
         Ok(Self {
             bvh,
             skin,
-            sah,
+            sah: Vec::new(),
             built: false,
             pending: None,
             degradation: 0.0,
@@ -172,21 +191,28 @@ impl ResidentMesh {
         &self.bvh
     }
 
+    /// Whether the tree was built (by a first [`record`](Self::record)).
+    pub fn built(&self) -> bool {
+        self.built
+    }
+
     /// The most recent degradation metric read back (0 after a rebuild, before the first refit's).
     pub fn degradation(&self) -> f32 {
         self.degradation
     }
 
     /// Records this frame's update and maintenance into `encoder`: skinning or the position upload, then
-    /// a refit (and its metric's read-back) or, on the first frame and when `rebuild` says so of the
-    /// state read back so far, a rebuild with its builder. `rebuild` is called only for a changed mesh
-    /// with a tree. Never blocks.
+    /// a refit (and its metric's read-back) or, where `rebuild` names a builder for the state read back so
+    /// far, a rebuild with it. `rebuild` is called for a changed mesh and for one never built
+    /// ([`RefitState::first_build`]: a tree is built whatever it says). Never blocks; a SAH or hybrid
+    /// builder used for the first time allocates its scratch. Errors: those of the skin, the upload and
+    /// the builder's allocation ([`Error::Gpu`](crate::Error::Gpu) past the device's limits).
     pub fn record(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         update: MeshUpdate<'_>,
-        rebuild: impl FnOnce(&RefitState) -> bool,
+        rebuild: impl FnOnce(&RefitState) -> Option<FrameBuilder>,
     ) -> Result<Maintained> {
         if let Some(r) = &self.pending
             && let Some(metric) = r.try_take(ctx)
@@ -233,19 +259,21 @@ impl ResidentMesh {
             degradation: self.degradation,
             frames_since_rebuild: self.refits,
             cost: self.unread.take(),
+            first_build: !self.built,
         };
-        if !self.built || rebuild(&state) {
-            match &self.sah {
-                Some(builder) => builder.record(ctx, &mut self.bvh, encoder),
-                None => self.bvh.record_build(ctx, encoder),
-            }
+        let chosen = match rebuild(&state) {
+            None if self.built => None,
+            chosen => Some(chosen.unwrap_or(FrameBuilder::Lbvh)),
+        };
+        if let Some(builder) = chosen {
+            self.record_build(ctx, encoder, builder)?;
             self.built = true;
             self.degradation = 0.0;
             self.refits = 0;
             // A metric of the tree before the rebuild says nothing about the new one.
             self.pending = None;
             self.record_cost(ctx, encoder, true);
-            return Ok(Maintained::Rebuilt);
+            return Ok(Maintained::Rebuilt(builder));
         }
         self.bvh.record_refit(ctx, encoder)?;
         self.refits += 1;
@@ -254,6 +282,31 @@ impl ResidentMesh {
         }
         self.record_cost(ctx, encoder, false);
         Ok(Maintained::Refit)
+    }
+
+    /// Records a full build with `builder`, making its SAH or hybrid scratch first where the mesh has
+    /// none of these options yet (kept for later builds: switching between builders allocates and uploads
+    /// nothing after each one's first use).
+    fn record_build(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        builder: FrameBuilder,
+    ) -> Result<()> {
+        match builder {
+            FrameBuilder::Lbvh => self.bvh.record_build(ctx, encoder),
+            FrameBuilder::Sah(options) => {
+                let at = match self.sah.iter().position(|b| b.options() == options) {
+                    Some(at) => at,
+                    None => {
+                        self.sah.push(GpuSahBuilder::new(ctx, &self.bvh, options)?);
+                        self.sah.len() - 1
+                    }
+                };
+                self.sah[at].record(ctx, &mut self.bvh, encoder);
+            }
+        }
+        Ok(())
     }
 
     /// Records the SAH cost's reduction and read-back, if measured and none is on its way (always after a

@@ -1,5 +1,6 @@
 //! The GPU-resident frame: every mesh's tree stays on the GPU ([`ResidentMesh`]), and one command encoder
-//! per frame takes it from joint matrices to answers — skinning, refit or LBVH rebuild per mesh, the
+//! per frame takes it from joint matrices to answers — skinning, refit or rebuild per mesh (with the
+//! [`FrameBuilder`] the caller's rule names: LBVH, binned SAH or the hybrid), the
 //! top-level tree built on the GPU over the instances' world boxes, then the batched closest-hit and any-hit
 //! queries of [`ResidentScene`] — with the answers copied to staging and mapped without blocking.
 //!
@@ -16,7 +17,7 @@ mod sah;
 mod timer;
 
 pub(crate) use bound::world as world_bound;
-pub use mesh::{CostReading, Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub use mesh::{CostReading, FrameBuilder, Maintained, MeshUpdate, RefitState, ResidentMesh};
 pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
 pub use sah::SahReading;
 pub use timer::GpuPhases;
