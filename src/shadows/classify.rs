@@ -45,6 +45,7 @@ fn tolerances(map: &ShadowMap, cos: f32, bias_texels: f32) -> Tolerances {
 
 /// The texel under map coordinates `(x, y)` when it has all eight neighbours, `None` when the point falls
 /// outside the map's interior.
+#[inline]
 fn texel(map: &ShadowMap, x: f32, y: f32) -> Option<(usize, usize)> {
     let res = map.resolution();
     // Truncation is the floor here: anything below 1 (NaN included) is off the map's interior.
@@ -68,6 +69,7 @@ pub(super) fn shadow_map_only(map: &ShadowMap, p: Vec3, cos: f32, bias_texels: f
 /// The map's verdict for a receiver at depth `d` over a texel of depth `s`: lit when it is at most the
 /// bias behind it. A receiver within the constant part of the bias is lit without the slope's square root
 /// (the slope-scaled part only adds to it).
+#[inline]
 fn verdict(map: &ShadowMap, d: f32, s: f32, cos: f32, bias_texels: f32) -> Class {
     if d <= s + map.texel_size() * bias_texels || d <= s + tolerances(map, cos, bias_texels).bias {
         Class::Lit
@@ -90,10 +92,11 @@ pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texel
 }
 
 /// The selective classification of the receiver at `p` (`cos = n·L > 0`): where the map's neighbourhood
-/// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the
-/// receiver is marked when its depth span within one texel, `[d̂, d]`, overlaps the occluders' span
-/// `[s − Δ, s + Δ]`, else the map decides. Off the map or over an empty texel (geometry too thin for the
-/// map): marked. `deltas` holds the map's depth and `Δ` per texel.
+/// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the receiver is marked when its depth
+/// span within one texel, `[d̂, d]`, overlaps the occluders' span `[s − Δ, s + Δ]`, else the map decides.
+/// Off the map or over an empty texel (geometry too thin for the map): marked. `deltas` holds the map's
+/// depth and `Δ` per texel.
+#[inline]
 pub(super) fn selective(
     map: &ShadowMap,
     deltas: &Deltas,
@@ -110,15 +113,30 @@ pub(super) fn selective(
     if !s.is_finite() {
         return Class::Marked;
     }
-    let tol = tolerances(map, cos, bias_texels);
     let d = q.z;
     if delta <= edge {
-        verdict(map, d, s, cos, bias_texels)
-    } else if d - tol.reach - tol.bias <= s + delta && d + tol.bias >= s - delta {
+        return verdict(map, d, s, cos, bias_texels);
+    }
+    let tol = tolerances(map, cos, bias_texels);
+    if d - tol.reach - tol.bias <= s + delta && d + tol.bias >= s - delta {
         Class::Marked
     } else if d > s {
         Class::Shadowed
     } else {
         Class::Lit
+    }
+}
+
+/// A surface with normal `nrm`: `Empty` when it is none (a zero normal), `FacingAway` when `n·L` is at
+/// most `away` (the light, along `towards`, does not reach it), else `n·L`.
+#[inline]
+pub(super) fn facing(nrm: Vec3, towards: Vec3, away: f32) -> Result<f32, Class> {
+    let cos = nrm.dot(towards);
+    if nrm == Vec3::ZERO {
+        Err(Class::Empty)
+    } else if cos <= away {
+        Err(Class::FacingAway)
+    } else {
+        Ok(cos)
     }
 }

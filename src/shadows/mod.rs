@@ -28,7 +28,7 @@
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
 //! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows are only about 1.5× faster than a ray per
+//! shadow ray's cost, so on the crowd selective hard shadows are only 1.4–2.2× faster than a ray per
 //! pixel (same threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows,
 //! 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
@@ -51,7 +51,7 @@ pub use shadow_map::ShadowMap;
 use crate::{Error, Result, parallel};
 use classify::Class;
 use deltas::Deltas;
-use glam::Vec3;
+use glam::{BVec3, Vec3};
 use std::time::{Duration, Instant};
 
 /// Which pixels get shadow rays.
@@ -252,74 +252,48 @@ impl HardShadows {
         if s.mode == ShadowMode::Selective && !soft {
             self.deltas.find(&self.map, par);
         }
-        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
+        let (map, mask, deltas, g) = (&self.map, &self.mask, &self.deltas, gbuffer);
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
+        // The shadow map alone is hard: it shades everything at or below n·L = 0.
         let horizon = s.light_angle.sin();
-        let classify = |i: usize| {
-            let nrm = gbuffer.normals[i];
-            if nrm == Vec3::ZERO {
-                return Class::Empty;
-            }
-            let cos = nrm.dot(towards);
-            if cos <= -horizon || (cos <= 0.0 && s.mode == ShadowMode::ShadowMap) {
-                return Class::FacingAway;
-            }
-            let p = gbuffer.positions[i];
-            match s.mode {
-                ShadowMode::RayTraced => Class::Marked,
-                ShadowMode::ShadowMap => classify::shadow_map_only(map, p, cos, s.bias_texels),
-                ShadowMode::Selective if soft && cos <= horizon => Class::Marked,
-                ShadowMode::Selective if soft => classify::soft(map, mask, p, cos, s.bias_texels),
-                ShadowMode::Selective => {
-                    classify::selective(map, deltas, p, cos, s.bias_texels, edge)
-                }
-            }
-        };
-        // One parallel pass classifies, writes the map's verdict everywhere and lists each chunk's marked
-        // pixels; the lists are then concatenated into the dense ray list.
-        let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
-        // Blocks where the map is read; whole rows (the marked pixels come out in order) where it is not.
-        let block = if s.mode == ShadowMode::RayTraced {
-            w
+        let away = if s.mode == ShadowMode::ShadowMap {
+            0.0
         } else {
-            BAND
+            -horizon
         };
-        self.visibility.resize(n, 1.0);
-        self.chunks
-            .resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
-        parallel::fill_chunks_with(
-            par,
-            &mut self.visibility,
-            chunk,
-            &mut self.chunks,
-            |c, vis, out| {
-                out.marked.clear();
-                out.facing = 0;
-                let rows = vis.len() / w;
-                for x0 in (0..w).step_by(block.max(1)) {
-                    for y in 0..rows {
-                        let start = y * w + x0;
-                        let run = &mut vis[start..y * w + (x0 + block).min(w)];
-                        for (k, v) in run.iter_mut().enumerate() {
-                            let i = c * chunk + start + k;
-                            let class = classify(i);
-                            *v = match class {
-                                Class::Empty | Class::Lit => 1.0,
-                                Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
-                            };
-                            out.facing +=
-                                !matches!(class, Class::Empty | Class::FacingAway) as usize;
-                            if class == Class::Marked {
-                                out.marked.push(i as u32);
-                            }
-                        }
-                    }
-                }
-                if block < w {
-                    out.marked.sort_unstable();
-                }
-            },
-        );
+        // A pixel with no surface or one facing away from the light, else its n·L.
+        let toward = |i: usize| classify::facing(g.normals[i], towards, away);
+        let bias = s.bias_texels;
+        let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
+        let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
+        // One classification per mode, each its own loop (the test inlined, no dispatch per pixel).
+        // Blocks of BAND × BAND pixels where the map is read; whole rows (the marked pixels come out in
+        // order) where it is not.
+        let px = |block| Pixels { w, block, n };
+        match s.mode {
+            ShadowMode::RayTraced => classify_pixels(par, px(w), vis, chunks, |i| {
+                toward(i).map_or_else(|c| c, |_| Class::Marked)
+            }),
+            ShadowMode::ShadowMap => {
+                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
+                    Ok(cos) => classify::shadow_map_only(map, g.positions[i], cos, bias),
+                    Err(c) => c,
+                })
+            }
+            ShadowMode::Selective if soft => {
+                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
+                    Ok(cos) if cos <= horizon => Class::Marked,
+                    Ok(cos) => classify::soft(map, mask, g.positions[i], cos, bias),
+                    Err(c) => c,
+                })
+            }
+            ShadowMode::Selective => {
+                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
+                    Ok(cos) => classify::selective(map, deltas, g.positions[i], cos, bias, edge),
+                    Err(c) => c,
+                })
+            }
+        }
         self.marked.clear();
         let mut facing = 0;
         for chunk in &mut self.chunks {
@@ -389,13 +363,16 @@ impl HardShadows {
         let map = &self.map;
         self.bounds.resize(n.div_ceil(CHUNK), none);
         parallel::fill(par, &mut self.bounds, 1, |c| {
+            let at = c * CHUNK..((c + 1) * CHUNK).min(n);
             let mut b = none;
-            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                if g.normals[i].dot(towards) > 0.0 {
-                    let p = g.positions[i];
-                    let q = map.across(p).extend(p.dot(towards));
-                    b = (b.0.min(q), b.1.max(q));
-                }
+            // Without a branch: a pixel facing away is moved to where it widens nothing.
+            for (&p, &nrm) in g.positions[at.clone()].iter().zip(&g.normals[at]) {
+                let q = map.across(p).extend(p.dot(towards));
+                let faces = BVec3::splat(nrm.dot(towards) > 0.0);
+                b = (
+                    b.0.min(Vec3::select(faces, q, none.0)),
+                    b.1.max(Vec3::select(faces, q, none.1)),
+                );
             }
             b
         });
@@ -418,6 +395,58 @@ impl HardShadows {
     pub fn shadow_map(&self) -> &ShadowMap {
         &self.map
     }
+}
+
+/// The image's pixels as the classification visits them: `w` pixels a row, `n` in all, in bands of
+/// [`BAND`] rows, each band in columns of `block` pixels.
+#[derive(Clone, Copy)]
+struct Pixels {
+    w: usize,
+    block: usize,
+    n: usize,
+}
+
+/// Classifies every pixel with `classify` (in parallel over bands of [`BAND`] rows): writes the map's
+/// verdict into `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked
+/// pixels, ascending, in its chunk, with its count of pixels facing the light. Generic over the test, so
+/// each mode's loop has its test inlined.
+fn classify_pixels(
+    par: bool,
+    px: Pixels,
+    visibility: &mut Vec<f32>,
+    chunks: &mut Vec<Chunk>,
+    classify: impl Fn(usize) -> Class + Sync,
+) {
+    let Pixels { w, block, n } = px;
+    let chunk = BAND * w;
+    visibility.resize(n, 1.0);
+    chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
+    parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
+        out.marked.clear();
+        out.facing = 0;
+        let rows = vis.len() / w;
+        for x0 in (0..w).step_by(block.max(1)) {
+            for y in 0..rows {
+                let start = y * w + x0;
+                let run = &mut vis[start..y * w + (x0 + block).min(w)];
+                for (k, v) in run.iter_mut().enumerate() {
+                    let i = c * chunk + start + k;
+                    let class = classify(i);
+                    *v = match class {
+                        Class::Empty | Class::Lit => 1.0,
+                        Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
+                    };
+                    out.facing += !matches!(class, Class::Empty | Class::FacingAway) as usize;
+                    if class == Class::Marked {
+                        out.marked.push(i as u32);
+                    }
+                }
+            }
+        }
+        if block < w {
+            out.marked.sort_unstable();
+        }
+    });
 }
 
 /// Checks the settings and the G-buffer; returns the unit light direction.

@@ -27,8 +27,9 @@ pub struct ShadowMap {
     /// `p · towards` of the scene's point nearest the light (depth 0).
     top: f32,
     texel: f32,
-    /// Triangles in map coordinates (x, y in texels, z = depth), kept between frames.
-    projected: Vec<[Vec3; 3]>,
+    /// Triangles in map coordinates (x, y in texels, z = depth), each with the first and last band of
+    /// rows it may cover ([`bands`]), kept between frames.
+    projected: Vec<([Vec3; 3], [u32; 2])>,
     /// Band `b`'s triangles are `binned[bins[b]..bins[b + 1]]` (indices into `projected`).
     bins: Vec<u32>,
     binned: Vec<u32>,
@@ -68,10 +69,12 @@ impl ShadowMap {
         parallel: bool,
     ) {
         let towards = self.towards;
-        let mut top = f32::MIN;
-        for [a, b, c] in triangles {
-            top = top.max(a.dot(towards).max(b.dot(towards)).max(c.dot(towards)));
-        }
+        let highest = |tris: &[[Vec3; 3]]| {
+            tris.iter()
+                .flat_map(|t| t.map(|p| p.dot(towards)))
+                .fold(f32::MIN, f32::max)
+        };
+        let top = parallel::map_reduce(parallel, triangles, 4096, f32::MIN, highest, f32::max);
         let widen = Vec2::splat((top - receivers.0.z).max(0.0) * spread);
         let (lo, hi) = (
             receivers.0.truncate() - widen,
@@ -91,9 +94,10 @@ impl ShadowMap {
         self.top = top;
         let mut projected = std::mem::take(&mut self.projected);
         let this = &*self;
-        projected.resize(triangles.len(), [Vec3::ZERO; 3]);
+        projected.resize(triangles.len(), ([Vec3::ZERO; 3], [1, 0]));
         parallel::fill(parallel, &mut projected, 4096, |i| {
-            triangles[i].map(|p| this.project(p))
+            let t = triangles[i].map(|p| this.project(p));
+            (t, bands(&t, res))
         });
         self.bin(&projected);
         let (bins, binned) = (&self.bins, &self.binned);
@@ -102,31 +106,23 @@ impl ShadowMap {
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
             out.fill(f32::INFINITY);
             for &t in &binned[bins[band] as usize..bins[band + 1] as usize] {
-                rasterise(&projected[t as usize], band * BAND_ROWS, res, out);
+                rasterise(&projected[t as usize].0, band * BAND_ROWS, res, out);
             }
         });
         self.depth = depth;
         self.projected = projected;
     }
 
-    /// Sorts the projected triangles into the bands of rows whose texel centres their bounds may cover
-    /// (a counting sort: band `b` rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its
-    /// own triangles; triangles off the map go nowhere.
-    fn bin(&mut self, projected: &[[Vec3; 3]]) {
-        let res = self.res;
-        let bands = res.div_ceil(BAND_ROWS);
-        let span = |t: &[Vec3; 3]| {
-            let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-            let ((x0, x1), (y0, y1)) = (centres(lo.x, hi.x, res), centres(lo.y, hi.y, res));
-            (x0 <= x1 && y0 <= y1).then_some((y0 / BAND_ROWS, y1 / BAND_ROWS))
-        };
+    /// Sorts the projected triangles into the bands of rows their [`bands`] name (a counting sort: band
+    /// `b` rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its own triangles; triangles
+    /// off the map go nowhere. Serial, but a few steps per triangle: the bands were found in parallel.
+    fn bin(&mut self, projected: &[([Vec3; 3], [u32; 2])]) {
+        let bands = self.res.div_ceil(BAND_ROWS);
         self.bins.clear();
         self.bins.resize(bands + 1, 0);
-        for t in projected {
-            if let Some((b0, b1)) = span(t) {
-                for b in b0..=b1 {
-                    self.bins[b + 1] += 1;
-                }
+        for &(_, [b0, b1]) in projected {
+            for b in b0..=b1 {
+                self.bins[b as usize + 1] += 1;
             }
         }
         for b in 0..bands {
@@ -136,12 +132,10 @@ impl ShadowMap {
         let mut next = std::mem::take(&mut self.cursor);
         next.clear();
         next.extend_from_slice(&self.bins[..bands]);
-        for (i, t) in projected.iter().enumerate() {
-            if let Some((b0, b1)) = span(t) {
-                for at in &mut next[b0..=b1] {
-                    self.binned[*at as usize] = i as u32;
-                    *at += 1;
-                }
+        for (i, &(_, [b0, b1])) in projected.iter().enumerate() {
+            for at in &mut next[b0 as usize..=b1 as usize] {
+                self.binned[*at as usize] = i as u32;
+                *at += 1;
             }
         }
         self.cursor = next;
@@ -180,6 +174,18 @@ impl ShadowMap {
             let at = r * self.res + i - 1;
             self.depth[at..at + 3].try_into().expect("three texels")
         })
+    }
+}
+
+/// The first and last band of [`BAND_ROWS`] rows of a `res`-texel map whose texel centres the bounds of
+/// triangle `t` (map coordinates) may cover; empty (first past last) when they cover none.
+fn bands(t: &[Vec3; 3], res: usize) -> [u32; 2] {
+    let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+    let ((x0, x1), (y0, y1)) = (centres(lo.x, hi.x, res), centres(lo.y, hi.y, res));
+    if x0 <= x1 && y0 <= y1 {
+        [(y0 / BAND_ROWS) as u32, (y1 / BAND_ROWS) as u32]
+    } else {
+        [1, 0]
     }
 }
 
