@@ -351,3 +351,79 @@ fn warm_ray_sort_does_not_allocate() {
         assert_eq!(sorted, sort_rays(half, &layout, false).unwrap());
     }
 }
+
+/// Warm secondary batches (reflection rays and shadow rays toward two lights, an invalid ray among them)
+/// allocate nothing on the frame's thread, planned and with each fixed strategy but CRSH (which builds its
+/// hierarchy per batch): the path keeps its sort and answer buffers in [`SecondaryRays`]. Answers are
+/// checked against the sphere's analytic distance.
+#[test]
+fn warm_secondary_ray_batches_do_not_allocate() {
+    let _alone = alone();
+    use kinetrace::ecs::*;
+    let never = RebuildPolicy::Lauterbach {
+        threshold: f32::INFINITY,
+    };
+    for fixed in [
+        None,
+        Some(SecondaryStrategy::Bvh),
+        Some(SecondaryStrategy::SortedBvh),
+        Some(SecondaryStrategy::SortedPackets),
+    ] {
+        let (mut world, mut schedule, rest, e) = deforming_sphere_app(never, Structure::Bvh);
+        let secondary = SecondaryRays::new(fixed, Default::default(), 8, 2).unwrap();
+        world.insert_resource(secondary);
+        for f in 0..8 {
+            let s = 1.0 + 0.01 * f as f32;
+            {
+                let mut vp = world.get_mut::<VertexPositions>(e).unwrap();
+                for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
+                    *p = *q * s;
+                }
+                let mut queue = world.resource_mut::<RayQueue>();
+                let f = QueryFilter::default;
+                for i in 0..150u64 {
+                    // Rays from a 15 × 10 grid in the plane z = -5 toward the sphere's centre, a
+                    // reflection ray each (the last one of zero direction: invalid, a miss), and a
+                    // shadow segment from each start to the centre toward light 0 or 1.
+                    let from =
+                        Vec3::new((i % 15) as f32 * 0.05 - 0.35, (i / 15) as f32 * 0.05, -5.0);
+                    let dir = if i == 149 { Vec3::ZERO } else { -from };
+                    let kind = RequestKind::Reflection;
+                    queue.cast_kind(i, Ray::new(from, dir), kind, f());
+                    let light = RequestKind::Shadow {
+                        light: i as u32 % 2,
+                    };
+                    queue.shadow_kind(i, from, Vec3::ZERO, light, f());
+                }
+            }
+            let before = allocations();
+            schedule.run(&mut world);
+            world.clear_trackers();
+            let allocated = allocations() - before;
+            if f >= 3 {
+                assert_eq!(allocated, 0, "{fixed:?} frame {f}");
+            }
+            // Aimed at the centre of the sphere of radius s (faceted: within 1.5% inside).
+            let results = world.resource::<RayResults>();
+            assert_eq!(results.hits.len(), 150);
+            for (tag, hit) in &results.hits {
+                if *tag == 149 {
+                    assert!(hit.is_none(), "an invalid ray misses");
+                    continue;
+                }
+                let from = Vec3::new(
+                    (tag % 15) as f32 * 0.05 - 0.35,
+                    (tag / 15) as f32 * 0.05,
+                    -5.0,
+                );
+                let depth = from.length()
+                    - hit.as_ref().expect("aimed at the sphere").distance * from.length();
+                assert!(
+                    depth <= 1.0001 * s && depth >= 0.985 * s,
+                    "{fixed:?} {tag}: {depth} vs {s}"
+                );
+            }
+            assert!(results.shadows.iter().all(|(_, blocked)| *blocked));
+        }
+    }
+}

@@ -23,6 +23,10 @@ fn strategies() -> Vec<Strategy> {
     for size in [1, 3, 16, 64, 100] {
         v.push(Strategy::SortedPackets { size });
     }
+    // Runs cut at every key, at blocks of the default layout's directions, and never (drop_bits clamped).
+    for (size, drop_bits) in [(64, 0), (64, 10), (3, 10), (100, 40)] {
+        v.push(Strategy::SortedRuns { size, drop_bits });
+    }
     for (branching, depth) in [(8, 2), (8, 3), (8, 4), (16, 2), (16, 3), (16, 4), (3, 1)] {
         v.push(Strategy::Crsh { branching, depth });
         v.push(Strategy::Rah { branching, depth });

@@ -12,7 +12,7 @@ use super::stats::{OptionStats, PlannedOption};
 use super::{RayHit, RayQueue, RayResults, TraceStats, TraceWorld};
 use crate::adaptive::Choice;
 use crate::geometry::Ray;
-use crate::raysort::{KeyLayout, RayKind, SecondaryRay, sort_rays};
+use crate::raysort::{KeyLayout, RayKind, SecondaryRay, SortScratch, SortedRays};
 use crate::{Result, parallel};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -115,6 +115,22 @@ pub struct SecondaryRays {
     depth: usize,
     /// The planners of [`RayBatch::Closest`] and [`RayBatch::Occlusion`].
     planners: [Choice<SecondaryStrategy>; 2],
+    /// Kept from frame to frame: a warm frame's batches allocate nothing (CRSH aside).
+    buffers: Buffers,
+}
+
+/// The working buffers of [`answer_secondary`], grown to the largest batch seen.
+#[derive(Clone, Debug, Default)]
+struct Buffers {
+    /// The frame's secondary requests of each [`RayBatch`], in request order.
+    rays: [Vec<SecondaryRay>; 2],
+    /// The sorted order of the batch being traced, and the sort's buffers.
+    sorted: SortedRays,
+    sort: SortScratch,
+    /// Answers in trace order.
+    done: Vec<Answer>,
+    /// Answers in batch order.
+    answers: Vec<Answer>,
 }
 
 impl Default for SecondaryRays {
@@ -144,6 +160,7 @@ impl SecondaryRays {
             branching,
             depth,
             planners: [planner.clone(), planner],
+            buffers: Buffers::default(),
         })
     }
 
@@ -167,7 +184,8 @@ impl SecondaryRays {
 
 /// Answers the secondary requests of `queue` into `out` (already sized by the primary pass, which skips
 /// them), batch by batch, with each batch's strategy; unless the strategy is fixed, teaches the batch's
-/// planner its time and records the pick in `stats`. Allocates per batch (indices, keys, the answers in trace order).
+/// planner its time and records the pick in `stats`. Works in `config`'s kept buffers: once they have
+/// grown to the frame's batches, allocates nothing (CRSH, which builds its hierarchy per batch, aside).
 pub(super) fn answer_secondary(
     world: &TraceWorld,
     queue: &RayQueue,
@@ -175,35 +193,57 @@ pub(super) fn answer_secondary(
     out: &mut RayResults,
     stats: &mut TraceStats,
 ) {
-    let closest: Vec<SecondaryRay> = (queue.rays.iter().enumerate())
-        .filter_map(|(i, r)| secondary(r.ray, r.kind, i))
-        .collect();
-    let occlusion: Vec<SecondaryRay> = (queue.shadows.iter().enumerate())
-        .filter_map(|(i, s)| secondary(Ray::segment(s.from, s.to), s.kind, i))
-        .collect();
-    for (batch, rays) in [
-        (RayBatch::Closest, closest),
-        (RayBatch::Occlusion, occlusion),
-    ] {
+    let mut b = std::mem::take(&mut config.buffers);
+    let [closest, occlusion] = &mut b.rays;
+    closest.clear();
+    closest
+        .extend((queue.rays.iter().enumerate()).filter_map(|(i, r)| secondary(r.ray, r.kind, i)));
+    occlusion.clear();
+    occlusion.extend(
+        (queue.shadows.iter().enumerate())
+            .filter_map(|(i, s)| secondary(Ray::segment(s.from, s.to), s.kind, i)),
+    );
+    let Buffers {
+        rays,
+        sorted,
+        sort,
+        done,
+        answers,
+    } = &mut b;
+    let mut work = Work {
+        sorted,
+        sort,
+        done,
+        answers,
+    };
+    for (batch, rays) in [RayBatch::Closest, RayBatch::Occlusion]
+        .into_iter()
+        .zip(&*rays)
+    {
         if rays.is_empty() {
             continue;
         }
         let (strategy, tried) = config.pick(batch, rays.len());
         let start = Instant::now();
-        let answers = match trace_batch(world, queue, batch, &rays, strategy, config) {
-            Ok(a) => a,
-            Err(e) => {
-                // Unreachable with a validated config; answered in request order rather than lost.
-                log::error!("kinetrace: secondary batch: {e}");
-                trace_batch(world, queue, batch, &rays, SecondaryStrategy::Bvh, config)
-                    .expect("the BVH path does not fail")
-            }
-        };
-        for (r, a) in rays.iter().zip(answers) {
+        if let Err(e) = trace_batch(world, queue, batch, rays, strategy, config, &mut work) {
+            // Unreachable with a validated config; answered in request order rather than lost.
+            log::error!("kinetrace: secondary batch: {e}");
+            trace_batch(
+                world,
+                queue,
+                batch,
+                rays,
+                SecondaryStrategy::Bvh,
+                config,
+                &mut work,
+            )
+            .expect("the BVH path does not fail");
+        }
+        for (r, a) in rays.iter().zip(work.answers.iter_mut()) {
             let i = r.tag as usize;
             match batch {
                 RayBatch::Closest => {
-                    let hit = match a {
+                    let hit = match std::mem::take(a) {
                         Answer::Hit(h) => Some(h),
                         Answer::Miss | Answer::Occluded => None,
                     };
@@ -224,6 +264,7 @@ pub(super) fn answer_secondary(
             });
         }
     }
+    config.buffers = b;
 }
 
 /// The secondary ray of a queued request with index `index` (its tag here), if its kind is secondary.
@@ -244,7 +285,15 @@ enum Answer {
     Hit(RayHit),
 }
 
-/// One batch's answers in batch order: closest hits, or occlusion.
+/// The buffers one batch is traced in, borrowed from [`Buffers`].
+struct Work<'a> {
+    sorted: &'a mut SortedRays,
+    sort: &'a mut SortScratch,
+    done: &'a mut Vec<Answer>,
+    answers: &'a mut Vec<Answer>,
+}
+
+/// One batch's answers in batch order (closest hits, or occlusion) into `work.answers`.
 fn trace_batch(
     world: &TraceWorld,
     queue: &RayQueue,
@@ -252,7 +301,8 @@ fn trace_batch(
     rays: &[SecondaryRay],
     strategy: SecondaryStrategy,
     config: &SecondaryRays,
-) -> Result<Vec<Answer>> {
+    work: &mut Work,
+) -> Result<()> {
     let filter = |j: usize| {
         let i = rays[j].tag as usize;
         match batch {
@@ -275,14 +325,25 @@ fn trace_batch(
             }
         }
     };
-    let order: Vec<u32> = match strategy {
-        SecondaryStrategy::Bvh => (0..rays.len() as u32).collect(),
-        SecondaryStrategy::SortedBvh => sort_rays(rays, &config.layout, true)?.order,
+    let answers = &mut *work.answers;
+    answers.clear();
+    answers.resize(rays.len(), Answer::Miss);
+    if strategy == SecondaryStrategy::Bvh {
+        parallel::fill(true, answers, 64, single);
+        return Ok(());
+    }
+    work.sorted.sort(rays, &config.layout, true, work.sort)?;
+    let valid = &work.sorted.order[..work.sorted.valid()];
+    let done = &mut *work.done;
+    done.clear();
+    done.resize(valid.len(), Answer::Miss);
+    match strategy {
+        SecondaryStrategy::Bvh => unreachable!("answered above"),
+        SecondaryStrategy::SortedBvh => {
+            parallel::fill(true, done, 64, |k| single(valid[k] as usize));
+        }
         SecondaryStrategy::SortedPackets => {
-            let sorted = sort_rays(rays, &config.layout, true)?;
-            let valid = &sorted.order[..sorted.valid()];
-            let mut done = vec![Answer::Miss; valid.len()];
-            parallel::fill_chunks(true, &mut done, SORTED_PACKET, |c, out| {
+            parallel::fill_chunks(true, done, SORTED_PACKET, |c, out| {
                 let ids = &valid[c * SORTED_PACKET..c * SORTED_PACKET + out.len()];
                 let mut start = 0;
                 while start < ids.len() {
@@ -303,11 +364,8 @@ fn trace_batch(
                     start = end;
                 }
             });
-            return Ok(in_request_order(rays.len(), valid, done));
         }
         SecondaryStrategy::Crsh => {
-            let sorted = sort_rays(rays, &config.layout, true)?;
-            let valid = &sorted.order[..sorted.valid()];
             let ordered: Vec<Ray> = valid.iter().map(|&j| rays[j as usize].ray).collect();
             let filters: Vec<_> = valid.iter().map(|&j| filter(j as usize)).collect();
             let any = batch == RayBatch::Occlusion;
@@ -319,30 +377,23 @@ fn trace_batch(
                 config.branching,
                 config.depth,
             )?;
-            let mut answers = vec![Answer::Miss; rays.len()];
-            for ((&j, f), r) in valid.iter().zip(found).zip(&ordered) {
-                answers[j as usize] = match f {
+            for ((d, f), r) in done.iter_mut().zip(found).zip(&ordered) {
+                *d = match f {
                     None => Answer::Miss,
                     Some(_) if any => Answer::Occluded,
                     Some((e, h)) => Answer::Hit(world.instances[&e].world_hit(e, r, &h)),
                 };
             }
-            return Ok(answers);
         }
-    };
-    let mut done = vec![Answer::Miss; rays.len()];
-    parallel::fill(true, &mut done, 64, |k| single(order[k] as usize));
-    Ok(in_request_order(rays.len(), &order, done))
-}
-
-/// `done[k]`, the answer to batch ray `order[k]`, put back at `order[k]` among `len` answers (a Miss
-/// where `order` has no entry: the invalid rays a sort trimmed).
-fn in_request_order(len: usize, order: &[u32], done: Vec<Answer>) -> Vec<Answer> {
-    let mut answers = vec![Answer::Miss; len];
-    for (&j, a) in order.iter().zip(done) {
-        answers[j as usize] = a;
     }
-    answers
+    // Back in batch order; the rays the sort trimmed (invalid) answered one by one, as the BVH answers them.
+    for (&j, d) in valid.iter().zip(done.iter_mut()) {
+        answers[j as usize] = std::mem::take(d);
+    }
+    for &j in &work.sorted.order[valid.len()..] {
+        answers[j as usize] = single(j as usize);
+    }
+    Ok(())
 }
 
 /// The answers to the batch rays `ids` (at most [`SORTED_PACKET`], one filter), as one packet.

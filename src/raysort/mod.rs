@@ -6,7 +6,9 @@
 //! When to use it: batches of incoherent secondary rays (shadow rays toward lights, reflection rays) against
 //! one mesh. [`Strategy::SortedBvh`] costs one O(n) key pass plus a radix sort over the chunks of equal key
 //! and pays where request order is incoherent; [`Strategy::SortedPackets`] traces the sorted rays as
-//! packets (faster than the BVH on shadow rays toward one light, slower on reflection rays). CRSH cuts intersection tests against RAH, but its traversal
+//! packets (faster than the BVH on shadow rays toward one light, slower on reflection rays); [`Strategy::SortedRuns`] cuts
+//! those packets where the key changes (1.3× the BVH on the crowd's reflection rays at 1024² before the
+//! sort, about 1.07× with it). CRSH cuts intersection tests against RAH, but its traversal
 //! tests every triangle sphere against every top node, so on the CPU it is slower than the BVH for meshes of
 //! more than a few hundred triangles: measure (`bench raysort`) before choosing it.
 //!
