@@ -555,7 +555,34 @@ fn the_policy_rebuilds_where_query_time_follows_the_sah_cost() {
     let _serial = measured_time();
     for seed in 0..4 {
         let counted = rent_rebuilds(1.0, 40 + seed);
-        assert!(counted.verdicts[2] >= 5, "seed {seed}: {counted:?}");
+        eprintln!("seed {seed}: {counted:?}");
+        assert!(counted.verdicts[2] >= 6, "seed {seed}: {counted:?}");
+    }
+}
+
+/// The rent comes due where timing noise hides how query time follows the SAH cost (issue 19: on the
+/// churning corner the rent reached 6× the rebuild's cost while the margin it had to beat grew to 3.6×
+/// the rebuild's; that test passed only when the rent came due in the first frames). The scripted scene
+/// of [`script`] with no guard, 10⁵ rays a frame, query time proportional to the tree's cost with ±30%
+/// noise on every timing, and a tree's cost rising only 0.2% a frame after each rebuild: too little for
+/// the slope of query time against the cost to show through the noise. Each frame `k` after a rebuild
+/// costs `2.4 µs · k` more than a fresh LBVH tree's would (`10⁵ · 1 ns · 12 · 0.002 · k`), so a 1 ms
+/// LBVH rebuild (the one build offered) repays itself after about 30 frames: the rent rebuilds at least 6
+/// times in 300 frames (at most 10 can pay).
+#[test]
+fn the_rent_comes_due_where_noise_hides_the_query_slope() {
+    let _serial = measured_time();
+    for seed in 0..4 {
+        let mut s = Script {
+            rise: 0.002,
+            ..script(1e5, 0.3, 70 + seed)
+        };
+        let lbvh = [Build::cpu(Builder::LBVH)];
+        let mut p = AdaptivePolicy::shared(&lbvh, &CostTable::new(), Asset::default());
+        p.sah_bound = f64::INFINITY;
+        let counted = s.run(&mut p, Asset::default(), 300);
+        eprintln!("seed {seed}: {counted:?}");
+        assert!(counted.verdicts[2] >= 6, "seed {seed}: {counted:?}");
     }
 }
 

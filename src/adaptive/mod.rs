@@ -29,7 +29,14 @@
 //!   marginal rate as estimated *now* (so a rate revised down by the mesh's own frames revalues the
 //!   whole rent, not only the frames to come: charged frame by frame at the prior's proportional rate,
 //!   a scene whose query time ignores the SAH cost kept the rent of its first frames and rebuilt for
-//!   nothing); its spread is the rate's spread times the sum. The mesh is rebuilt once the rent
+//!   nothing). Its spread is what was measured: the measured query rates' relative spread of their
+//!   mean times the rent, and the anchor's error (the measured RMS error of a rebuilt tree's predicted
+//!   cost, per inexact anchor of the last tree and the tree the rebuild would make) times the rate
+//!   times the rays and fresh costs summed, as that error shifts every frame's fresh cost alike. Not
+//!   the marginal fit's spread, whose prior counts as uncertain by its whole value (where the tree's
+//!   cost varies too little for the slope to show through the timing noise, `z` such spreads grew as
+//!   fast as the rent, and a churning corner's rent never came due: issue 19), nor the guard's random
+//!   walk of the fresh cost, which bounds the guard's worst case. The mesh is rebuilt once the rent
 //!   exceeds the predicted rebuild time by `z` standard deviations of their difference ([`rank::pays`],
 //!   `z` = [`AdaptivePolicy::z`], 2 by default) — the ski-rental rule with a margin from the measured
 //!   noise instead of a magic constant.

@@ -143,11 +143,8 @@ pub struct AdaptivePolicy {
     /// The last binned-SAH tree built on this mesh: see [`Exact`].
     exact: Option<Exact>,
     current: Option<Build>,
-    /// The rent's work: rays times the SAH cost the refitted tree had above a fresh tree's, summed over
-    /// the frames since the last rebuild. Priced in seconds at the current marginal rate each frame, so
-    /// that when the rate is revised (the mesh's frames show query time following the SAH cost less
-    /// than assumed) the whole rent is, not only the frames still to come.
-    excess: f64,
+    /// The rent's work since the last rebuild: see [`RentWork`].
+    work: RentWork,
     frames: u32,
     age: u32,
     last_ratio: f64,
@@ -202,7 +199,7 @@ impl AdaptivePolicy {
             anchor_error: AnchorError::default(),
             exact: None,
             current: None,
-            excess: 0.0,
+            work: RentWork::default(),
             frames: 0,
             age: 0,
             last_ratio: 1.0,
@@ -225,7 +222,7 @@ impl AdaptivePolicy {
     /// the small policy (its list of builds).
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
-            excess: 0.0,
+            work: RentWork::default(),
             explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
@@ -297,10 +294,7 @@ impl AdaptivePolicy {
             };
             // The error holds the deviation of each inexact anchor (the previous one and this one); an
             // interval between two binned-SAH trees holds the walk alone, which `anchor` learns.
-            let inexact = [self.current, Some(build)]
-                .iter()
-                .filter(|b| !b.is_some_and(|b| is_sah(&b)))
-                .count();
+            let inexact = inexact(self.current, build);
             if let Some((predicted, walk)) = predicted
                 && inexact > 0
             {
@@ -332,7 +326,7 @@ impl AdaptivePolicy {
         drop(t);
         self.current = Some(build);
         self.guard_factor = 1.0;
-        self.excess = 0.0;
+        self.work = RentWork::default();
         self.frames = 0;
     }
 
@@ -436,7 +430,7 @@ impl AdaptivePolicy {
             sah: sah_cost,
             fresh_sah: 0.0,
         };
-        let mut excess = self.excess;
+        let mut work = self.work;
         let mut ratio = self.last_ratio;
         let mut guard_factor = 1.0;
         // The fresh cost were the last rebuild's tree exactly of its build's mean quality.
@@ -466,13 +460,20 @@ impl AdaptivePolicy {
                 }
                 ratio = sah_cost / p.fresh_sah;
             }
-            let (rate, rate_spread) = v.rate();
+            let rate = v.rate();
+            let rate_relative = v.rate_relative_spread();
             let fresh = v
                 .relative(build)
                 .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
-            excess += rays.max(0.0) * (sah_cost - fresh).max(0.0);
-            p.rent_s = rate * excess;
-            p.margin_s = self.z * rebuild_spread.hypot(rate_spread * excess);
+            work.add(rays.max(0.0), sah_cost, fresh);
+            p.rent_s = rate * work.excess;
+            // The rent's spread: the rate's error as measured (relative, so that it scales the rent)
+            // and the anchor's, which shifts the fresh cost of every frame since the rebuild alike.
+            let anchor = v.rent_anchor_error(build);
+            p.margin_s = self.z
+                * rebuild_spread
+                    .hypot(rate_relative * p.rent_s)
+                    .hypot(rate * anchor * work.fresh);
             // The ratio extrapolated one frame at this frame's rise.
             let rise = (ratio - self.last_ratio).max(0.0);
             p.verdict = if p.fresh_sah > 0.0 && ratio + rise > v.guard_at() {
@@ -504,7 +505,7 @@ impl AdaptivePolicy {
             e.carried = exact_carried;
         }
         self.guard_factor = guard_factor;
-        self.excess = excess;
+        self.work = work;
         self.last_ratio = ratio;
         self.last = p;
         p.verdict != Verdict::Keep
@@ -563,7 +564,7 @@ impl AdaptivePolicy {
         if sah_cost.is_finite() && sah_cost > 0.0 {
             self.sah_built = sah_cost;
         }
-        self.excess = 0.0;
+        self.work = RentWork::default();
     }
 
     /// Why the last [`after_refit`](Self::after_refit) decided as it did (the default before any).
@@ -589,6 +590,15 @@ fn is_sah(b: &Build) -> bool {
     matches!(b.builder, Builder::Sah { .. })
 }
 
+/// How many of the last tree (built with `last`, if any) and a tree of `next` are inexact anchors of
+/// the fresh binned-SAH cost: those not built by binned SAH.
+fn inexact(last: Option<Build>, next: Build) -> usize {
+    [last, Some(next)]
+        .iter()
+        .filter(|b| !b.is_some_and(|b| is_sah(&b)))
+        .count()
+}
+
 /// The last binned-SAH tree built on a mesh: the fresh cost the bound is stated against, measured, not
 /// inferred from a build's mean quality. A rebuild with another build moves the guard's reference to that
 /// build's tree (with its anchor error); this one is kept beside it, carried forward by the trend and
@@ -607,6 +617,27 @@ struct Exact {
     frames: u32,
     /// The factor the guard last carried its cost forward by (trend, walk and spread).
     carried: f64,
+}
+
+/// What the rent has summed since the last rebuild (or partial rebuild), in ray × SAH units, priced in
+/// seconds at the current marginal rate each frame, so that when the rate is revised (the mesh's frames
+/// show query time following the SAH cost less than assumed) the whole rent is, not only the frames
+/// still to come.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct RentWork {
+    /// Rays times the SAH cost the refitted tree had above a fresh tree's: the rent.
+    excess: f64,
+    /// Rays times the fresh tree's cost: what an error of the anchor that fresh cost is predicted from
+    /// (a relative error, the same in every frame since the rebuild) shifts the excess by, per unit.
+    fresh: f64,
+}
+
+impl RentWork {
+    /// Adds a frame of `rays` rays on a tree of SAH cost `sah` whose fresh tree is predicted at `fresh`.
+    fn add(&mut self, rays: f64, sah: f64, fresh: f64) {
+        self.excess += rays * (sah - fresh).max(0.0);
+        self.fresh += rays * fresh;
+    }
 }
 
 /// The error of the anchor the guard predicts the fresh binned-SAH cost from. After a rebuild with
@@ -650,6 +681,13 @@ impl AnchorError {
         let n = self.squares.effective_samples();
         let sum = n * self.squares.mean().unwrap_or(0.0).max(0.0);
         ((ANCHOR_PRIOR_WEIGHT * ANCHOR_PRIOR.powi(2) + sum) / (ANCHOR_PRIOR_WEIGHT + n)).sqrt()
+    }
+
+    /// The root mean square of `e` as measured, without the prior: 0 before any rebuild tested a
+    /// prediction. The rent's margin uses it (the prior is the guard's caution, the rent's is what was
+    /// seen: a prior that held the rent back would keep the rebuilds that measure it from coming).
+    fn measured(&self) -> f64 {
+        self.squares.mean().unwrap_or(0.0).max(0.0).sqrt()
     }
 
     /// The factor a fresh cost anchored on an average-quality tree is multiplied by so that it is
@@ -810,14 +848,35 @@ impl View<'_> {
         (mean.unwrap_or(0.0) * frames as f64).exp()
     }
 
-    /// The query seconds per ray that one more unit of SAH cost adds, and the spread of that estimate (0
-    /// before any query was measured): this mesh's fitted slope ([`QueryModel::marginal`]) with the
-    /// table's proportional rate as its prior. A rent sums many frames, so what is uncertain is the rate,
-    /// not one frame's noise.
-    fn rate(&self) -> (f64, f64) {
-        self.p
-            .query_model
+    /// The query seconds per ray that one more unit of SAH cost adds (0 before any query was measured):
+    /// this mesh's fitted slope ([`QueryModel::marginal`]) with the table's proportional rate as its
+    /// prior. Its spread is [`rate_relative_spread`](Self::rate_relative_spread)'s.
+    fn rate(&self) -> f64 {
+        (self.p.query_model)
             .marginal(proportional(&self.t.query_rate))
+            .0
+    }
+
+    /// The relative standard deviation of the rent's marginal rate, as measured: the spread of the mean
+    /// of the table's measured query rates over that mean. Not the spread of the marginal
+    /// fit ([`QueryModel::marginal`]), which takes its prior as uncertain by its whole value: where the
+    /// tree's cost varies too little for the slope to show through the timing noise, that spread
+    /// reaches the rate itself, and a margin of `z` times it grows as fast as the rent, so no rebuild
+    /// ever comes due (issue 19: a churning corner's rent reached 6× the rebuild's cost while its
+    /// margin grew to 3× the rent).
+    fn rate_relative_spread(&self) -> f64 {
+        let (mean, spread) = proportional(&self.t.query_rate);
+        if mean > 0.0 { spread / mean } else { 0.0 }
+    }
+
+    /// The log error of the fresh cost the rent charges a rebuild with `b` against: the measured
+    /// [`AnchorError`] of each inexact anchor of the two (the last tree and the tree `b` would build;
+    /// a binned-SAH tree is exact). The guard's random walk of the fresh cost is not in it: the rent is
+    /// measured against the anchor at the mean drift, and the walk bounds the guard's worst case, not
+    /// the rent's error (its spread grows with the frames, and summed into the rent's margin it outgrew
+    /// the rent).
+    fn rent_anchor_error(&self, b: Build) -> f64 {
+        self.p.anchor_error.measured() * (inexact(self.p.current, b) as f64).sqrt()
     }
 
     /// `b` as a candidate: its rebuild spread over the interval between rebuilds plus the queries of a
@@ -831,7 +890,7 @@ impl View<'_> {
         let (time, time_spread) = self.time(b).unwrap_or((0.0, 0.0));
         let (rel, rel_spread, measured) = self.relative(b)?;
         let interval = interval.max(1.0);
-        let per_rel = self.rate().0 * self.p.rays.mean().unwrap_or(0.0) * self.p.reference;
+        let per_rel = self.rate() * self.p.rays.mean().unwrap_or(0.0) * self.p.reference;
         Some((
             Candidate {
                 option: b,
