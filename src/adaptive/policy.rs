@@ -1091,6 +1091,37 @@ mod tests {
         assert!((many.factor(2.0) - (-2.0 * many.rms()).exp()).abs() < 1e-15);
     }
 
+    /// The rent's margin holds the anchor error as measured, over the rays and fresh costs summed: LBVH
+    /// trees at 10, 10 and 11 one frame apart teach a drift of 0 and then `ln 1.1` (mean `ln 1.1 / 2`)
+    /// and one anchor error, `ln 1.1` less the least walk over a frame (0.001²), shared by two inexact
+    /// anchors. Queries at exactly 1 ns per ray per unit (no spread) and three identical build times
+    /// leave nothing else in the margin: after one frame of 1000 rays, whose fresh cost is
+    /// `11 · 1.1^(1/2)`, it is `z · 1 ns · √(ln² 1.1 − 10⁻⁶) · 1000 · 11 · 1.1^(1/2)`.
+    #[test]
+    fn the_rent_margin_holds_the_measured_anchor_error() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH]);
+        p.sah_bound = f64::INFINITY;
+        for sah in [10.0, 10.0, 11.0] {
+            if p.current.is_some() {
+                p.after_refit(sah, 0.0);
+            }
+            p.built(Builder::LBVH, 1000, 1e-3, sah);
+        }
+        for _ in 0..3 {
+            p.queried(1000.0, 11.0, 1.1e-5);
+        }
+        assert!(!p.after_refit(13.0, 1000.0));
+        let why = p.prediction();
+        let fresh = 11.0 * 1.1f64.sqrt();
+        let error = (1.1f64.ln().powi(2) - 1e-6).sqrt();
+        let expect = 2.0 * 1e-9 * error * 1000.0 * fresh;
+        assert!(
+            (why.margin_s - expect).abs() < 1e-9 * expect,
+            "{why:?} vs {expect}"
+        );
+        assert!((why.rent_s - 1e-9 * 1000.0 * (13.0 - fresh)).abs() < 1e-15);
+    }
+
     /// LBVH rebuilds one frame apart: the second lands at 10 as predicted (its error is not learned: no
     /// drift was known, so the error would be the drift itself; a drift of 0 is learned), the third at
     /// 12 against a predicted 10: `e = ln 1.2`, less the drift's walk over one frame (its spread at the
