@@ -555,7 +555,34 @@ fn the_policy_rebuilds_where_query_time_follows_the_sah_cost() {
     let _serial = measured_time();
     for seed in 0..4 {
         let counted = rent_rebuilds(1.0, 40 + seed);
-        assert!(counted.verdicts[2] >= 5, "seed {seed}: {counted:?}");
+        eprintln!("seed {seed}: {counted:?}");
+        assert!(counted.verdicts[2] >= 6, "seed {seed}: {counted:?}");
+    }
+}
+
+/// The rent comes due where timing noise hides how query time follows the SAH cost (issue 19: on the
+/// churning corner the rent reached 6× the rebuild's cost while the margin it had to beat grew to 3.6×
+/// the rebuild's; that test passed only when the rent came due in the first frames). The scripted scene
+/// of [`script`] with no guard, 10⁵ rays a frame, query time proportional to the tree's cost with ±30%
+/// noise on every timing, and a tree's cost rising only 0.2% a frame after each rebuild: too little for
+/// the slope of query time against the cost to show through the noise. Each frame `k` after a rebuild
+/// costs `2.4 µs · k` more than a fresh LBVH tree's would (`10⁵ · 1 ns · 12 · 0.002 · k`), so a 1 ms
+/// LBVH rebuild (the one build offered) repays itself after about 30 frames: the rent rebuilds at least 6
+/// times in 300 frames (at most 10 can pay).
+#[test]
+fn the_rent_comes_due_where_noise_hides_the_query_slope() {
+    let _serial = measured_time();
+    for seed in 0..4 {
+        let mut s = Script {
+            rise: 0.002,
+            ..script(1e5, 0.3, 70 + seed)
+        };
+        let lbvh = [Build::cpu(Builder::LBVH)];
+        let mut p = AdaptivePolicy::shared(&lbvh, &CostTable::new(), Asset::default());
+        p.sah_bound = f64::INFINITY;
+        let counted = s.run(&mut p, Asset::default(), 300);
+        eprintln!("seed {seed}: {counted:?}");
+        assert!(counted.verdicts[2] >= 6, "seed {seed}: {counted:?}");
     }
 }
 
@@ -633,6 +660,78 @@ fn without_rays_only_the_guard_rebuilds() {
         (0, 0),
         "{counted:?}"
     );
+}
+
+/// A scripted mesh whose every tree is known, for the guard: the fresh binned-SAH tree of frame `f`
+/// costs `10 · exp(drift · f)`; a tree built by LBVH or hybrid costs that times its build's mean
+/// quality (1.22, 1.21) times `exp(u)`, `u` uniform in `±0.05` (the anchor noise of one tree around its
+/// build's mean, as the soup's trees showed), a binned-SAH tree exactly the fresh cost. A refitted
+/// tree's ratio to the fresh binned-SAH tree of its frame moves from its tree's ratio at the rebuild
+/// towards `ceiling` (`(1 − e^(−k/10))` of the way after `k` frames) plus `rise · k`: the true SAH ratio,
+/// which the planner never sees. Queries cost 1 ns per ray per unit of SAH cost; builds 1, 2.5 and
+/// 5 ms. Returns the guard's rebuilds and the largest true ratio a tree answered queries with.
+fn guard_script(ceiling: f64, rise: f64, seed: u64) -> (usize, f64) {
+    let mut r = rng(seed);
+    let builds = [
+        (Build::cpu(Builder::LBVH), 1e-3, 1.22),
+        (Build::cpu(Builder::HYBRID), 2.5e-3, 1.21),
+        (Build::cpu(Builder::SAH), 5e-3, 1.0),
+    ];
+    let fresh = |f: u32| 10.0 * (5e-4 * f as f64).exp();
+    let rays = 2e4;
+    let mut p = AdaptivePolicy::shared(&OFFERED, &CostTable::new(), Asset::default());
+    let tree = |b: Build, r: &mut SmallRng| {
+        let &(_, s, q) = builds.iter().find(|x| x.0 == b).unwrap();
+        let noise = if q == 1.0 {
+            0.0
+        } else {
+            r.random_range(-0.05..=0.05)
+        };
+        (s, q * f64::exp(noise))
+    };
+    let b = p.next_build();
+    let (s, mut built_ratio) = tree(b, &mut r);
+    p.built(b, TRIANGLES, s, built_ratio * fresh(0));
+    let (mut guards, mut worst, mut since) = (0, 0.0f64, 0u32);
+    for f in 1..300 {
+        since += 1;
+        let k = since as f64;
+        let mut ratio =
+            built_ratio + (ceiling - built_ratio) * (1.0 - (-k / 10.0).exp()) + rise * k;
+        if p.after_refit(ratio * fresh(f), rays) {
+            let why = p.prediction();
+            guards += (why.verdict == Verdict::Guard) as usize;
+            let (s, q) = tree(why.build, &mut r);
+            p.built(why.build, TRIANGLES, s, q * fresh(f));
+            (built_ratio, ratio, since) = (q, q, 0);
+        }
+        worst = worst.max(ratio);
+        p.queried(rays, ratio * fresh(f), 1e-9 * rays * ratio * fresh(f));
+    }
+    (guards, worst)
+}
+
+/// The guard rebuilds for the bound, not for its own uncertainty (issue 19: on the report's soup 224 of
+/// 226 rebuilds were the guard's while the refitted tree never passed 1.254 × a fresh binned-SAH tree):
+/// a refitted tree whose true ratio levels off at 1.3, with the fresh cost drifting slowly and every
+/// LBVH or hybrid tree up to 5% off its build's mean, is rebuilt by the guard at most 4 times in 300
+/// frames. Where the ratio keeps rising (by 0.5% a frame on top), the guard does rebuild, and no tree
+/// answers a frame above the bound.
+#[test]
+fn the_guard_rebuilds_rarely_below_the_bound_and_always_before_it() {
+    let _serial = measured_time();
+    for seed in 0..4 {
+        let (guards, worst) = guard_script(1.3, 0.0, 60 + seed);
+        eprintln!("seed {seed}: {guards} guard rebuilds, true ratio at most {worst:.3}");
+        assert!(worst <= 1.3 + 1e-12, "seed {seed}: {worst}");
+        assert!(guards <= 4, "seed {seed}: {guards} guard rebuilds");
+        let (guards, worst) = guard_script(1.3, 0.005, 60 + seed);
+        assert!(guards >= 1, "seed {seed}: the rise passes the bound");
+        assert!(
+            worst <= DEFAULT_SAH_BOUND,
+            "seed {seed}: true ratio {worst}"
+        );
+    }
 }
 
 /// Through the ECS: two entities of one mesh share the plugin's cost table. The first is run alone until

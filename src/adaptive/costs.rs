@@ -51,6 +51,9 @@ pub(super) struct Tables {
     /// Per asset: the per-frame change of `ln` of a fresh tree's cost (how the scene's own cost drifts
     /// as it moves), shared because instances of one character move alike.
     pub drift: HashMap<Asset, Estimate>,
+    /// Per asset: the variance per frame of the random walk of `ln` of a fresh tree's cost around its
+    /// trend, learned only from intervals between two exact (binned-SAH) anchors, whose own error is 0.
+    pub walk: HashMap<Asset, Estimate>,
 }
 
 impl Tables {
@@ -115,7 +118,12 @@ impl CostTable {
         self.lock().drift.entry(asset).or_default().add(per_frame);
     }
 
-    /// Forgets what was learned per asset (relative tree costs, drift) for every asset `keep` rejects:
+    /// Learns one per-frame variance of the random walk of `ln` of a fresh tree's cost on `asset`.
+    pub(super) fn learn_walk(&self, asset: Asset, per_frame: f64) {
+        self.lock().walk.entry(asset).or_default().add(per_frame);
+    }
+
+    /// Forgets what was learned per asset (relative tree costs, drift and its walk) for every asset `keep` rejects:
     /// call it when an asset's last mesh is gone, so that a long-running world that streams meshes in
     /// and out does not grow the table without bound. Per-build times and the query rate are kept: they
     /// generalise across assets. O(assets).
@@ -123,6 +131,7 @@ impl CostTable {
         let mut t = self.lock();
         t.quality.retain(|a, _| keep(a));
         t.drift.retain(|a, _| keep(a));
+        t.walk.retain(|a, _| keep(a));
     }
 
     /// Whether `build` was measured on `asset` by any mesh sharing the table.

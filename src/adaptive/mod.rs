@@ -29,7 +29,14 @@
 //!   marginal rate as estimated *now* (so a rate revised down by the mesh's own frames revalues the
 //!   whole rent, not only the frames to come: charged frame by frame at the prior's proportional rate,
 //!   a scene whose query time ignores the SAH cost kept the rent of its first frames and rebuilt for
-//!   nothing); its spread is the rate's spread times the sum. The mesh is rebuilt once the rent
+//!   nothing). Its spread is what was measured: the measured query rates' relative spread of their
+//!   mean times the rent, and the anchor's error (the measured RMS error of a rebuilt tree's predicted
+//!   cost, per inexact anchor of the last tree and the tree the rebuild would make) times the rate
+//!   times the rays and fresh costs summed, as that error shifts every frame's fresh cost alike. Not
+//!   the marginal fit's spread, whose prior counts as uncertain by its whole value (where the tree's
+//!   cost varies too little for the slope to show through the timing noise, `z` such spreads grew as
+//!   fast as the rent, and a churning corner's rent never came due: issue 19), nor the guard's random
+//!   walk of the fresh cost, which bounds the guard's worst case. The mesh is rebuilt once the rent
 //!   exceeds the predicted rebuild time by `z` standard deviations of their difference ([`rank::pays`],
 //!   `z` = [`AdaptivePolicy::z`], 2 by default) — the ski-rental rule with a margin from the measured
 //!   noise instead of a magic constant.
@@ -45,20 +52,31 @@
 //!   due). The horizon is the frames seen so far (a scene that ran `n` frames is expected to run about `n`
 //!   more), so short scenes explore little and long ones what can repay itself. One exception: the first
 //!   rebuild due on an asset with no binned-SAH tree measured builds one, because the bound is stated
-//!   against it. A build tried is measured against the reference carried forward by the guard's
-//!   (conservative) factor, so an error in it errs towards an earlier guard. The first build of an asset
+//!   against it. A build tried is measured against the last binned-SAH tree of the mesh carried forward
+//!   by the guard's factor for it (an exact anchor, carried conservatively); without one, against the reference carried forward by the
+//!   guard's (conservative) factor, so an error in it errs towards an earlier guard. Before an interval
+//!   between rebuilds was measured, a build tried is priced over the frames the current one has lasted,
+//!   and a rebuild that tried a build teaches no interval. The first build of an asset
 //!   nobody measured is the one of least predicted time.
 //! - **Guard (the SAH bound)**: the bound ([`AdaptivePolicy::sah_bound`], 1.5) is on the quantity the
 //!   report measures: the tree's SAH cost over a fresh *binned-SAH* tree's of the same frame. The fresh
 //!   cost is predicted from the last rebuild (its build's measured relative cost and the asset's measured
 //!   binned-SAH cost), carried forward at the lower of two factors: a fall as fast as the asset's learned
-//!   drift *magnitude* plus `z` spreads (the sign of the trend is not trusted: the report's orbiting rigid
+//!   drift *magnitude* times the frames `k`, plus `z` standard deviations of a random walk, `√(k·w)`,
+//!   whose variance per frame `w` is learned only between two binned-SAH trees (whose anchors have no
+//!   error; at least 0.001² a frame; issue 19: a drift spread learned from 1–3-frame intervals between
+//!   LBVH trees held their own deviations, 2–2.7% a frame, and carried linearly it rebuilt the report's
+//!   soup every 1.3 frames) (the sign of the trend is not trusted: the report's orbiting rigid
 //!   bodies' fresh cost rose 2% a frame for two intervals, then fell 1.7% a frame, and a guard that
 //!   carried the rise forward passed the bound by 3%), and the root area then over the root area now ([`TreeCost`]: as a scene spreads out, every
 //!   box but the root can shrink relative to it by that much, so an explosion's fresh cost is assumed to
 //!   fall as fast as its extent grows) — the latter no lower than `1 / (1 + |C_now / C_built − 1|)`, since
 //!   a motion that kept the refitted tree's cost (uniform scaling, rigid motion) kept the fresh tree's
-//!   too. A fresh cost that falls makes the guard earlier, never later. The ratio is extrapolated one
+//!   too. A fresh cost that falls makes the guard earlier, never later. The mesh's last binned-SAH tree
+//!   is kept as a second, exact anchor through rebuilds with other builds, carried forward the same way
+//!   (by the root area alone: its tree is not the one refitted now), and the guard takes the higher of
+//!   the two fresh costs. A guard rebuild that would not be due were the last tree exactly of its
+//!   build's mean quality (due to the anchor error alone) builds binned SAH, which ends that error. The ratio is extrapolated one
 //!   frame at this frame's rise, and the mesh is rebuilt *before* the next frame would pass the bound
 //!   (while the fresh binned-SAH cost rests on the priors, before it would pass the bound over one prior
 //!   spread, 1.2, and that rebuild measures a binned-SAH tree, where one is offered; where none is, the
@@ -72,7 +90,8 @@
 //!   hybrid rebuild can be too high. Every rebuild of a measured build tests the prediction of its cost,
 //!   and after a rebuild that is not binned SAH the guard lowers the fresh cost by `z` RMS log errors of
 //!   those predictions (after a binned-SAH rebuild the anchor is exact); the bound then also assumes that
-//!   a tree deviates from its build's mean by less than `z` such errors.
+//!   a tree deviates from its build's mean by less than `z` such errors. An error between two inexact
+//!   anchors counts half to each.
 //!   The anchor error starts from a prior (a log spread of 0.08, the widest a tree's quality showed
 //!   around its build's mean over the report's scenes) worth two samples and moves to the measured
 //!   RMS as rebuilds test it (the posterior mean of a variance under a scaled inverse-χ² prior), so

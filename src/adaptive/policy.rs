@@ -140,12 +140,11 @@ pub struct AdaptivePolicy {
     guard_factor: f64,
     /// How far this mesh's rebuilt trees landed from their predicted cost: see [`AnchorError`].
     anchor_error: AnchorError,
+    /// The last binned-SAH tree built on this mesh: see [`Exact`].
+    exact: Option<Exact>,
     current: Option<Build>,
-    /// The rent's work: rays times the SAH cost the refitted tree had above a fresh tree's, summed over
-    /// the frames since the last rebuild. Priced in seconds at the current marginal rate each frame, so
-    /// that when the rate is revised (the mesh's frames show query time following the SAH cost less
-    /// than assumed) the whole rent is, not only the frames still to come.
-    excess: f64,
+    /// The rent's work since the last rebuild: see [`RentWork`].
+    work: RentWork,
     frames: u32,
     age: u32,
     last_ratio: f64,
@@ -198,8 +197,9 @@ impl AdaptivePolicy {
             sah_built: 0.0,
             guard_factor: 1.0,
             anchor_error: AnchorError::default(),
+            exact: None,
             current: None,
-            excess: 0.0,
+            work: RentWork::default(),
             frames: 0,
             age: 0,
             last_ratio: 1.0,
@@ -222,7 +222,7 @@ impl AdaptivePolicy {
     /// the small policy (its list of builds).
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
-            excess: 0.0,
+            work: RentWork::default(),
             explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
@@ -288,17 +288,33 @@ impl AdaptivePolicy {
                             && !self.assumed
                     })
                     .map(|r| {
-                        let walk = self.frames as f64 * v.drift_spread().powi(2);
+                        let walk = self.frames as f64 * v.walk_var();
                         (self.reference * r.0 * v.mean_drift(self.frames), walk)
                     })
             };
-            if let Some((predicted, walk)) = predicted {
-                self.anchor_error.learn(sah_cost, predicted, walk);
+            // The error holds the deviation of each inexact anchor (the previous one and this one); an
+            // interval between two binned-SAH trees holds the walk alone, which `anchor` learns.
+            let inexact = inexact(self.current, build);
+            if let Some((predicted, walk)) = predicted
+                && inexact > 0
+            {
+                self.anchor_error
+                    .learn(sah_cost, predicted, walk, inexact as f64);
             }
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
+            if is_sah(&build) {
+                self.exact = Some(Exact {
+                    build,
+                    sah: sah_cost,
+                    area: self.area_built,
+                    frames: 0,
+                    carried: 1.0,
+                });
+            }
         }
-        if self.frames > 0 {
+        // A build tried on a frame that would have refitted says nothing of when rebuilds are due.
+        if self.frames > 0 && self.last.verdict != Verdict::Explore {
             self.interval.add(self.frames as f64);
         }
         let t = self.costs.lock();
@@ -310,7 +326,7 @@ impl AdaptivePolicy {
         drop(t);
         self.current = Some(build);
         self.guard_factor = 1.0;
-        self.excess = 0.0;
+        self.work = RentWork::default();
         self.frames = 0;
     }
 
@@ -326,21 +342,38 @@ impl AdaptivePolicy {
                 self.reference = sah_cost / rel;
                 let assumed = std::mem::replace(&mut self.assumed, false);
                 if old > 0.0 && self.frames > 0 && !assumed {
-                    self.costs
-                        .learn_drift(self.asset, (self.reference / old).ln() / self.frames as f64);
+                    let k = self.frames as f64;
+                    let x = (self.reference / old).ln();
+                    let trend = (self.costs.lock().drift.get(&self.asset))
+                        .and_then(Estimate::mean)
+                        .unwrap_or(0.0);
+                    self.costs.learn_drift(self.asset, x / k);
+                    // Between two binned-SAH trees nothing but the walk moved the anchor.
+                    if self.current.is_some_and(|b| is_sah(&b)) && is_sah(&build) {
+                        self.costs
+                            .learn_walk(self.asset, (x - trend * k).powi(2) / k);
+                    }
                 }
             }
             _ => {
-                // Unmeasured: compare with where the guard assumed the reference had fallen to (an error
-                // then makes this build look worse and the guard earlier, never later), or start the
-                // unit here. No drift is learned from an assumption.
-                let now = if old > 0.0 {
-                    old * self.guard_factor
-                } else {
-                    sah_cost
+                // Unmeasured: compare with the last binned-SAH tree carried forward as the guard did
+                // (an exact anchor, off only by the walk, trend and spread since, which err towards an
+                // earlier guard: an explosion's fresh cost falls fast); without one, with where the guard
+                // assumed the reference had fallen to (an error then makes this build look worse and the
+                // guard earlier, never later), or start the unit here. No drift is learned from an
+                // assumption.
+                let exact = self.exact.filter(|_| old > 0.0).and_then(|e| {
+                    let t = self.costs.lock();
+                    let unit = t.quality(&self.asset, e.build)?.mean()?;
+                    Some(e.sah * e.carried / unit)
+                });
+                let now = match exact {
+                    Some(unit) => unit,
+                    None if old > 0.0 => old * self.guard_factor,
+                    None => sah_cost,
                 };
                 self.costs.learn_quality(self.asset, build, sah_cost / now);
-                self.assumed = old > 0.0;
+                self.assumed = old > 0.0 && exact.is_none();
                 self.reference = now;
             }
         }
@@ -372,13 +405,18 @@ impl AdaptivePolicy {
         // extent grows by a factor, every box but the root's can shrink relative to it by as much. But a
         // motion that kept the refitted tree's cost (a uniform scaling, a rigid motion) kept the
         // fresh tree's too: the fall is assumed no larger than the refitted cost's relative change.
-        let moved = 1.0 / (1.0 + (sah_cost / self.sah_built.max(f64::MIN_POSITIVE) - 1.0).abs());
-        let spread_out = match (self.area_built, root_area) {
-            (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0).max(moved),
-            _ => 1.0,
+        let spread_out = |area: Option<f64>, sah: f64| {
+            let moved = 1.0 / (1.0 + (sah_cost / sah.max(f64::MIN_POSITIVE) - 1.0).abs());
+            match (area, root_area) {
+                (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0).max(moved),
+                _ => 1.0,
+            }
         };
         self.frames += 1;
         self.age = self.age.saturating_add(1);
+        if let Some(e) = &mut self.exact {
+            e.frames += 1;
+        }
         let t = self.costs.lock();
         let v = self.view(&t);
         let (build, _) = v.plan(true);
@@ -392,26 +430,61 @@ impl AdaptivePolicy {
             sah: sah_cost,
             fresh_sah: 0.0,
         };
-        let mut excess = self.excess;
+        let mut work = self.work;
         let mut ratio = self.last_ratio;
         let mut guard_factor = 1.0;
+        // The fresh cost were the last rebuild's tree exactly of its build's mean quality.
+        let mut unerring = 0.0;
+        let mut exact_carried = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
-                guard_factor =
-                    v.guard_drift(self.frames).min(spread_out) * v.anchor_factor(self.current);
+                let carried = v
+                    .guard_drift(self.frames)
+                    .min(spread_out(self.area_built, self.sah_built));
+                guard_factor = carried * v.anchor_factor(self.current);
                 p.fresh_sah = self.reference * sah * guard_factor;
+                unerring = self.reference * sah * carried;
+                // The last binned-SAH tree, carried forward, bounds the fresh cost too: it has no
+                // anchor error, only the walk and trend since.
+                // (Its tree is not the one refitted now, so no fall is ruled out by how little the
+                // refitted tree's cost moved: the root's area alone bounds it.)
+                if let Some(e) = self.exact {
+                    let spread = match (e.area, root_area) {
+                        (Some(then), Some(now)) if now > 0.0 => (then / now).min(1.0),
+                        _ => 1.0,
+                    };
+                    let carried = v.guard_drift(e.frames).min(spread);
+                    p.fresh_sah = p.fresh_sah.max(e.sah * carried);
+                    unerring = unerring.max(e.sah * carried);
+                    exact_carried = carried;
+                }
                 ratio = sah_cost / p.fresh_sah;
             }
-            let (rate, rate_spread) = v.rate();
+            let rate = v.rate();
+            let rate_relative = v.rate_relative_spread();
             let fresh = v
                 .relative(build)
                 .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
-            excess += rays.max(0.0) * (sah_cost - fresh).max(0.0);
-            p.rent_s = rate * excess;
-            p.margin_s = self.z * rebuild_spread.hypot(rate_spread * excess);
+            work.add(rays.max(0.0), sah_cost, fresh);
+            p.rent_s = rate * work.excess;
+            // The rent's spread: the rate's error as measured (relative, so that it scales the rent)
+            // and the anchor's, which shifts the fresh cost of every frame since the rebuild alike.
+            let anchor = v.rent_anchor_error(build);
+            p.margin_s = self.z
+                * rebuild_spread
+                    .hypot(rate_relative * p.rent_s)
+                    .hypot(rate * anchor * work.fresh);
             // The ratio extrapolated one frame at this frame's rise.
-            let next = ratio + (ratio - self.last_ratio).max(0.0);
-            p.verdict = if p.fresh_sah > 0.0 && next > v.guard_at() {
+            let rise = (ratio - self.last_ratio).max(0.0);
+            p.verdict = if p.fresh_sah > 0.0 && ratio + rise > v.guard_at() {
+                // Due only for the anchor's error (not were the last tree of its build's mean
+                // quality): a binned-SAH tree, exact, ends that error where one is offered.
+                if sah_cost / unerring + rise <= v.guard_at()
+                    && let Some(&b) = self.builds.iter().find(|b| is_sah(b))
+                {
+                    p.build = b;
+                    p.rebuild_s = v.time(b).map_or(0.0, |t| t.0);
+                }
                 Verdict::Guard
             } else if p.rent_s > 0.0 && pays(p.rent_s, rebuild_s, p.margin_s / self.z, self.z) {
                 Verdict::Rent
@@ -428,8 +501,11 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        if let Some(e) = &mut self.exact {
+            e.carried = exact_carried;
+        }
         self.guard_factor = guard_factor;
-        self.excess = excess;
+        self.work = work;
         self.last_ratio = ratio;
         self.last = p;
         p.verdict != Verdict::Keep
@@ -488,7 +564,7 @@ impl AdaptivePolicy {
         if sah_cost.is_finite() && sah_cost > 0.0 {
             self.sah_built = sah_cost;
         }
-        self.excess = 0.0;
+        self.work = RentWork::default();
     }
 
     /// Why the last [`after_refit`](Self::after_refit) decided as it did (the default before any).
@@ -505,6 +581,62 @@ impl AdaptivePolicy {
 
     fn view<'a>(&'a self, tables: &'a Tables) -> View<'a> {
         View { t: tables, p: self }
+    }
+}
+
+/// Whether `b` builds binned-SAH trees: the trees the bound is stated against, so an anchor on one is
+/// exact.
+fn is_sah(b: &Build) -> bool {
+    matches!(b.builder, Builder::Sah { .. })
+}
+
+/// How many of the last tree (built with `last`, if any) and a tree of `next` are inexact anchors of
+/// the fresh binned-SAH cost: those not built by binned SAH.
+fn inexact(last: Option<Build>, next: Build) -> usize {
+    [last, Some(next)]
+        .iter()
+        .filter(|b| !b.is_some_and(|b| is_sah(&b)))
+        .count()
+}
+
+/// The last binned-SAH tree built on a mesh: the fresh cost the bound is stated against, measured, not
+/// inferred from a build's mean quality. A rebuild with another build moves the guard's reference to that
+/// build's tree (with its anchor error); this one is kept beside it, carried forward by the trend and
+/// walk alone, and the guard takes the higher of the two fresh costs, as both are lower bounds at `z`.
+/// It also measures a build tried for the first time (its quality against this tree carried at the
+/// mean drift) rather than against the guard's conservative reference.
+#[derive(Clone, Copy, Debug)]
+struct Exact {
+    /// The binned-SAH build that made it.
+    build: Build,
+    /// Its SAH cost.
+    sah: f64,
+    /// Its root's half area, if told.
+    area: Option<f64>,
+    /// Frames since it was built.
+    frames: u32,
+    /// The factor the guard last carried its cost forward by (trend, walk and spread).
+    carried: f64,
+}
+
+/// What the rent has summed since the last rebuild (or partial rebuild), in ray × SAH units, priced in
+/// seconds at the current marginal rate each frame, so that when the rate is revised (the mesh's frames
+/// show query time following the SAH cost less than assumed) the whole rent is, not only the frames
+/// still to come.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct RentWork {
+    /// Rays times the SAH cost the refitted tree had above a fresh tree's: the rent.
+    excess: f64,
+    /// Rays times the fresh tree's cost: what an error of the anchor that fresh cost is predicted from
+    /// (a relative error, the same in every frame since the rebuild) shifts the excess by, per unit.
+    fresh: f64,
+}
+
+impl RentWork {
+    /// Adds a frame of `rays` rays on a tree of SAH cost `sah` whose fresh tree is predicted at `fresh`.
+    fn add(&mut self, rays: f64, sah: f64, fresh: f64) {
+        self.excess += rays * (sah - fresh).max(0.0);
+        self.fresh += rays * fresh;
     }
 }
 
@@ -529,13 +661,14 @@ struct AnchorError {
 }
 
 impl AnchorError {
-    /// Learns one rebuild: its tree's SAH cost, the cost predicted for it (both positive) and the
-    /// variance of `ln` of the fresh cost that the drift's own spread explains over the interval (the
-    /// guard allows for that apart): the sample is `max(0, e² − walk)`.
-    fn learn(&mut self, actual: f64, predicted: f64, walk: f64) {
+    /// Learns one rebuild: its tree's SAH cost, the cost predicted for it (both positive), the
+    /// variance of `ln` of the fresh cost that the drift's walk explains over the interval (the guard
+    /// allows for that apart) and the inexact anchors the error holds (1 or 2: the previous tree and
+    /// this one, less any binned-SAH tree, which is exact): the sample is `max(0, e² − walk) / anchors`.
+    fn learn(&mut self, actual: f64, predicted: f64, walk: f64, anchors: f64) {
         if actual > 0.0 && predicted > 0.0 {
             self.squares
-                .add(((actual / predicted).ln().powi(2) - walk).max(0.0));
+                .add(((actual / predicted).ln().powi(2) - walk).max(0.0) / anchors);
         }
     }
 
@@ -548,6 +681,13 @@ impl AnchorError {
         let n = self.squares.effective_samples();
         let sum = n * self.squares.mean().unwrap_or(0.0).max(0.0);
         ((ANCHOR_PRIOR_WEIGHT * ANCHOR_PRIOR.powi(2) + sum) / (ANCHOR_PRIOR_WEIGHT + n)).sqrt()
+    }
+
+    /// The root mean square of `e` as measured, without the prior: 0 before any rebuild tested a
+    /// prediction. The rent's margin uses it (the prior is the guard's caution, the rent's is what was
+    /// seen: a prior that held the rent back would keep the rebuilds that measure it from coming).
+    fn measured(&self) -> f64 {
+        self.squares.mean().unwrap_or(0.0).max(0.0).sqrt()
     }
 
     /// The factor a fresh cost anchored on an average-quality tree is multiplied by so that it is
@@ -671,15 +811,20 @@ impl View<'_> {
     /// and a guard that carried the rise forward would pass the bound. A rise only makes the guard
     /// earlier, so assuming a fall as fast as any motion seen costs early rebuilds, never the bound.
     fn guard_drift(&self, frames: u32) -> f64 {
-        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        let low = -(d.mean().unwrap_or(0.0).abs() + self.p.z * self.drift_spread());
-        (low * frames as f64).exp()
+        let trend = (self.t.drift.get(&self.p.asset))
+            .and_then(Estimate::mean)
+            .unwrap_or(0.0);
+        let k = frames as f64;
+        (-(trend.abs() * k + self.p.z * (k * self.walk_var()).sqrt())).exp()
     }
 
-    /// The spread of the per-frame drift of `ln` of the fresh cost, at least [`MIN_DRIFT_SPREAD`].
-    fn drift_spread(&self) -> f64 {
-        let d = self.t.drift.get(&self.p.asset).copied().unwrap_or_default();
-        d.spread().max(MIN_DRIFT_SPREAD)
+    /// The variance per frame of the random walk of `ln` of the fresh cost around its trend, learned
+    /// between binned-SAH trees, at least [`MIN_DRIFT_SPREAD`]².
+    fn walk_var(&self) -> f64 {
+        (self.t.walk.get(&self.p.asset))
+            .and_then(Estimate::mean)
+            .unwrap_or(0.0)
+            .max(MIN_DRIFT_SPREAD.powi(2))
     }
 
     /// The factor by which the fresh cost anchored at the last rebuild may be too high because that tree
@@ -703,23 +848,49 @@ impl View<'_> {
         (mean.unwrap_or(0.0) * frames as f64).exp()
     }
 
-    /// The query seconds per ray that one more unit of SAH cost adds, and the spread of that estimate (0
-    /// before any query was measured): this mesh's fitted slope ([`QueryModel::marginal`]) with the
-    /// table's proportional rate as its prior. A rent sums many frames, so what is uncertain is the rate,
-    /// not one frame's noise.
-    fn rate(&self) -> (f64, f64) {
-        self.p
-            .query_model
+    /// The query seconds per ray that one more unit of SAH cost adds (0 before any query was measured):
+    /// this mesh's fitted slope ([`QueryModel::marginal`]) with the table's proportional rate as its
+    /// prior. Its spread is [`rate_relative_spread`](Self::rate_relative_spread)'s.
+    fn rate(&self) -> f64 {
+        (self.p.query_model)
             .marginal(proportional(&self.t.query_rate))
+            .0
+    }
+
+    /// The relative standard deviation of the rent's marginal rate, as measured: the spread of the mean
+    /// of the table's measured query rates over that mean. Not the spread of the marginal
+    /// fit ([`QueryModel::marginal`]), which takes its prior as uncertain by its whole value: where the
+    /// tree's cost varies too little for the slope to show through the timing noise, that spread
+    /// reaches the rate itself, and a margin of `z` times it grows as fast as the rent, so no rebuild
+    /// ever comes due (issue 19: a churning corner's rent reached 6× the rebuild's cost while its
+    /// margin grew to 3× the rent).
+    fn rate_relative_spread(&self) -> f64 {
+        let (mean, spread) = proportional(&self.t.query_rate);
+        if mean > 0.0 { spread / mean } else { 0.0 }
+    }
+
+    /// The log error of the fresh cost the rent charges a rebuild with `b` against: the measured
+    /// [`AnchorError`] of each inexact anchor of the two (the last tree and the tree `b` would build;
+    /// a binned-SAH tree is exact). The guard's random walk of the fresh cost is not in it: the rent is
+    /// measured against the anchor at the mean drift, and the walk bounds the guard's worst case, not
+    /// the rent's error (its spread grows with the frames, and summed into the rent's margin it outgrew
+    /// the rent).
+    fn rent_anchor_error(&self, b: Build) -> f64 {
+        self.p.anchor_error.measured() * (inexact(self.p.current, b) as f64).sqrt()
     }
 
     /// `b` as a candidate: its rebuild spread over the interval between rebuilds plus the queries of a
     /// frame on its fresh tree.
     fn candidate(&self, b: Build) -> Option<(Candidate<Build>, bool)> {
+        self.candidate_over(b, self.p.interval.mean().unwrap_or(1.0))
+    }
+
+    /// [`candidate`](Self::candidate) with its rebuild spread over `interval` frames.
+    fn candidate_over(&self, b: Build, interval: f64) -> Option<(Candidate<Build>, bool)> {
         let (time, time_spread) = self.time(b).unwrap_or((0.0, 0.0));
         let (rel, rel_spread, measured) = self.relative(b)?;
-        let interval = self.p.interval.mean().unwrap_or(1.0).max(1.0);
-        let per_rel = self.rate().0 * self.p.rays.mean().unwrap_or(0.0) * self.p.reference;
+        let interval = interval.max(1.0);
+        let per_rel = self.rate() * self.p.rays.mean().unwrap_or(0.0) * self.p.reference;
         Some((
             Candidate {
                 option: b,
@@ -803,11 +974,14 @@ impl View<'_> {
             l.iter()
                 .any(|(b, _)| matches!(b.builder, Builder::Sah { .. }))
         });
-        let chosen_c = self.candidate(chosen)?.0;
+        // Before an interval between rebuilds was measured, the current one has lasted `frames`: a
+        // build tried is priced over that, not over a single frame.
+        let interval = (self.p.interval.mean()).unwrap_or(self.p.frames as f64);
+        let chosen_c = self.candidate_over(chosen, interval)?.0;
         let horizon = self.p.age as f64;
         let chosen_time = self.time(chosen).map_or(0.0, |t| t.0);
         self.p.builds.iter().copied().find(|&b| {
-            let Some((c, false)) = self.candidate(b) else {
+            let Some((c, false)) = self.candidate_over(b, interval) else {
                 return false;
             };
             if rebuilding && !sah_measured && matches!(b.builder, Builder::Sah { .. }) {
@@ -878,10 +1052,10 @@ mod tests {
         assert!(p.after_refit(14.6, 0.0));
         let why = p.prediction();
         assert_eq!((why.verdict, why.rent_s), (Verdict::Guard, 0.0));
-        // The fresh cost carried 4 frames at the least drift spread: 10 · exp(−2 · 0.001 · 4).
+        // The fresh cost carried 4 frames as a random walk of the least spread: 10 · exp(−2 · 0.001 · √4).
         assert_eq!(why.sah, 14.6);
         assert!(
-            (why.fresh_sah - 10.0 * (-0.008f64).exp()).abs() < 1e-9,
+            (why.fresh_sah - 10.0 * (-0.004f64).exp()).abs() < 1e-9,
             "{why:?}"
         );
     }
@@ -897,29 +1071,65 @@ mod tests {
         let mut e = AnchorError::default();
         assert!((e.rms() - 0.08).abs() < 1e-15);
         assert!((e.factor(2.0) - (-0.16f64).exp()).abs() < 1e-15);
-        e.learn(12.0, 10.0, 0.0);
-        e.learn(10.0, 12.0, 0.0);
-        e.learn(f64::NAN, 1.0, 0.0);
+        e.learn(12.0, 10.0, 0.0, 1.0);
+        e.learn(10.0, 12.0, 0.0, 1.0);
+        e.learn(f64::NAN, 1.0, 0.0, 1.0);
         assert!((e.rms() - ((prior + 2.0 * l2) / 4.0).sqrt()).abs() < 1e-12);
         // A sample the drift's walk explains in full adds a zero: three samples summing 2 · ln² 1.2.
         let mut w = e;
-        w.learn(12.0, 10.0, 1.0);
+        w.learn(12.0, 10.0, 1.0, 1.0);
         assert!((w.rms() - ((prior + 2.0 * l2) / 5.0).sqrt()).abs() < 1e-12);
+        // Two inexact anchors share an error: each holds half of it.
+        let mut two = e;
+        two.learn(12.0, 10.0, 0.0, 2.0);
+        assert!((two.rms() - ((prior + 2.5 * l2) / 5.0).sqrt()).abs() < 1e-12);
         let mut many = AnchorError::default();
         for _ in 0..50 {
-            many.learn(12.0, 10.0, 0.0);
+            many.learn(12.0, 10.0, 0.0, 1.0);
         }
         assert!((many.rms() - ((prior + 9.0 * l2) / 11.0).sqrt()).abs() < 1e-12);
         assert!((many.factor(2.0) - (-2.0 * many.rms()).exp()).abs() < 1e-15);
     }
 
+    /// The rent's margin holds the anchor error as measured, over the rays and fresh costs summed: LBVH
+    /// trees at 10, 10 and 11 one frame apart teach a drift of 0 and then `ln 1.1` (mean `ln 1.1 / 2`)
+    /// and one anchor error, `ln 1.1` less the least walk over a frame (0.001²), shared by two inexact
+    /// anchors. Queries at exactly 1 ns per ray per unit (no spread) and three identical build times
+    /// leave nothing else in the margin: after one frame of 1000 rays, whose fresh cost is
+    /// `11 · 1.1^(1/2)`, it is `z · 1 ns · √(ln² 1.1 − 10⁻⁶) · 1000 · 11 · 1.1^(1/2)`.
+    #[test]
+    fn the_rent_margin_holds_the_measured_anchor_error() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH]);
+        p.sah_bound = f64::INFINITY;
+        for sah in [10.0, 10.0, 11.0] {
+            if p.current.is_some() {
+                p.after_refit(sah, 0.0);
+            }
+            p.built(Builder::LBVH, 1000, 1e-3, sah);
+        }
+        for _ in 0..3 {
+            p.queried(1000.0, 11.0, 1.1e-5);
+        }
+        assert!(!p.after_refit(13.0, 1000.0));
+        let why = p.prediction();
+        let fresh = 11.0 * 1.1f64.sqrt();
+        let error = (1.1f64.ln().powi(2) - 1e-6).sqrt();
+        let expect = 2.0 * 1e-9 * error * 1000.0 * fresh;
+        assert!(
+            (why.margin_s - expect).abs() < 1e-9 * expect,
+            "{why:?} vs {expect}"
+        );
+        assert!((why.rent_s - 1e-9 * 1000.0 * (13.0 - fresh)).abs() < 1e-15);
+    }
+
     /// LBVH rebuilds one frame apart: the second lands at 10 as predicted (its error is not learned: no
     /// drift was known, so the error would be the drift itself; a drift of 0 is learned), the third at
     /// 12 against a predicted 10: `e = ln 1.2`, less the drift's walk over one frame (its spread at the
-    /// least, 0.001²). The drift is then 0 and `ln 1.2` (mean and spread `ln 1.2 / 2`: a fall of
-    /// `1.2^(−1.5)` a frame), and the fresh cost rests on LBVH's prior quality (no binned-SAH tree
-    /// measured), where no anchor error applies. After a binned-SAH rebuild, whose tree is the fresh one,
-    /// the anchor error is not applied either.
+    /// least, 0.001²). The drift is then 0 and `ln 1.2` (mean `ln 1.2 / 2`; no walk was learned, as no
+    /// interval ran between two binned-SAH trees: the least, 0.001 a frame, so a fall of
+    /// `1.2^(−0.5) · e^(−0.002)` a frame), and the fresh cost rests on LBVH's prior quality (no binned-SAH
+    /// tree measured), where no anchor error applies. After a binned-SAH rebuild, whose tree is the fresh
+    /// one, the anchor error is not applied either.
     #[test]
     fn the_anchor_error_is_not_applied_on_priors_nor_after_binned_sah() {
         let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
@@ -931,7 +1141,8 @@ mod tests {
         p.after_refit(12.0, 0.0);
         // No binned-SAH tree measured: the fresh cost rests on the priors, and no anchor error applies.
         let prior = Build::cpu(Builder::LBVH).prior_quality(false);
-        let expect = 12.0 / prior * 1.2f64.powf(-1.5);
+        let fall = 1.2f64.powf(-0.5) * (-0.002f64).exp();
+        let expect = 12.0 / prior * fall;
         let fresh = p.prediction().fresh_sah;
         assert!(
             (fresh - expect).abs() < 1e-9 * expect,
@@ -942,10 +1153,7 @@ mod tests {
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
         p.after_refit(10.0, 0.0);
         let why = p.prediction();
-        assert!(
-            (why.fresh_sah - 10.0 * 1.2f64.powf(-1.5)).abs() < 1e-9,
-            "{why:?}"
-        );
+        assert!((why.fresh_sah - 10.0 * fall).abs() < 1e-9, "{why:?}");
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
