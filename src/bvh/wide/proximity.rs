@@ -81,7 +81,7 @@ impl WideBvh {
                 let (d2, mask) = bound4(node, discs.get(cur as usize), p, limit);
                 let mask = keep_used(mask, node, limit == f32::INFINITY);
                 if mask != 0 {
-                    self.prefetch_lanes(node, mask, slot_data);
+                    self.prefetch_lanes(node, mask, slot_data, discs);
                     cur = nearest_first(&node.child, mask, &d2, &mut stack, &mut sp);
                     continue;
                 }
@@ -102,9 +102,9 @@ impl WideBvh {
     }
 
     /// Asks the cache for the first slot's entry of `slot_data` of each leaf lane of `mask` and for the node
-    /// of each inner lane. A hint only: no load, no fault, whatever the address.
+    /// (and its discs, if any) of each inner lane. A hint only: no load, no fault, whatever the address.
     #[inline(always)]
-    fn prefetch_lanes<T>(&self, node: &WideNode, mask: u32, slot_data: &[T]) {
+    fn prefetch_lanes<T>(&self, node: &WideNode, mask: u32, slot_data: &[T], discs: &[LaneDiscs]) {
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
@@ -112,24 +112,32 @@ impl WideBvh {
             while m != 0 {
                 let c = node.child[m.trailing_zeros() as usize];
                 m &= m - 1;
-                // A node spans two cache lines; a leaf's first entry one.
+                // A node and its discs span two cache lines each; a leaf's first entry one.
                 let (at, lines) = if is_leaf(c) {
                     (
-                        slot_data.as_ptr().wrapping_add(leaf_slots(c).start) as *const i8,
-                        1,
+                        [slot_data.as_ptr().wrapping_add(leaf_slots(c).start) as *const i8; 2],
+                        [1, 0],
                     )
                 } else {
-                    (self.nodes.as_ptr().wrapping_add(c as usize) as *const i8, 2)
+                    (
+                        [
+                            self.nodes.as_ptr().wrapping_add(c as usize) as *const i8,
+                            discs.as_ptr().wrapping_add(c as usize) as *const i8,
+                        ],
+                        [2, if discs.is_empty() { 0 } else { 2 }],
+                    )
                 };
-                for line in 0..lines {
-                    // SAFETY: a prefetch reads nothing and cannot fault, for any address (SSE, x86-64
-                    // baseline).
-                    unsafe { _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(64 * line)) };
+                for (at, lines) in at.into_iter().zip(lines) {
+                    for line in 0..lines {
+                        // SAFETY: a prefetch reads nothing and cannot fault, for any address (SSE,
+                        // x86-64 baseline).
+                        unsafe { _mm_prefetch::<_MM_HINT_T0>(at.wrapping_add(64 * line)) };
+                    }
                 }
             }
         }
         #[cfg(not(target_arch = "x86_64"))]
-        let _ = (node, mask, slot_data);
+        let _ = (node, mask, slot_data, discs);
     }
 
     /// Calls `leaf` with the slots of every leaf whose box overlaps `b` (touching counts), in tree order.
