@@ -1,8 +1,8 @@
 //! A BVH over the triangles of a [`Mesh`], with ray queries.
 
 use super::traverse::{Counter, TraversalStats, traverse};
-use super::wide::WideBvh;
 use super::wide::compact::CompactWideBvh;
+use super::wide::{DiscCache, LaneDiscs, WideBvh};
 use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_nodes};
 use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
@@ -73,6 +73,8 @@ pub struct MeshBvh {
     wide: Option<WideBvh>,
     /// The quantised form of the wide tree, in its place when asked for ([`MeshBvh::set_compact`]).
     compact: Option<CompactWideBvh>,
+    /// The wide tree's lane discs for closest points and sphere overlaps, fitted when first asked for.
+    discs: DiscCache,
 }
 
 /// Source of [`MeshBvh::topology_id`]s.
@@ -156,6 +158,7 @@ impl MeshBvh {
             topology: next_topology_id(),
             wide: wide.then(|| WideBvh::collapse(bvh.nodes())),
             compact: None,
+            discs: DiscCache::default(),
             bvh,
         }
     }
@@ -163,6 +166,7 @@ impl MeshBvh {
     /// Derives the wide query tree (`true`, a collapse pass when there is none yet) or drops it and its
     /// compact form (`false`, queries walk the binary tree again). See [`BuildOptions::wide`].
     pub fn set_wide(&mut self, on: bool) {
+        self.discs.clear();
         if !on {
             self.wide = None;
             self.compact = None;
@@ -176,6 +180,7 @@ impl MeshBvh {
     /// the float one (`false`). For large static meshes: while compact, a refit or partial rebuild
     /// re-derives it (collapse and quantise, O(n)) and [`wide`](Self::wide) is `None`.
     pub fn set_compact(&mut self, on: bool) {
+        self.discs.clear();
         if on && self.compact.is_none() {
             let wide = self
                 .wide
@@ -192,6 +197,15 @@ impl MeshBvh {
         self.wide.as_ref()
     }
 
+    /// The wide tree's lane discs (see [`DiscCache`]), fitted now if they are not yet; none without a wide
+    /// tree.
+    pub(crate) fn lane_discs(&self) -> &[LaneDiscs] {
+        match &self.wide {
+            Some(w) => self.discs.get(w, &self.tris),
+            None => &[],
+        }
+    }
+
     /// The compact query tree, when asked for with [`set_compact`](Self::set_compact).
     pub fn compact(&self) -> Option<&CompactWideBvh> {
         self.compact.as_ref()
@@ -199,6 +213,7 @@ impl MeshBvh {
 
     /// Re-derives the query trees after the binary tree changed its topology.
     fn rederive(&mut self) {
+        self.discs.clear();
         if self.wide.is_some() {
             self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
         }
@@ -270,6 +285,7 @@ impl MeshBvh {
         if let Some(w) = &mut self.wide {
             w.refit(&self.bvh.nodes);
         }
+        self.discs.clear();
         if self.compact.is_some() {
             self.rederive();
         }

@@ -44,6 +44,8 @@ mod shapes;
 
 pub(crate) use cast::Sweep;
 pub(crate) use closest::box_dist2;
+#[cfg(test)]
+pub(crate) use closest::closest_on_triangle;
 pub(crate) use frame::Frame;
 
 pub use cast::CastHit;

@@ -29,6 +29,7 @@
 //! [`MeshBvh`]: super::MeshBvh
 
 pub mod compact;
+mod discs;
 mod proximity;
 pub mod simd;
 
@@ -36,6 +37,7 @@ use super::node::{COUNT_SHIFT, FIRST_MASK};
 use super::traverse::Counter;
 use super::{LEAF_BIT, MAX_DEPTH, Node};
 use crate::geometry::{Aabb, Ray};
+pub(crate) use discs::{DiscCache, LaneDiscs};
 use simd::{RayLanes, hit4};
 use std::ops::Range;
 
