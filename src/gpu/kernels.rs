@@ -159,9 +159,7 @@ impl Kernels {
                 device,
                 "lbvh",
                 shader!("lbvh.wgsl"),
-                &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Uniform,
-                ],
+                &[Read, Read, Write, Write, Write, Write, Write, Write, Write, Uniform],
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
             levels: Module::new(
@@ -247,8 +245,7 @@ impl Kernels {
                 "sah",
                 shader!("sah_build.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Read, Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Read, Uniform,
                 ],
                 &[
                     "sah_frame",
@@ -262,7 +259,6 @@ impl Kernels {
                     "sah_scatter",
                     "sah_copy",
                     "sah_small",
-                    "sah_finish",
                 ],
             ),
             ploc: Module::new(

@@ -33,17 +33,20 @@ pub struct PlocBuildCounts {
 
 /// A mesh's PLOC builder on the GPU: buffers for one mesh size, reused across builds.
 ///
-/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 126
-/// bytes per triangle, see [`GpuMeshBvh`]) and nothing per triangle beyond them: the clustering state
-/// (cluster boxes 64 over `2n - 1` ids, two cluster lists, neighbours and scan offsets 16, merge links 8)
-/// lives in that tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the
-/// scan's block sums (4 bytes per 256 triangles) and a few words of state are its own.
+/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 110
+/// bytes per triangle, see [`GpuMeshBvh`]) and 4 per triangle beyond them, the cluster list: the rest of
+/// the clustering state (cluster boxes 64 over `2n - 1` ids, the survivors' list, neighbours and scan
+/// offsets 12, merge links 8) lives in that tree's buffers that the sort leaves free
+/// ([`GpuMeshBvh::ploc_scratch`]); the scan's block sums (4 bytes per 256 triangles) and a few words of
+/// state are its own too.
 pub struct GpuPloc {
     lbvh: GpuMeshBvh,
     radius: u32,
     state: GpuBuffer,
     args: GpuBuffer,
     _params: ParamSlots,
+    /// Node ids of the clusters in order (4 B per triangle); the root's id at the end.
+    clusters: GpuBuffer,
     /// [0] writes the indirect arguments (direct dispatches), [1] binds a stand-in (indirect dispatches).
     groups: [wgpu::BindGroup; 2],
     _scratch: Vec<GpuBuffer>,
@@ -62,9 +65,10 @@ impl GpuPloc {
         let lbvh = GpuMeshBvh::new(ctx, mesh)?;
         lbvh.use_cube_codes(ctx);
         let n = lbvh.triangle_count().max(1) as u64;
-        // Boxes over the node buffer, clusters over the centroids, survivors over the level order,
-        // neighbours over the parents, scan offsets over the Morton codes, merge links over the children.
-        let [boxes, offsets, clusters, next, children, nn] = lbvh.ploc_scratch();
+        // Boxes over the node buffer, survivors over the level order, neighbours over the parents, scan
+        // offsets over the Morton codes, merge links over the children; the clusters need a list of their own.
+        let [boxes, offsets, next, children, nn] = lbvh.ploc_scratch();
+        let clusters = GpuBuffer::storage(ctx, "ploc clusters", n * 4);
         let sums = GpuBuffer::storage(ctx, "ploc block sums", n.div_ceil(256) * 4);
         let state = GpuBuffer::storage(ctx, "ploc state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -113,6 +117,7 @@ impl GpuPloc {
             args,
             _params: params,
             groups,
+            clusters,
             _scratch: vec![sums, stand_in],
             counts: PlocBuildCounts::default(),
         })
@@ -125,7 +130,7 @@ impl GpuPloc {
 
     /// GPU memory held (the mesh, the sort and all clustering scratch), in bytes.
     pub fn memory_bytes(&self) -> u64 {
-        let own = [&self.state, &self.args];
+        let own = [&self.state, &self.args, &self.clusters];
         own.into_iter()
             .chain(&self._scratch)
             .map(|b| b.buffer().size())
@@ -198,8 +203,8 @@ impl GpuPloc {
             enc = ctx.encoder();
         }
         let mut enc = ctx.encoder();
-        let [_, _, clusters, _, children, _] = self.lbvh.ploc_scratch();
-        let root = Readback::<u32>::record(ctx, &mut enc, clusters.buffer(), 1);
+        let [_, _, _, children, _] = self.lbvh.ploc_scratch();
+        let root = Readback::<u32>::record(ctx, &mut enc, self.clusters.buffer(), 1);
         let children =
             Readback::<[u32; 2]>::record(ctx, &mut enc, children.buffer(), n as usize - 1);
         let leaves = self.lbvh.record_sorted_ids(ctx, &mut enc);
