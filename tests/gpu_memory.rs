@@ -40,7 +40,11 @@ fn memory_bytes_are_the_allocated_buffers() {
         assert!(bytes <= budget, "{name}: {bytes} > {budget}");
         let large = n >= 100_000;
         if large {
-            assert!(bytes <= 113 * n, "{name}: LBVH {} B/tri", bytes as f64 / n as f64);
+            assert!(
+                bytes <= 113 * n,
+                "{name}: LBVH {} B/tri",
+                bytes as f64 / n as f64
+            );
         }
         for options in [
             GpuSahOptions::SAH,
@@ -80,7 +84,11 @@ fn memory_bytes_are_the_allocated_buffers() {
             budget + own
         );
         if large {
-            assert!(bytes <= 113 * n, "{name}: PLOC {} B/tri", bytes as f64 / n as f64);
+            assert!(
+                bytes <= 113 * n,
+                "{name}: PLOC {} B/tri",
+                bytes as f64 / n as f64
+            );
         }
     }
 }

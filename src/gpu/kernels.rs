@@ -159,7 +159,9 @@ impl Kernels {
                 device,
                 "lbvh",
                 shader!("lbvh.wgsl"),
-                &[Read, Read, Write, Write, Write, Write, Write, Write, Write, Uniform],
+                &[
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Uniform,
+                ],
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
             levels: Module::new(
@@ -245,7 +247,8 @@ impl Kernels {
                 "sah",
                 shader!("sah_build.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Read, Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Read,
+                    Uniform,
                 ],
                 &[
                     "sah_frame",
