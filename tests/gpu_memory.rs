@@ -74,10 +74,9 @@ fn memory_bytes_are_the_allocated_buffers() {
         }
         let (bytes, ploc) = allocated(&g, || GpuPloc::new(&g, &m, 16).unwrap());
         assert_eq!(ploc.memory_bytes(), bytes, "{name}: PLOC");
-        // PLOC clusters in its LBVH tree's buffers: beyond them only its cluster list (4 bytes per
-        // triangle), the scan's block sums and six small buffers (state, arguments, stand-in,
-        // parameters, sums, clusters) of at least 256 bytes each.
-        let own = 4 * n + n.div_ceil(256) * 4 + 6 * 256;
+        // PLOC clusters in its LBVH tree's buffers: beyond them only the scan's block sums and five
+        // small buffers (state, arguments, stand-in, parameters, sums) of at least 256 bytes each.
+        let own = n.div_ceil(256) * 4 + 5 * 256;
         assert!(
             bytes <= budget + own,
             "{name}: PLOC {bytes} > {}",

@@ -34,19 +34,17 @@ pub struct PlocBuildCounts {
 /// A mesh's PLOC builder on the GPU: buffers for one mesh size, reused across builds.
 ///
 /// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 110
-/// bytes per triangle, see [`GpuMeshBvh`]) and 4 per triangle beyond them, the cluster list: the rest of
-/// the clustering state (cluster boxes 64 over `2n - 1` ids, the survivors' list, neighbours and scan
-/// offsets 12, merge links 8) lives in that tree's buffers that the sort leaves free
-/// ([`GpuMeshBvh::ploc_scratch`]); the scan's block sums (4 bytes per 256 triangles) and a few words of
-/// state are its own too.
+/// bytes per triangle, see [`GpuMeshBvh`]) and nothing per triangle beyond them: the clustering state
+/// (cluster boxes 64 over `2n - 1` ids, the cluster list in the unused fourth word of the first `n`
+/// boxes' minima, the survivors' list, neighbours and scan offsets 12, merge links 8) lives in that
+/// tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the scan's block sums
+/// (4 bytes per 256 triangles) and a few words of state are its own.
 pub struct GpuPloc {
     lbvh: GpuMeshBvh,
     radius: u32,
     state: GpuBuffer,
     args: GpuBuffer,
     _params: ParamSlots,
-    /// Node ids of the clusters in order (4 B per triangle); the root's id at the end.
-    clusters: GpuBuffer,
     /// [0] writes the indirect arguments (direct dispatches), [1] binds a stand-in (indirect dispatches).
     groups: [wgpu::BindGroup; 2],
     _scratch: Vec<GpuBuffer>,
@@ -65,10 +63,10 @@ impl GpuPloc {
         let lbvh = GpuMeshBvh::new(ctx, mesh)?;
         lbvh.use_cube_codes(ctx);
         let n = lbvh.triangle_count().max(1) as u64;
-        // Boxes over the node buffer, survivors over the level order, neighbours over the parents, scan
-        // offsets over the Morton codes, merge links over the children; the clusters need a list of their own.
+        // Boxes over the node buffer, the clusters in its boxes' spare words, survivors over the level
+        // order, neighbours over the parents, scan offsets over the Morton codes, merge links over the
+        // children.
         let [boxes, offsets, next, children, nn] = lbvh.ploc_scratch();
-        let clusters = GpuBuffer::storage(ctx, "ploc clusters", n * 4);
         let sums = GpuBuffer::storage(ctx, "ploc block sums", n.div_ceil(256) * 4);
         let state = GpuBuffer::storage(ctx, "ploc state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -97,7 +95,7 @@ impl GpuPloc {
                     lbvh.indices_binding(),
                     lbvh.sorted_ids_binding(),
                     boxes.binding(),
-                    clusters.binding(),
+                    boxes.binding(),
                     next.binding(),
                     nn.binding(),
                     offsets.binding(),
@@ -117,7 +115,6 @@ impl GpuPloc {
             args,
             _params: params,
             groups,
-            clusters,
             _scratch: vec![sums, stand_in],
             counts: PlocBuildCounts::default(),
         })
@@ -130,7 +127,7 @@ impl GpuPloc {
 
     /// GPU memory held (the mesh, the sort and all clustering scratch), in bytes.
     pub fn memory_bytes(&self) -> u64 {
-        let own = [&self.state, &self.args, &self.clusters];
+        let own = [&self.state, &self.args];
         own.into_iter()
             .chain(&self._scratch)
             .map(|b| b.buffer().size())
@@ -203,15 +200,16 @@ impl GpuPloc {
             enc = ctx.encoder();
         }
         let mut enc = ctx.encoder();
-        let [_, _, _, children, _] = self.lbvh.ploc_scratch();
-        let root = Readback::<u32>::record(ctx, &mut enc, self.clusters.buffer(), 1);
+        let [boxes, _, _, children, _] = self.lbvh.ploc_scratch();
+        // The last cluster, the root, is the cluster list's first entry: word 3 of the node buffer.
+        let root = Readback::<u32>::record(ctx, &mut enc, boxes.buffer(), 4);
         let children =
             Readback::<[u32; 2]>::record(ctx, &mut enc, children.buffer(), n as usize - 1);
         let leaves = self.lbvh.record_sorted_ids(ctx, &mut enc);
         ctx.submit(enc);
         self.counts.submissions += 1;
         let tree = MergeTree {
-            root: root.wait(ctx)?[0],
+            root: root.wait(ctx)?[3],
             children: children.wait(ctx)?,
         };
         let (nodes, prims) = lay_out(&mesh.triangle_bounds(), leaves.wait(ctx)?, &tree, 1, true);
