@@ -177,8 +177,8 @@ pub struct GpuSahBuilder {
     _params: ParamSlots,
     state: GpuBuffer,
     /// Bins and level queues of their own, where the tree's node max fields and parents are too small
-    /// (else the bins are cleared in the node buffer).
-    own: Option<[GpuBuffer; 2]>,
+    /// (else the bins are cleared in the node buffer). Boxed: most builders have none.
+    own: Option<Box<[GpuBuffer; 2]>>,
     args: GpuBuffer,
     /// Binds the argument buffer (for the argument kernels).
     args_group: wgpu::BindGroup,
@@ -219,13 +219,13 @@ impl GpuSahBuilder {
             && bin_words <= 3 * (2 * n - 1)
             && queue_bytes <= parents.buffer().size();
         let own = (!shared).then(|| {
-            [
+            Box::new([
                 GpuBuffer::storage(ctx, "sah bins", bin_words * 4),
                 GpuBuffer::storage(ctx, "sah queues", queue_bytes),
-            ]
+            ])
         });
         let [positions, indices, nodes, vals, keys] = bvh.build_targets();
-        let (bins, queues) = match &own {
+        let (bins, queues) = match own.as_deref() {
             Some([b, q]) => (b, q),
             None => (nodes, parents),
         };
@@ -293,7 +293,7 @@ impl GpuSahBuilder {
     pub fn memory_bytes(&self) -> u64 {
         [&self.state, &self.args, &self.stand_in]
             .into_iter()
-            .chain(self.own.iter().flatten())
+            .chain(self.own.iter().flat_map(|b| b.iter()))
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.scan.memory_bytes()
@@ -355,7 +355,7 @@ impl GpuSahBuilder {
             bvh.record_build_phase(ctx, encoder, super::BuildPhase::Sort);
         }
         encoder.clear_buffer(self.state.buffer(), 0, None);
-        let bins = match &self.own {
+        let bins = match self.own.as_deref() {
             Some([bins, _]) => bins.buffer(),
             None => bvh.nodes(),
         };
