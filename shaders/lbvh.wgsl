@@ -1,9 +1,10 @@
 // LBVH construction over one mesh (Karras 2012), producing the crate's node layout (src/bvh/node.rs) with
 // one triangle per leaf. Steps, each its own dispatch so that every read of another invocation's output
 // crosses a dispatch boundary (WGSL atomics are relaxed and storageBarrier is workgroup-scoped):
-//   tri_bounds   triangle centroids + per-workgroup centroid bounds
+//   tri_bounds   per-workgroup bounds of the triangle centroids
 //   reduce_bounds   the scene's centroid bounds (one workgroup)
-//   morton       30-bit codes (keys) and triangle ids (values), then sort.wgsl
+//   morton       30-bit codes (keys) and triangle ids (values), the centroids computed again (no 16-byte
+//                per-triangle cache between the two passes), then sort.wgsl
 //   karras       per inner node: range, split, children, parents
 //   walk_up      per node: depth and position in the crate's depth-first layout; writes node topology
 // Bounds and SA ratios then come bottom-up from levels.wgsl.
@@ -13,21 +14,28 @@ struct MeshParams { tris: u32, cube: u32, _b: u32, _c: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
-@group(0) @binding(2) var<storage, read_write> centroids: array<vec4<f32>>;
-@group(0) @binding(3) var<storage, read_write> partials: array<vec4<f32>>;
-@group(0) @binding(4) var<storage, read_write> keys: array<u32>;
-@group(0) @binding(5) var<storage, read_write> vals: array<u32>;
-@group(0) @binding(6) var<storage, read_write> children: array<vec2<u32>>;
-@group(0) @binding(7) var<storage, read_write> parents: array<u32>;
-@group(0) @binding(8) var<storage, read_write> first: array<u32>;
-@group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(10) var<uniform> params: MeshParams;
+@group(0) @binding(2) var<storage, read_write> partials: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> keys: array<u32>;
+@group(0) @binding(4) var<storage, read_write> vals: array<u32>;
+@group(0) @binding(5) var<storage, read_write> children: array<vec2<u32>>;
+@group(0) @binding(6) var<storage, read_write> parents: array<u32>;
+@group(0) @binding(7) var<storage, read_write> first: array<u32>;
+@group(0) @binding(8) var<storage, read_write> nodes: array<Node>;
+@group(0) @binding(9) var<uniform> params: MeshParams;
 
 // Node ids of the radix tree: inner nodes 0 .. n-2 (0 is the root), leaves n-1 .. 2n-2.
 const NONE: u32 = 0xffffffffu;
 
 fn vertex(i: u32) -> vec3<f32> {
     return vec3<f32>(positions[3u * i], positions[3u * i + 1u], positions[3u * i + 2u]);
+}
+
+// Aabb::center() of triangle i's box, as on the CPU.
+fn centroid(i: u32) -> vec3<f32> {
+    let a = vertex(indices[3u * i]);
+    let b = vertex(indices[3u * i + 1u]);
+    let c = vertex(indices[3u * i + 2u]);
+    return (min(min(a, b), c) + max(max(a, b), c)) * 0.5;
 }
 
 var<workgroup> wmin: array<vec3<f32>, 256>;
@@ -52,12 +60,7 @@ fn tri_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
     var lo = vec3<f32>(fmax());
     var hi = vec3<f32>(-fmax());
     if i < params.tris {
-        let a = vertex(indices[3u * i]);
-        let b = vertex(indices[3u * i + 1u]);
-        let c = vertex(indices[3u * i + 2u]);
-        // Aabb::center() of the triangle's box, as on the CPU.
-        let cen = (min(min(a, b), c) + max(max(a, b), c)) * 0.5;
-        centroids[i] = vec4<f32>(cen, 0.0);
+        let cen = centroid(i);
         lo = cen;
         hi = cen;
     }
@@ -115,7 +118,7 @@ fn morton30(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> u32 {
 fn morton(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
     if i >= params.tris { return; }
-    keys[i] = morton30(centroids[i].xyz, partials[0].xyz, partials[1].xyz);
+    keys[i] = morton30(centroid(i), partials[0].xyz, partials[1].xyz);
     vals[i] = i;
 }
 

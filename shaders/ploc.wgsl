@@ -24,8 +24,10 @@ struct PlocParams { n: u32, radius: u32, max_groups: u32, _b: u32 }
 @group(0) @binding(2) var<storage, read> sorted_ids: array<u32>;
 // Cluster boxes by node id (leaves 0..n in Morton order, merged clusters n..2n-1): min, max.
 @group(0) @binding(3) var<storage, read_write> boxes: array<vec4<f32>>;
-// Node ids of the clusters in order; `next` holds a round's survivors before compaction.
-@group(0) @binding(4) var<storage, read_write> clusters: array<u32>;
+// The same node buffer as words: the node ids of the clusters in order, the k-th in word 3 of node k
+// (the w of its box minimum, which no box of a cluster k < n uses); `next` holds a round's survivors
+// before compaction.
+@group(0) @binding(4) var<storage, read_write> words: array<u32>;
 @group(0) @binding(5) var<storage, read_write> next: array<u32>;
 @group(0) @binding(6) var<storage, read_write> nn: array<u32>;
 @group(0) @binding(7) var<storage, read_write> offsets: array<u32>;
@@ -40,6 +42,9 @@ struct PlocParams { n: u32, radius: u32, max_groups: u32, _b: u32 }
 @group(0) @binding(12) var<storage, read_write> args: array<u32>;
 
 const GONE: u32 = 0xffffffffu;
+
+fn cluster(k: u32) -> u32 { return words[8u * k + 3u]; }
+fn set_cluster(k: u32, id: u32) { words[8u * k + 3u] = id; }
 
 var<workgroup> tile: array<u32, 256>;
 var<workgroup> clusters_left: u32;
@@ -102,9 +107,13 @@ fn ploc_init(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let a = vertex(indices[3u * t]);
     let b = vertex(indices[3u * t + 1u]);
     let c = vertex(indices[3u * t + 2u]);
-    boxes[2u * i] = vec4<f32>(min(min(a, b), c), 0.0);
+    // The minimum's w is the cluster slot: written through `words` only.
+    let lo = min(min(a, b), c);
+    boxes[2u * i].x = lo.x;
+    boxes[2u * i].y = lo.y;
+    boxes[2u * i].z = lo.z;
     boxes[2u * i + 1u] = vec4<f32>(max(max(a, b), c), 0.0);
-    clusters[i] = i;
+    set_cluster(i, i);
 }
 
 @compute @workgroup_size(256)
@@ -112,7 +121,7 @@ fn ploc_nearest(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     let i = linear_id(gid, nwg);
     let c = atomicLoad(&state[3]);
     if i >= c { return; }
-    let own = clusters[i];
+    let own = cluster(i);
     let omin = boxes[2u * own].xyz;
     let omax = boxes[2u * own + 1u].xyz;
     let lo = i - min(i, params.radius);
@@ -121,7 +130,7 @@ fn ploc_nearest(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_work
     var best_d = 0.0;
     for (var j = lo; j <= hi; j++) {
         if j == i { continue; }
-        let o = clusters[j];
+        let o = cluster(j);
         let d = merge_area(omin, omax, boxes[2u * o].xyz, boxes[2u * o + 1u].xyz);
         if best == i || d < best_d || (d == best_d && key_less(i, j, best)) {
             best = j;
@@ -141,11 +150,11 @@ fn ploc_merge(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invo
         let j = nn[i];
         if nn[j] != i {
             keep = 1u;
-            next[i] = clusters[i];
+            next[i] = cluster(i);
         } else if i < j {
             keep = 1u;
-            let l = clusters[i];
-            let r = clusters[j];
+            let l = cluster(i);
+            let r = cluster(j);
             let id = atomicAdd(&state[4], 1u);
             children[id - params.n] = vec2<u32>(l, r);
             boxes[2u * id] = min(boxes[2u * l], boxes[2u * r]);
@@ -191,7 +200,7 @@ fn ploc_compact(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(workgrou
     let c = atomicLoad(&state[3]);
     if i >= c { return; }
     let v = next[i];
-    if v != GONE { clusters[offsets[i] + sums[linear_group(wid, nwg)]] = v; }
+    if v != GONE { set_cluster(offsets[i] + sums[linear_group(wid, nwg)], v); }
 }
 
 @compute @workgroup_size(1)

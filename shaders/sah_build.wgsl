@@ -3,6 +3,11 @@
 // descendants after its root). src/gpu/build_sah.rs drives it; the boxes and SA ratios come afterwards,
 // bottom-up, from levels.wgsl as for LBVH.
 //
+// Scratch lives where the tree has room until its boxes are made: the builder writes only a node's index
+// and depth (words 3 and 7 of its 8), so node s's min field holds slot s's scratch id, queue entry and
+// scratch entry, and in `mode` bit 1 the bins live in the nodes' max fields (3 words per node). A
+// triangle's quantised centroid and box are computed again from the mesh wherever they are needed.
+//
 // Every quantity that decides the tree is an integer, so the tree does not depend on the device's float
 // rounding: centroids and triangle boxes are quantised once to a 16-bit grid whose scale is a power of two
 // (exact products, no division; one scale for the boxes' three axes, so grid areas are true areas scaled),
@@ -19,39 +24,40 @@
 //   sah_scatter  per primitive: stable partition by the prefix sums into the scratch order
 //   sah_copy     scratch order back
 // Then sah_small builds each queued subtree of 2..=64 triangles in one workgroup (§5.2.3), sweeping every
-// node, and sah_finish
-// writes the leaves' triangles. Minima are stored as 0xffff - q under atomicMax, so zero is the identity of
+// node. The slot order is kept in `vals` throughout, so the leaves' triangles need no last pass. Minima are stored as 0xffff - q under atomicMax, so zero is the identity of
 // every accumulator and buffers are cleared by zeroing.
 
-// mode: bit 0 small-split kernel on, bits 8.. the LBVH levels of a hybrid build (0: pure SAH).
+// mode: bit 0 small-split kernel on, bit 1 bins in the nodes' max fields, bits 8.. the LBVH levels of a
+// hybrid build (0: pure SAH).
 struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
-// Per triangle, 5 words: centroid qx | qy << 16, qz; box (minx | miny << 16), (minz | maxx << 16), (maxy | maxz << 16).
-@group(0) @binding(2) var<storage, read_write> prims: array<u32>;
-// [0, n) triangle ids in slot order, [n, 2n) scratch ids, [2n, 3n) queue entry per slot, [3n, 4n) scratch.
-@group(0) @binding(3) var<storage, read_write> slots: array<u32>;
-@group(0) @binding(4) var<storage, read_write> flags: array<u32>;
+// Partition flags, scanned in place (the tree's level order, rewritten by every build's schedule).
+@group(0) @binding(2) var<storage, read_write> flags: array<u32>;
 // vec4 words: [0, 2 cap) entries (first, count, node, descendants) of even / odd levels; [2 cap, 4 cap)
-// split records, two per entry.
-@group(0) @binding(5) var<storage, read_write> queues: array<vec4<u32>>;
+// split records, two per entry. The radix tree's parents where they have room, else a buffer of its own.
+@group(0) @binding(3) var<storage, read_write> queues: array<vec4<u32>>;
 // Small subtrees (first, count | depth << 16, node, descendants), at most n / 2: in the tree's radix-tree
-// children (8 bytes per triangle), which only an LBVH build's tree phase uses.
-@group(0) @binding(6) var<storage, read_write> small: array<vec4<u32>>;
-// [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz); [336 cap, 342 cap) centroid bounds.
-@group(0) @binding(7) var<storage, read_write> bins: array<atomic<u32>>;
+// children (8 bytes per triangle), which only an LBVH build's tree phase and a refit use.
+@group(0) @binding(4) var<storage, read_write> small: array<vec4<u32>>;
+// Words through bin_word: [0, 336 cap) bins (entry, axis, bin: count, 0xffff - min xyz, max xyz);
+// [336 cap, 342 cap) centroid bounds. The node buffer (mode bit 1) or a buffer of its own.
+@group(0) @binding(5) var<storage, read_write> bins: array<atomic<u32>>;
 // [0, 64) entries per level, [64] small subtrees, [65, 71) centroid bounds, [71, 77) box bounds (ordered
 // float bits, minima complemented).
-@group(0) @binding(8) var<storage, read_write> state: array<atomic<u32>>;
-@group(0) @binding(9) var<storage, read_write> nodes: array<Node>;
-@group(0) @binding(10) var<storage, read_write> vals: array<u32>;
+@group(0) @binding(6) var<storage, read_write> state: array<atomic<u32>>;
+// The node buffer as words (8 per node): index (3) and depth (7) of the tree being built; slot s's scratch
+// id (8s), queue entry (8s + 1) and scratch entry (8s + 2); bins in the max fields when they are bound here.
+@group(0) @binding(7) var<storage, read_write> nodes: array<atomic<u32>>;
+// Triangle ids in slot order: the tree's slot ids, kept current by every pass that reorders.
+@group(0) @binding(8) var<storage, read_write> vals: array<u32>;
 // Indirect arguments (3 words each): 0 primitive passes, 1 split pass, 2.. 5 scan levels, 6 small subtrees.
 // Bound only by the argument kernels; the others see a stand-in.
-@group(0) @binding(11) var<storage, read_write> args: array<u32>;
+@group(0) @binding(9) var<storage, read_write> args: array<u32>;
 // Morton codes in slot order, sorted by the LBVH sort (hybrid builds only).
-@group(0) @binding(12) var<storage, read> keys: array<u32>;
-@group(0) @binding(13) var<uniform> params: SahParams;
+@group(0) @binding(10) var<storage, read> keys: array<u32>;
+@group(0) @binding(11) var<uniform> params: SahParams;
 
 const BINS: u32 = 16u;
 const CANDIDATES: u32 = 45u; // 3 axes × 15 cuts
@@ -73,6 +79,16 @@ const ARG_SCAN: u32 = 2u;
 const ARG_SMALL: u32 = 6u;
 
 fn small_on() -> bool { return (params.mode & 1u) != 0u; }
+
+// Where bin word w is: the max field of node w / 3 when the bins share the node buffer, else word w.
+fn bin_word(w: u32) -> u32 {
+    if (params.mode & 2u) != 0u { return 8u * (w / 3u) + 4u + w % 3u; }
+    return w;
+}
+
+// Slot s's queue entry (NONE: its node is done), scratch id and scratch entry, in node s's min field.
+fn entry_of(s: u32) -> u32 { return atomicLoad(&nodes[8u * s + 1u]); }
+fn set_entry(s: u32, e: u32) { atomicStore(&nodes[8u * s + 1u], e); }
 
 // Whether nodes at `depth` are split as LBVH splits them (hybrid builds, the top levels).
 fn radix_level(depth: u32) -> bool { return depth < ((params.mode >> 8u) & 0xffu); }
@@ -175,21 +191,22 @@ fn sah_frame(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invoc
     }
 }
 
-// Until the boxes are made bottom-up, a node's sa_ratio holds its depth (levels.wgsl buckets by it).
-fn leaf_node(slot: u32, depth: u32) -> Node {
-    return Node(vec3<f32>(0.0), LEAF_BIT | (1u << 27u) | slot, vec3<f32>(0.0), f32(depth));
+// Node i's index and, until the boxes are made bottom-up, its depth in sa_ratio (levels.wgsl buckets by
+// it). The box fields are left alone: they hold scratch.
+fn write_node(i: u32, index: u32, depth: u32) {
+    atomicStore(&nodes[8u * i + 3u], index);
+    atomicStore(&nodes[8u * i + 7u], bitcast<u32>(f32(depth)));
 }
 
-fn inner_node(left: u32, depth: u32) -> Node {
-    return Node(vec3<f32>(0.0), left, vec3<f32>(0.0), f32(depth));
+fn leaf_node(i: u32, slot: u32, depth: u32) {
+    write_node(i, LEAF_BIT | (1u << 27u) | slot, depth);
 }
 
-// Quantised centroid and box of every triangle, the identity order, and the root's queue entry.
-@compute @workgroup_size(256)
-fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let i = linear_id(gid, nwg);
-    let n = params.tris;
-    if i >= n { return; }
+// A triangle's centroid and box on the 16-bit grids of the scene's frame (sah_frame's bounds in state),
+// computed from the mesh each time: the same integers wherever they are needed.
+struct Quantised { c: vec3<u32>, lo: vec3<u32>, hi: vec3<u32> }
+
+fn quantised(t: u32) -> Quantised {
     let clo = vec3<f32>(frame_min(FRAME), frame_min(FRAME + 1u), frame_min(FRAME + 2u));
     let chi = vec3<f32>(frame_max(FRAME + 3u), frame_max(FRAME + 4u), frame_max(FRAME + 5u));
     let blo = vec3<f32>(frame_min(FRAME + 6u), frame_min(FRAME + 7u), frame_min(FRAME + 8u));
@@ -199,24 +216,32 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     let cs = vec3<f32>(pow2_scale(ce.x), pow2_scale(ce.y), pow2_scale(ce.z));
     // One scale for all axes: box areas in grid units are then proportional to the true areas.
     let bs = vec3<f32>(pow2_scale(max(be.x, max(be.y, be.z))));
-    let b = tri_box(i);
+    let b = tri_box(t);
     let c = (b[0] + b[1]) * 0.5;
     let qc = (c - clo) * cs;
     let qlo = floor((b[0] - blo) * bs);
     let qhi = ceil((b[1] - blo) * bs);
-    prims[5u * i] = quantise(qc.x) | (quantise(qc.y) << 16u);
-    prims[5u * i + 1u] = quantise(qc.z);
-    prims[5u * i + 2u] = quantise(qlo.x) | (quantise(qlo.y) << 16u);
-    prims[5u * i + 3u] = quantise(qlo.z) | (quantise(qhi.x) << 16u);
-    prims[5u * i + 4u] = quantise(qhi.y) | (quantise(qhi.z) << 16u);
+    return Quantised(
+        vec3<u32>(quantise(qc.x), quantise(qc.y), quantise(qc.z)),
+        vec3<u32>(quantise(qlo.x), quantise(qlo.y), quantise(qlo.z)),
+        vec3<u32>(quantise(qhi.x), quantise(qhi.y), quantise(qhi.z)),
+    );
+}
+
+// The identity order (or a hybrid's sorted one), every slot's queue entry, and the root's.
+@compute @workgroup_size(256)
+fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+    let i = linear_id(gid, nwg);
+    let n = params.tris;
+    if i >= n { return; }
     // The root is queued as level 0's entry 0 unless it is a leaf or a small subtree.
     let small_root = small_on() && n <= SMALL;
     // A hybrid build starts from the LBVH sort's order.
-    slots[i] = select(i, vals[i], radix_level(0u));
-    slots[2u * n + i] = select(0u, NONE, n == 1u || small_root);
+    vals[i] = select(i, vals[i], radix_level(0u));
+    set_entry(i, select(0u, NONE, n == 1u || small_root));
     if i == 0u {
         if n == 1u {
-            nodes[0] = leaf_node(0u, 0u);
+            leaf_node(0u, 0u, 0u);
         } else if small_root {
             small[0] = vec4<u32>(0u, n, 0u, 1u);
             atomicStore(&state[SMALL_COUNT], 1u);
@@ -227,17 +252,7 @@ fn sah_prims(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     }
 }
 
-fn centroid_q(t: u32) -> vec3<u32> {
-    let a = prims[5u * t];
-    return vec3<u32>(a & QMAX, a >> 16u, prims[5u * t + 1u]);
-}
-
-fn box_q(t: u32) -> array<vec3<u32>, 2> {
-    let a = prims[5u * t + 2u];
-    let b = prims[5u * t + 3u];
-    let c = prims[5u * t + 4u];
-    return array<vec3<u32>, 2>(vec3<u32>(a & QMAX, a >> 16u, b & QMAX), vec3<u32>(b >> 16u, c & QMAX, c >> 16u));
-}
+fn centroid_q(t: u32) -> vec3<u32> { return quantised(t).c; }
 
 // The bin of quantised coordinate q in [lo, hi]: ⌊(q - lo) · 16 / (hi - lo + 1)⌋, exact.
 fn bin_of(q: u32, lo: u32, hi: u32) -> u32 {
@@ -278,19 +293,17 @@ fn sah_small_args() {
     write_args(ARG_SMALL, split_threads(atomicLoad(&state[SMALL_COUNT])));
 }
 
-fn entry_of(s: u32) -> u32 { return slots[2u * params.tris + s]; }
-
 @compute @workgroup_size(256)
 fn sah_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
     if s >= params.tris || radix_level(params.level) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
-    let q = centroid_q(slots[s]);
+    let q = centroid_q(vals[s]);
     let cb = ENTRY_BINS * params.cap + 6u * e;
     for (var a = 0u; a < 3u; a++) {
-        atomicMax(&bins[cb + a], QMAX - q[a]);
-        atomicMax(&bins[cb + 3u + a], q[a]);
+        atomicMax(&bins[bin_word(cb + a)], QMAX - q[a]);
+        atomicMax(&bins[bin_word(cb + 3u + a)], q[a]);
     }
 }
 
@@ -299,8 +312,8 @@ fn node_frame(e: u32) -> array<vec3<u32>, 2> {
     var lo: vec3<u32>;
     var hi: vec3<u32>;
     for (var a = 0u; a < 3u; a++) {
-        lo[a] = QMAX - atomicLoad(&bins[cb + a]);
-        hi[a] = atomicLoad(&bins[cb + 3u + a]);
+        lo[a] = QMAX - atomicLoad(&bins[bin_word(cb + a)]);
+        hi[a] = atomicLoad(&bins[bin_word(cb + 3u + a)]);
     }
     return array<vec3<u32>, 2>(lo, hi);
 }
@@ -311,16 +324,14 @@ fn sah_bin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     if s >= params.tris || radix_level(params.level) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
-    let t = slots[s];
     let f = node_frame(e);
-    let q = centroid_q(t);
-    let b = box_q(t);
+    let p = quantised(vals[s]);
     for (var a = 0u; a < 3u; a++) {
-        let at = (e * 3u + a) * BINS * BIN_WORDS + bin_of(q[a], f[0][a], f[1][a]) * BIN_WORDS;
-        atomicAdd(&bins[at], 1u);
+        let at = (e * 3u + a) * BINS * BIN_WORDS + bin_of(p.c[a], f[0][a], f[1][a]) * BIN_WORDS;
+        atomicAdd(&bins[bin_word(at)], 1u);
         for (var k = 0u; k < 3u; k++) {
-            atomicMax(&bins[at + 1u + k], QMAX - b[0][k]);
-            atomicMax(&bins[at + 4u + k], b[1][k]);
+            atomicMax(&bins[bin_word(at + 1u + k)], QMAX - p.lo[k]);
+            atomicMax(&bins[bin_word(at + 4u + k)], p.hi[k]);
         }
     }
 }
@@ -434,11 +445,10 @@ var<workgroup> worder: array<u32, 192>;
 fn best_sweep(lid: u32, base: u32, m: u32) {
     let mine = lid < m && m <= SWEEP;
     if mine {
-        let t = wids[base + lid];
-        wq[lid] = centroid_q(t);
-        let b = box_q(t);
-        wlo[lid] = b[0];
-        whi[lid] = b[1];
+        let p = quantised(wids[base + lid]);
+        wq[lid] = p.c;
+        wlo[lid] = p.lo;
+        whi[lid] = p.hi;
     }
     workgroupBarrier();
     if mine {
@@ -517,7 +527,7 @@ var<workgroup> wcount: u32;
 // next level. Returns its entry (NONE unless queued for the next level).
 fn place_child(c: vec4<u32>, depth: u32) -> u32 {
     if c.y == 1u {
-        nodes[c.z] = leaf_node(c.x, depth);
+        leaf_node(c.z, c.x, depth);
         return NONE;
     }
     if small_on() && c.y <= SMALL {
@@ -543,11 +553,11 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let base = e * ENTRY_BINS;
     // Nodes of at most SWEEP primitives are swept exactly, larger ones choose among the bins' cuts.
     if workgroupUniformLoad(&wm) <= SWEEP {
-        if lid.x < ent.y { wids[lid.x] = slots[ent.x + lid.x]; }
+        if lid.x < ent.y { wids[lid.x] = vals[ent.x + lid.x]; }
         best_sweep(lid.x, 0u, ent.y);
     } else {
         for (var w = lid.x; w < ENTRY_BINS; w += 64u) {
-            atomicStore(&wbins[w], atomicLoad(&bins[base + w]));
+            atomicStore(&wbins[w], atomicLoad(&bins[bin_word(base + w)]));
         }
         workgroupBarrier();
         best_candidate(lid.x);
@@ -555,7 +565,7 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     if lid.x == 0u {
         let f = node_frame(e);
         let sp = choose(ent.x, ent.y, params.level, f[0], f[1]);
-        nodes[ent.z] = inner_node(ent.w, params.level);
+        write_node(ent.z, ent.w, params.level);
         let l = vec4<u32>(ent.x, sp.y, ent.w, ent.w + 2u);
         let r = vec4<u32>(ent.x + sp.y, ent.y - sp.y, ent.w + 1u, ent.w + 2u * sp.y);
         let le = place_child(l, params.level + 1u);
@@ -566,15 +576,15 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     workgroupBarrier();
     // Zero this entry's bins and bounds for the next level (the frame was read above).
     for (var w = lid.x; w < ENTRY_BINS; w += 64u) {
-        atomicStore(&bins[base + w], 0u);
+        atomicStore(&bins[bin_word(base + w)], 0u);
     }
-    if lid.x < 6u { atomicStore(&bins[ENTRY_BINS * params.cap + 6u * e + lid.x], 0u); }
+    if lid.x < 6u { atomicStore(&bins[bin_word(ENTRY_BINS * params.cap + 6u * e + lid.x)], 0u); }
 }
 
 fn side_of(s: u32, e: u32) -> bool {
     let sp = queues[2u * params.cap + 2u * e];
     let first = queues[2u * params.cap + 2u * e + 1u].z;
-    return goes_left(sp.x, sp.y, s - first, centroid_q(slots[s]), sp.z, sp.w);
+    return goes_left(sp.x, sp.y, s - first, centroid_q(vals[s]), sp.z, sp.w);
 }
 
 @compute @workgroup_size(256)
@@ -592,8 +602,8 @@ fn sah_scatter(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     if s >= n { return; }
     let e = entry_of(s);
     if e == NONE {
-        slots[n + s] = slots[s];
-        slots[3u * n + s] = NONE;
+        atomicStore(&nodes[8u * s], vals[s]);
+        atomicStore(&nodes[8u * s + 2u], NONE);
         return;
     }
     let sp = queues[2u * params.cap + 2u * e];
@@ -609,17 +619,16 @@ fn sah_scatter(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
         to = first + sp.y + (s - first - lefts_before);
         child = kids.y;
     }
-    slots[n + to] = slots[s];
-    slots[3u * n + to] = child;
+    atomicStore(&nodes[8u * to], vals[s]);
+    atomicStore(&nodes[8u * to + 2u], child);
 }
 
 @compute @workgroup_size(256)
 fn sah_copy(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    let n = params.tris;
-    if s >= n { return; }
-    slots[s] = slots[n + s];
-    slots[2u * n + s] = slots[3u * n + s];
+    if s >= params.tris { return; }
+    vals[s] = atomicLoad(&nodes[8u * s]);
+    set_entry(s, atomicLoad(&nodes[8u * s + 2u]));
 }
 
 // ---- the small-split kernel: a subtree of 2..=64 triangles in one workgroup ----
@@ -644,7 +653,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     let packed = small[k];
     let root = vec4<u32>(packed.x, packed.y & 0xffffu, packed.z, packed.w);
     let first = root.x;
-    if t < root.y { wids[t] = slots[first + t]; }
+    if t < root.y { wids[t] = vals[first + t]; }
     if t == 0u {
         wstack[0] = vec4<u32>(0u, root.y, root.z, root.w);
         wdepth[0] = packed.y >> 16u;
@@ -684,7 +693,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         workgroupBarrier();
         if t == 0u {
             let d = wnode_depth;
-            nodes[nd.z] = inner_node(nd.w, d);
+            write_node(nd.z, nd.w, d);
             let kids = array<vec4<u32>, 2>(
                 vec4<u32>(nd.x, sp.y, nd.w, nd.w + 2u),
                 vec4<u32>(nd.x + sp.y, nd.y - sp.y, nd.w + 1u, nd.w + 2u * sp.y),
@@ -692,7 +701,7 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
             for (var c = 0u; c < 2u; c++) {
                 let kid = kids[c];
                 if kid.y == 1u {
-                    nodes[kid.z] = leaf_node(first + kid.x, d + 1u);
+                    leaf_node(kid.z, first + kid.x, d + 1u);
                 } else {
                     wstack[wsp] = kid;
                     wdepth[wsp] = d + 1u;
@@ -702,13 +711,5 @@ fn sah_small(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
         }
         workgroupBarrier();
     }
-    if t < root.y { slots[first + t] = wids[t]; }
-}
-
-// The leaves' triangle ids in slot order.
-@compute @workgroup_size(256)
-fn sah_finish(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
-    let s = linear_id(gid, nwg);
-    if s >= params.tris { return; }
-    vals[s] = slots[s];
+    if t < root.y { vals[first + t] = wids[t]; }
 }

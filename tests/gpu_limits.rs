@@ -137,7 +137,7 @@ fn buffers_past_the_binding_limit_are_refused() {
 
 #[test]
 fn too_few_storage_buffers_per_stage_is_an_error() {
-    // The LBVH kernels bind 10 storage buffers (the SAH builder 13); WebGPU's default is 8.
+    // The LBVH kernels bind 9 storage buffers (the SAH builder 10, PLOC 12); WebGPU's default is 8.
     let Some(g) = small(|l| l.max_storage_buffers_per_shader_stage = 8) else {
         return;
     };

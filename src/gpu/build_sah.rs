@@ -160,17 +160,25 @@ pub struct GpuBuildCounts {
 /// Builds a [`GpuMeshBvh`]'s tree with binned SAH on the GPU. Make one per mesh size (buffers are sized for
 /// its triangle count) and record builds with [`record`](Self::record).
 ///
-/// Memory (all scratch, on top of the tree's [`GpuMeshBvh::memory_bytes`]), per triangle: quantised
-/// primitives 20 B (slot order, queue links and flags, 20 B, and the queue of small subtrees, 16 B per
-/// subtree, at most `n / 2`: 8 B, reuse the tree's LBVH scratch); bins of 1 368 B per queued node (`n / 65`
-/// of them with the small-split kernel, about 21 B per triangle; `n / 2` without) and level queues of 64 B
-/// per queued node (1 B). About 42 B per triangle in all. See [`memory_bytes`](Self::memory_bytes).
+/// Memory (see [`memory_bytes`](Self::memory_bytes)): nothing per triangle on top of the tree's
+/// [`GpuMeshBvh::memory_bytes`] for meshes of a few hundred triangles or more with the small-split kernel
+/// on. The scratch lives in the tree's buffers that the build leaves free: the slot order in the slot ids,
+/// each slot's scratch id, queue entry and scratch entry (12 B) in its node's min field, the partition
+/// flags (4 B) in the level order, the small subtrees (16 B each, at most `n / 2`) in the radix tree's
+/// children, the level queues (64 B per queued node) in its parents, and the bins (1 368 B per queued
+/// node, at most `n / 65 + 1` of them: about 21 B per triangle) in the nodes' max fields (24 B per
+/// triangle), all of which the bottom-up pass overwrites. Triangles' quantised centroids and boxes are
+/// computed again from the mesh where a pass needs them (three index and nine position reads instead of
+/// a 20-byte cache). Where the max fields or the parents are too small (small meshes), or without the
+/// small-split kernel (bins for up to `n / 2` nodes per level), bins and queues get buffers of their own.
 pub struct GpuSahBuilder {
     tris: u32,
     options: GpuSahOptions,
     _params: ParamSlots,
     state: GpuBuffer,
-    bins: GpuBuffer,
+    /// Bins and level queues of their own, where the tree's node max fields and parents are too small
+    /// (else the bins are cleared in the node buffer). Boxed: most builders have none.
+    own: Option<Box<[GpuBuffer; 2]>>,
     args: GpuBuffer,
     /// Binds the argument buffer (for the argument kernels).
     args_group: wgpu::BindGroup,
@@ -179,7 +187,8 @@ pub struct GpuSahBuilder {
     scan: Scan,
     /// Dispatches of the mesh's LBVH sort phase (hybrid builds record it first).
     sort_phase: u32,
-    scratch: Vec<GpuBuffer>,
+    /// Bound where the argument kernels bind the arguments, for the indirectly dispatched kernels.
+    stand_in: GpuBuffer,
 }
 
 /// Parameter slot of level `l` (`LEVELS` for the passes after the loop).
@@ -199,13 +208,27 @@ impl GpuSahBuilder {
             2
         };
         let cap = (n / per + 1) as u32;
-        let prims = GpuBuffer::storage(ctx, "sah primitives", n * 20);
-        // Slot order and links (16 B), flags (4 B per triangle) and the small subtrees (at most n / 2, 16 B
-        // each) live in the tree's LBVH scratch.
-        let [slots, flags, small] = bvh.lbvh_scratch();
+        // Flags (4 B per triangle), the small subtrees (at most n / 2, 16 B each) and the level queues
+        // live in the tree's LBVH scratch, the slot order in its slot ids and the slots' links in its nodes.
+        let [flags, small, parents] = bvh.lbvh_scratch();
         // Entries and split records of two levels (4 per queued node).
-        let queues = GpuBuffer::storage(ctx, "sah queues", 4 * cap as u64 * 16);
-        let bins = GpuBuffer::storage(ctx, "sah bins", cap as u64 * (ENTRY_BIN_WORDS + 6) * 4);
+        let queue_bytes = 4 * cap as u64 * 16;
+        let bin_words = cap as u64 * (ENTRY_BIN_WORDS + 6);
+        // The bins fit the nodes' max fields (3 words of each of the 2n - 1 nodes) and the queues the parents.
+        let shared = options.small_split
+            && bin_words <= 3 * (2 * n - 1)
+            && queue_bytes <= parents.buffer().size();
+        let own = (!shared).then(|| {
+            Box::new([
+                GpuBuffer::storage(ctx, "sah bins", bin_words * 4),
+                GpuBuffer::storage(ctx, "sah queues", queue_bytes),
+            ])
+        });
+        let [positions, indices, nodes, vals, keys] = bvh.build_targets();
+        let (bins, queues) = match own.as_deref() {
+            Some([b, q]) => (b, q),
+            None => (nodes, parents),
+        };
         let state = GpuBuffer::storage(ctx, "sah state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
             ctx,
@@ -214,15 +237,15 @@ impl GpuSahBuilder {
             STORAGE | wgpu::BufferUsages::INDIRECT,
         );
         let stand_in = GpuBuffer::storage(ctx, "sah stand-in", 16);
-        // Bit 0: the small-split kernel; bits 8..16: LBVH levels; bits 16..32: the device's workgroups per
-        // dimension, where the indirect arguments fold into y.
+        // Bit 0: the small-split kernel; bit 1: bins in the node buffer; bits 8..16: LBVH levels; bits
+        // 16..32: the device's workgroups per dimension, where the indirect arguments fold into y.
         let mode = u32::from(options.small_split)
+            | u32::from(shared) << 1
             | options.lbvh_levels.min(LEVELS as u32) << 8
             | ctx.max_groups().min(0xffff) << 16;
         let slots_params: Vec<[u32; 4]> =
             (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
         let params = ParamSlots::new(ctx, &slots_params);
-        let [positions, indices, nodes, vals, keys] = bvh.build_targets();
         let group = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -230,8 +253,6 @@ impl GpuSahBuilder {
                 &[
                     positions.binding(),
                     indices.binding(),
-                    prims.binding(),
-                    slots.binding(),
                     flags.binding(),
                     queues.binding(),
                     small.binding(),
@@ -253,13 +274,13 @@ impl GpuSahBuilder {
             options,
             _params: params,
             state,
-            bins,
+            own,
             args,
             args_group,
             work_group,
             scan,
             sort_phase: bvh.sort_phase_dispatches(),
-            scratch: vec![prims, queues, stand_in],
+            stand_in,
         })
     }
 
@@ -270,9 +291,9 @@ impl GpuSahBuilder {
 
     /// Scratch memory held, in bytes (the tree and mesh are [`GpuMeshBvh::memory_bytes`]).
     pub fn memory_bytes(&self) -> u64 {
-        [&self.state, &self.bins, &self.args]
+        [&self.state, &self.args, &self.stand_in]
             .into_iter()
-            .chain(&self.scratch)
+            .chain(self.own.iter().flat_map(|b| b.iter()))
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.scan.memory_bytes()
@@ -304,7 +325,7 @@ impl GpuSahBuilder {
             return 0;
         }
         2 + self.rounds() as u32 * self.level_dispatches()
-            + 3
+            + 2
             + GpuMeshBvh::BOXES_DISPATCHES
             + self.sort_dispatches()
     }
@@ -334,7 +355,11 @@ impl GpuSahBuilder {
             bvh.record_build_phase(ctx, encoder, super::BuildPhase::Sort);
         }
         encoder.clear_buffer(self.state.buffer(), 0, None);
-        encoder.clear_buffer(self.bins.buffer(), 0, None);
+        let bins = match self.own.as_deref() {
+            Some([bins, _]) => bins.buffer(),
+            None => bvh.nodes(),
+        };
+        encoder.clear_buffer(bins, 0, None);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("kinetrace sah build"),
             timestamp_writes: None,
@@ -371,7 +396,6 @@ impl GpuSahBuilder {
         }
         single(&mut pass, "sah_small_args", LEVELS);
         indirect(&mut pass, "sah_small", LEVELS, ARG_SMALL);
-        direct(&mut pass, "sah_finish", LEVELS);
         bvh.record_boxes(ctx, &mut pass, hybrid);
     }
 
@@ -385,9 +409,9 @@ impl GpuSahBuilder {
         let fixed = if self.tris == 0 {
             0
         } else {
-            // Frame, primitives, the argument kernel of every level, small arguments, small, finish, boxes,
-            // and a hybrid's Morton sort.
-            2 + self.rounds() as u32 + 3 + GpuMeshBvh::BOXES_DISPATCHES + self.sort_dispatches()
+            // Frame, primitives, the argument kernel of every level, small arguments, small, boxes, and a
+            // hybrid's Morton sort.
+            2 + self.rounds() as u32 + 2 + GpuMeshBvh::BOXES_DISPATCHES + self.sort_dispatches()
         };
         Ok(GpuBuildCounts {
             dispatches_recorded: self.dispatches_recorded(),

@@ -34,9 +34,11 @@ pub enum BuildPhase {
 /// Memory ([`memory_bytes`](Self::memory_bytes), per triangle, `n` triangles, `2n - 1` nodes): the mesh
 /// (positions 12 per vertex, indices 12), the tree (nodes 64, slot ids 4, Morton codes 4), refit's level
 /// schedule (the inner nodes' order by depth 4, during a build the radix tree's range starts), and LBVH
-/// build scratch: centroids 16 (later the degradation terms of a refit, 8) and radix-tree links 8 + 8
-/// (children and parents, first the radix sort's ping-pong keys and ids). About 126 bytes per triangle
-/// for a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters; the SAH builder adds its own scratch.
+/// build scratch: radix-tree links 8 + 8 (children and parents, first the radix sort's ping-pong keys and
+/// ids; a refit's degradation terms, 4 per node, live in the children). About 110 bytes per triangle for
+/// a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters. The centroids are computed twice (bounds,
+/// then codes) rather than cached: 16 bytes per triangle less for three more vertex reads per triangle.
+/// The SAH builder keeps its scratch in these buffers and in the nodes' box fields.
 /// No buffer keeps node depths: a builder leaves each node's depth in its `sa_ratio`, the schedule
 /// buckets the inner nodes by it, and the bottom-up pass overwrites it with the ratio.
 ///
@@ -74,12 +76,12 @@ pub struct GpuMeshBvh {
     refittable: bool,
     /// Depth of the deepest leaf: exact for an uploaded CPU tree, the bound MAX_DEPTH after a GPU build.
     height: u32,
-    /// LBVH scratch (centroids 16 B per triangle, and the level order 4 B, which holds the radix-tree
-    /// range starts during an LBVH build) that the SAH builder reuses for its slot order and
-    /// partition flags: no build needs both at once, and the schedule rewrites the order after every
+    /// The level order (4 B per triangle), which holds the radix-tree range starts during an LBVH build
+    /// and the SAH builder's partition flags during an SAH build: the schedule rewrites it after every
     /// build.
-    aliased: [GpuBuffer; 2],
-    /// The radix tree's children (8 B per triangle) and parents (8), first the sort's ping-pong buffers.
+    order: GpuBuffer,
+    /// The radix tree's children (8 B per triangle) and parents (8), first the sort's ping-pong buffers;
+    /// the children hold a refit's degradation terms (4 B per node), which no build needs.
     links: [GpuBuffer; 2],
     _scratch: Vec<GpuBuffer>,
 }
@@ -118,7 +120,6 @@ impl GpuMeshBvh {
         positions.write(ctx, mesh.positions());
         let indices = GpuBuffer::storage(ctx, "indices", tris as u64 * 12);
         indices.write(ctx, mesh.indices());
-        let centroids = GpuBuffer::storage(ctx, "centroids", n * 16);
         let partials = GpuBuffer::storage(ctx, "partials", n.div_ceil(256) * 32);
         let keys = GpuBuffer::storage(ctx, "morton", n * 4);
         let vals = GpuBuffer::storage(ctx, "sorted ids", n * 4);
@@ -138,9 +139,9 @@ impl GpuMeshBvh {
         // The radix tree's range starts (4 bytes per triangle) live in the level order, which the
         // schedule rewrites after the tree phase.
         let first = &order;
-        // A refit's degradation terms (4 bytes per node) live in the centroids (16 per triangle), which
-        // only a build's first two passes use.
-        let terms = &centroids;
+        // A refit's degradation terms (4 bytes per node, 2n - 1 of them) live in the radix tree's
+        // children (8 per triangle), which only a build uses.
+        let terms = &children;
         let sum_blocks = node_count.div_ceil(256);
         let sums = GpuBuffer::storage(ctx, "degradation sums", sum_blocks as u64 * 8);
         if tris == 1 {
@@ -164,7 +165,6 @@ impl GpuMeshBvh {
             &[
                 positions.binding(),
                 indices.binding(),
-                centroids.binding(),
                 partials.binding(),
                 keys.binding(),
                 vals.binding(),
@@ -229,7 +229,7 @@ impl GpuMeshBvh {
             coded: false,
             refittable: true,
             height: MAX_DEPTH as u32,
-            aliased: [centroids, order],
+            order,
             links: [children, parents],
             _scratch: vec![partials, levels, stand_in],
         })
@@ -285,15 +285,10 @@ impl GpuMeshBvh {
             &self.sums,
             &self.histogram,
         ];
-        own.iter()
-            .chain(
-                self.aliased
-                    .iter()
-                    .chain(&self.links)
-                    .chain(&self._scratch)
-                    .collect::<Vec<_>>()
-                    .iter(),
-            )
+        own.into_iter()
+            .chain([&self.order])
+            .chain(&self.links)
+            .chain(&self._scratch)
             .map(|b| b.buffer().size())
             .sum::<u64>()
             + self.sort.memory_bytes()
@@ -470,21 +465,20 @@ impl GpuMeshBvh {
     }
 
     /// LBVH scratch free during another builder's build (after a hybrid's [`BuildPhase::Sort`]): the
-    /// centroids, the level order and the radix tree's children, 16, 4 and 8 bytes per triangle (at least
-    /// 256 bytes each). An LBVH build overwrites them, and every build's schedule
-    /// ([`record_boxes`](Self::record_boxes)) the second.
+    /// level order, the radix tree's children and its parents, 4, 8 and 8 bytes per triangle (at least
+    /// 256 bytes each). An LBVH build overwrites them, every build's schedule
+    /// ([`record_boxes`](Self::record_boxes)) the first, and every refit the second.
     pub(crate) fn lbvh_scratch(&self) -> [&GpuBuffer; 3] {
-        [&self.aliased[0], &self.aliased[1], &self.links[0]]
+        [&self.order, &self.links[0], &self.links[1]]
     }
 
     /// What a PLOC build clusters in after [`BuildPhase::Sort`], none of it read again by this tree until
     /// its next build: the node buffer (32 bytes per node id, `2n - 1` of them: the clusters' boxes), the
-    /// Morton codes (4 B per triangle), the centroids (16), the level order (4), and the radix tree's
-    /// children (8) and parents (8). A PLOC builder's own tree is never traced, refitted or read back.
-    pub(crate) fn ploc_scratch(&self) -> [&GpuBuffer; 6] {
-        let [centroids, order] = &self.aliased;
+    /// Morton codes (4 B per triangle), the level order (4), and the radix tree's children (8) and
+    /// parents (8). A PLOC builder's own tree is never traced, refitted or read back.
+    pub(crate) fn ploc_scratch(&self) -> [&GpuBuffer; 5] {
         let [children, parents] = &self.links;
-        [&self.nodes, &self.keys, centroids, order, children, parents]
+        [&self.nodes, &self.keys, &self.order, children, parents]
     }
 
     /// Dispatches recorded by the [`BuildPhase::Sort`] phase.

@@ -160,7 +160,7 @@ impl Kernels {
                 "lbvh",
                 shader!("lbvh.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Uniform,
                 ],
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
@@ -247,8 +247,8 @@ impl Kernels {
                 "sah",
                 shader!("sah_build.wgsl"),
                 &[
-                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Write,
-                    Write, Read, Uniform,
+                    Read, Read, Write, Write, Write, Write, Write, Write, Write, Write, Read,
+                    Uniform,
                 ],
                 &[
                     "sah_frame",
@@ -262,7 +262,6 @@ impl Kernels {
                     "sah_scatter",
                     "sah_copy",
                     "sah_small",
-                    "sah_finish",
                 ],
             ),
             ploc: Module::new(

@@ -33,11 +33,12 @@ pub struct PlocBuildCounts {
 
 /// A mesh's PLOC builder on the GPU: buffers for one mesh size, reused across builds.
 ///
-/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 126
+/// Memory (see [`memory_bytes`](Self::memory_bytes)): the LBVH builder's buffers it sorts with (about 110
 /// bytes per triangle, see [`GpuMeshBvh`]) and nothing per triangle beyond them: the clustering state
-/// (cluster boxes 64 over `2n - 1` ids, two cluster lists, neighbours and scan offsets 16, merge links 8)
-/// lives in that tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the
-/// scan's block sums (4 bytes per 256 triangles) and a few words of state are its own.
+/// (cluster boxes 64 over `2n - 1` ids, the cluster list in the unused fourth word of the first `n`
+/// boxes' minima, the survivors' list, neighbours and scan offsets 12, merge links 8) lives in that
+/// tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the scan's block sums
+/// (4 bytes per 256 triangles) and a few words of state are its own.
 pub struct GpuPloc {
     lbvh: GpuMeshBvh,
     radius: u32,
@@ -62,9 +63,10 @@ impl GpuPloc {
         let lbvh = GpuMeshBvh::new(ctx, mesh)?;
         lbvh.use_cube_codes(ctx);
         let n = lbvh.triangle_count().max(1) as u64;
-        // Boxes over the node buffer, clusters over the centroids, survivors over the level order,
-        // neighbours over the parents, scan offsets over the Morton codes, merge links over the children.
-        let [boxes, offsets, clusters, next, children, nn] = lbvh.ploc_scratch();
+        // Boxes over the node buffer, the clusters in its boxes' spare words, survivors over the level
+        // order, neighbours over the parents, scan offsets over the Morton codes, merge links over the
+        // children.
+        let [boxes, offsets, next, children, nn] = lbvh.ploc_scratch();
         let sums = GpuBuffer::storage(ctx, "ploc block sums", n.div_ceil(256) * 4);
         let state = GpuBuffer::storage(ctx, "ploc state", STATE_WORDS * 4);
         let args = GpuBuffer::new(
@@ -93,7 +95,7 @@ impl GpuPloc {
                     lbvh.indices_binding(),
                     lbvh.sorted_ids_binding(),
                     boxes.binding(),
-                    clusters.binding(),
+                    boxes.binding(),
                     next.binding(),
                     nn.binding(),
                     offsets.binding(),
@@ -198,15 +200,16 @@ impl GpuPloc {
             enc = ctx.encoder();
         }
         let mut enc = ctx.encoder();
-        let [_, _, clusters, _, children, _] = self.lbvh.ploc_scratch();
-        let root = Readback::<u32>::record(ctx, &mut enc, clusters.buffer(), 1);
+        let [boxes, _, _, children, _] = self.lbvh.ploc_scratch();
+        // The last cluster, the root, is the cluster list's first entry: word 3 of the node buffer.
+        let root = Readback::<u32>::record(ctx, &mut enc, boxes.buffer(), 4);
         let children =
             Readback::<[u32; 2]>::record(ctx, &mut enc, children.buffer(), n as usize - 1);
         let leaves = self.lbvh.record_sorted_ids(ctx, &mut enc);
         ctx.submit(enc);
         self.counts.submissions += 1;
         let tree = MergeTree {
-            root: root.wait(ctx)?[0],
+            root: root.wait(ctx)?[3],
             children: children.wait(ctx)?,
         };
         let (nodes, prims) = lay_out(&mesh.triangle_bounds(), leaves.wait(ctx)?, &tree, 1, true);
