@@ -33,6 +33,7 @@ pub mod partial;
 pub mod quality;
 pub(crate) mod radix_sort;
 mod refit;
+mod stack;
 mod topdown;
 mod traverse;
 mod validate;

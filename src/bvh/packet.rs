@@ -26,6 +26,7 @@
 //! range scans. Costs: no allocation; the stack is [`MAX_DEPTH`] entries of 8 bytes and the packet's state
 //! about 2 KB on the stack.
 
+use super::stack::Stack;
 use super::traverse::TraversalStats;
 use super::{MAX_DEPTH, MeshBvh, Node};
 use crate::bvh::Hit;
@@ -247,8 +248,7 @@ impl MeshBvh {
         let mut tmax_all = lanes(p.active)
             .map(|i| p.tmax[i])
             .fold(f32::NEG_INFINITY, f32::max);
-        let mut stack = [(0u32, 0u8, 0u8); MAX_DEPTH];
-        let mut sp = 0;
+        let mut stack = Stack::<(u32, u8, u8), MAX_DEPTH>::new();
         let (mut cur, mut first, mut last) = (0usize, 0usize, MAX_PACKET - 1);
         if bounds.enter(&nodes[0].aabb(), tmax_all).is_none() {
             return Some(p);
@@ -276,8 +276,7 @@ impl MeshBvh {
                     let next = match (a, b) {
                         (Some(ka), Some(kb)) => {
                             let (near, far) = if ka <= kb { (c, c + 1) } else { (c + 1, c) };
-                            stack[sp] = (far as u32, first as u8, last as u8);
-                            sp += 1;
+                            stack.push((far as u32, first as u8, last as u8));
                             Some(near)
                         }
                         (Some(_), None) => Some(c),
@@ -290,11 +289,9 @@ impl MeshBvh {
                     }
                 }
             }
-            if sp == 0 {
+            let Some((n, f, l)) = stack.pop() else {
                 return Some(p);
-            }
-            sp -= 1;
-            let (n, f, l) = stack[sp];
+            };
             (cur, first, last) = (n as usize, f as usize, l as usize);
         }
     }

@@ -5,6 +5,7 @@
 //! closest hit found so far when it is popped. The stack is a fixed array of [`MAX_DEPTH`] entries — builders
 //! never make deeper trees — so a query allocates nothing.
 
+use super::stack::Stack;
 use super::{MAX_DEPTH, Node};
 use crate::geometry::Ray;
 use std::ops::Range;
@@ -81,7 +82,7 @@ pub(crate) fn traverse<C: Counter>(
 /// popped if its key exceeds the bound by then. `leaf(slots, bound)` tests a leaf, may tighten `*bound`, and
 /// returns true to stop. The stack is [`MAX_DEPTH`] entries: builders never make deeper trees.
 #[inline]
-pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy + Default>(
+pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy>(
     nodes: &[Node],
     mut bound: K,
     counter: &mut C,
@@ -92,8 +93,7 @@ pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy + Default>(
     if enter(root, bound).is_none() {
         return;
     }
-    let mut stack = [(0u32, K::default()); MAX_DEPTH];
-    let mut sp = 0usize;
+    let mut stack = Stack::<(u32, K), MAX_DEPTH>::new();
     let mut cur = 0usize;
     loop {
         let n = &nodes[cur];
@@ -114,8 +114,7 @@ pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy + Default>(
                     } else {
                         (c + 1, c, ka)
                     };
-                    stack[sp] = (far as u32, kfar);
-                    sp += 1;
+                    stack.push((far as u32, kfar));
                     cur = near;
                     continue;
                 }
@@ -132,11 +131,9 @@ pub(crate) fn traverse_by<C: Counter, K: PartialOrd + Copy + Default>(
         }
         // Pop the next subtree that can still hold something within the bound.
         loop {
-            if sp == 0 {
+            let Some((node, entry)) = stack.pop() else {
                 return;
-            }
-            sp -= 1;
-            let (node, entry) = stack[sp];
+            };
             if entry <= bound {
                 cur = node as usize;
                 break;

@@ -34,6 +34,7 @@ mod proximity;
 pub mod simd;
 
 use super::node::{COUNT_SHIFT, FIRST_MASK};
+use super::stack::Stack;
 use super::traverse::Counter;
 use super::{LEAF_BIT, MAX_DEPTH, Node};
 use crate::geometry::{Aabb, Ray};
@@ -101,6 +102,13 @@ impl WideNode {
     }
 }
 
+/// Entries a walk of the wide tree may hold: each level pushes at most three siblings, and wide trees are
+/// no deeper than their binary tree.
+const WIDE_STACK: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+
+/// The stack of a nearest-first walk: a child and its entry key.
+type NearStack = Stack<(u32, f32), WIDE_STACK>;
+
 /// True for a lane payload that is a leaf (unused lanes included).
 #[inline]
 fn is_leaf(payload: u32) -> bool {
@@ -121,8 +129,7 @@ fn nearest_first(
     child: &[u32; WIDTH],
     mut mask: u32,
     key: &[f32; WIDTH],
-    stack: &mut [(u32, f32)],
-    sp: &mut usize,
+    stack: &mut NearStack,
 ) -> u32 {
     let mut order = [(0u32, 0f32); WIDTH];
     let mut k = 0;
@@ -139,8 +146,7 @@ fn nearest_first(
         k += 1;
     }
     for &e in order[1..k].iter().rev() {
-        stack[*sp] = e;
-        *sp += 1;
+        stack.push(e);
     }
     order[0].0
 }
@@ -250,9 +256,7 @@ fn walk<N, C: Counter>(
     }
     let lanes = RayLanes::new(ray);
     let mut tmax = ray.tmax;
-    // Each level pushes at most three siblings; wide trees are no deeper than their binary tree.
-    let mut stack = [(0u32, 0f32); (WIDTH - 1) * MAX_DEPTH + 1];
-    let mut sp = 0usize;
+    let mut stack = NearStack::new();
     let mut cur = 0u32;
     loop {
         if is_leaf(cur) {
@@ -265,17 +269,15 @@ fn walk<N, C: Counter>(
             counter.inner();
             let (mask, near, child) = visit(&nodes[cur as usize], &lanes, tmax);
             if mask != 0 {
-                cur = nearest_first(&child, mask, &near, &mut stack, &mut sp);
+                cur = nearest_first(&child, mask, &near, &mut stack);
                 continue;
             }
         }
         // Pop the next subtree that can still hold something within tmax.
         loop {
-            if sp == 0 {
+            let Some((node, entry)) = stack.pop() else {
                 return;
-            }
-            sp -= 1;
-            let (node, entry) = stack[sp];
+            };
             if entry <= tmax {
                 cur = node;
                 break;

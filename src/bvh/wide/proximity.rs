@@ -16,8 +16,10 @@
 //! [`MeshBvh::overlapping`]: crate::MeshBvh::overlapping
 
 use super::discs::{LaneDiscs, disc4};
-use super::{EMPTY_LANE, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots, nearest_first};
-use crate::bvh::MAX_DEPTH;
+use super::{
+    EMPTY_LANE, NearStack, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots, nearest_first,
+};
+use crate::bvh::stack::Stack;
 use crate::geometry::Aabb;
 use glam::{Vec3, Vec4};
 use std::ops::Range;
@@ -69,8 +71,7 @@ impl WideBvh {
             return;
         }
         let mut limit = bound_f32(bound);
-        let mut stack = [(0u32, 0f32); (WIDTH - 1) * MAX_DEPTH + 1];
-        let mut sp = 0usize;
+        let mut stack = NearStack::new();
         let mut cur = 0u32;
         loop {
             if is_leaf(cur) {
@@ -82,17 +83,15 @@ impl WideBvh {
                 let mask = keep_used(mask, node, limit == f32::INFINITY);
                 if mask != 0 {
                     self.prefetch_lanes(node, mask, slot_data, discs);
-                    cur = nearest_first(&node.child, mask, &d2, &mut stack, &mut sp);
+                    cur = nearest_first(&node.child, mask, &d2, &mut stack);
                     continue;
                 }
             }
             // Pop the next subtree that may still hold something within the bound.
             loop {
-                if sp == 0 {
+                let Some((node, d2)) = stack.pop() else {
                     return;
-                }
-                sp -= 1;
-                let (node, d2) = stack[sp];
+                };
                 if d2 <= limit {
                     cur = node;
                     break;
@@ -166,11 +165,10 @@ impl WideBvh {
         if self.nodes.is_empty() {
             return;
         }
-        let mut stack = [0u32; (WIDTH - 1) * MAX_DEPTH + 1];
-        let mut sp = 1usize;
-        while sp > 0 {
-            sp -= 1;
-            let node = &self.nodes[stack[sp] as usize];
+        let mut stack = Stack::<u32, WIDE_STACK>::new();
+        stack.push(0);
+        while let Some(top) = stack.pop() {
+            let node = &self.nodes[top as usize];
             let mut mask = test(node);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
@@ -179,8 +177,7 @@ impl WideBvh {
                 if is_leaf(c) {
                     leaf(leaf_slots(c));
                 } else {
-                    stack[sp] = c;
-                    sp += 1;
+                    stack.push(c);
                 }
             }
         }
