@@ -9,7 +9,8 @@
 mod common;
 use common::*;
 use kinetrace::gpu::{
-    GpuContext, GpuMeshBvh, GpuPloc, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
+    FrameBuilder, GpuContext, GpuMeshBvh, GpuPloc, GpuSahBuilder, GpuSahOptions, HYBRID_LEVELS,
+    MeshUpdate, ResidentMesh,
 };
 
 /// Device bytes allocated while `make` runs, and what it made.
@@ -89,5 +90,30 @@ fn memory_bytes_are_the_allocated_buffers() {
                 bytes as f64 / n as f64
             );
         }
+        resident_tree_bytes(&g, name, &m);
+    }
+}
+
+/// A resident mesh (issue 15) reports as its tree bytes exactly what its tree and the builders it used
+/// allocated: LBVH's buffers when made, and a SAH builder's scratch from its first build on; on the bench's
+/// torus, at most 113 bytes per triangle with both.
+fn resident_tree_bytes(g: &GpuContext, name: &str, m: &kinetrace::Mesh) {
+    let n = m.triangle_count() as u64;
+    let (bytes, mut mesh) = allocated(g, || ResidentMesh::new(g, m, None).unwrap());
+    assert_eq!(mesh.tree_bytes(), bytes, "{name}: resident mesh");
+    for builder in [FrameBuilder::Lbvh, FrameBuilder::Sah(GpuSahOptions::SAH)] {
+        let before = mesh.tree_bytes();
+        let (bytes, ()) = allocated(g, || {
+            let mut enc = g.encoder();
+            let update = MeshUpdate::Positions(m.positions());
+            mesh.record(g, &mut enc, update, |_| Some(builder)).unwrap();
+            g.submit(enc);
+            g.wait().unwrap();
+        });
+        assert_eq!(mesh.tree_bytes() - before, bytes, "{name}: {builder:?}");
+    }
+    if n >= 100_000 {
+        let per = mesh.tree_bytes() as f64 / n as f64;
+        assert!(mesh.tree_bytes() <= 113 * n, "{name}: resident {per} B/tri");
     }
 }

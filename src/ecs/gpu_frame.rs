@@ -101,6 +101,23 @@ pub struct ResidentStats {
     pub pair_overflows: usize,
     /// The largest leaf-pair buffer of the pair traversals kept, in leaf pairs.
     pub pair_capacity: u32,
+    /// GPU bytes held by the resident meshes' trees and builders ([`ResidentMesh::tree_bytes`](crate::gpu::ResidentMesh::tree_bytes)),
+    /// over all resident meshes.
+    pub tree_bytes: u64,
+    /// Triangles of the resident meshes: `tree_bytes / triangles` is the bytes per triangle of issue 15's
+    /// memory target.
+    pub triangles: u64,
+}
+
+impl ResidentStats {
+    /// GPU bytes per triangle of the resident trees and their builders (0 without resident meshes).
+    pub fn bytes_per_triangle(&self) -> f64 {
+        if self.triangles == 0 {
+            0.0
+        } else {
+            self.tree_bytes as f64 / self.triangles as f64
+        }
+    }
 }
 
 /// What the resident frame publishes besides the ray answers: the contacts and their messages.
@@ -322,6 +339,10 @@ pub(crate) fn resident_frame_system(
         )
     });
     done_here.pair_capacity = resident.pairs.largest_capacity();
+    for m in resident.meshes.values() {
+        done_here.tree_bytes += m.tree_bytes();
+        done_here.triangles += u64::from(m.bvh().triangle_count());
+    }
     let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.
     ctx.submit(enc);

@@ -191,6 +191,19 @@ impl ResidentMesh {
         &self.bvh
     }
 
+    /// GPU bytes of the tree and what builds it: the mesh, the nodes, the LBVH's buffers and the scratch of
+    /// every SAH or hybrid builder used so far — the thesis's count (§5.4.1; target 113 bytes per triangle,
+    /// met from about 100k triangles on: each builder's parameter slots are a fixed 17–40 KiB). A skin's
+    /// rest pose and weights and the cost reduction's block sums are not included.
+    pub fn tree_bytes(&self) -> u64 {
+        self.bvh.memory_bytes()
+            + self
+                .sah
+                .iter()
+                .map(GpuSahBuilder::memory_bytes)
+                .sum::<u64>()
+    }
+
     /// Whether the tree was built (by a first [`record`](Self::record)).
     pub fn built(&self) -> bool {
         self.built
