@@ -42,7 +42,7 @@
 
 use super::Estimate;
 use super::rank::{Candidate, choose};
-use crate::grid::StructureKind;
+use crate::grid::{ChoiceReason, StructureChoice, StructureKind};
 
 /// Relative spread of a prediction made from a prior.
 const PRIOR_SPREAD: f64 = 0.25;
@@ -231,8 +231,16 @@ impl<T: Copy + PartialEq> Choice<T> {
     /// option measured its per-unit cost, or for an option not of this choice.
     pub fn predict(&self, option: T, units: f64) -> Option<(Candidate<T>, bool)> {
         let arm = self.arm(option)?;
+        // An overhead not measured yet (a try's first frame, which pays a switch's catch-up and teaches
+        // no overhead) is predicted through the priors' ratio too: taken for 0, it made a structure
+        // whose queries alone came near the one in use worth two more tries (the report's cloth tried
+        // the grid three frames at 1.8 times a BVH frame; issue 12).
+        let overhead = (arm.overhead.mean())
+            .or_else(|| {
+                (self.arms.iter()).find_map(|a| Some(a.overhead.mean()? * arm.prior.1 / a.prior.1))
+            })
+            .unwrap_or(0.0);
         if let Some(per_unit) = arm.per_unit.mean() {
-            let overhead = arm.overhead.mean().unwrap_or(0.0);
             // What is predicted is one frame: its spread is one frame's plus the mean's own (a margin of
             // the mean's spread alone would let an option in use, re-estimated every frame, drift past
             // one measured a while ago by chance, given enough frames).
@@ -249,7 +257,6 @@ impl<T: Copy + PartialEq> Choice<T> {
             ));
         }
         let (from, per_unit) = (self.arms.iter()).find_map(|a| Some((a, a.per_unit.mean()?)))?;
-        let overhead = from.overhead.mean().unwrap_or(0.0) * arm.prior.1 / from.prior.1;
         let cost = per_unit * units * arm.prior.0 / from.prior.0 + overhead;
         Some((
             Candidate {
@@ -444,15 +451,25 @@ impl<T: Copy + PartialEq> Choice<T> {
 
 /// The per-mesh choices the ECS plans, with our priors (replaced by measurements at once).
 impl Choice<StructureKind> {
-    /// A mesh's structure: `prior` (the profile rule's pick, [`crate::grid::choose_structure`]) in use
+    /// A mesh's structure: `rule`'s pick (the profile rule, [`crate::grid::choose_structure`]) in use
     /// first; the other with 1.2 × its seconds per ray and an overhead of 2 × the BVH's for the grid (a
-    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Why: `ecs::planned`.
-    pub fn structure(prior: StructureKind) -> Self {
-        let (other, overhead) = match prior {
+    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Where the rule picked
+    /// the BVH for empty space ([`ChoiceReason::Clustered`]), the grid gets 2 × the BVH's seconds per
+    /// ray and is never tried (optimistic by its 25% spread it still costs more): empty space costs the
+    /// grid a step per empty cell, and on the report's clustered scene (rigid) the grid took 2.0–4.3 ×
+    /// the BVH's steps per ray and 18 × its time, so a single tried frame cost 5% of the 300 frames'
+    /// time (issue 12). Stale estimates are re-tried ([`retry_stale`](Self::retry_stale)). Why:
+    /// `ecs::planned`.
+    pub fn structure(rule: &StructureChoice) -> Self {
+        let (other, overhead) = match rule.structure {
             StructureKind::Bvh => (StructureKind::Grid, 2.0),
             StructureKind::Grid => (StructureKind::Bvh, 0.5),
         };
-        Choice::new(&[(prior, 1.0, 1.0), (other, 1.2, overhead)])
+        let per_ray = match rule.reason {
+            ChoiceReason::Clustered(_) => 2.0,
+            _ => 1.2,
+        };
+        Choice::new(&[(rule.structure, 1.0, 1.0), (other, per_ray, overhead)])
             .expect("two options")
             .retry_stale()
     }
