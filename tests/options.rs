@@ -525,7 +525,8 @@ fn an_option_that_became_cheaper_since_its_tries_is_re_tried_and_chosen() {
 /// costs drift up together, 3× from frame 20 to 60, the grid staying 1.5× the BVH's: the drift is seen
 /// (a re-try) but each re-try confirms the choice and doubles the wait for the next, so over 400
 /// frames there are at most log2(400 / 10) + 1 = 6 re-tries of at most three frames each. With
-/// stationary costs and ±10% noise (40 seeds, 400 frames) nothing drifts: no re-try at all.
+/// stationary costs and ±10% noise (40 seeds, 400 frames) nothing drifts: no re-try at all. Under a
+/// load that moves every cost by about its frames' own noise, at most three.
 #[test]
 fn re_tries_of_a_stale_option_are_rare_where_the_choice_holds() {
     use kinetrace::grid::StructureKind::{Bvh, Grid};
@@ -557,6 +558,29 @@ fn re_tries_of_a_stale_option_are_rare_where_the_choice_holds() {
         assert_eq!(choice.retries(), 0, "seed {seed}");
         assert_eq!(choice.decide(units), Bvh, "seed {seed}");
     }
+    // A loaded machine: frames ±40% around their mean, and every cost 30% dearer from frame 100 to
+    // 200 (another process's build). The mean in use moves by about two of its frames' spreads at
+    // most: mostly the machine's noise, not the scene's, so re-tries stay as rare as where the scene
+    // drifts (without the noise test: 1–5 per seed, 145 over the 40 seeds; the report re-tried 4–5
+    // times per scene in 300 loaded frames).
+    let mut total = 0;
+    for seed in 0..40u64 {
+        let counter = AtomicU64::new(seed * 1000);
+        let mut choice = Choice::structure(&rule(Bvh));
+        for f in 0..400 {
+            let option = choice.decide(units);
+            let load = if (100..200).contains(&f) { 1.3 } else { 1.0 };
+            let scale = dearer(option) * load * (1.0 + 0.4 * noise(&counter));
+            teach(&mut choice, option, units, scale);
+        }
+        assert!(
+            choice.retries() <= 3,
+            "loaded, seed {seed}: {}",
+            choice.retries()
+        );
+        total += choice.retries();
+    }
+    assert!(total <= 60, "loaded: {total} re-tries over 40 seeds");
 }
 
 /// Issue 12 through the ECS (`TraceWorld::script_costs`): the structure not in use is re-measured once

@@ -28,8 +28,8 @@
 //! nothing of the scene as it is later (the report's explosion: the BVH measured in frames 1–4 while
 //! the explosion was compact, the grid's frames drifting from 5.8 to 8.9 ms by frame 150, the BVH
 //! never measured again — issue 12). With [`retry_stale`](Choice::retry_stale) an option whose
-//! estimate is stale — the option in use has drifted by more than [`MIN_GAIN`] since the other was
-//! last measured, and [`RETRY_GAP`] frames have passed, doubled after each re-try that kept the choice
+//! estimate is stale — the option in use has drifted by more than [`MIN_GAIN`] and by more than `z`
+//! spreads of its frames since the other was last measured, and [`RETRY_GAP`] frames have passed, doubled after each re-try that kept the choice
 //! — is tried again as if never measured: its per-unit estimate starts afresh (its overhead with its
 //! next sample), up to three frames, the first frame's sample deciding whether the others are worth
 //! it. A stationary scene never drifts, so it never pays a re-try; a drifting one that keeps its
@@ -388,8 +388,8 @@ impl<T: Copy + PartialEq> Choice<T> {
 
     /// With [`retry_stale`](Self::retry_stale), the option to re-try for a frame of `units` because its
     /// estimate is stale: measured at least [`gap`](Arm::gap) frames ago, while the option settled on
-    /// cost what it costs now by more than [`MIN_GAIN`] (up or down: a scene that grows or shrinks
-    /// moves the options apart), and the drift large enough to have closed the gap: its stale cost over
+    /// cost what it costs now by more than [`MIN_GAIN`] and by more than `z` of its frames' spreads
+    /// (up or down: a scene that grows or shrinks moves the options apart), and the drift large enough to have closed the gap: its stale cost over
     /// the settled option's then below the square of the drift (as if the two had moved apart by as
     /// much as the one in use moved). The cheapest such option predicted, if any.
     fn stale(&self, units: f64) -> Option<T> {
@@ -398,6 +398,9 @@ impl<T: Copy + PartialEq> Choice<T> {
         }
         let (per_unit, overhead) = self.arm(self.settled)?.means()?;
         let now = overhead + per_unit * units;
+        // One frame's spread of the option in use: a drift within z of it is the machine's noise (a
+        // loaded machine's frames move its mean by more than MIN_GAIN), not the scene's.
+        let noise = self.z * self.predict(self.settled, units)?.0.spread_s;
         (self.arms.iter())
             .filter(|a| a.option != self.settled)
             .filter(|a| self.frame - a.measured_at >= a.gap)
@@ -409,7 +412,8 @@ impl<T: Copy + PartialEq> Choice<T> {
                     return None;
                 }
                 let (cost, _) = self.predict(a.option, units)?;
-                (drift > 1.0 + MIN_GAIN && cost.cost_s < then * drift * drift).then_some(cost)
+                let drifted = drift > 1.0 + MIN_GAIN && (now - then).abs() > noise;
+                (drifted && cost.cost_s < then * drift * drift).then_some(cost)
             })
             .min_by(|a, b| a.cost_s.total_cmp(&b.cost_s))
             .map(|c| c.option)
