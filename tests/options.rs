@@ -290,33 +290,46 @@ fn ten_percent_noise_around_equal_costs_changes_no_option_more_than_a_try_and_ba
 /// on the grid (the rule's prior) and must end on the BVH; the tori, whose prior is the BVH, stay on it.
 #[test]
 fn a_spiky_structure_in_use_is_left_for_one_cheaper_on_average() {
+    let on_bvh = frames_on(32, 24, StructureKind::Bvh, |f, option| {
+        let overhead_s = match option {
+            PlannedOption::Structure(StructureKind::Grid) if f % 2 == 1 => 300e-6,
+            _ => 1e-6,
+        };
+        ScriptedCost {
+            overhead_s,
+            per_ray_s: 1e-6,
+        }
+    });
+    assert_eq!(on_bvh, [8; 4], "frames 24..32 on the BVH, per mesh");
+}
+
+/// Runs frames `0..frames` of [`scene`] (answers checked every eighth) with every mesh's costs scripted
+/// by `cost(frame, option)`, and counts per mesh the frames from `from` on that `kind` answered.
+fn frames_on(
+    frames: u32,
+    from: u32,
+    kind: StructureKind,
+    cost: impl Fn(u32, PlannedOption) -> ScriptedCost + Send + Sync + 'static,
+) -> [u32; 4] {
     let (mut world, mut schedule, meshes) = scene();
     let frame_no = Arc::new(AtomicU64::new(0));
     let f = frame_no.clone();
     world
         .resource_mut::<TraceWorld>()
         .script_costs(Some(Arc::new(move |_, option| {
-            let spike = f.load(Ordering::Relaxed) % 2 == 1;
-            let overhead_s = match option {
-                PlannedOption::Structure(StructureKind::Grid) if spike => 300e-6,
-                _ => 1e-6,
-            };
-            Some(ScriptedCost {
-                overhead_s,
-                per_ray_s: 1e-6,
-            })
+            Some(cost(f.load(Ordering::Relaxed) as u32, option))
         })));
-    let mut on_bvh = [0u32; 4];
-    for f in 0..32 {
+    let mut on = [0u32; 4];
+    for f in 0..frames {
         frame_no.store(f as u64, Ordering::Relaxed);
         frame(&mut world, &mut schedule, &meshes, f, f % 8 == 0);
         let stats = world.resource::<TraceStats>();
         for (i, (e, _)) in meshes.iter().enumerate() {
             let s = stats.structures.iter().find(|s| s.entity == *e).unwrap();
-            on_bvh[i] += (f >= 24 && s.structure == StructureKind::Bvh) as u32;
+            on[i] += (f >= from && s.structure == kind) as u32;
         }
     }
-    assert_eq!(on_bvh, [8; 4], "frames 24..32 on the BVH, per mesh");
+    on
 }
 
 /// Issue 12: the frames in which a structure is tried must measure it as it would answer once chosen —
@@ -590,33 +603,17 @@ fn re_tries_of_a_stale_option_are_rare_where_the_choice_holds() {
 /// only a re-try sees it 37% cheaper later: every mesh must answer with the grid from frame 90 on.
 #[test]
 fn a_structure_that_became_cheaper_since_its_tries_is_re_tried_and_chosen() {
-    let (mut world, mut schedule, meshes) = scene();
-    let frame_no = Arc::new(AtomicU64::new(0));
-    let f = frame_no.clone();
-    world
-        .resource_mut::<TraceWorld>()
-        .script_costs(Some(Arc::new(move |_, option| {
-            let f = f.load(Ordering::Relaxed) as u32;
-            let per_ray_s = match option {
-                PlannedOption::Structure(StructureKind::Grid) => 2e-6 * ramp(f, -0.5),
-                PlannedOption::Structure(StructureKind::Bvh) => 1e-6 * ramp(f, 0.6),
-                _ => 1e-6,
-            };
-            Some(ScriptedCost {
-                overhead_s: 1e-6,
-                per_ray_s,
-            })
-        })));
-    let mut late_on_grid = [0u32; 4];
-    for f in 0..100 {
-        frame_no.store(f as u64, Ordering::Relaxed);
-        frame(&mut world, &mut schedule, &meshes, f, f % 10 == 0);
-        let stats = world.resource::<TraceStats>();
-        for (i, (e, _)) in meshes.iter().enumerate() {
-            let s = stats.structures.iter().find(|s| s.entity == *e).unwrap();
-            late_on_grid[i] += (f >= 90 && s.structure == StructureKind::Grid) as u32;
+    let late_on_grid = frames_on(100, 90, StructureKind::Grid, |f, option| {
+        let per_ray_s = match option {
+            PlannedOption::Structure(StructureKind::Grid) => 2e-6 * ramp(f, -0.5),
+            PlannedOption::Structure(StructureKind::Bvh) => 1e-6 * ramp(f, 0.6),
+            _ => 1e-6,
+        };
+        ScriptedCost {
+            overhead_s: 1e-6,
+            per_ray_s,
         }
-    }
+    });
     assert_eq!(
         late_on_grid, [10; 4],
         "frames 90..100 on the grid, per mesh"
