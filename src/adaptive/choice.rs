@@ -460,9 +460,11 @@ impl Choice<StructureKind> {
     /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Where the rule picked
     /// the BVH for empty space ([`ChoiceReason::Clustered`]), the grid gets 2 × the BVH's seconds per
     /// ray and is never tried (optimistic by its 25% spread it still costs more): empty space costs the
-    /// grid a step per empty cell, and on the report's clustered scene (rigid) the grid took 2.0–4.3 ×
-    /// the BVH's steps per ray and 18 × its time, so a single tried frame cost 5% of the 300 frames'
-    /// time (issue 12). Stale estimates are re-tried ([`retry_stale`](Self::retry_stale)). Why:
+    /// grid a step per empty cell; the report's one clustered scene (rigid at `--quick`'s 3k triangles,
+    /// 38% of bins empty) took 2.0 × the BVH's steps per ray on the grid (issue 12; at 20k triangles
+    /// the rule calls rigid alike sizes, where the grid took 4.3 × the steps and 18 × the time, one
+    /// tried frame 5% of the 300 frames' time, but where alike sizes cannot rule the grid out: the
+    /// planner must be able to overturn the rule, `tests/options.rs`). Stale estimates are re-tried ([`retry_stale`](Self::retry_stale)). Why:
     /// `ecs::planned`.
     pub fn structure(rule: &StructureChoice) -> Self {
         let (other, overhead) = match rule.structure {

@@ -15,8 +15,9 @@
 //!
 //! Two exceptions (issue 12). Where the rule picked the BVH for empty space
 //! ([`ChoiceReason::Clustered`]) the grid's prior is 2 × the BVH's seconds per ray, so it is never
-//! tried: on the report's clustered scene (rigid, 20k triangles) a grid frame took 18 × a BVH frame's
-//! time and its single tried frame cost 5% of the run. And an estimate goes stale as the scene changes:
+//! tried: on the report's one clustered scene (rigid at `--quick` size) the grid took 2 × the BVH's
+//! steps per ray (at 20k triangles, where the rule says alike sizes, 4.3 × the steps and 18 × the
+//! time: one tried frame cost 5% of the run). And an estimate goes stale as the scene changes:
 //! the other structure is re-tried once the one in use has drifted by more than 15% since the other
 //! was measured, at gaps doubling from 10 frames ([`Choice::retry_stale`]) — the report's explosion
 //! had kept a grid drifting from 5.8 to 8.9 ms per frame against a BVH measured only in frames 1–4.
