@@ -12,8 +12,8 @@
 //!   overlap test (`Choice::overlap`), each learning the frame's measured update and query seconds
 //!   (the structure not the first frame's update nor a switch's, which catches the BVH up, and nothing
 //!   from a frame in which an option under it is tried; while a structure is tried, the options under
-//!   it are held as settled, `Choice::hold`). Its picks (frames per option) are in the summary's
-//!   planned-options section.
+//!   it are held as settled, `Choice::hold`). Its picks (frames per option, and the structure's
+//!   re-tries of a stale estimate, `Choice::retry_stale`) are in the summary's planned-options section.
 //!
 //! Same error terms and brute-force checks as every row: the answers checked are those the timed run gave.
 
@@ -68,6 +68,8 @@ pub struct Picks {
     pub wide_off: usize,
     pub packets: usize,
     pub overlap: usize,
+    /// Re-tries of the structure not in use, its estimate stale (`Choice::retry_stale`).
+    pub retries: usize,
 }
 
 /// The picks of every `planned-options` run since the last [`take_picks`], in run order.
@@ -83,6 +85,7 @@ pub fn take_picks() -> Picks {
         wide_off: a.wide_off + p.wide_off,
         packets: a.packets + p.packets,
         overlap: a.overlap + p.overlap,
+        retries: a.retries + p.retries,
     })
 }
 
@@ -101,7 +104,7 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
             profile: Some(&profile_mesh(&frames[0].0)),
         });
         Planners {
-            structure: Choice::structure(prior.structure),
+            structure: Choice::structure(&prior),
             wide: Choice::wide(),
             packets: Choice::incoherent_packets(),
             overlap: Choice::overlap(),
@@ -236,7 +239,8 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
             mismatches: mismatches(answer, mesh, checked),
         });
     }
-    if planners.is_some() {
+    if let Some(p) = &planners {
+        picks.retries = p.structure.retries() as usize;
         PICKS.lock().expect("not poisoned").push(picks);
     }
     records
@@ -252,9 +256,10 @@ pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
     };
     let planned = ms("planned-options");
     let mut s = format!(
-        "| {scene} | grid {}/{} | wide off {}/{} | packets {}/{} | overlap {}/{} | {planned:.3} |",
+        "| {scene} | grid {}/{}, {} re-tries | wide off {}/{} | packets {}/{} | overlap {}/{} | {planned:.3} |",
         picks.grid,
         picks.frames,
+        picks.retries,
         picks.wide_off,
         picks.bvh_frames,
         picks.packets,

@@ -24,6 +24,17 @@
 //! An option measured cheaper than the one in use by more than [`MIN_GAIN`], but on too few samples to
 //! pass the margin, is used again until its mean decides one way or the other (`challenger`).
 //!
+//! An estimate goes stale: one measured only in its tries, while the scene was as it was then, says
+//! nothing of the scene as it is later (the report's explosion: the BVH measured in frames 1–4 while
+//! the explosion was compact, the grid's frames drifting from 5.8 to 8.9 ms by frame 150, the BVH
+//! never measured again — issue 12). With [`retry_stale`](Choice::retry_stale) an option whose
+//! estimate is stale — the option in use has drifted by more than [`MIN_GAIN`] and by more than `z`
+//! spreads of its frames since the other was last measured, and [`RETRY_GAP`] frames have passed, doubled after each re-try that kept the choice
+//! — is tried again as if never measured: its per-unit estimate starts afresh (its overhead with its
+//! next sample), up to three frames, the first frame's sample deciding whether the others are worth
+//! it. A stationary scene never drifts, so it never pays a re-try; a drifting one that keeps its
+//! choice pays a number of re-tries logarithmic in its frames.
+//!
 //! Hysteresis, in numbers: with costs that jitter around equal ones (±10% in `tests/options.rs`), the
 //! option in use changes at most twice per other option — to a try and back — since a mean re-estimated
 //! every frame does not drift 15% below a measured one (at 5% it did in that test, at 10% once in
@@ -31,7 +42,7 @@
 
 use super::Estimate;
 use super::rank::{Candidate, choose};
-use crate::grid::StructureKind;
+use crate::grid::{ChoiceReason, StructureChoice, StructureKind};
 
 /// Relative spread of a prediction made from a prior.
 const PRIOR_SPREAD: f64 = 0.25;
@@ -52,6 +63,12 @@ const TRIES: u32 = 3;
 /// the price of not letting the machine's stalls decide.
 const STALL: f64 = 4.0;
 
+/// Frames after an option was last measured before a stale estimate of it is re-tried
+/// ([`Choice::retry_stale`]), doubled after each re-try that kept the choice: about the frames the
+/// option in use's mean takes to forget the past (an [`Estimate`] weighs the last nine or so samples),
+/// so that a drift is the scene's, not one noisy frame's.
+const RETRY_GAP: u32 = 10;
+
 /// `x`, or [`STALL`] times the mean of `e` where it is larger and the mean rests on [`TRIES`] samples.
 fn unstalled(e: &Estimate, x: f64) -> f64 {
     match e.mean() {
@@ -70,6 +87,24 @@ struct Arm<T> {
     overhead: Estimate,
     /// Frames the option was tried in (at most [`TRIES`]).
     tries: u32,
+    /// The means (per unit, overhead) of the option in use, taken at the first [`Choice::decide`]
+    /// after this option was last measured at which they are sure (see `Choice::settle`): what its
+    /// estimate is compared against. `None` until then.
+    basis: Option<(f64, f64)>,
+    /// The [`Choice::decide`] count at this option's last measurement.
+    measured_at: u32,
+    /// Frames after `measured_at` before a stale re-try ([`RETRY_GAP`], doubled by each re-try).
+    gap: u32,
+    /// Whether the next per-unit and the next overhead sample start their estimates afresh (a try of
+    /// an option measured long ago).
+    fresh: (bool, bool),
+}
+
+impl<T> Arm<T> {
+    /// This option's learned means, overhead 0 while unmeasured; `None` before a per-unit sample.
+    fn means(&self) -> Option<(f64, f64)> {
+        Some((self.per_unit.mean()?, self.overhead.mean().unwrap_or(0.0)))
+    }
 }
 
 /// The planner of one per-mesh choice among a few options (see the module docs). Keep one per mesh and
@@ -83,6 +118,12 @@ pub struct Choice<T> {
     /// The option in use this frame: `settled`, or an option being tried.
     current: T,
     explored: bool,
+    /// Whether stale estimates are re-tried ([`retry_stale`](Self::retry_stale)).
+    retry: bool,
+    /// [`decide`](Self::decide) calls so far.
+    frame: u32,
+    /// Stale re-tries started so far.
+    retries: u32,
     /// Standard deviations of margin before the option in use is changed
     /// ([`DEFAULT_Z`](super::DEFAULT_Z)).
     pub z: f64,
@@ -102,13 +143,36 @@ impl<T: Copy + PartialEq> Choice<T> {
                     per_unit: Estimate::default(),
                     overhead: Estimate::default(),
                     tries: 0,
+                    basis: None,
+                    measured_at: 0,
+                    gap: RETRY_GAP,
+                    fresh: (false, false),
                 })
                 .collect(),
             settled: current,
             current,
             explored: false,
+            retry: false,
+            frame: 0,
+            retries: 0,
             z: super::DEFAULT_Z,
         })
+    }
+
+    /// This choice, re-trying stale estimates (see the module docs): for a choice whose options'
+    /// costs drift apart as a scene changes (a BVH against a grid over an explosion). Costs nothing
+    /// while the option in use's cost holds within [`MIN_GAIN`] of what it was when the others were
+    /// measured; a re-try costs up to three frames of the other option.
+    pub fn retry_stale(self) -> Self {
+        Choice {
+            retry: true,
+            ..self
+        }
+    }
+
+    /// Stale re-tries started so far ([`retry_stale`](Self::retry_stale)).
+    pub fn retries(&self) -> u32 {
+        self.retries
     }
 
     /// The option in use.
@@ -130,7 +194,11 @@ impl<T: Copy + PartialEq> Choice<T> {
             && seconds >= 0.0
             && let Some(arm) = self.arm_mut(option)
         {
+            if std::mem::take(&mut arm.fresh.0) {
+                arm.per_unit = Estimate::default();
+            }
             arm.per_unit.add(unstalled(&arm.per_unit, seconds / units));
+            self.measured(option);
         }
     }
 
@@ -141,7 +209,20 @@ impl<T: Copy + PartialEq> Choice<T> {
             && seconds >= 0.0
             && let Some(arm) = self.arm_mut(option)
         {
+            if std::mem::take(&mut arm.fresh.1) {
+                arm.overhead = Estimate::default();
+            }
             arm.overhead.add(unstalled(&arm.overhead, seconds));
+            self.measured(option);
+        }
+    }
+
+    /// Notes that `option` was measured this frame: its estimate's basis is to be taken afresh.
+    fn measured(&mut self, option: T) {
+        let frame = self.frame;
+        if let Some(arm) = self.arm_mut(option) {
+            arm.basis = None;
+            arm.measured_at = frame;
         }
     }
 
@@ -150,8 +231,16 @@ impl<T: Copy + PartialEq> Choice<T> {
     /// option measured its per-unit cost, or for an option not of this choice.
     pub fn predict(&self, option: T, units: f64) -> Option<(Candidate<T>, bool)> {
         let arm = self.arm(option)?;
+        // An overhead not measured yet (a try's first frame, which pays a switch's catch-up and teaches
+        // no overhead) is predicted through the priors' ratio too: taken for 0, it made a structure
+        // whose queries alone came near the one in use worth two more tries (the report's cloth tried
+        // the grid three frames at 1.8 times a BVH frame; issue 12).
+        let overhead = (arm.overhead.mean())
+            .or_else(|| {
+                (self.arms.iter()).find_map(|a| Some(a.overhead.mean()? * arm.prior.1 / a.prior.1))
+            })
+            .unwrap_or(0.0);
         if let Some(per_unit) = arm.per_unit.mean() {
-            let overhead = arm.overhead.mean().unwrap_or(0.0);
             // What is predicted is one frame: its spread is one frame's plus the mean's own (a margin of
             // the mean's spread alone would let an option in use, re-estimated every frame, drift past
             // one measured a while ago by chance, given enough frames).
@@ -168,7 +257,6 @@ impl<T: Copy + PartialEq> Choice<T> {
             ));
         }
         let (from, per_unit) = (self.arms.iter()).find_map(|a| Some((a, a.per_unit.mean()?)))?;
-        let overhead = from.overhead.mean().unwrap_or(0.0) * arm.prior.1 / from.prior.1;
         let cost = per_unit * units * arm.prior.0 / from.prior.0 + overhead;
         Some((
             Candidate {
@@ -195,6 +283,7 @@ impl<T: Copy + PartialEq> Choice<T> {
     /// option measured fewer than three times whose optimistic prediction beats that (tried: once
     /// measured, it is chosen only if it beats the kept one by the margin like any other).
     pub fn decide(&mut self, units: f64) -> T {
+        self.frame = self.frame.saturating_add(1);
         // Timing noise is the machine's, not an option's: every measured option's mean carries at least
         // the largest relative spread any option measured over three samples or more (an option tried
         // three times can have measured almost none by chance, and would then win on a lucky mean), over
@@ -232,21 +321,102 @@ impl<T: Copy + PartialEq> Choice<T> {
         {
             chosen = c;
         }
-        self.settled = chosen;
+        self.settle(chosen);
+        let stale = self.stale(units);
+        if let Some(arm) = stale.and_then(|s| self.arm_mut(s)) {
+            // Tried as if never measured (see below): the first frame's sample alone predicts it, and
+            // decides whether the other two tries are worth it.
+            arm.tries = 0;
+            arm.gap = arm.gap.saturating_mul(2);
+            self.retries += 1;
+        }
         let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
-        let tried = (self.arms.iter())
-            .filter(|a| a.option != chosen && a.per_unit.samples() < TRIES && a.tries < TRIES)
-            .find_map(|a| {
-                let (c, _) = self.predict(a.option, units)?;
-                (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
+        let tried = stale
+            .or_else(|| {
+                (self.arms.iter())
+                    .filter(|a| {
+                        a.option != chosen && a.per_unit.samples() < TRIES && a.tries < TRIES
+                    })
+                    .find_map(|a| {
+                        let (c, _) = self.predict(a.option, units)?;
+                        (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
+                    })
             })
             .or_else(|| self.challenger(chosen, units));
         self.explored = tried.is_some();
+        let (frame, retry) = (self.frame, self.retry);
         if let Some(arm) = tried.and_then(|t| self.arm_mut(t)) {
             arm.tries = (arm.tries + 1).min(TRIES);
+            // With `retry_stale`, a try of an option last measured [`RETRY_GAP`] frames ago or more
+            // measures it afresh: blended into samples of the scene as it was, a new one would move
+            // its mean by a fifth of the change.
+            if retry && arm.per_unit.mean().is_some() && frame - arm.measured_at >= RETRY_GAP {
+                arm.fresh = (true, true);
+            }
         }
         self.current = tried.unwrap_or(chosen);
         self.current
+    }
+
+    /// Makes `chosen` the option settled on. A change restarts the re-try gaps of both options and
+    /// the other options' bases; every option measured since the last frame takes the means of the
+    /// option in use as its basis, once those include an overhead and rest on as many samples as they
+    /// will (a mean of three noisy frames is easily 10% off, and a basis that far off is a drift).
+    fn settle(&mut self, chosen: T) {
+        if chosen != self.settled {
+            let before = self.settled;
+            for arm in &mut self.arms {
+                arm.basis = None;
+                if arm.option == chosen || arm.option == before {
+                    arm.gap = RETRY_GAP;
+                }
+            }
+            self.settled = chosen;
+        }
+        let Some(basis) = (self.arm(chosen))
+            .filter(|a| a.per_unit.saturated() && a.overhead.mean().is_some())
+            .and_then(Arm::means)
+        else {
+            return;
+        };
+        for arm in &mut self.arms {
+            if arm.option != chosen && arm.basis.is_none() && arm.per_unit.mean().is_some() {
+                arm.basis = Some(basis);
+            }
+        }
+    }
+
+    /// With [`retry_stale`](Self::retry_stale), the option to re-try for a frame of `units` because its
+    /// estimate is stale: measured at least [`gap`](Arm::gap) frames ago, while the option settled on
+    /// cost what it costs now by more than [`MIN_GAIN`] and by more than `z` of its frames' spreads
+    /// (up or down: a scene that grows or shrinks moves the options apart), and the drift large enough to have closed the gap: its stale cost over
+    /// the settled option's then below the square of the drift (as if the two had moved apart by as
+    /// much as the one in use moved). The cheapest such option predicted, if any.
+    fn stale(&self, units: f64) -> Option<T> {
+        if !self.retry || units <= 0.0 {
+            return None;
+        }
+        let (per_unit, overhead) = self.arm(self.settled)?.means()?;
+        let now = overhead + per_unit * units;
+        // One frame's spread of the option in use: a drift within z of it is the machine's noise (a
+        // loaded machine's frames move its mean by more than MIN_GAIN), not the scene's.
+        let noise = self.z * self.predict(self.settled, units)?.0.spread_s;
+        (self.arms.iter())
+            .filter(|a| a.option != self.settled)
+            .filter(|a| self.frame - a.measured_at >= a.gap)
+            .filter_map(|a| {
+                let (per_unit, overhead) = a.basis?;
+                let then = overhead + per_unit * units;
+                let drift = (now / then).max(then / now);
+                if !drift.is_finite() {
+                    return None;
+                }
+                let (cost, _) = self.predict(a.option, units)?;
+                let drifted = drift > 1.0 + MIN_GAIN && (now - then).abs() > noise;
+                (drifted && cost.cost_s < then * drift * drift).then_some(cost)
+            })
+            .min_by(|a, b| a.cost_s.total_cmp(&b.cost_s))
+            .map(|c| c.option)
     }
 
     /// Once `chosen` rests on [`TRIES`] samples, a measured option cheaper by more than [`MIN_GAIN`] whose mean still rests on
@@ -285,15 +455,29 @@ impl<T: Copy + PartialEq> Choice<T> {
 
 /// The per-mesh choices the ECS plans, with our priors (replaced by measurements at once).
 impl Choice<StructureKind> {
-    /// A mesh's structure: `prior` (the profile rule's pick, [`crate::grid::choose_structure`]) in use
+    /// A mesh's structure: `rule`'s pick (the profile rule, [`crate::grid::choose_structure`]) in use
     /// first; the other with 1.2 × its seconds per ray and an overhead of 2 × the BVH's for the grid (a
-    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Why: `ecs::planned`.
-    pub fn structure(prior: StructureKind) -> Self {
-        let (other, overhead) = match prior {
+    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Where the rule picked
+    /// the BVH for empty space ([`ChoiceReason::Clustered`]), the grid gets 2 × the BVH's seconds per
+    /// ray and is never tried (optimistic by its 25% spread it still costs more): empty space costs the
+    /// grid a step per empty cell; the report's one clustered scene (rigid at `--quick`'s 3k triangles,
+    /// 38% of bins empty) took 2.0 × the BVH's steps per ray on the grid (issue 12; at 20k triangles
+    /// the rule calls rigid alike sizes, where the grid took 4.3 × the steps and 18 × the time, one
+    /// tried frame 5% of the 300 frames' time, but where alike sizes cannot rule the grid out: the
+    /// planner must be able to overturn the rule, `tests/options.rs`). Stale estimates are re-tried ([`retry_stale`](Self::retry_stale)). Why:
+    /// `ecs::planned`.
+    pub fn structure(rule: &StructureChoice) -> Self {
+        let (other, overhead) = match rule.structure {
             StructureKind::Bvh => (StructureKind::Grid, 2.0),
             StructureKind::Grid => (StructureKind::Bvh, 0.5),
         };
-        Choice::new(&[(prior, 1.0, 1.0), (other, 1.2, overhead)]).expect("two options")
+        let per_ray = match rule.reason {
+            ChoiceReason::Clustered(_) => 2.0,
+            _ => 1.2,
+        };
+        Choice::new(&[(rule.structure, 1.0, 1.0), (other, per_ray, overhead)])
+            .expect("two options")
+            .retry_stale()
     }
 }
 

@@ -13,6 +13,15 @@
 //! grid rebuild included, as overhead; its share of the frame's batched query time per ray) decide,
 //! with the planner's one margin and hysteresis ([`crate::adaptive::rank::choose`]).
 //!
+//! Two exceptions (issue 12). Where the rule picked the BVH for empty space
+//! ([`ChoiceReason::Clustered`]) the grid's prior is 2 × the BVH's seconds per ray, so it is never
+//! tried: on the report's one clustered scene (rigid at `--quick` size) the grid took 2 × the BVH's
+//! steps per ray (at 20k triangles, where the rule says alike sizes, 4.3 × the steps and 18 × the
+//! time: one tried frame cost 5% of the run). And an estimate goes stale as the scene changes:
+//! the other structure is re-tried once the one in use has drifted by more than 15% since the other
+//! was measured, at gaps doubling from 10 frames ([`Choice::retry_stale`]) — the report's explosion
+//! had kept a grid drifting from 5.8 to 8.9 ms per frame against a BVH measured only in frames 1–4.
+//!
 //! **The data** (`cargo run --release --example report -- --quick`: ~3k triangles, 24 frames, 512
 //! incoherent rays per frame plus shadow rays; 2-core dev VM shared with other builds, so times are
 //! loaded). Traversal steps per ray over a fresh binned-SAH BVH's (work counts, free of the load):
@@ -64,7 +73,9 @@ use super::stats::PlannedOption;
 use super::world::Instance;
 use super::{Structure, StructureWhy};
 use crate::adaptive::Choice;
-use crate::grid::{ChoiceInput, ChoiceReason, GridOptions, StructureKind, choose_structure};
+use crate::grid::{
+    ChoiceInput, ChoiceReason, GridOptions, StructureChoice, StructureKind, choose_structure,
+};
 use bevy_ecs::entity::Entity;
 use std::sync::Arc;
 
@@ -105,12 +116,17 @@ pub(crate) fn structure_for(
         Structure::Bvh => (StructureKind::Bvh, StructureWhy::Fixed),
         Structure::Grid => (StructureKind::Grid, StructureWhy::Fixed),
         Structure::Auto => {
-            let choice = choose_structure(&ChoiceInput {
-                profile: inst.and_then(|i| i.profile.as_deref()),
-            });
+            let choice = rule(inst);
             (choice.structure, StructureWhy::Rule(choice.reason))
         }
     }
+}
+
+/// The rule of [`crate::grid::choice`] on the instance's profile (none yet for a new mesh: the BVH).
+fn rule(inst: Option<&Instance>) -> StructureChoice {
+    choose_structure(&ChoiceInput {
+        profile: inst.and_then(|i| i.profile.as_deref()),
+    })
 }
 
 /// The grid options of a mesh kept as a grid this frame: `options` with the
@@ -139,11 +155,12 @@ pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: boo
 /// reason is the rule's until both structures were measured, then both predictions
 /// ([`ChoiceReason::Measured`], seconds per frame). O(1).
 pub(crate) fn plan_structure(inst: &mut Instance) -> (StructureKind, StructureWhy) {
-    let (prior, why) = structure_for(Structure::Auto, Some(inst));
+    let prior = rule(Some(inst));
+    let why = StructureWhy::Rule(prior.reason);
     if inst.profile.is_none() {
-        return (prior, why);
+        return (prior.structure, why);
     }
-    let choice = (inst.kept.structure).get_or_insert_with(|| Choice::structure(prior));
+    let choice = (inst.kept.structure).get_or_insert_with(|| Choice::structure(&prior));
     let kind = choice.decide(inst.rays);
     let predicted = |k| match choice.predict(k, inst.rays) {
         Some((c, true)) => Some(c.cost_s),
