@@ -9,6 +9,7 @@ mod transform;
 mod triangle;
 
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
+pub(crate) use morton::spread10;
 pub use morton::{morton30, morton30_cube, morton63};
 pub use predicates::orient3d;
 pub(crate) use predicates::{Plane, normal_est, orient2d_est};

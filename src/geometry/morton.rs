@@ -9,7 +9,7 @@ use glam::Vec3;
 
 /// Spreads the low 10 bits of `v` so that bit `i` lands at bit `3i`.
 #[inline]
-fn spread10(v: u32) -> u32 {
+pub(crate) fn spread10(v: u32) -> u32 {
     let mut x = v & 0x3ff;
     x = (x | (x << 16)) & 0x0300_00ff;
     x = (x | (x << 8)) & 0x0300_f00f;

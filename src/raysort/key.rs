@@ -20,7 +20,7 @@
 //! defaults fill 32 bits per kind. Cost: one square root and two divisions per ray, and bit spreads by
 //! masks (no `acos`/`atan2`, no loop over bits): a few ns.
 
-use crate::geometry::Aabb;
+use crate::geometry::{Aabb, spread10};
 use crate::{Error, Result};
 use glam::Vec3;
 
@@ -81,6 +81,7 @@ impl KeyLayout {
             }
             RayKind::Reflection => {
                 let b = self.origin_bits;
+                // Each axis's cell, its bits spread to every third place.
                 let cell = |axis: usize| {
                     let extent = origins.max[axis] - origins.min[axis];
                     let f = if extent > 0.0 {
@@ -88,9 +89,9 @@ impl KeyLayout {
                     } else {
                         0.0
                     };
-                    quantise(f, b)
+                    u64::from(spread10(quantise(f, b) as u32))
                 };
-                let origin = (spread3(cell(0)) << 2) | (spread3(cell(1)) << 1) | spread3(cell(2));
+                let origin = (cell(0) << 2) | (cell(1) << 1) | cell(2);
                 let dir = direction(d, self.reflection_direction_bits);
                 ((origin << (2 * self.reflection_direction_bits)) | dir) as u32
             }
@@ -115,15 +116,6 @@ fn spread2(x: u64) -> u64 {
     x = (x | x << 4) & 0x0f0f_0f0f;
     x = (x | x << 2) & 0x3333_3333;
     (x | x << 1) & 0x5555_5555
-}
-
-/// The low 10 bits of `x` moved to every third bit place (bit `i` to bit `3i`).
-fn spread3(x: u64) -> u64 {
-    let mut x = x & 0x3ff;
-    x = (x | x << 16) & 0x0300_00ff;
-    x = (x | x << 8) & 0x0300_f00f;
-    x = (x | x << 4) & 0x030c_30c3;
-    (x | x << 2) & 0x0924_9249
 }
 
 /// The polar and azimuth steps of a non-zero direction, `bits` each (at most 16), interleaved.
