@@ -3,9 +3,10 @@
 //! first frame uploads that do not grow with the scene's triangles when only rays change. Runs on lavapipe
 //! in CI.
 //!
-//! The present GPU path collects frame N's answers in frame N+1 with a blocking wait when the GPU has not
-//! finished them (the counters show one on lavapipe): "no wait under NextFrame" belongs to the
-//! GPU-resident frame of issue 15, not built yet.
+//! This is the plain GPU query path (`TraceMode::GpuRequired` without `TraceConfig::resident`): it collects
+//! frame N's answers in frame N+1 with a blocking wait when the GPU has not finished them (the counters show
+//! one on lavapipe). The GPU-resident frame, which never waits under `Latency::NextFrame`, is checked in
+//! `tests/gpu_frame.rs`.
 #![cfg(feature = "gpu")]
 
 mod common;
