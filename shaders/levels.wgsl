@@ -8,14 +8,16 @@
 const MAX_DEPTH: u32 = 64u;
 
 // max_groups: the device's workgroups per dimension (level_offsets folds each level's dispatch into y past it).
-struct LevelParams { nodes: u32, mode: u32, level: u32, max_groups: u32 }
+// One slot per mesh and mode; bounds_level counts its depth in `levels` (NEXT), with no slot per depth.
+struct LevelParams { nodes: u32, mode: u32, pad: u32, max_groups: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
 // Per leaf slot the triangle's id.
 @group(0) @binding(2) var<storage, read> ids: array<u32>;
 @group(0) @binding(3) var<storage, read_write> nodes: array<Node>;
-// [0, 64): nodes per depth; [64, 128): cursors; [128, 192): offsets.
+// [0, 64): nodes per depth; [64, 128): cursors; [128, 192): offsets; [192] the depth bounds_level runs
+// next, [193] its workgroups finished, [194] the deepest depth with inner nodes.
 @group(0) @binding(4) var<storage, read_write> levels: array<atomic<u32>>;
 @group(0) @binding(5) var<storage, read_write> order: array<u32>;
 @group(0) @binding(6) var<storage, read_write> terms: array<f32>;
@@ -26,6 +28,9 @@ struct LevelParams { nodes: u32, mode: u32, level: u32, max_groups: u32 }
 
 const CURSOR: u32 = 64u;
 const OFFSET: u32 = 128u;
+const NEXT: u32 = 192u;
+const DONE: u32 = 193u;
+const DEEPEST: u32 = 194u;
 const MODE_BUILD: u32 = 0u;
 
 // A node's depth: the builders store it in sa_ratio, which bounds_level then overwrites in build mode (the
@@ -52,8 +57,10 @@ fn level_count(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_inv
 @compute @workgroup_size(1)
 fn level_offsets() {
     var sum = 0u;
+    var deepest = 0u;
     for (var d = 0u; d < MAX_DEPTH; d++) {
         let c = atomicLoad(&levels[d]);
+        if c > 0u { deepest = d; }
         atomicStore(&levels[OFFSET + d], sum);
         atomicStore(&levels[CURSOR + d], 0u);
         let g = (c + WG - 1u) / WG;
@@ -62,6 +69,7 @@ fn level_offsets() {
         args[3u * d + 2u] = 1u;
         sum += c;
     }
+    atomicStore(&levels[DEEPEST], deepest);
 }
 
 @compute @workgroup_size(256)
@@ -83,6 +91,11 @@ fn vertex(i: u32) -> vec3<f32> {
 @compute @workgroup_size(256)
 fn leaf_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
+    if i == 0u {
+        // The levels below start at the deepest.
+        atomicStore(&levels[NEXT], atomicLoad(&levels[DEEPEST]));
+        atomicStore(&levels[DONE], 0u);
+    }
     if i >= params.nodes { return; }
     var node = nodes[i];
     if !is_leaf(node) { return; }
@@ -104,15 +117,29 @@ fn leaf_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     nodes[i] = node;
 }
 
-// Boxes of every inner node at depth params.level from its children. Build mode stores the SA ratio; refit
-// mode writes ratio − stored ratio to `terms`.
+var<workgroup> wg_depth: u32;
+
+// Boxes of every inner node at one depth from its children. Build mode stores the SA ratio; refit mode
+// writes ratio − stored ratio to `terms`. The depth is NEXT: the levels are dispatched deepest first, one
+// dispatch per depth, those deeper than the tree with no workgroup, and the depths of a tree's inner nodes
+// run without a gap from DEEPEST to 0, so the last workgroup of each dispatch to finish steps NEXT up
+// one depth for the next (every workgroup reads it before it counts itself finished).
 @compute @workgroup_size(256)
-fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
+fn bounds_level(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(local_invocation_id) lid: vec3<u32>,
+                @builtin(num_workgroups) nwg: vec3<u32>) {
+    if lid.x == 0u { wg_depth = atomicLoad(&levels[NEXT]); }
+    let d = workgroupUniformLoad(&wg_depth);
     let k = linear_id(gid, nwg);
-    let d = params.level;
-    let count = atomicLoad(&levels[d]);
-    if k >= count { return; }
-    let i = order[atomicLoad(&levels[OFFSET + d]) + k];
+    if k < atomicLoad(&levels[d]) {
+        inner_bounds(order[atomicLoad(&levels[OFFSET + d]) + k]);
+    }
+    if lid.x == 0u && atomicAdd(&levels[DONE], 1u) + 1u == nwg.x * nwg.y * nwg.z {
+        atomicStore(&levels[DONE], 0u);
+        atomicStore(&levels[NEXT], d - 1u);
+    }
+}
+
+fn inner_bounds(i: u32) {
     var node = nodes[i];
     let l = nodes[node.index];
     let r = nodes[node.index + 1u];

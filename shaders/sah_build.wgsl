@@ -28,8 +28,8 @@
 // every accumulator and buffers are cleared by zeroing.
 
 // mode: bit 0 small-split kernel on, bit 1 bins in the nodes' max fields, bits 8.. the LBVH levels of a
-// hybrid build (0: pure SAH).
-struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
+// hybrid build (0: pure SAH). One slot per builder: the queue level is counted in `state` (LEVEL).
+struct SahParams { tris: u32, pad: u32, mode: u32, cap: u32 }
 
 @group(0) @binding(0) var<storage, read> positions: array<f32>;
 @group(0) @binding(1) var<storage, read> indices: array<u32>;
@@ -45,7 +45,7 @@ struct SahParams { tris: u32, level: u32, mode: u32, cap: u32 }
 // [336 cap, 342 cap) centroid bounds. The node buffer (mode bit 1) or a buffer of its own.
 @group(0) @binding(5) var<storage, read_write> bins: array<atomic<u32>>;
 // [0, 64) entries per level, [64] small subtrees, [65, 71) centroid bounds, [71, 77) box bounds (ordered
-// float bits, minima complemented).
+// float bits, minima complemented), [77] the queue level of the round under way, [78] rounds begun.
 @group(0) @binding(6) var<storage, read_write> state: array<atomic<u32>>;
 // The node buffer as words (8 per node): index (3) and depth (7) of the tree being built; slot s's scratch
 // id (8s), queue entry (8s + 1) and scratch entry (8s + 2); bins in the max fields when they are bound here.
@@ -69,6 +69,12 @@ const NONE: u32 = 0xffffffffu;
 const LEVELS: u32 = 64u;
 const SMALL_COUNT: u32 = 64u;
 const FRAME: u32 = 65u;
+// The queue level of the round under way, and the rounds begun: sah_args counts the rounds, so the
+// passes of round l read l here and no dispatch needs a parameter slot of its own per level.
+const LEVEL: u32 = 77u;
+const ROUNDS: u32 = 78u;
+
+fn level() -> u32 { return atomicLoad(&state[LEVEL]); }
 // From this depth on, nodes are halved by slot order (as topdown.rs's BALANCED_DEPTH), so no leaf is
 // deeper than 63 for up to 2^27 triangles.
 const BALANCED: u32 = 36u;
@@ -270,16 +276,19 @@ fn write_args(at: u32, g: vec3<u32>) {
     args[3u * at + 2u] = g.z;
 }
 
-fn in_base() -> u32 { return (params.level & 1u) * params.cap; }
-fn out_base() -> u32 { return ((params.level + 1u) & 1u) * params.cap; }
+fn in_base() -> u32 { return (level() & 1u) * params.cap; }
+fn out_base() -> u32 { return ((level() + 1u) & 1u) * params.cap; }
 
-// One invocation: the level's indirect arguments, all zero when its queue is empty.
+// One invocation at the start of every round: the round's level (the rounds begun so far, from 0), and
+// its indirect arguments, all zero when its queue is empty.
 @compute @workgroup_size(1)
 fn sah_args() {
-    let live = atomicLoad(&state[params.level]) > 0u;
+    let l = atomicAdd(&state[ROUNDS], 1u);
+    atomicStore(&state[LEVEL], l);
+    let live = atomicLoad(&state[l]) > 0u;
     let on = select(0u, 1u, live);
     write_args(ARG_PRIMS, split_threads(((params.tris + WG - 1u) / WG) * on));
-    write_args(ARG_SPLIT, split_threads(atomicLoad(&state[params.level])));
+    write_args(ARG_SPLIT, split_threads(atomicLoad(&state[l])));
     // Scan level l runs over ⌈n / 256^l⌉ elements (src/gpu/scan.rs).
     var size = params.tris;
     for (var l = 0u; l < 4u; l++) {
@@ -296,7 +305,7 @@ fn sah_small_args() {
 @compute @workgroup_size(256)
 fn sah_bounds(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if s >= params.tris || radix_level(params.level) { return; }
+    if s >= params.tris || radix_level(level()) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
     let q = centroid_q(vals[s]);
@@ -321,7 +330,7 @@ fn node_frame(e: u32) -> array<vec3<u32>, 2> {
 @compute @workgroup_size(256)
 fn sah_bin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let s = linear_id(gid, nwg);
-    if s >= params.tris || radix_level(params.level) { return; }
+    if s >= params.tris || radix_level(level()) { return; }
     let e = entry_of(s);
     if e == NONE { return; }
     let f = node_frame(e);
@@ -535,7 +544,7 @@ fn place_child(c: vec4<u32>, depth: u32) -> u32 {
         small[k] = vec4<u32>(c.x, c.y | (depth << 16u), c.z, c.w);
         return NONE;
     }
-    let k = atomicAdd(&state[params.level + 1u], 1u);
+    let k = atomicAdd(&state[level() + 1u], 1u);
     queues[out_base() + k] = c;
     return k;
 }
@@ -546,7 +555,7 @@ var<workgroup> wm: u32;
 fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>,
              @builtin(num_workgroups) nwg: vec3<u32>) {
     let e = linear_group(wid, nwg);
-    if lid.x == 0u { wcount = atomicLoad(&state[params.level]); }
+    if lid.x == 0u { wcount = atomicLoad(&state[level()]); }
     if e >= workgroupUniformLoad(&wcount) { return; }
     let ent = queues[in_base() + e];
     if lid.x == 0u { wm = ent.y; }
@@ -564,12 +573,12 @@ fn sah_split(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id
     }
     if lid.x == 0u {
         let f = node_frame(e);
-        let sp = choose(ent.x, ent.y, params.level, f[0], f[1]);
-        write_node(ent.z, ent.w, params.level);
+        let sp = choose(ent.x, ent.y, level(), f[0], f[1]);
+        write_node(ent.z, ent.w, level());
         let l = vec4<u32>(ent.x, sp.y, ent.w, ent.w + 2u);
         let r = vec4<u32>(ent.x + sp.y, ent.y - sp.y, ent.w + 1u, ent.w + 2u * sp.y);
-        let le = place_child(l, params.level + 1u);
-        let re = place_child(r, params.level + 1u);
+        let le = place_child(l, level() + 1u);
+        let re = place_child(r, level() + 1u);
         queues[2u * params.cap + 2u * e] = sp;
         queues[2u * params.cap + 2u * e + 1u] = vec4<u32>(le, re, ent.x, ent.y);
     }

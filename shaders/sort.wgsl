@@ -8,7 +8,7 @@
 // term comes from a 16 x 16 table of sub-block histograms scanned along the sub-blocks. Every thread does
 // at most 31 steps and three barriers.
 
-struct SortParams { n: u32, shift: u32, blocks: u32, _pad: u32 }
+struct SortParams { n: u32, _unused: u32, blocks: u32, _pad: u32 }
 
 @group(0) @binding(0) var<storage, read> keys_in: array<u32>;
 @group(0) @binding(1) var<storage, read> vals_in: array<u32>;
@@ -16,6 +16,8 @@ struct SortParams { n: u32, shift: u32, blocks: u32, _pad: u32 }
 @group(0) @binding(3) var<storage, read_write> vals_out: array<u32>;
 @group(0) @binding(4) var<storage, read_write> hist: array<u32>;
 @group(0) @binding(5) var<uniform> params: SortParams;
+// The pass p in x (its digit is bits 4p..4p+4): the device's pass slots, shared by every sorter.
+@group(0) @binding(6) var<uniform> pass_slot: vec4<u32>;
 
 var<workgroup> counts: array<atomic<u32>, 16>;
 var<workgroup> digits: array<u32, 256>;
@@ -25,7 +27,7 @@ const NO_DIGIT: u32 = 16u;
 
 fn digit_of(i: u32) -> u32 {
     if i >= params.n { return NO_DIGIT; }
-    return (keys_in[i] >> params.shift) & 15u;
+    return (keys_in[i] >> (4u * pass_slot.x)) & 15u;
 }
 
 @compute @workgroup_size(256)

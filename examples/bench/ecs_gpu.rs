@@ -9,7 +9,9 @@
 //! run, and `SAH/hybrid rebuilds / frame`: those of them with the builds the planner chose over GPU
 //! LBVH). Each crowd also runs resident with every character keeping its CPU mirror (no `GpuOnly`, the
 //! default): what immediate queries cost a resident crowd, the CPU's skinning and maintenance beside the
-//! GPU's (row `CPU skin + maintain / frame`). On a device with timestamp queries the resident runs add the
+//! GPU's (row `CPU skin + maintain / frame`). Every resident run reports `GPU bytes / triangle`
+//! (`ResidentStats::bytes_per_triangle` of its last frame: trees, builders, the device's shared slots;
+//! issue 15's target is 113). On a device with timestamp queries the resident runs add the
 //! GPU's time per phase (means of `TraceStats::gpu_phases`). Where the
 //! only adapter is a software one (lavapipe), its times say nothing of a GPU: the note says which adapter.
 
@@ -159,6 +161,8 @@ fn crowd(
     let (mut traversed, mut rebuilds, mut sah_rebuilds) = (0, 0, 0);
     // The CPU's skinning and maintenance (the CPU mirror's cost in a resident run), seconds.
     let mut mirror_s = 0.0;
+    // The resident trees' and builders' GPU bytes per triangle, as of the last frame (issue 15).
+    let mut bytes_per_triangle = 0.0;
     for frame in 0..frames {
         let mut queue = world.resource_mut::<RayQueue>();
         for (i, (ray, to, light)) in requests.iter().enumerate() {
@@ -177,6 +181,7 @@ fn crowd(
             seconds += elapsed;
             let done = world.resource::<TraceStats>().resident;
             (traversed, rebuilds) = (traversed + done.pairs_traversed, rebuilds + done.rebuilds);
+            bytes_per_triangle = done.bytes_per_triangle();
             sah_rebuilds += done.sah_rebuilds;
             let stats = world.resource::<TraceStats>();
             mirror_s += (stats.skin_time + stats.maintain_time).as_secs_f64();
@@ -246,6 +251,14 @@ fn crowd(
             "rebuilds / frame",
             rebuilds as f64 / per,
             "",
+        );
+        rec.add(
+            SUITE,
+            scene,
+            subject,
+            "GPU bytes / triangle",
+            bytes_per_triangle,
+            "B",
         );
         if mirror {
             let ms = mirror_s / per * 1e3;

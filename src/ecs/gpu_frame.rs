@@ -102,7 +102,8 @@ pub struct ResidentStats {
     /// The largest leaf-pair buffer of the pair traversals kept, in leaf pairs.
     pub pair_capacity: u32,
     /// GPU bytes held by the resident meshes' trees and builders ([`ResidentMesh::tree_bytes`](crate::gpu::ResidentMesh::tree_bytes)),
-    /// over all resident meshes.
+    /// over all resident meshes, plus once what their builds share on the device
+    /// ([`GpuContext::shared_tree_bytes`](crate::gpu::GpuContext::shared_tree_bytes)).
     pub tree_bytes: u64,
     /// Triangles of the resident meshes: `tree_bytes / triangles` is the bytes per triangle of issue 15's
     /// memory target.
@@ -342,6 +343,9 @@ pub(crate) fn resident_frame_system(
     for m in resident.meshes.values() {
         done_here.tree_bytes += m.tree_bytes();
         done_here.triangles += u64::from(m.bvh().triangle_count());
+    }
+    if !resident.meshes.is_empty() {
+        done_here.tree_bytes += ctx.shared_tree_bytes();
     }
     let phases = timer.map(|t| t.finish(&ctx, &mut enc));
     // The meshes' work is submitted even when the scene's is refused: their trees must stay as recorded.

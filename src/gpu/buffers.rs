@@ -87,11 +87,21 @@ fn create(
     bytes: u64,
     usage: wgpu::BufferUsages,
 ) -> wgpu::Buffer {
-    let size = bytes.max(256).next_multiple_of(256);
-    ctx.count_allocated(size);
-    ctx.device.create_buffer(&wgpu::BufferDescriptor {
+    let buffer = create_on(&ctx.device, label, bytes, usage);
+    ctx.count_allocated(buffer.size());
+    buffer
+}
+
+/// [`create`] on a device that has no context yet (the caller counts the bytes).
+fn create_on(
+    device: &wgpu::Device,
+    label: &'static str,
+    bytes: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
         label: Some(label),
-        size,
+        size: bytes.max(256).next_multiple_of(256),
         usage,
         mapped_at_creation: false,
     })
@@ -106,10 +116,35 @@ pub(crate) struct ParamSlots {
 /// Dynamic uniform offsets must be multiples of this (the WebGPU minimum alignment limit).
 const SLOT: u64 = 256;
 
+/// Slots of the device's [`ParamSlots::passes`]: one per pass of a radix sort of 32-bit keys.
+pub(crate) const PASS_SLOTS: usize = 8;
+
 impl ParamSlots {
     pub fn new(ctx: &GpuContext, slots: &[[u32; 4]]) -> Self {
-        let buffer = create(
-            ctx,
+        let (params, bytes) = Self::filled(&ctx.device, slots);
+        ctx.count_allocated(params.memory_bytes());
+        if !bytes.is_empty() {
+            ctx.write_buffer(&params.buffer, 0, &bytes);
+        }
+        params
+    }
+
+    /// The device's pass slots, made once with its context: slot `p` holds `[p, 0, 0, 0]`
+    /// ([`PASS_SLOTS`] of them, 2 KiB). The radix sort's kernels read their pass (which digit) from a
+    /// second uniform bound here at [`offset`](Self::offset)`(p)`, and the sort's own values from its
+    /// one slot: one set for every sorter of the device instead of a slot per pass per sorter. The
+    /// caller counts its bytes.
+    pub fn passes(device: &wgpu::Device, queue: &wgpu::Queue) -> Self {
+        let levels: Vec<[u32; 4]> = (0..PASS_SLOTS as u32).map(|l| [l, 0, 0, 0]).collect();
+        let (params, bytes) = Self::filled(device, &levels);
+        queue.write_buffer(&params.buffer, 0, &bytes);
+        params
+    }
+
+    /// An unwritten buffer for `slots` and the bytes to write into it.
+    fn filled(device: &wgpu::Device, slots: &[[u32; 4]]) -> (Self, Vec<u8>) {
+        let buffer = create_on(
+            device,
             "kinetrace params",
             slots.len().max(1) as u64 * SLOT,
             wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
@@ -118,10 +153,7 @@ impl ParamSlots {
         for (i, s) in slots.iter().enumerate() {
             bytes[i * SLOT as usize..][..16].copy_from_slice(bytemuck::bytes_of(s));
         }
-        if !bytes.is_empty() {
-            ctx.write_buffer(&buffer, 0, &bytes);
-        }
-        Self { buffer }
+        (Self { buffer }, bytes)
     }
 
     /// Bytes of the uniform buffer.

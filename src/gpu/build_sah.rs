@@ -44,8 +44,9 @@ pub const SMALL_SPLIT_MAX: u32 = 64;
 pub const SWEEP_MAX: u32 = 64;
 /// Words of the bins of one queue entry: 3 axes × 16 bins × (count, 3 minima, 3 maxima).
 const ENTRY_BIN_WORDS: u64 = 3 * 16 * 7;
-/// `state` words: entries per level, the small-subtree count, the scene's centroid and box bounds.
-const STATE_WORDS: u64 = LEVELS as u64 + 1 + 12;
+/// `state` words: entries per level, the small-subtree count, the scene's centroid and box bounds, and
+/// the round under way and the rounds begun (the queue level every pass of a round reads).
+const STATE_WORDS: u64 = LEVELS as u64 + 1 + 12 + 2;
 /// Indirect argument triples: primitive passes, split pass, 4 scan levels, small subtrees.
 const ARG_TRIPLES: u64 = 7;
 const ARG_SPLIT: u64 = 12;
@@ -191,11 +192,6 @@ pub struct GpuSahBuilder {
     stand_in: GpuBuffer,
 }
 
-/// Parameter slot of level `l` (`LEVELS` for the passes after the loop).
-fn slot(l: usize) -> u32 {
-    ParamSlots::offset(l)
-}
-
 impl GpuSahBuilder {
     /// Allocates the scratch for building `bvh`'s mesh.
     pub fn new(ctx: &GpuContext, bvh: &GpuMeshBvh, options: GpuSahOptions) -> Result<Self> {
@@ -243,9 +239,7 @@ impl GpuSahBuilder {
             | u32::from(shared) << 1
             | options.lbvh_levels.min(LEVELS as u32) << 8
             | ctx.max_groups().min(0xffff) << 16;
-        let slots_params: Vec<[u32; 4]> =
-            (0..=LEVELS).map(|l| [tris, l as u32, mode, cap]).collect();
-        let params = ParamSlots::new(ctx, &slots_params);
+        let params = ParamSlots::new(ctx, &[[tris, 0, mode, cap]]);
         let group = |a: &GpuBuffer| {
             bind_group(
                 ctx,
@@ -366,36 +360,37 @@ impl GpuSahBuilder {
         });
         let k = &ctx.kernels.sah;
         let (x, y) = ctx.groups(self.tris, 256);
-        let direct = |pass: &mut wgpu::ComputePass<'_>, entry: &str, l: usize| {
+        // One parameter slot: the queue level of every pass is the round's, counted on the GPU.
+        let direct = |pass: &mut wgpu::ComputePass<'_>, entry: &str| {
             pass.set_pipeline(k.pipeline(entry));
-            pass.set_bind_group(0, &self.work_group, &[slot(l)]);
+            pass.set_bind_group(0, &self.work_group, &[0]);
             pass.dispatch_workgroups(x, y, 1);
         };
         let args = self.args.buffer();
-        let indirect = |pass: &mut wgpu::ComputePass<'_>, entry: &str, l: usize, at: u64| {
+        let indirect = |pass: &mut wgpu::ComputePass<'_>, entry: &str, at: u64| {
             pass.set_pipeline(k.pipeline(entry));
-            pass.set_bind_group(0, &self.work_group, &[slot(l)]);
+            pass.set_bind_group(0, &self.work_group, &[0]);
             pass.dispatch_workgroups_indirect(args, at);
         };
-        let single = |pass: &mut wgpu::ComputePass<'_>, entry: &str, l: usize| {
+        let single = |pass: &mut wgpu::ComputePass<'_>, entry: &str| {
             pass.set_pipeline(k.pipeline(entry));
-            pass.set_bind_group(0, &self.args_group, &[slot(l)]);
+            pass.set_bind_group(0, &self.args_group, &[0]);
             pass.dispatch_workgroups(1, 1, 1);
         };
-        direct(&mut pass, "sah_frame", 0);
-        direct(&mut pass, "sah_prims", 0);
-        for l in 0..self.rounds() {
-            single(&mut pass, "sah_args", l);
-            indirect(&mut pass, "sah_bounds", l, 0);
-            indirect(&mut pass, "sah_bin", l, 0);
-            indirect(&mut pass, "sah_split", l, ARG_SPLIT);
-            indirect(&mut pass, "sah_flag", l, 0);
+        direct(&mut pass, "sah_frame");
+        direct(&mut pass, "sah_prims");
+        for _ in 0..self.rounds() {
+            single(&mut pass, "sah_args");
+            indirect(&mut pass, "sah_bounds", 0);
+            indirect(&mut pass, "sah_bin", 0);
+            indirect(&mut pass, "sah_split", ARG_SPLIT);
+            indirect(&mut pass, "sah_flag", 0);
             self.scan.record(ctx, &mut pass, Some((args, ARG_SCAN)));
-            indirect(&mut pass, "sah_scatter", l, 0);
-            indirect(&mut pass, "sah_copy", l, 0);
+            indirect(&mut pass, "sah_scatter", 0);
+            indirect(&mut pass, "sah_copy", 0);
         }
-        single(&mut pass, "sah_small_args", LEVELS);
-        indirect(&mut pass, "sah_small", LEVELS, ARG_SMALL);
+        single(&mut pass, "sah_small_args");
+        indirect(&mut pass, "sah_small", ARG_SMALL);
         bvh.record_boxes(ctx, &mut pass, hybrid);
     }
 

@@ -11,8 +11,9 @@ use glam::Vec3;
 
 /// Depth buckets of the level schedule (no tree is deeper than [`crate::bvh::MAX_DEPTH`]).
 const LEVELS: usize = 64;
-/// The `levels` buffer (u32s): counts, cursors and offsets per depth.
-const LEVEL_WORDS: u64 = 3 * LEVELS as u64;
+/// The `levels` buffer (u32s): counts, cursors and offsets per depth, then the depth the bottom-up pass
+/// runs next, its workgroups finished, and the deepest depth.
+const LEVEL_WORDS: u64 = 3 * LEVELS as u64 + 3;
 
 /// The two halves of an LBVH build.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -36,7 +37,8 @@ pub enum BuildPhase {
 /// schedule (the inner nodes' order by depth 4, during a build the radix tree's range starts), and LBVH
 /// build scratch: radix-tree links 8 + 8 (children and parents, first the radix sort's ping-pong keys and
 /// ids; a refit's degradation terms, 4 per node, live in the children). About 110 bytes per triangle for
-/// a closed mesh (vertices ≈ n / 2) plus 34 KiB of parameters. The centroids are computed twice (bounds,
+/// a closed mesh (vertices ≈ n / 2) plus about 4 KiB of parameters (the sort's digits are the device's
+/// pass slots, [`GpuContext::shared_tree_bytes`]). The centroids are computed twice (bounds,
 /// then codes) rather than cached: 16 bytes per triangle less for three more vertex reads per triangle.
 /// The SAH builder keeps its scratch in these buffers and in the nodes' box fields.
 /// No buffer keeps node depths: a builder leaves each node's depth in its `sa_ratio`, the schedule
@@ -86,15 +88,15 @@ pub struct GpuMeshBvh {
     _scratch: Vec<GpuBuffer>,
 }
 
-/// Parameter slots: 0 mesh, 1 node count (level passes), 2..66 build levels, 66..130 refit levels,
-/// 130 sum over nodes, 131 sum over pairs, 132 histogram.
+/// Parameter slots: 0 mesh, 1 node count (the schedule, and the level passes of a build), 2 the same for
+/// a refit's, 3 sum over nodes, 4 sum over pairs, 5 histogram. The level passes find their depth in the
+/// schedule, not in a slot per depth.
 const SLOT_MESH: usize = 0;
-const SLOT_NODES: usize = 1;
-const SLOT_BUILD: usize = 2;
-const SLOT_REFIT: usize = SLOT_BUILD + LEVELS;
-const SLOT_SUM: usize = SLOT_REFIT + LEVELS;
-const SLOT_PAIRS: usize = SLOT_SUM + 1;
-const SLOT_HISTOGRAM: usize = SLOT_PAIRS + 1;
+const SLOT_BUILD: usize = 1;
+const SLOT_REFIT: usize = 2;
+const SLOT_SUM: usize = 3;
+const SLOT_PAIRS: usize = 4;
+const SLOT_HISTOGRAM: usize = 5;
 
 /// The most bins [`GpuMeshBvh::record_histogram`] counts (Doane's rule asks for about 40 at 10⁷ triangles
 /// even for strongly skewed codes).
@@ -150,11 +152,8 @@ impl GpuMeshBvh {
         }
         let mut slots = vec![[0u32; 4]; SLOT_HISTOGRAM + 1];
         slots[SLOT_MESH] = [tris, 0, 0, 0];
-        slots[SLOT_NODES] = [node_count, 0, 0, ctx.max_groups()];
-        for d in 0..LEVELS {
-            slots[SLOT_BUILD + d] = [node_count, 0, d as u32, 0];
-            slots[SLOT_REFIT + d] = [node_count, 1, d as u32, 0];
-        }
+        slots[SLOT_BUILD] = [node_count, 0, 0, ctx.max_groups()];
+        slots[SLOT_REFIT] = [node_count, 1, 0, ctx.max_groups()];
         slots[SLOT_SUM] = [node_count, 0, 0, 0];
         slots[SLOT_PAIRS] = [sum_blocks, 0, 0, 0];
         let params = ParamSlots::new(ctx, &slots);
@@ -492,7 +491,7 @@ impl GpuMeshBvh {
     /// Buckets the inner nodes by depth (once per topology).
     fn record_schedule(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>) {
         let k = &ctx.kernels;
-        let off = [ParamSlots::offset(SLOT_NODES)];
+        let off = [ParamSlots::offset(SLOT_BUILD)];
         pass.set_bind_group(0, &self.levels_group, &off);
         // level_count adds to zeroed counts; level_offsets rewrites everything else.
         pass.set_pipeline(k.levels.pipeline("level_reset"));
@@ -506,16 +505,17 @@ impl GpuMeshBvh {
         pass.dispatch_workgroups(x, y, 1);
     }
 
-    /// The leaves' boxes, then one indirect dispatch per depth of inner nodes, deepest first.
-    fn record_levels(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>, first_slot: usize) {
+    /// The leaves' boxes, then one indirect dispatch per depth of inner nodes, deepest first (each finds
+    /// its depth in the schedule: no parameter slot per depth); `mode_slot` is [`SLOT_BUILD`] or
+    /// [`SLOT_REFIT`].
+    fn record_levels(&self, ctx: &GpuContext, pass: &mut wgpu::ComputePass<'_>, mode_slot: usize) {
         let k = &ctx.kernels;
+        pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(mode_slot)]);
         pass.set_pipeline(k.levels.pipeline("leaf_bounds"));
-        pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(first_slot)]);
         let (x, y) = ctx.groups(self.node_count(), 256);
         pass.dispatch_workgroups(x, y, 1);
         pass.set_pipeline(k.levels.pipeline("bounds_level"));
         for d in (0..LEVELS).rev() {
-            pass.set_bind_group(0, &self.bounds_group, &[ParamSlots::offset(first_slot + d)]);
             pass.dispatch_workgroups_indirect(self.level_args.buffer(), 12 * d as u64);
         }
     }

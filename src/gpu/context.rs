@@ -1,5 +1,6 @@
 //! The GPU device, its queue, and the compiled kernels.
 
+use super::buffers::ParamSlots;
 use super::kernels::Kernels;
 use crate::{Error, Result};
 use std::sync::Arc;
@@ -23,6 +24,8 @@ pub struct GpuContext {
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     pub(crate) kernels: Arc<Kernels>,
+    /// The level slots every mesh's per-level passes share ([`ParamSlots::passes`]).
+    pub(crate) passes: Arc<ParamSlots>,
     pub(crate) staging: Arc<super::buffers::StagingPool>,
     info: wgpu::AdapterInfo,
     timestamps: bool,
@@ -158,16 +161,27 @@ impl GpuContext {
                 info.name
             )));
         }
-        Ok(Self {
+        let passes = Arc::new(ParamSlots::passes(&device, &queue));
+        let ctx = Self {
             device,
             queue,
             kernels,
+            passes,
             staging: Default::default(),
             info,
             timestamps: features.contains(wgpu::Features::TIMESTAMP_QUERY),
             failure: Default::default(),
             counters: Default::default(),
-        })
+        };
+        ctx.count_allocated(ctx.passes.memory_bytes());
+        Ok(ctx)
+    }
+
+    /// GPU bytes every tree on this device shares: the pass slots its builds' radix sorts read their
+    /// digit from (2 KiB, made with the context). Count them once per device in a bytes-per-triangle
+    /// figure, beside each tree's own [`GpuMeshBvh::memory_bytes`](super::GpuMeshBvh::memory_bytes).
+    pub fn shared_tree_bytes(&self) -> u64 {
+        self.passes.memory_bytes()
     }
 
     /// The adapter's name, e.g. "NVIDIA H100" or "llvmpipe (LLVM 15.0.6, 256 bits)".

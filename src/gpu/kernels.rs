@@ -152,7 +152,7 @@ impl Kernels {
                 device,
                 "sort",
                 shader!("sort.wgsl"),
-                &[Read, Read, Write, Write, Write, Uniform],
+                &[Read, Read, Write, Write, Write, Uniform, Uniform],
                 &["count", "scatter"],
             ),
             lbvh: Module::new(

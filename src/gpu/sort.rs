@@ -41,12 +41,11 @@ impl RadixSort {
         bits: u32,
     ) -> Self {
         let blocks = n.div_ceil(256).max(1);
-        let passes = bits.div_ceil(4);
         // The histogram: 16 counts per block.
         let hist = GpuBuffer::storage(ctx, "sort histogram", 16 * blocks as u64 * 4);
         let scan = Scan::new(ctx, &hist, 16 * blocks);
-        let slots: Vec<[u32; 4]> = (0..passes).map(|p| [n, 4 * p, blocks, 0]).collect();
-        let params = ParamSlots::new(ctx, &slots);
+        // One slot: each pass's digit comes from the device's pass slots.
+        let params = ParamSlots::new(ctx, &[[n, 0, blocks, 0]]);
         let k = &ctx.kernels;
         let sort_groups = [
             bind_group(
@@ -59,6 +58,7 @@ impl RadixSort {
                     vals2.binding(),
                     hist.binding(),
                     params.binding(),
+                    ctx.passes.binding(),
                 ],
             ),
             bind_group(
@@ -71,6 +71,7 @@ impl RadixSort {
                     vals.binding(),
                     hist.binding(),
                     params.binding(),
+                    ctx.passes.binding(),
                 ],
             ),
         ];
@@ -109,18 +110,19 @@ impl RadixSort {
         }
         let k = &ctx.kernels;
         let passes = self.bits.div_ceil(4).next_multiple_of(2);
+        debug_assert!(self.bits.div_ceil(4) as usize <= super::buffers::PASS_SLOTS);
         let real = self.bits.div_ceil(4) as usize;
         for p in 0..passes as usize {
             // Extra passes reuse the last real pass's parameters: a repeated stable pass is a no-op order.
-            let slot = ParamSlots::offset(p.min(real - 1));
+            let slot = [0, ParamSlots::offset(p.min(real - 1))];
             let g = &self.sort_groups[p % 2];
             let (x, y) = ctx.groups(self.blocks * 256, 256);
             pass.set_pipeline(k.sort.pipeline("count"));
-            pass.set_bind_group(0, g, &[slot]);
+            pass.set_bind_group(0, g, &slot);
             pass.dispatch_workgroups(x, y, 1);
             self.scan.record(ctx, pass, None);
             pass.set_pipeline(k.sort.pipeline("scatter"));
-            pass.set_bind_group(0, g, &[slot]);
+            pass.set_bind_group(0, g, &slot);
             pass.dispatch_workgroups(x, y, 1);
         }
     }
