@@ -30,9 +30,9 @@
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
 //! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows are only 1.4–2.2× faster than a ray per
-//! pixel (same threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows,
-//! 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
+//! shadow ray's cost, so on the crowd selective hard shadows take only 1.3–1.4× less CPU than a ray per
+//! pixel traced as packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench
+//! suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
