@@ -24,7 +24,7 @@ use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec2, Vec3};
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
-use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{GBuffer, HardShadows, Packets, ShadowMode, ShadowSettings};
 use kinetrace::{Mesh, Ray};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -638,9 +638,15 @@ pub fn sun_visibility<'a>(
     if settings.mode != ShadowMode::RayTraced {
         tw.world_triangles(&all, triangles);
     }
-    pass.run(settings, triangles, g, |from, to| {
-        tw.occluded(from, to, &all)
-    })
+    // Neighbouring pixels' rays towards the sun as packets: a node visit serves the whole packet; a lone
+    // ray goes alone.
+    let rays = Packets(
+        |segments: &[(Vec3, Vec3)], out: &mut [bool]| match segments {
+            &[(from, to)] => out[0] = tw.occluded(from, to, &all),
+            _ => tw.occluded_packet(segments, &all, out),
+        },
+    );
+    pass.run(settings, triangles, g, rays)
 }
 
 /// Ray traces the world from `camera`: primary rays as packets of 8×8 pixels, sun shadows as the

@@ -7,7 +7,7 @@
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
 
 use crate::cpu::one_thread;
-use crate::record::{Records, best_of};
+use crate::record::{CpuClock, Records, best_of, cpu_seconds};
 use crate::report_scenes::Scene;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
@@ -40,33 +40,8 @@ fn best_cpu<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
 }
 
 /// This thread's CPU time in seconds.
-#[cfg(target_os = "linux")]
 fn thread_seconds() -> f64 {
-    #[repr(C)]
-    struct Timespec {
-        sec: i64,
-        nsec: i64,
-    }
-    unsafe extern "C" {
-        fn clock_gettime(clock: i32, tp: *mut Timespec) -> i32;
-    }
-    const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
-    let mut t = Timespec { sec: 0, nsec: 0 };
-    // SAFETY: `t` is a writable timespec (two 64-bit fields on 64-bit Linux) and the clock id is Linux's.
-    let ok = unsafe { clock_gettime(CLOCK_THREAD_CPUTIME_ID, &mut t) } == 0;
-    assert!(ok, "the thread CPU clock");
-    t.sec as f64 + t.nsec as f64 * 1e-9
-}
-
-/// Wall time where no thread CPU clock is wired.
-#[cfg(not(target_os = "linux"))]
-fn thread_seconds() -> f64 {
-    use std::sync::OnceLock;
-    static START: OnceLock<std::time::Instant> = OnceLock::new();
-    START
-        .get_or_init(std::time::Instant::now)
-        .elapsed()
-        .as_secs_f64()
+    cpu_seconds(CpuClock::Thread)
 }
 
 pub fn run(rec: &mut Records) {

@@ -134,3 +134,44 @@ pub fn best_of<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     }
     (best, out.expect("at least one run"))
 }
+
+/// Which CPU clock [`cpu_seconds`] reads.
+#[derive(Clone, Copy)]
+pub enum CpuClock {
+    /// All the process's threads together: what a parallel pass costs on a loaded machine, where
+    /// wall-clock times depend on what else runs.
+    Process,
+    /// The calling thread's alone.
+    Thread,
+}
+
+/// CPU time in seconds on `clock`. Wall time where no CPU clock is wired.
+#[cfg(target_os = "linux")]
+pub fn cpu_seconds(clock: CpuClock) -> f64 {
+    #[repr(C)]
+    struct Timespec {
+        sec: i64,
+        nsec: i64,
+    }
+    unsafe extern "C" {
+        fn clock_gettime(clock: i32, tp: *mut Timespec) -> i32;
+    }
+    // Linux's CLOCK_PROCESS_CPUTIME_ID and CLOCK_THREAD_CPUTIME_ID.
+    let id = match clock {
+        CpuClock::Process => 2,
+        CpuClock::Thread => 3,
+    };
+    let mut t = Timespec { sec: 0, nsec: 0 };
+    // SAFETY: `t` is a writable timespec (two 64-bit fields on 64-bit Linux) and the clock id is Linux's.
+    let ok = unsafe { clock_gettime(id, &mut t) } == 0;
+    assert!(ok, "the CPU clock");
+    t.sec as f64 + t.nsec as f64 * 1e-9
+}
+
+/// Wall time where no CPU clock is wired.
+#[cfg(not(target_os = "linux"))]
+pub fn cpu_seconds(_clock: CpuClock) -> f64 {
+    use std::sync::OnceLock;
+    static START: OnceLock<Instant> = OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_secs_f64()
+}

@@ -2,7 +2,7 @@
 //! incorrect (a shadow ray decides).
 
 use super::ShadowMap;
-use super::deltas::Deltas;
+use super::deltas::{self, Deltas};
 use glam::Vec3;
 
 /// What the shadow map says about one pixel.
@@ -95,7 +95,7 @@ pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texel
 /// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the receiver is marked when its depth
 /// span within one texel, `[d̂, d]`, overlaps the occluders' span `[s − Δ, s + Δ]`, else the map decides.
 /// Off the map or over an empty texel (geometry too thin for the map): marked. `deltas` holds the map's
-/// depth and `Δ` per texel.
+/// depth at each smooth texel.
 #[inline]
 pub(super) fn selective(
     map: &ShadowMap,
@@ -103,20 +103,25 @@ pub(super) fn selective(
     p: Vec3,
     cos: f32,
     bias_texels: f32,
-    edge: f32,
 ) -> Class {
     let q = map.project(p);
     let Some((i, j)) = texel(map, q.x, q.y) else {
         return Class::Marked;
     };
-    let [s, delta] = deltas.at(i, j);
+    let d = q.z;
+    // Most pixels: a smooth texel, decided by its depth alone (one read of the table).
+    let smooth = deltas.smooth(i, j);
+    if smooth.is_finite() {
+        return verdict(map, d, smooth, cos, bias_texels);
+    }
+    let s = map.depth(i, j);
     if !s.is_finite() {
         return Class::Marked;
     }
-    let d = q.z;
-    if delta <= edge {
-        return verdict(map, d, s, cos, bias_texels);
-    }
+    // Not smooth and not empty: an edge texel (`Δ` above `edge`), its `Δ` recomputed from the map as
+    // the table's pass did.
+    let [a, b, c] = map.rows3(i, j);
+    let delta = deltas::delta(a, b, c);
     let tol = tolerances(map, cos, bias_texels);
     if d - tol.reach - tol.bias <= s + delta && d + tol.bias >= s - delta {
         Class::Marked

@@ -2,7 +2,10 @@
 //! between a texel and its eight neighbours (thesis §6.3.3), the edge test of every pixel over it.
 //!
 //! Computed row by row from three rows of the map, a loop the compiler vectorises, it replaces nine
-//! scattered reads and eight differences per pixel with one read per pixel. A first attempt skipped the
+//! scattered reads and eight differences per pixel with one read per pixel: the table holds the depth of
+//! each smooth texel (`Δ` at most the edge threshold) and NaN at the others, so most pixels read 4 bytes
+//! of it and nothing else, and the few over an edge texel recompute its `Δ` from the map ([`delta`], the
+//! same arithmetic). A table of `[depth, Δ]` pairs read twice the bytes at every pixel. A first attempt skipped the
 //! test over 8 × 8-texel tiles whose depth range (with a one-texel border) stayed within the edge
 //! threshold; it skipped nothing on the crowd, because a receiver plane seen at an angle by the light (the
 //! ground under a low sun) changes depth by about a texel per texel, so no tile of it stays within 1.5
@@ -14,29 +17,42 @@ use crate::parallel;
 /// Rows of the map one worker handles at a time.
 const ROWS: usize = 16;
 
-/// Per texel of the last map, row by row, its depth and its `Δ` side by side (one cache line serves both
-/// reads of a pixel); `Δ` is infinite on the map's border (no texel there has all eight neighbours) and
-/// next to an empty texel. Costs one pass over the map, in parallel over bands of rows; kept between
-/// frames, so a warm pass of the same resolution does not allocate.
+/// The largest depth difference between the middle texel of three consecutive rows' three texels (`a`,
+/// `b`, `c`: the rows above, through and below) and its eight neighbours. A finite middle depth makes an
+/// empty neighbour's difference infinite, never NaN.
+#[inline(always)]
+pub(super) fn delta(a: &[f32], b: &[f32], c: &[f32]) -> f32 {
+    let s = b[1];
+    let diff = |n: f32| (n - s).abs();
+    let (top, bottom) = (
+        diff(a[0]).max(diff(a[1])).max(diff(a[2])),
+        diff(c[0]).max(diff(c[1])).max(diff(c[2])),
+    );
+    top.max(bottom).max(diff(b[0])).max(diff(b[2]))
+}
+
+/// Per texel of the last map, row by row, its depth where it is smooth — `Δ` at most the edge threshold —
+/// and NaN where not (on the map's border, where no texel has all eight neighbours, next to an empty
+/// texel, at a depth discontinuity); infinite where smooth and empty. Costs one pass over the map, in
+/// parallel over bands of rows; kept between frames, so a warm pass of the same resolution does not
+/// allocate.
 #[derive(Clone, Debug, Default)]
 pub(super) struct Deltas {
     res: usize,
-    texels: Vec<[f32; 2]>,
+    smooth: Vec<f32>,
 }
 
 impl Deltas {
-    /// Computes `Δ` for every texel of `map`.
-    pub(super) fn find(&mut self, map: &ShadowMap, par: bool) {
+    /// Finds the smooth texels of `map`: `Δ` at most `edge`.
+    pub(super) fn find(&mut self, map: &ShadowMap, edge: f32, par: bool) {
         let res = map.resolution();
         let depth = map.depths();
         self.res = res;
-        self.texels.resize(res * res, [f32::INFINITY; 2]);
-        parallel::fill_chunks(par, &mut self.texels, ROWS * res, |band, out| {
+        self.smooth.resize(res * res, f32::NAN);
+        parallel::fill_chunks(par, &mut self.smooth, ROWS * res, |band, out| {
             for (r, row) in out.chunks_mut(res).enumerate() {
                 let j = band * ROWS + r;
-                for (t, &s) in row.iter_mut().zip(&depth[j * res..(j + 1) * res]) {
-                    *t = [s, f32::INFINITY];
-                }
+                row.fill(f32::NAN);
                 if j == 0 || j + 1 == res {
                     continue;
                 }
@@ -45,23 +61,20 @@ impl Deltas {
                     .windows(3)
                     .zip(rows[1].windows(3))
                     .zip(rows[2].windows(3));
-                for (d, ((a, b), c)) in row[1..res - 1].iter_mut().zip(windows) {
-                    let s = b[1];
-                    // A finite s makes an empty neighbour's difference infinite, never NaN; over an
-                    // empty texel the value is never read.
-                    let diff = |n: f32| (n - s).abs();
-                    let (top, bottom) = (
-                        diff(a[0]).max(diff(a[1])).max(diff(a[2])),
-                        diff(c[0]).max(diff(c[1])).max(diff(c[2])),
-                    );
-                    d[1] = top.max(bottom).max(diff(b[0])).max(diff(b[2]));
+                for (t, ((a, b), c)) in row[1..res - 1].iter_mut().zip(windows) {
+                    *t = if delta(a, b, c) <= edge {
+                        b[1]
+                    } else {
+                        f32::NAN
+                    };
                 }
             }
         });
     }
 
-    /// Texel `(i, j)`'s depth and `Δ` (meaningful where the texel is interior and its depth finite).
-    pub(super) fn at(&self, i: usize, j: usize) -> [f32; 2] {
-        self.texels[j * self.res + i]
+    /// Texel `(i, j)`'s depth where it is smooth, else NaN (see [`Deltas`]).
+    #[inline]
+    pub(super) fn smooth(&self, i: usize, j: usize) -> f32 {
+        self.smooth[j * self.res + i]
     }
 }

@@ -2,8 +2,9 @@
 //! pixels, and shadow rays only the pixels it may get wrong.
 //!
 //! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles in
-//! world space and a shadow-ray query (`occluded(from, to)`, e.g. `TraceWorld::occluded` or
-//! [`MeshBvh::any_hit`](crate::MeshBvh::any_hit)), and writes a visibility per pixel:
+//! world space and a shadow-ray query ([`ShadowRays`]: a closure `occluded(from, to)`, e.g.
+//! `TraceWorld::occluded` or [`MeshBvh::any_hit`](crate::MeshBvh::any_hit), or a batched one in
+//! [`Packets`], e.g. `TraceWorld::occluded_packet`), and writes a visibility per pixel:
 //!
 //! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
 //!    pixels' surfaces ([`ShadowMap`]);
@@ -18,7 +19,8 @@
 //! 3. compaction of the marked pixels into a dense list (fused with step 2: each band of image rows lists
 //!    its own, in parallel, and the lists are concatenated);
 //! 4. shadow rays for the marked pixels only, in parallel: one towards a point-like light, or
-//!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]);
+//!    [`ShadowSettings::samples`] over the disc ([`LightDisc`]), in batches of up to [`PACKET`] rays of
+//!    neighbouring pixels (packets, when the query traces them as such);
 //! 5. the composite: the map's verdict where it was trusted, the fraction of rays that reach the light
 //!    where not.
 //!
@@ -28,9 +30,9 @@
 //! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
 //! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows are only 1.4–2.2× faster than a ray per
-//! pixel (same threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows,
-//! 16 rays a pixel, gain 3.9–4.7×. Use it for soft shadows, where
+//! shadow ray's cost, so on the crowd selective hard shadows take only 1.3–1.4× less CPU than a ray per
+//! pixel traced as packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench
+//! suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
@@ -43,9 +45,11 @@
 mod classify;
 mod deltas;
 mod penumbra;
+mod rays;
 mod shadow_map;
 
 pub use penumbra::LightDisc;
+pub use rays::{PACKET, Packets, ShadowRays};
 pub use shadow_map::ShadowMap;
 
 use crate::{Error, Result, parallel};
@@ -216,8 +220,9 @@ impl HardShadows {
     }
 
     /// Computes the visibility of the light at every pixel of `gbuffer`; `triangles` are every occluder in
-    /// world space (used for the shadow map; the ray-traced mode does not read them) and `occluded(from,
-    /// to)` says whether anything lies on a segment. Returns the visibility (also in
+    /// world space (used for the shadow map; the ray-traced mode does not read them) and `rays` says
+    /// whether anything lies on a segment (a closure `occluded(from, to)`, or a batched query in
+    /// [`Packets`], which gets neighbouring pixels' rays together). Returns the visibility (also in
     /// [`visibility`](Self::visibility)). Errors: a zero or non-finite light direction, a map resolution
     /// below 4 or above 16384, negative or non-finite tolerances, or a G-buffer whose arrays do not hold
     /// `width × height` pixels.
@@ -226,7 +231,7 @@ impl HardShadows {
         settings: &ShadowSettings,
         triangles: &[[Vec3; 3]],
         gbuffer: &GBuffer,
-        occluded: impl Fn(Vec3, Vec3) -> bool + Sync,
+        rays: impl ShadowRays,
     ) -> Result<&[f32]> {
         let towards = validate(settings, gbuffer)?;
         let par = settings.parallel;
@@ -250,7 +255,7 @@ impl HardShadows {
         let t1 = Instant::now();
         let edge = s.edge_texels * self.map.texel_size();
         if s.mode == ShadowMode::Selective && !soft {
-            self.deltas.find(&self.map, par);
+            self.deltas.find(&self.map, edge, par);
         }
         let (map, mask, deltas, g) = (&self.map, &self.mask, &self.deltas, gbuffer);
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
@@ -267,32 +272,26 @@ impl HardShadows {
         let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
         let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
         // One classification per mode, each its own loop (the test inlined, no dispatch per pixel).
-        // Blocks of BAND × BAND pixels where the map is read; whole rows (the marked pixels come out in
-        // order) where it is not.
-        let px = |block| Pixels { w, block, n };
+        let px = Pixels { w, n };
         match s.mode {
-            ShadowMode::RayTraced => classify_pixels(par, px(w), vis, chunks, |i| {
+            ShadowMode::RayTraced => classify_pixels(par, px, vis, chunks, |i| {
                 toward(i).map_or_else(|c| c, |_| Class::Marked)
             }),
-            ShadowMode::ShadowMap => {
-                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
-                    Ok(cos) => classify::shadow_map_only(map, g.positions[i], cos, bias),
-                    Err(c) => c,
-                })
-            }
+            ShadowMode::ShadowMap => classify_pixels(par, px, vis, chunks, |i| match toward(i) {
+                Ok(cos) => classify::shadow_map_only(map, g.positions[i], cos, bias),
+                Err(c) => c,
+            }),
             ShadowMode::Selective if soft => {
-                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
+                classify_pixels(par, px, vis, chunks, |i| match toward(i) {
                     Ok(cos) if cos <= horizon => Class::Marked,
                     Ok(cos) => classify::soft(map, mask, g.positions[i], cos, bias),
                     Err(c) => c,
                 })
             }
-            ShadowMode::Selective => {
-                classify_pixels(par, px(BAND), vis, chunks, |i| match toward(i) {
-                    Ok(cos) => classify::selective(map, deltas, g.positions[i], cos, bias, edge),
-                    Err(c) => c,
-                })
-            }
+            ShadowMode::Selective => classify_pixels(par, px, vis, chunks, |i| match toward(i) {
+                Ok(cos) => classify::selective(map, deltas, g.positions[i], cos, bias),
+                Err(c) => c,
+            }),
         }
         self.marked.clear();
         let mut facing = 0;
@@ -303,26 +302,17 @@ impl HardShadows {
         }
         let t2 = Instant::now();
         self.lit.resize(self.marked.len(), 0.0);
-        let marked = &self.marked;
-        let samples = if soft { s.samples } else { 1 };
-        let disc = LightDisc::new(towards, s.light_angle, samples);
-        parallel::fill(par, &mut self.lit, 256, |k| {
-            let i = marked[k] as usize;
-            let (p, nrm) = (gbuffer.positions[i], gbuffer.normals[i]);
-            let from = p + nrm * s.normal_offset;
-            let reach = (0..samples)
-                .filter(|&k| {
-                    let dir = if soft {
-                        disc.direction(i as u32, k)
-                    } else {
-                        towards
-                    };
-                    // A direction below the surface is blocked by the surface itself.
-                    dir.dot(nrm) > 0.0 && !occluded(from, from + dir * s.ray_length)
-                })
-                .count();
-            reach as f32 / samples as f32
-        });
+        let shoot = rays::Shoot {
+            width: gbuffer.width,
+            positions: &gbuffer.positions,
+            normals: &gbuffer.normals,
+            offset: s.normal_offset,
+            length: s.ray_length,
+            towards,
+            disc: LightDisc::new(towards, s.light_angle, if soft { s.samples } else { 1 }),
+            soft,
+        };
+        rays::trace(par, &self.marked, &mut self.lit, shoot, &rays);
         let lit = &self.lit;
         parallel::fill_chunks_with(
             par,
@@ -381,7 +371,8 @@ impl HardShadows {
             .fold(none, |a, b| (a.0.min(b.0), a.1.max(b.1)))
     }
 
-    /// Indices of the pixels the last pass sent shadow rays for, ascending.
+    /// Indices of the pixels the last pass sent shadow rays for, in the order they were traced: band by
+    /// band of 8 image rows, within a band 8 × 8 block by block from the left, within a block row by row.
     pub fn marked(&self) -> &[u32] {
         &self.marked
     }
@@ -398,18 +389,18 @@ impl HardShadows {
 }
 
 /// The image's pixels as the classification visits them: `w` pixels a row, `n` in all, in bands of
-/// [`BAND`] rows, each band in columns of `block` pixels.
+/// [`BAND`] rows, each band in blocks of [`BAND`] × [`BAND`] pixels.
 #[derive(Clone, Copy)]
 struct Pixels {
     w: usize,
-    block: usize,
     n: usize,
 }
 
 /// Classifies every pixel with `classify` (in parallel over bands of [`BAND`] rows): writes the map's
 /// verdict into `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked
-/// pixels, ascending, in its chunk, with its count of pixels facing the light. Generic over the test, so
-/// each mode's loop has its test inlined.
+/// pixels in its chunk, in the order visited (block by block: neighbouring marked pixels stay together,
+/// so their rays make coherent packets), with its count of pixels facing the light. Generic over the
+/// test, so each mode's loop has its test inlined.
 fn classify_pixels(
     par: bool,
     px: Pixels,
@@ -417,7 +408,7 @@ fn classify_pixels(
     chunks: &mut Vec<Chunk>,
     classify: impl Fn(usize) -> Class + Sync,
 ) {
-    let Pixels { w, block, n } = px;
+    let Pixels { w, n } = px;
     let chunk = BAND * w;
     visibility.resize(n, 1.0);
     chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
@@ -425,10 +416,10 @@ fn classify_pixels(
         out.marked.clear();
         out.facing = 0;
         let rows = vis.len() / w;
-        for x0 in (0..w).step_by(block.max(1)) {
+        for x0 in (0..w).step_by(BAND) {
             for y in 0..rows {
                 let start = y * w + x0;
-                let run = &mut vis[start..y * w + (x0 + block).min(w)];
+                let run = &mut vis[start..y * w + (x0 + BAND).min(w)];
                 for (k, v) in run.iter_mut().enumerate() {
                     let i = c * chunk + start + k;
                     let class = classify(i);
@@ -442,9 +433,6 @@ fn classify_pixels(
                     }
                 }
             }
-        }
-        if block < w {
-            out.marked.sort_unstable();
         }
     });
 }
