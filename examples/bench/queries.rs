@@ -8,7 +8,10 @@
 //!
 //! For profiling (callgrind counts instructions, not time, so a loaded machine does not matter),
 //! `KINETRACE_QUERY_ROWS` keeps only the rows named in it (comma-separated, e.g. `closest point,ecs batch
-//! closest point`) and runs only our side of them, once.
+//! closest point`) and runs only our side of them, once, printing a fingerprint of every answer (a hash of
+//! their `Debug` forms, to check that a change leaves them bit for bit as they were) unless
+//! `KINETRACE_QUERY_FINGERPRINT=0` (the hashing costs about as much as the queries);
+//! `KINETRACE_QUERY_REPS=n` repeats them `n` times (for `perf stat`'s CPU time, setup amortised).
 
 use crate::cpu::one_thread;
 use crate::record::{Records, machine};
@@ -124,12 +127,13 @@ pub fn run(rec: &mut Records) {
     let queries = sample(&rest, n);
     let scene = format!("deforming torus {}k", rest.triangle_count() / 1000);
     let only = std::env::var("KINETRACE_QUERY_ROWS").ok();
-    PROFILING.store(only.is_some(), Ordering::Relaxed);
+    let hashing = std::env::var("KINETRACE_QUERY_FINGERPRINT").map_or(true, |v| v != "0");
+    PROFILING.store(only.is_some() && hashing, Ordering::Relaxed);
     for kind in KINDS {
         let count = (frames * n) as f64;
         let reps = match &only {
             Some(rows) if !rows.split(',').any(|r| r.trim() == kind.name()) => continue,
-            Some(_) => 1,
+            Some(_) => std::env::var("KINETRACE_QUERY_REPS").map_or(1, |r| r.parse().unwrap_or(1)),
             None => rec.reps(),
         };
         let ours = one_thread(|| {
