@@ -5,6 +5,13 @@
 //! inside test needs). Throughput counts refit + queries. The `ecs batch` rows ask the same closest points
 //! and sphere overlaps through a `bevy_ecs` world ([`ShapeQueue`] answered in the plugin's schedule, which
 //! also maintains the mesh from its new `VertexPositions`), against the same parry rows.
+//!
+//! For profiling (callgrind counts instructions, not time, so a loaded machine does not matter),
+//! `KINETRACE_QUERY_ROWS` keeps only the rows named in it (comma-separated, e.g. `closest point,ecs batch
+//! closest point`) and runs only our side of them, once, printing a fingerprint of every answer (a hash of
+//! their `Debug` forms, to check that a change leaves them bit for bit as they were) unless
+//! `KINETRACE_QUERY_FINGERPRINT=0` (the hashing costs about as much as the queries);
+//! `KINETRACE_QUERY_REPS=n` repeats them `n` times (for `perf stat`'s CPU time, setup amortised).
 
 use crate::cpu::one_thread;
 use crate::record::{Records, machine};
@@ -21,6 +28,8 @@ use kinetrace::{Mesh, MeshBvh};
 use parry3d::math::{Pose, Vector};
 use parry3d::query::{PointQuery, ShapeCastOptions, cast_shapes, intersection_test};
 use parry3d::shape::{Ball, Capsule, Cuboid, TriMesh, TriMeshFlags};
+use std::hash::{Hash, Hasher};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 const SUITE: &str = "queries";
@@ -117,16 +126,33 @@ pub fn run(rec: &mut Records) {
     let poses: Vec<Vec<Vec3>> = (0..frames).map(|f| deform(&rest, f as f32)).collect();
     let queries = sample(&rest, n);
     let scene = format!("deforming torus {}k", rest.triangle_count() / 1000);
+    let only = std::env::var("KINETRACE_QUERY_ROWS").ok();
+    let hashing = std::env::var("KINETRACE_QUERY_FINGERPRINT").map_or(true, |v| v != "0");
+    PROFILING.store(only.is_some() && hashing, Ordering::Relaxed);
     for kind in KINDS {
         let count = (frames * n) as f64;
+        let reps = match &only {
+            Some(rows) if !rows.split(',').any(|r| r.trim() == kind.name()) => continue,
+            Some(_) => std::env::var("KINETRACE_QUERY_REPS").map_or(1, |r| r.parse().unwrap_or(1)),
+            None => rec.reps(),
+        };
         let ours = one_thread(|| {
-            best(rec.reps(), || match kind {
+            best(reps, || match kind {
                 Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
                     ecs_frames(kind, &rest, &poses, &queries)
                 }
                 _ => kinetrace_frames(kind, &rest, &poses, &queries),
             })
         });
+        if only.is_some() {
+            println!(
+                "  kinetrace {}: {} answers, fingerprint {:016x}",
+                kind.name(),
+                ours.1,
+                FINGERPRINT.swap(0, Ordering::Relaxed)
+            );
+            continue;
+        }
         let theirs = best(rec.reps(), || {
             parry_frames(kind.immediate(), &rest, &poses, &queries)
         });
@@ -163,6 +189,23 @@ pub fn run(rec: &mut Records) {
                 theirs.1
             );
         }
+    }
+}
+
+/// Whether the run profiles (`KINETRACE_QUERY_ROWS`): answers are then folded into [`FINGERPRINT`].
+static PROFILING: AtomicBool = AtomicBool::new(false);
+
+/// A hash of every answer of the profiled row (its `Debug` form: point, distance, triangle,
+/// barycentrics, feature, entity), to check that a change leaves the answers bit for bit as they were.
+static FINGERPRINT: AtomicU64 = AtomicU64::new(0);
+
+/// Folds `answer` into [`FINGERPRINT`] when profiling; one relaxed load otherwise.
+fn fingerprint(answer: &impl std::fmt::Debug) {
+    if PROFILING.load(Ordering::Relaxed) {
+        let mut h = std::hash::DefaultHasher::new();
+        FINGERPRINT.load(Ordering::Relaxed).hash(&mut h);
+        format!("{answer:?}").hash(&mut h);
+        FINGERPRINT.store(h.finish(), Ordering::Relaxed);
     }
 }
 
@@ -238,10 +281,15 @@ fn kinetrace_frames(
                     let b = q.p + dir.any_orthonormal_vector() * q.r * 3.0;
                     bvh.cast_capsule(q.p, b, dir, q.r, f32::INFINITY).is_some() as usize
                 }
-                Kind::ClosestPoint => bvh.closest_point(q.p, f32::INFINITY).is_some() as usize,
+                Kind::ClosestPoint => {
+                    let hit = bvh.closest_point(q.p, f32::INFINITY);
+                    fingerprint(&hit);
+                    hit.is_some() as usize
+                }
                 Kind::Containment => bvh.contains_point(q.p) as usize,
                 Kind::SphereOverlap | Kind::CapsuleOverlap | Kind::BoxOverlap => {
                     bvh.overlapping(&q.overlap_shape(kind), &mut found);
+                    fingerprint(&found);
                     found.len()
                 }
                 Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
@@ -296,6 +344,8 @@ fn ecs_frames(
         schedule.run(&mut world);
         world.clear_trackers();
         let res = world.resource::<ShapeResults>();
+        fingerprint(&res.closest);
+        fingerprint(&res.overlaps);
         answers += match kind {
             Kind::EcsClosestPoint => res.closest.iter().filter(|c| c.1.is_some()).count(),
             _ => res.overlaps.iter().map(|o| o.1.len()).sum(),

@@ -184,12 +184,19 @@ impl WideBvh {
     }
 }
 
+/// Whether any lane of `node` is a leaf (only leaf lanes have discs).
+#[inline(always)]
+fn has_leaf_lane(node: &WideNode) -> bool {
+    node.child.iter().any(|&c| c != EMPTY_LANE && is_leaf(c))
+}
+
 /// [`dist4`] raised to the lanes' disc bounds where the node has discs ([`disc4`]): per lane a lower bound
-/// of the squared distance from `p` to anything in it, and the lanes whose bound is at most `limit`.
+/// of the squared distance from `p` to anything in it, and the lanes whose bound is at most `limit`. A node
+/// of inner lanes only (the upper levels: their discs are all empty) skips the discs and their 128 bytes.
 #[inline(always)]
 fn bound4(node: &WideNode, discs: Option<&LaneDiscs>, p: Vec3, limit: f32) -> ([f32; WIDTH], u32) {
     let (d2, mask) = dist4(node, p, limit);
-    let Some(d) = discs else {
+    let Some(d) = discs.filter(|_| has_leaf_lane(node)) else {
         return (d2, mask);
     };
     // Both are lower bounds, so is the larger; `disc4` is never NaN.
