@@ -151,16 +151,25 @@ pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: boo
 }
 
 /// [`structure_for`] under [`Structure::Auto`] with the planner (see the module docs): once the mesh has
-/// a profile, its [`Choice`] (made then: [`Choice::structure`] of the rule's pick) decides for the rays it expects. The
+/// a profile, its [`Choice`] (made then: [`Choice::structure`] with the rule's prior, the BVH first)
+/// decides for the rays it expects, the grid's overhead expected at `grid_rate` (seconds per triangle of
+/// a grid frame, learned on every mesh) times the mesh's triangles once any mesh measured one. The
 /// reason is the rule's until both structures were measured, then both predictions
 /// ([`ChoiceReason::Measured`], seconds per frame). O(1).
-pub(crate) fn plan_structure(inst: &mut Instance) -> (StructureKind, StructureWhy) {
+pub(crate) fn plan_structure(
+    inst: &mut Instance,
+    grid_rate: Option<f64>,
+) -> (StructureKind, StructureWhy) {
     let prior = rule(Some(inst));
     let why = StructureWhy::Rule(prior.reason);
     if inst.profile.is_none() {
         return (prior.structure, why);
     }
+    let triangles = inst.bvh.slot_indices().len() as f64;
     let choice = (inst.kept.structure).get_or_insert_with(|| Choice::structure(&prior));
+    if let Some(rate) = grid_rate {
+        choice.expect_overhead(StructureKind::Grid, rate * triangles);
+    }
     let kind = choice.decide(inst.rays);
     let predicted = |k| match choice.predict(k, inst.rays) {
         Some((c, true)) => Some(c.cost_s),
