@@ -5,8 +5,9 @@
 //! - `bvh-packets`: the BVH's queries in packets of 16 consecutive rays (the report's rays are incoherent:
 //!   see `grid_rows`), shadow rays too;
 //! - `wide-off`: the binary tree only (no collapse per build, no wide refit);
-//! - `planned-options`: per frame, the structure (`Choice::structure`, the profile rule's pick of the
-//!   first frame as prior; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
+//! - `planned-options`: per frame, the structure (`Choice::structure`, the BVH first, the profile rule's
+//!   pick of the first frame as the grid's prior, its overhead expected at the grid frames' learned
+//!   seconds per triangle, `GRID_RATE`; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
 //!   lauterbach-0.4's rule while it answers), then for the BVH the wide tree and packets
 //!   (`Choice::wide`, `Choice::incoherent_packets`: the rays are incoherent), for the grid its
 //!   overlap test (`Choice::overlap`), each learning the frame's measured update and query seconds

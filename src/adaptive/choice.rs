@@ -5,11 +5,15 @@
 //! Each option's cost per frame is modelled as `overhead + per_unit · units`: `overhead` the seconds it
 //! adds to keeping the mesh current (a wide tree's collapse and refit, a grid's rebuild), `per_unit` the
 //! seconds per unit of work it serves (a ray). Both are learned as [`Estimate`]s while the option is in
-//! use. An option not measured yet is predicted from a measured one through the priors' ratio, with a 25%
-//! spread, and tried when that prediction, optimistic by one spread (what is unknown may be better than
-//! assumed), beats the option in use — for up to three frames, until its spread is measured: trying
-//! costs at most three frames of the difference (three tries per option at most, also where a tried
-//! frame measured nothing), and a frame with no work (`units` = 0) tries nothing.
+//! use. An option not measured yet is predicted from a measured one through the priors' ratio (its
+//! overhead, where known from elsewhere, as [`expect_overhead`](Choice::expect_overhead) gives it), with
+//! a 25% spread, and tried when it pays for itself — the planner's exploration rule (issue 19): its
+//! saving per frame over the option in use, optimistic by one spread (what is unknown may be better
+//! than assumed), times the horizon (the frames seen so far: a scene that ran `n` frames is expected to
+//! run about `n` more) exceeds the price of its tries (their predicted cost over the option in use) by
+//! one spread of the option in use's frames. Tries under way go on, up to three frames until its spread
+//! is measured, while it still looks cheaper optimistic by a spread (three tries per option at most,
+//! also where a tried frame measured nothing); a frame with no work (`units` = 0) tries nothing.
 //!
 //! Which option is cheaper is a question about means, so the margin is `z` standard deviations of the
 //! difference of the two options' *means* (each at least the machine's pooled relative noise over the
