@@ -5,8 +5,9 @@
 //! - `bvh-packets`: the BVH's queries in packets of 16 consecutive rays (the report's rays are incoherent:
 //!   see `grid_rows`), shadow rays too;
 //! - `wide-off`: the binary tree only (no collapse per build, no wide refit);
-//! - `planned-options`: per frame, the structure (`Choice::structure`, the profile rule's pick of the
-//!   first frame as prior; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
+//! - `planned-options`: per frame, the structure (`Choice::structure`, the BVH first, the profile rule's
+//!   pick of the first frame as the grid's prior, its overhead expected at the grid frames' learned
+//!   seconds per triangle, `GRID_RATE`; the BVH is only refitted under the grid, as in the ECS, and rebuilt by
 //!   lauterbach-0.4's rule while it answers), then for the BVH the wide tree and packets
 //!   (`Choice::wide`, `Choice::incoherent_packets`: the rays are incoherent), for the grid its
 //!   overlap test (`Choice::overlap`), each learning the frame's measured update and query seconds
@@ -19,7 +20,7 @@
 
 use super::grid_rows::Scratch;
 use super::harness::{Frame, FrameRecord, Settings, mismatches, query};
-use kinetrace::adaptive::Choice;
+use kinetrace::adaptive::{Choice, Estimate};
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::characterize::profile_mesh;
 use kinetrace::grid::{ChoiceInput, GridOptions, StructureKind, UniformGrid, choose_structure};
@@ -89,6 +90,12 @@ pub fn take_picks() -> Picks {
     })
 }
 
+/// Seconds per triangle of the `planned-options` grid frames' update (the grid's rebuild and the BVH's
+/// refit under it), learned over every scene's runs since the report started: the structure choice's
+/// expected grid overhead (`Choice::expect_overhead`) before a scene's grid was measured — on the rigid
+/// bodies, whose BVH only refits, the priors' 2 × a refit was a third of the grid's update (issue 12).
+static GRID_RATE: Mutex<Option<Estimate>> = Mutex::new(None);
+
 /// The per-mesh planners of `planned-options`.
 struct Planners {
     structure: Choice<StructureKind>,
@@ -126,6 +133,14 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
     let mut records = Vec::with_capacity(frames.len());
     for (f, (mesh, rays, light, reference)) in frames.iter().enumerate() {
         let n = rays.len() as f64;
+        let triangles = mesh.triangle_count() as f64;
+        if let Some(p) = &mut planners
+            && let Some(rate) = GRID_RATE.lock().expect("not poisoned").as_ref()
+            && let Some(per_triangle) = rate.mean()
+        {
+            p.structure
+                .expect_overhead(StructureKind::Grid, per_triangle * triangles);
+        }
         let (kind, wide, packets, overlap) = match (&mut planners, strategy) {
             (Some(p), _) => match p.structure.decide(n) {
                 // A structure being tried is measured with its sub-options as settled (`Choice::hold`).
@@ -196,6 +211,11 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
             };
             if f > 0 && previous == Some(kind) && !sub_try {
                 p.structure.kept(kind, update_s);
+                if kind == StructureKind::Grid {
+                    let mut rate = GRID_RATE.lock().expect("not poisoned");
+                    rate.get_or_insert_with(Estimate::default)
+                        .add(update_s / triangles.max(1.0));
+                }
             }
             previous = Some(kind);
             if !sub_try {

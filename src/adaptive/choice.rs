@@ -5,11 +5,15 @@
 //! Each option's cost per frame is modelled as `overhead + per_unit · units`: `overhead` the seconds it
 //! adds to keeping the mesh current (a wide tree's collapse and refit, a grid's rebuild), `per_unit` the
 //! seconds per unit of work it serves (a ray). Both are learned as [`Estimate`]s while the option is in
-//! use. An option not measured yet is predicted from a measured one through the priors' ratio, with a 25%
-//! spread, and tried when that prediction, optimistic by one spread (what is unknown may be better than
-//! assumed), beats the option in use — for up to three frames, until its spread is measured: trying
-//! costs at most three frames of the difference (three tries per option at most, also where a tried
-//! frame measured nothing), and a frame with no work (`units` = 0) tries nothing.
+//! use. An option not measured yet is predicted from a measured one through the priors' ratio (its
+//! overhead, where known from elsewhere, as [`expect_overhead`](Choice::expect_overhead) gives it), with
+//! a 25% spread, and tried when it pays for itself — the planner's exploration rule (issue 19): its
+//! saving per frame over the option in use, optimistic by one spread (what is unknown may be better
+//! than assumed), times the horizon (the frames seen so far: a scene that ran `n` frames is expected to
+//! run about `n` more) exceeds the price of its tries (their predicted cost over the option in use) by
+//! one spread of the option in use's frames. Tries under way go on, up to three frames until its spread
+//! is measured, while it still looks cheaper optimistic by a spread (three tries per option at most,
+//! also where a tried frame measured nothing); a frame with no work (`units` = 0) tries nothing.
 //!
 //! Which option is cheaper is a question about means, so the margin is `z` standard deviations of the
 //! difference of the two options' *means* (each at least the machine's pooled relative noise over the
@@ -98,6 +102,8 @@ struct Arm<T> {
     /// Whether the next per-unit and the next overhead sample start their estimates afresh (a try of
     /// an option measured long ago).
     fresh: (bool, bool),
+    /// Seconds of overhead predicted from outside while none is measured ([`Choice::expect_overhead`]).
+    expected: Option<f64>,
 }
 
 impl<T> Arm<T> {
@@ -147,6 +153,7 @@ impl<T: Copy + PartialEq> Choice<T> {
                     measured_at: 0,
                     gap: RETRY_GAP,
                     fresh: (false, false),
+                    expected: None,
                 })
                 .collect(),
             settled: current,
@@ -173,6 +180,21 @@ impl<T: Copy + PartialEq> Choice<T> {
     /// Stale re-tries started so far ([`retry_stale`](Self::retry_stale)).
     pub fn retries(&self) -> u32 {
         self.retries
+    }
+
+    /// Predicts `option`'s overhead per frame at `seconds` while it has measured none, in place of the
+    /// priors' ratio to a measured option's overhead: for an overhead known from elsewhere (a grid's
+    /// rebuild, from the grid build's seconds per triangle learned on any mesh). The ratio says nothing
+    /// where the measured overhead is not the same work: a BVH only refitted, or not updated at all
+    /// (rigid motion), predicts a per-frame grid rebuild at twice its own near-nothing. Ignored unless
+    /// finite and not negative; call it before each [`decide`](Self::decide) whose frames differ. O(1).
+    pub fn expect_overhead(&mut self, option: T, seconds: f64) {
+        if seconds.is_finite()
+            && seconds >= 0.0
+            && let Some(arm) = self.arm_mut(option)
+        {
+            arm.expected = Some(seconds);
+        }
     }
 
     /// The option in use.
@@ -236,6 +258,7 @@ impl<T: Copy + PartialEq> Choice<T> {
         // whose queries alone came near the one in use worth two more tries (the report's cloth tried
         // the grid three frames at 1.8 times a BVH frame; issue 12).
         let overhead = (arm.overhead.mean())
+            .or(arm.expected)
             .or_else(|| {
                 (self.arms.iter()).find_map(|a| Some(a.overhead.mean()? * arm.prior.1 / a.prior.1))
             })
@@ -330,7 +353,7 @@ impl<T: Copy + PartialEq> Choice<T> {
             arm.gap = arm.gap.saturating_mul(2);
             self.retries += 1;
         }
-        let chosen_cost = self.predict(chosen, units).map(|c| c.0.cost_s);
+        let kept = self.predict(chosen, units).map(|c| c.0);
         let tried = stale
             .or_else(|| {
                 (self.arms.iter())
@@ -339,7 +362,12 @@ impl<T: Copy + PartialEq> Choice<T> {
                     })
                     .find_map(|a| {
                         let (c, _) = self.predict(a.option, units)?;
-                        (units > 0.0 && c.cost_s - c.spread_s < chosen_cost?).then_some(a.option)
+                        let kept = kept?;
+                        // Tries under way go on while the option still looks cheaper, optimistic by
+                        // a spread: their price was weighed when they began.
+                        let go_on = a.tries > 0 && c.cost_s - c.spread_s < kept.cost_s;
+                        let worth = go_on || self.worth_trying(&c, &kept, TRIES - a.tries);
+                        (units > 0.0 && worth).then_some(a.option)
                     })
             })
             .or_else(|| self.challenger(chosen, units));
@@ -356,6 +384,20 @@ impl<T: Copy + PartialEq> Choice<T> {
         }
         self.current = tried.unwrap_or(chosen);
         self.current
+    }
+
+    /// Whether `tries` more frames of an option predicted at `c` pay against the option in use, predicted
+    /// at `kept` from its measurements (the planner's exploration rule, as for builds: issue 19): the
+    /// saving per frame, optimistic by one spread of the prediction (what is unknown may be better than
+    /// assumed), over the horizon — the frames seen so far: a scene that ran `n` frames is expected to
+    /// run about `n` more — must exceed what the tries are predicted to cost over the option in use by
+    /// one spread of its frames. Without the price a grid predicted at 1.2 × a BVH's seconds per ray was
+    /// tried at 20k triangles where each tried frame cost 18 BVH frames (the report's rigid, issue 12).
+    fn worth_trying(&self, c: &Candidate<T>, kept: &Candidate<T>, tries: u32) -> bool {
+        let horizon = f64::from(self.frame);
+        let saving = kept.cost_s - (c.cost_s - c.spread_s);
+        let price = f64::from(tries) * (c.cost_s - kept.cost_s);
+        saving * horizon > price.max(0.0) + kept.spread_s
     }
 
     /// Makes `chosen` the option settled on. A change restarts the re-try gaps of both options and
@@ -455,29 +497,34 @@ impl<T: Copy + PartialEq> Choice<T> {
 
 /// The per-mesh choices the ECS plans, with our priors (replaced by measurements at once).
 impl Choice<StructureKind> {
-    /// A mesh's structure: `rule`'s pick (the profile rule, [`crate::grid::choose_structure`]) in use
-    /// first; the other with 1.2 × its seconds per ray and an overhead of 2 × the BVH's for the grid (a
-    /// refit and a grid rebuild against a refit) or 0.5 × the grid's for the BVH. Where the rule picked
-    /// the BVH for empty space ([`ChoiceReason::Clustered`]), the grid gets 2 × the BVH's seconds per
-    /// ray and is never tried (optimistic by its 25% spread it still costs more): empty space costs the
-    /// grid a step per empty cell; the report's one clustered scene (rigid at `--quick`'s 3k triangles,
-    /// 38% of bins empty) took 2.0 × the BVH's steps per ray on the grid (issue 12; at 20k triangles
-    /// the rule calls rigid alike sizes, where the grid took 4.3 × the steps and 18 × the time, one
-    /// tried frame 5% of the 300 frames' time, but where alike sizes cannot rule the grid out: the
-    /// planner must be able to overturn the rule, `tests/options.rs`). Stale estimates are re-tried ([`retry_stale`](Self::retry_stale)). Why:
+    /// A mesh's structure: the BVH in use first, the grid with `rule`'s (the profile rule's,
+    /// [`crate::grid::choose_structure`]) prior seconds per ray relative to the BVH's — 1 × where the
+    /// rule picked the grid (mixed sizes: fewer steps, each dearer), 2 × where it picked the BVH for
+    /// empty space ([`ChoiceReason::Clustered`]: a step per empty cell; never tried, optimistic by its
+    /// 25% spread it still costs more), 1.2 × otherwise — and an overhead of 2 × the BVH's (a refit and
+    /// a grid rebuild against a refit) until [`expect_overhead`](Self::expect_overhead) predicts it from
+    /// the grid frames' learned seconds per triangle. A try must pay for itself over the horizon
+    /// (`worth_trying`); stale estimates are re-tried ([`retry_stale`](Self::retry_stale)).
+    ///
+    /// Why the BVH first, whatever the rule picked: with [`MIN_GAIN`]'s hysteresis the structure in use
+    /// is kept against one measured up to 15% cheaper, so the first one should be the one that costs
+    /// least where the rule is wrong. On time the rule's grid picks were all wrong at 20k triangles on an
+    /// idle machine (stop 26: lauterbach-0.4 the best fixed structure on the soup, the explosion and the
+    /// teapot in stadium), and the soup, started on the grid, stayed there 162 of 900 frames at 1.05 ×
+    /// the BVH's time (issue 12). The rule's profile still decides how soon the grid is tried. Why:
     /// `ecs::planned`.
     pub fn structure(rule: &StructureChoice) -> Self {
-        let (other, overhead) = match rule.structure {
-            StructureKind::Bvh => (StructureKind::Grid, 2.0),
-            StructureKind::Grid => (StructureKind::Bvh, 0.5),
-        };
-        let per_ray = match rule.reason {
-            ChoiceReason::Clustered(_) => 2.0,
+        let per_ray = match (rule.structure, rule.reason) {
+            (_, ChoiceReason::Clustered(_)) => 2.0,
+            (StructureKind::Grid, _) => 1.0,
             _ => 1.2,
         };
-        Choice::new(&[(rule.structure, 1.0, 1.0), (other, per_ray, overhead)])
-            .expect("two options")
-            .retry_stale()
+        Choice::new(&[
+            (StructureKind::Bvh, 1.0, 1.0),
+            (StructureKind::Grid, per_ray, 2.0),
+        ])
+        .expect("two options")
+        .retry_stale()
     }
 }
 

@@ -122,8 +122,9 @@ pub(crate) fn maintain_system(
         }
         let planned =
             wanted == Structure::Auto && matches!(config.policy, RebuildPolicy::Adaptive { .. });
+        let grid_rate = world.grid_rate.mean();
         let (structure, why) = match world.instances.get_mut(&e) {
-            Some(inst) if planned => plan_structure(inst),
+            Some(inst) if planned => plan_structure(inst, grid_rate),
             inst => structure_for(wanted, inst.map(|i| &*i)),
         };
         if let Some(inst) = world
@@ -256,13 +257,13 @@ pub(crate) fn maintain_system(
         // A frame in which the wide tree or packets are tried measures that try: it teaches the
         // structure nothing.
         let sub_try = structure == StructureKind::Bvh && inst.sub_option_tried();
+        let mut grid_frame = None;
         if let Some(choice) = inst.kept.structure.as_mut() {
             let option = PlannedOption::Structure(structure);
             if !switched && !sub_try {
-                choice.kept(
-                    structure,
-                    scripted(script.as_ref(), e, option, measured, |c| c.overhead_s),
-                );
+                let seconds = scripted(script.as_ref(), e, option, measured, |c| c.overhead_s);
+                choice.kept(structure, seconds);
+                grid_frame = (structure == StructureKind::Grid).then_some(seconds);
             }
             stats.options.push(OptionStats {
                 entity: e,
@@ -275,6 +276,10 @@ pub(crate) fn maintain_system(
             structure,
             why,
         });
+        if let Some(seconds) = grid_frame {
+            let triangles = mesh.0.triangle_count().max(1) as f64;
+            world.grid_rate.add(seconds / triangles);
+        }
         world.tlas_dirty = true;
         stats.meshes.push(MeshStats {
             entity: e,

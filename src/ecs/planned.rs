@@ -3,21 +3,32 @@
 //! [`crate::grid::choice`] (the characteriser's profile) as the prior; and the test hook that scripts the
 //! costs every per-mesh option planner learns from.
 //!
-//! **The rule is ours** (the seeds give none). The profile's rule picks the structure a mesh starts in;
-//! the other structure gets a prior of 1.2 × its seconds per ray, and an overhead per frame of 2 × the
-//! BVH's for the grid (a BVH refit *and* a grid rebuild against a refit) or 0.5 × the grid's for the BVH.
-//! [`Choice`] tries the other structure — at most three frames — only when that prior, optimistic by
-//! its 25% spread, beats what the rule's pick measured: a grid, whose `0.75 · (1.2 q + 2 o) < q + o` only
-//! while its overhead `o` is under a fifth of the query time `q`, is never built for a mesh with few rays
-//! (a scene that gains nothing pays nothing). From then on measured costs (the mesh's maintenance time,
-//! grid rebuild included, as overhead; its share of the frame's batched query time per ray) decide,
-//! with the planner's one margin and hysteresis ([`crate::adaptive::rank::choose`]).
+//! **The rule is ours** (the seeds give none). Every mesh starts on the BVH ([`Choice::structure`]: with
+//! 15% of hysteresis the structure in use stays against one a little cheaper, and on time the rule's grid
+//! picks were all dearer at 20k triangles on an idle machine — the soup, started on its grid, kept it 162
+//! of 900 frames at 1.05 × the BVH's time; issue 12). The profile's rule sets the grid's prior seconds
+//! per ray: 1 × the BVH's where it picked the grid, 1.2 × otherwise, 2 × for empty space. The grid's
+//! overhead per frame is expected at the grid frames' seconds per triangle learned on any mesh (its
+//! rebuild and the BVH's refit under it) times the mesh's triangles, before any mesh measured one at 2 ×
+//! the BVH's. [`Choice`] tries the grid — at most three frames — only when the saving predicted, optimistic
+//! by its 25% spread, times the frames seen so far pays the tries' predicted price by one spread of the
+//! BVH's frames: a grid whose `0.75 · (q_g + o_g)` is above the BVH's `q + o` is never built (a scene
+//! that gains nothing pays nothing). From then on measured costs (the mesh's maintenance time, grid
+//! rebuild included, as overhead; its share of the frame's batched query time per ray) decide, with the
+//! planner's one margin and hysteresis ([`crate::adaptive::rank::choose`]).
 //!
-//! Two exceptions (issue 12). Where the rule picked the BVH for empty space
+//! Rigid motion: a mesh moved by its transform only is not in the maintain pass after its first build
+//! (its geometry did not change), so it is never planned and keeps its BVH, which a rigid mesh never
+//! updates — there is no per-frame rebuild for a grid to save, only its own to pay. Where the BVH's
+//! update is nothing, the grid's overhead predicted through the priors' ratio (2 × nothing) was nothing
+//! too; the learned seconds per triangle predict its rebuild (`tests/options.rs`).
+//!
+//! Two more rules (issue 12). Where the rule picked the BVH for empty space
 //! ([`ChoiceReason::Clustered`]) the grid's prior is 2 × the BVH's seconds per ray, so it is never
 //! tried: on the report's one clustered scene (rigid at `--quick` size) the grid took 2 × the BVH's
 //! steps per ray (at 20k triangles, where the rule says alike sizes, 4.3 × the steps and 18 × the
-//! time: one tried frame cost 5% of the run). And an estimate goes stale as the scene changes:
+//! time: one tried frame cost 5% of the run; there the horizon rule keeps it from being tried, the
+//! first BVH frame's cold queries no longer reason enough). And an estimate goes stale as the scene changes:
 //! the other structure is re-tried once the one in use has drifted by more than 15% since the other
 //! was measured, at gaps doubling from 10 frames ([`Choice::retry_stale`]) — the report's explosion
 //! had kept a grid drifting from 5.8 to 8.9 ms per frame against a BVH measured only in frames 1–4.
@@ -38,8 +49,9 @@
 //!
 //! Where the rule says BVH, the grid takes 1.7–3.3× the steps: the rule is right and the prior keeps
 //! the grid to its three tried frames. Where it says grid, the grid's steps range from 0.93× to 2.3×
-//! the BVH's: the profile cannot call these, so the other structure's prior (1.2×) stays within one
-//! prior spread of the pick and is tried, and only measured time decides.
+//! the BVH's: the profile cannot call these, so the grid's prior (1×) stays within one prior spread of
+//! the BVH and is tried where it can pay, and only measured time decides. (This table is from before
+//! the BVH was put first for every mesh: the rule's grid picks then started on the grid.)
 //!
 //! **Why the planner kept a slower grid** (issue 12: 891 of 900 frames on the grid in explosion, teapot
 //! in stadium and soup, 1.17–1.73× lauterbach-0.4's time). Logged per frame in the report's
@@ -151,16 +163,25 @@ pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: boo
 }
 
 /// [`structure_for`] under [`Structure::Auto`] with the planner (see the module docs): once the mesh has
-/// a profile, its [`Choice`] (made then: [`Choice::structure`] of the rule's pick) decides for the rays it expects. The
+/// a profile, its [`Choice`] (made then: [`Choice::structure`] with the rule's prior, the BVH first)
+/// decides for the rays it expects, the grid's overhead expected at `grid_rate` (seconds per triangle of
+/// a grid frame, learned on every mesh) times the mesh's triangles once any mesh measured one. The
 /// reason is the rule's until both structures were measured, then both predictions
 /// ([`ChoiceReason::Measured`], seconds per frame). O(1).
-pub(crate) fn plan_structure(inst: &mut Instance) -> (StructureKind, StructureWhy) {
+pub(crate) fn plan_structure(
+    inst: &mut Instance,
+    grid_rate: Option<f64>,
+) -> (StructureKind, StructureWhy) {
     let prior = rule(Some(inst));
     let why = StructureWhy::Rule(prior.reason);
     if inst.profile.is_none() {
         return (prior.structure, why);
     }
+    let triangles = inst.bvh.slot_indices().len() as f64;
     let choice = (inst.kept.structure).get_or_insert_with(|| Choice::structure(&prior));
+    if let Some(rate) = grid_rate {
+        choice.expect_overhead(StructureKind::Grid, rate * triangles);
+    }
     let kind = choice.decide(inst.rays);
     let predicted = |k| match choice.predict(k, inst.rays) {
         Some((c, true)) => Some(c.cost_s),

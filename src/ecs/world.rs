@@ -268,6 +268,10 @@ pub struct TraceWorld {
     pub(crate) version: u64,
     /// Test hook: scripted costs for the option planners (see [`script_costs`](Self::script_costs)).
     pub(crate) script: Option<CostScript>,
+    /// Seconds per triangle of a planned mesh's frame on the grid (its rebuild and the refit under it),
+    /// learned on every mesh: the grid's expected overhead for a mesh that has not measured its own
+    /// (`ecs::planned`).
+    pub(crate) grid_rate: crate::adaptive::Estimate,
 }
 
 impl TraceWorld {
