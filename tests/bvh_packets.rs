@@ -212,11 +212,10 @@ fn offsets_of_1e5_empty_mesh_and_one_triangle() {
     assert!(out.iter().all(Option::is_none));
 }
 
-#[test]
-fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
+/// A 20k-triangle torus, its LBVH (with or without the wide tree) and 64² camera rays in 8×8 tiles.
+fn torus_tiles(wide: bool) -> (Mesh, MeshBvh, Vec<Ray>) {
     let m = bumpy_torus(20_000);
-    // Binary only: packets walk the binary tree, so single rays must walk it too for the visit count.
-    let bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH).wide(false)).unwrap();
+    let bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH).wide(wide)).unwrap();
     let b = bounds(&m);
     let rays = camera(
         b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length(),
@@ -225,6 +224,13 @@ fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
         8,
         0.9,
     );
+    (m, bvh, rays)
+}
+
+#[test]
+fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
+    // Binary only: packets walk the binary tree, so single rays must walk it too for the visit count.
+    let (_, bvh, rays) = torus_tiles(false);
     let mut single = vec![None; rays.len()];
     bvh.closest_hits(&rays, &mut single);
     let mut batched = vec![None; rays.len()];
@@ -251,17 +257,8 @@ fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
 #[test]
 fn wide_tree_packets_equal_single_rays_and_share_node_visits() {
     // The default build derives the 4-wide tree: packets and single rays both walk it.
-    let m = bumpy_torus(20_000);
-    let bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH)).unwrap();
+    let (m, bvh, rays) = torus_tiles(true);
     assert!(bvh.wide().is_some());
-    let b = bounds(&m);
-    let rays = camera(
-        b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length(),
-        b.center(),
-        64,
-        8,
-        0.9,
-    );
     let (mut alone, mut packets) = (TraversalStats::default(), TraversalStats::default());
     let single: Vec<_> = rays
         .iter()

@@ -1,5 +1,7 @@
-//! Coherent ray packets through a binary [`MeshBvh`]: up to [`MAX_PACKET`] rays (a 4×4 or 8×8 tile of
-//! camera rays, or shadow rays toward one light) walk the tree together.
+//! Coherent ray packets through a [`MeshBvh`]: up to [`MAX_PACKET`] rays (a 4×4 or 8×8 tile of camera rays,
+//! or shadow rays toward one light) walk the tree together. A mesh with its 4-wide query tree (the default)
+//! walks that one, four child boxes per visit ([`wide`](super::wide), same scheme and answers); without
+//! it (`BuildOptions::wide(false)`, or a compact tree) the binary tree, as below.
 //!
 //! **Scheme (ours, after Wald et al. 2007 "Ray Tracing Deformable Scenes using Dynamic BVHs" and Overbeck
 //! et al. 2008 "Large Ray Packets"):** a node is first tested against the whole packet with *interval
@@ -157,17 +159,15 @@ impl MeshBvh {
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            match self.trace_packet(rays, false, stats) {
-                Some(p) => {
-                    for (i, o) in out.iter_mut().enumerate() {
-                        *o = p.best[i]
-                            .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
-                    }
+            let mut p = Packet::new(rays);
+            if self.trace_packet(&mut p, false, stats) {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = p.best[i]
+                        .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
                 }
-                None => {
-                    for (o, r) in out.iter_mut().zip(rays) {
-                        *o = self.closest_hit_counted(r, stats);
-                    }
+            } else {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = self.closest_hit_counted(r, stats);
                 }
             }
         }
@@ -178,16 +178,14 @@ impl MeshBvh {
     pub fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], stats: &mut TraversalStats) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            match self.trace_packet(rays, true, stats) {
-                Some(p) => {
-                    for (i, o) in out.iter_mut().enumerate() {
-                        *o = p.best[i].is_some();
-                    }
+            let mut p = Packet::new(rays);
+            if self.trace_packet(&mut p, true, stats) {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = p.best[i].is_some();
                 }
-                None => {
-                    for (o, r) in out.iter_mut().zip(rays) {
-                        *o = self.any_hit_counted(r, stats);
-                    }
+            } else {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = self.any_hit_counted(r, stats);
                 }
             }
         }
@@ -219,42 +217,26 @@ impl MeshBvh {
         }
     }
 
-    /// Traces up to [`MAX_PACKET`] rays together; `None` when the packet must be traced ray by ray.
-    fn trace_packet<'a>(
-        &self,
-        rays: &'a [Ray],
-        any: bool,
-        stats: &mut TraversalStats,
-    ) -> Option<Packet<'a>> {
-        debug_assert!(rays.len() <= MAX_PACKET);
-        let mut p = Packet {
-            rays,
-            tris: [None; MAX_PACKET],
-            tmax: [f32::NEG_INFINITY; MAX_PACKET],
-            best: [None; MAX_PACKET],
-            active: 0,
-        };
-        for (i, r) in rays.iter().enumerate() {
-            if r.is_valid() {
-                p.tris[i] = Some(TriangleRay::new(r));
-                p.tmax[i] = r.tmax;
-                p.active |= 1 << i;
-            }
-        }
+    /// Traces the packet `p` (up to [`MAX_PACKET`] rays, made by [`Packet::new`] in the caller's frame, so
+    /// that its 4 KB are never moved); false when it must be traced ray by ray.
+    fn trace_packet(&self, p: &mut Packet, any: bool, stats: &mut TraversalStats) -> bool {
+        let rays = p.rays;
         let nodes = self.bvh().nodes();
         if p.active == 0 || nodes.is_empty() {
-            return Some(p);
+            return true;
         }
-        let bounds = Bounds::new(rays, p.active)?;
+        let Some(bounds) = Bounds::new(rays, p.active) else {
+            return false;
+        };
         if let Some(wide) = self.wide() {
-            wide.trace_packet(self, &mut p, &bounds, any, stats);
-            return Some(p);
+            wide.trace_packet(self, p, &bounds, any, stats);
+            return true;
         }
         let mut tmax_all = p.tmax_all();
         let mut stack = Stack::<(u32, u8, u8), MAX_DEPTH>::new();
         let (mut cur, mut first, mut last) = (0usize, 0usize, MAX_PACKET - 1);
         if bounds.enter(&nodes[0].aabb(), tmax_all).is_none() {
-            return Some(p);
+            return true;
         }
         loop {
             // Narrow the range to the first and last ray whose own slab test accepts this node.
@@ -265,7 +247,7 @@ impl MeshBvh {
                     stats.leaf_visits += 1;
                     if p.leaf(self, &n.aabb(), n.slots(), (first, last, true), any, stats) {
                         if p.active == 0 {
-                            return Some(p);
+                            return true;
                         }
                         tmax_all = p.tmax_all();
                     }
@@ -291,14 +273,34 @@ impl MeshBvh {
                 }
             }
             let Some((n, f, l)) = stack.pop() else {
-                return Some(p);
+                return true;
             };
             (cur, first, last) = (n as usize, f as usize, l as usize);
         }
     }
 }
 
-impl Packet<'_> {
+impl<'a> Packet<'a> {
+    /// The packet of `rays` (at most [`MAX_PACKET`]), its valid rays active.
+    fn new(rays: &'a [Ray]) -> Self {
+        debug_assert!(rays.len() <= MAX_PACKET);
+        let mut p = Packet {
+            rays,
+            tris: [None; MAX_PACKET],
+            tmax: [f32::NEG_INFINITY; MAX_PACKET],
+            best: [None; MAX_PACKET],
+            active: 0,
+        };
+        for (i, r) in rays.iter().enumerate() {
+            if r.is_valid() {
+                p.tris[i] = Some(TriangleRay::new(r));
+                p.tmax[i] = r.tmax;
+                p.active |= 1 << i;
+            }
+        }
+        p
+    }
+
     /// The largest current `tmax` of the active rays: no box beyond it can matter to the packet.
     #[inline]
     pub(super) fn tmax_all(&self) -> f32 {

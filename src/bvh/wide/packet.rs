@@ -17,14 +17,13 @@
 //! a box such a ray enters (see the binary scheme). So each ray finds the same closest `t`, and ties are
 //! kept by the rule of the binary packets.
 //!
-//! **Cost.** No allocation: per packet 64 precomputed [`RayLanes`] (about 3 KB) and a stack of
-//! [`WIDE_STACK`] 16-byte entries on the call stack.
+//! **Cost.** No allocation: a stack of [`WIDE_STACK`] 16-byte entries on the call stack.
 
 use super::simd::{RayLanes, hit4};
 use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, is_leaf, leaf_slots};
 use crate::bvh::packet::{Bounds, Packet, lanes, range_mask};
 use crate::bvh::stack::Stack;
-use crate::bvh::{MAX_PACKET, MeshBvh, TraversalStats};
+use crate::bvh::{MeshBvh, TraversalStats};
 
 /// A child waiting on the stack: its payload, where its box lives (`parent` node, `lane`), its range of
 /// rays and its interval lower bound.
@@ -54,8 +53,9 @@ impl WideBvh {
             return;
         }
         let n = p.rays.len();
-        let ray_lanes: [RayLanes; MAX_PACKET] =
-            std::array::from_fn(|i| RayLanes::new(&p.rays[i.min(n - 1)]));
+        // A ray's four-box constants are made where a scan needs them (a few rays per node): cheaper than
+        // making all of them per packet.
+        let test = |p: &Packet, node, i: usize| hit4(node, &RayLanes::new(&p.rays[i]), p.tmax[i]).0;
         let mut tmax_all = p.tmax_all();
         let mut stack = Stack::<Entry, WIDE_STACK>::new();
         let mut cur = Entry {
@@ -96,7 +96,7 @@ impl WideBvh {
                 let (mut lo, mut hi) = ([0u8; WIDTH], [0u8; WIDTH]);
                 let mut found = 0u32;
                 for i in lanes(mask) {
-                    let new = hit4(node, &ray_lanes[i], p.tmax[i]).0 & culled & !found;
+                    let new = test(p, node, i) & culled & !found;
                     for c in lanes(new as u64) {
                         lo[c] = i as u8;
                     }
@@ -110,7 +110,7 @@ impl WideBvh {
                 while ended != found {
                     let i = 63 - down.leading_zeros() as usize;
                     down &= !(1 << i);
-                    let new = hit4(node, &ray_lanes[i], p.tmax[i]).0 & found & !ended;
+                    let new = test(p, node, i) & found & !ended;
                     for c in lanes(new as u64) {
                         hi[c] = i as u8;
                     }
