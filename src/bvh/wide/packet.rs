@@ -1,5 +1,5 @@
-//! Coherent ray packets through the 4-wide tree: the packet scheme of [`bvh::packet`](super::super::packet)
-//! (interval-arithmetic culling of the whole packet, then an active range of rays) applied to four child
+//! Coherent ray packets through the 4-wide tree: the packet scheme of the binary tree (`bvh/packet.rs`:
+//! interval-arithmetic culling of the whole packet, then an active range of rays) applied to four child
 //! boxes per visit.
 //!
 //! **Scheme (ours).** At a wide node the packet's interval bounds cull each of the four child boxes for all
