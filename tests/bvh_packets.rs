@@ -212,11 +212,10 @@ fn offsets_of_1e5_empty_mesh_and_one_triangle() {
     assert!(out.iter().all(Option::is_none));
 }
 
-#[test]
-fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
+/// A 20k-triangle torus, its LBVH (with or without the wide tree) and 64² camera rays in 8×8 tiles.
+fn torus_tiles(wide: bool) -> (Mesh, MeshBvh, Vec<Ray>) {
     let m = bumpy_torus(20_000);
-    // Binary only: packets walk the binary tree, so single rays must walk it too for the visit count.
-    let bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH).wide(false)).unwrap();
+    let bvh = MeshBvh::build(&m, &BuildOptions::new(Builder::LBVH).wide(wide)).unwrap();
     let b = bounds(&m);
     let rays = camera(
         b.center() + Vec3::new(0.3, 0.4, 1.0) * b.extent().length(),
@@ -225,6 +224,13 @@ fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
         8,
         0.9,
     );
+    (m, bvh, rays)
+}
+
+#[test]
+fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
+    // Binary only: packets walk the binary tree, so single rays must walk it too for the visit count.
+    let (_, bvh, rays) = torus_tiles(false);
     let mut single = vec![None; rays.len()];
     bvh.closest_hits(&rays, &mut single);
     let mut batched = vec![None; rays.len()];
@@ -242,6 +248,37 @@ fn batched_packets_equal_packet_by_packet_and_share_node_visits() {
         bvh.closest_hit_counted(r, &mut alone);
     }
     bvh.closest_hits_packet(&rays, &mut batched, &mut packets);
+    assert!(
+        packets.inner_visits * 3 < alone.inner_visits,
+        "packets {packets:?} single {alone:?}"
+    );
+}
+
+#[test]
+fn wide_tree_packets_equal_single_rays_and_share_node_visits() {
+    // The default build derives the 4-wide tree: packets and single rays both walk it.
+    let (m, bvh, rays) = torus_tiles(true);
+    assert!(bvh.wide().is_some());
+    let (mut alone, mut packets) = (TraversalStats::default(), TraversalStats::default());
+    let single: Vec<_> = rays
+        .iter()
+        .map(|r| bvh.closest_hit_counted(r, &mut alone))
+        .collect();
+    let mut packed = vec![None; rays.len()];
+    bvh.closest_hits_packet(&rays, &mut packed, &mut packets);
+    for (i, ray) in rays.iter().enumerate() {
+        assert_eq!(
+            packed[i].map(|h| h.t.to_bits()),
+            single[i].map(|h| h.t.to_bits()),
+            "ray {i}"
+        );
+        let got = packed[i].map(|h| (h.primitive, h.t));
+        let brute = brute_closest(&m, ray);
+        if got != brute {
+            assert_same_hit(&m, ray, got, brute, &format!("ray {i}"));
+        }
+    }
+    // An 8×8 tile visits each wide node once for all its rays (a work count, not a timing).
     assert!(
         packets.inner_visits * 3 < alone.inner_visits,
         "packets {packets:?} single {alone:?}"

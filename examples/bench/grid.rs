@@ -92,6 +92,8 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
         })
     });
     let (bn, bvh) = best_of(reps, || MeshBvh::build(mesh, &lbvh).unwrap());
+    let mut binary = bvh.clone();
+    binary.set_wide(false);
     for (who, t1, tn) in [("grid", g1, gn), ("LBVH", b1, bn)] {
         rec.add(SUITE, name, who, "build 1 thread", n / t1 / 1e6, "Mtris/s");
         rec.add(
@@ -234,10 +236,13 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
         }
         for size in [16, 64] {
             let ranges = packets(tiles, size);
+            // "BVH" packets walk the 4-wide tree like the single rays; "BVH binary tree" packets walk the
+            // binary tree (the packet path before wide packets), against the same wide single rays.
             let who_single = [
                 ("grid", t_grid),
                 ("grid overlap test", t_exact),
                 ("BVH", t_bvh),
+                ("BVH binary tree", t_bvh),
             ];
             for (who, single) in who_single {
                 let (t, _) = best_of(reps, || {
@@ -252,8 +257,10 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh, side: usize) {
                             ("grid overlap test", false) => {
                                 exact.closest_hits_packet(r, o, &mut st)
                             }
-                            (_, true) => bvh.any_hits_packet(r, a, &mut st),
-                            (_, false) => bvh.closest_hits_packet(r, o, &mut st),
+                            ("BVH", true) => bvh.any_hits_packet(r, a, &mut st),
+                            ("BVH", false) => bvh.closest_hits_packet(r, o, &mut st),
+                            (_, true) => binary.any_hits_packet(r, a, &mut st),
+                            (_, false) => binary.closest_hits_packet(r, o, &mut st),
                         }
                     }
                 });

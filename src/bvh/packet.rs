@@ -1,5 +1,7 @@
-//! Coherent ray packets through a binary [`MeshBvh`]: up to [`MAX_PACKET`] rays (a 4×4 or 8×8 tile of
-//! camera rays, or shadow rays toward one light) walk the tree together.
+//! Coherent ray packets through a [`MeshBvh`]: up to [`MAX_PACKET`] rays (a 4×4 or 8×8 tile of camera rays,
+//! or shadow rays toward one light) walk the tree together. A mesh with its 4-wide query tree (the default)
+//! walks that one, four child boxes per visit ([`wide`](super::wide), same scheme and answers); without
+//! it (`BuildOptions::wide(false)`, or a compact tree) the binary tree, as below.
 //!
 //! **Scheme (ours, after Wald et al. 2007 "Ray Tracing Deformable Scenes using Dynamic BVHs" and Overbeck
 //! et al. 2008 "Large Ray Packets"):** a node is first tested against the whole packet with *interval
@@ -33,6 +35,7 @@ use crate::bvh::Hit;
 use crate::geometry::{Aabb, ROBUST_TMAX_SCALE, Ray, TriangleRay};
 use crate::parallel;
 use glam::{BVec3, Vec3};
+use std::ops::Range;
 
 /// Most rays in one packet (a 64-bit active mask); longer slices given to the packet queries are cut into
 /// packets of this size.
@@ -56,7 +59,7 @@ pub(crate) fn for_each_packet<T: Send>(
 
 /// Interval bounds over a packet's rays, per axis: origins, reciprocal directions, and which axes every
 /// ray crosses in the same direction (the only axes that can cull).
-struct Bounds {
+pub(super) struct Bounds {
     olo: Vec3,
     ohi: Vec3,
     rlo: Vec3,
@@ -68,7 +71,7 @@ struct Bounds {
 
 impl Bounds {
     /// The bounds of the rays in `mask`; `None` when no axis can cull.
-    fn new(rays: &[Ray], mask: u64) -> Option<Bounds> {
+    pub(super) fn new(rays: &[Ray], mask: u64) -> Option<Bounds> {
         let (mut olo, mut ohi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
         let (mut rlo, mut rhi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
         let (mut any_neg, mut any_pos, mut zero) = (BVec3::FALSE, BVec3::FALSE, BVec3::FALSE);
@@ -99,7 +102,7 @@ impl Bounds {
     /// A lower bound of every ray's entry distance into `b` when some ray may reach it within `tmax` (the
     /// packet's largest), else `None`.
     #[inline]
-    fn enter(&self, b: &Aabb, tmax: f32) -> Option<f32> {
+    pub(super) fn enter(&self, b: &Aabb, tmax: f32) -> Option<f32> {
         // Near plane: the largest (b − o)·r any ray can have is bounded below by the extreme origin
         // against both ends of the reciprocal interval; far plane likewise from above.
         let n = Vec3::select(self.neg, b.max - self.olo, b.min - self.ohi);
@@ -115,7 +118,7 @@ impl Bounds {
 
 /// The lanes set in `mask`, lowest first.
 #[inline]
-fn lanes(mut mask: u64) -> impl Iterator<Item = usize> {
+pub(super) fn lanes(mut mask: u64) -> impl Iterator<Item = usize> {
     std::iter::from_fn(move || {
         (mask != 0).then(|| {
             let i = mask.trailing_zeros() as usize;
@@ -127,20 +130,20 @@ fn lanes(mut mask: u64) -> impl Iterator<Item = usize> {
 
 /// Lanes `first..=last` of a 64-bit mask.
 #[inline]
-fn range_mask(first: usize, last: usize) -> u64 {
+pub(super) fn range_mask(first: usize, last: usize) -> u64 {
     (u64::MAX >> (63 - last)) & (u64::MAX << first)
 }
 
 /// The state of one packet: its rays, their best hits and which are still looking.
-struct Packet<'a> {
-    rays: &'a [Ray],
+pub(super) struct Packet<'a> {
+    pub(super) rays: &'a [Ray],
     tris: [Option<TriangleRay>; MAX_PACKET],
     /// Current `tmax` of each ray (its closest hit so far).
-    tmax: [f32; MAX_PACKET],
+    pub(super) tmax: [f32; MAX_PACKET],
     /// `(primitive, slot, u, v)` of each ray's best hit.
     best: [Option<(u32, usize, f32, f32)>; MAX_PACKET],
     /// Rays still traversing (any-hit queries drop a ray at its first hit).
-    active: u64,
+    pub(super) active: u64,
 }
 
 impl MeshBvh {
@@ -156,17 +159,15 @@ impl MeshBvh {
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            match self.trace_packet(rays, false, stats) {
-                Some(p) => {
-                    for (i, o) in out.iter_mut().enumerate() {
-                        *o = p.best[i]
-                            .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
-                    }
+            let mut p = Packet::new(rays);
+            if self.trace_packet(&mut p, false, stats) {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = p.best[i]
+                        .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
                 }
-                None => {
-                    for (o, r) in out.iter_mut().zip(rays) {
-                        *o = self.closest_hit_counted(r, stats);
-                    }
+            } else {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = self.closest_hit_counted(r, stats);
                 }
             }
         }
@@ -177,16 +178,14 @@ impl MeshBvh {
     pub fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], stats: &mut TraversalStats) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            match self.trace_packet(rays, true, stats) {
-                Some(p) => {
-                    for (i, o) in out.iter_mut().enumerate() {
-                        *o = p.best[i].is_some();
-                    }
+            let mut p = Packet::new(rays);
+            if self.trace_packet(&mut p, true, stats) {
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = p.best[i].is_some();
                 }
-                None => {
-                    for (o, r) in out.iter_mut().zip(rays) {
-                        *o = self.any_hit_counted(r, stats);
-                    }
+            } else {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = self.any_hit_counted(r, stats);
                 }
             }
         }
@@ -218,40 +217,26 @@ impl MeshBvh {
         }
     }
 
-    /// Traces up to [`MAX_PACKET`] rays together; `None` when the packet must be traced ray by ray.
-    fn trace_packet<'a>(
-        &self,
-        rays: &'a [Ray],
-        any: bool,
-        stats: &mut TraversalStats,
-    ) -> Option<Packet<'a>> {
-        debug_assert!(rays.len() <= MAX_PACKET);
-        let mut p = Packet {
-            rays,
-            tris: [None; MAX_PACKET],
-            tmax: [f32::NEG_INFINITY; MAX_PACKET],
-            best: [None; MAX_PACKET],
-            active: 0,
-        };
-        for (i, r) in rays.iter().enumerate() {
-            if r.is_valid() {
-                p.tris[i] = Some(TriangleRay::new(r));
-                p.tmax[i] = r.tmax;
-                p.active |= 1 << i;
-            }
-        }
+    /// Traces the packet `p` (up to [`MAX_PACKET`] rays, made by [`Packet::new`] in the caller's frame, so
+    /// that its 4 KB are never moved); false when it must be traced ray by ray.
+    fn trace_packet(&self, p: &mut Packet, any: bool, stats: &mut TraversalStats) -> bool {
+        let rays = p.rays;
         let nodes = self.bvh().nodes();
         if p.active == 0 || nodes.is_empty() {
-            return Some(p);
+            return true;
         }
-        let bounds = Bounds::new(rays, p.active)?;
-        let mut tmax_all = lanes(p.active)
-            .map(|i| p.tmax[i])
-            .fold(f32::NEG_INFINITY, f32::max);
+        let Some(bounds) = Bounds::new(rays, p.active) else {
+            return false;
+        };
+        if let Some(wide) = self.wide() {
+            wide.trace_packet(self, p, &bounds, any, stats);
+            return true;
+        }
+        let mut tmax_all = p.tmax_all();
         let mut stack = Stack::<(u32, u8, u8), MAX_DEPTH>::new();
         let (mut cur, mut first, mut last) = (0usize, 0usize, MAX_PACKET - 1);
         if bounds.enter(&nodes[0].aabb(), tmax_all).is_none() {
-            return Some(p);
+            return true;
         }
         loop {
             // Narrow the range to the first and last ray whose own slab test accepts this node.
@@ -260,13 +245,11 @@ impl MeshBvh {
                 let n = &nodes[cur];
                 if n.is_leaf() {
                     stats.leaf_visits += 1;
-                    if p.leaf(self, n, first, last, any, stats) {
+                    if p.leaf(self, &n.aabb(), n.slots(), (first, last, true), any, stats) {
                         if p.active == 0 {
-                            return Some(p);
+                            return true;
                         }
-                        tmax_all = lanes(p.active)
-                            .map(|i| p.tmax[i])
-                            .fold(f32::NEG_INFINITY, f32::max);
+                        tmax_all = p.tmax_all();
                     }
                 } else {
                     stats.inner_visits += 1;
@@ -290,14 +273,42 @@ impl MeshBvh {
                 }
             }
             let Some((n, f, l)) = stack.pop() else {
-                return Some(p);
+                return true;
             };
             (cur, first, last) = (n as usize, f as usize, l as usize);
         }
     }
 }
 
-impl Packet<'_> {
+impl<'a> Packet<'a> {
+    /// The packet of `rays` (at most [`MAX_PACKET`]), its valid rays active.
+    fn new(rays: &'a [Ray]) -> Self {
+        debug_assert!(rays.len() <= MAX_PACKET);
+        let mut p = Packet {
+            rays,
+            tris: [None; MAX_PACKET],
+            tmax: [f32::NEG_INFINITY; MAX_PACKET],
+            best: [None; MAX_PACKET],
+            active: 0,
+        };
+        for (i, r) in rays.iter().enumerate() {
+            if r.is_valid() {
+                p.tris[i] = Some(TriangleRay::new(r));
+                p.tmax[i] = r.tmax;
+                p.active |= 1 << i;
+            }
+        }
+        p
+    }
+
+    /// The largest current `tmax` of the active rays: no box beyond it can matter to the packet.
+    #[inline]
+    pub(super) fn tmax_all(&self) -> f32 {
+        lanes(self.active)
+            .map(|i| self.tmax[i])
+            .fold(f32::NEG_INFINITY, f32::max)
+    }
+
     /// The first and last active ray in `first..=last` whose slab test accepts `n`'s box, or `None`.
     #[inline]
     fn scan(&self, n: &Node, first: usize, last: usize) -> Option<(usize, usize)> {
@@ -316,27 +327,28 @@ impl Packet<'_> {
         Some((f, f))
     }
 
-    /// Tests leaf `n`'s triangles against the active rays in `first..=last` that reach its box; true when
+    /// Tests the triangles in `slots` (a leaf with box `b`) against the active rays in `first..=last` that
+    /// reach `b` (`ends_known`: the first and the last are known to, and are not tested again); true when
     /// any ray's best hit changed.
-    fn leaf(
+    pub(super) fn leaf(
         &mut self,
         bvh: &MeshBvh,
-        n: &Node,
-        first: usize,
-        last: usize,
+        b: &Aabb,
+        slots: Range<usize>,
+        (first, last, ends_known): (usize, usize, bool),
         any: bool,
         stats: &mut TraversalStats,
     ) -> bool {
-        let b = n.aabb();
         let (tris, prims) = (bvh.slot_triangles(), bvh.bvh().prim_indices());
         let mut changed = false;
         for i in lanes(self.active & range_mask(first, last)) {
             let r = &self.rays[i];
-            if i != first && i != last && r.intersect_aabb(&b, self.tmax[i]).is_none() {
+            let end = ends_known && (i == first || i == last);
+            if !end && r.intersect_aabb(b, self.tmax[i]).is_none() {
                 continue;
             }
             let tr = self.tris[i].as_ref().expect("active rays are valid");
-            for s in n.slots() {
+            for s in slots.clone() {
                 stats.prim_tests += 1;
                 let [a, b, c] = tris[s];
                 if let Some(h) = tr.intersect(a, b, c, r.tmin, self.tmax[i]) {

@@ -51,24 +51,29 @@ impl UniformGrid {
         let par = self.options.parallel;
         let n = indices.len() / 3;
         self.tris.resize(n, [Vec3::ZERO; 3]);
-        parallel::fill(par, &mut self.tris, CHUNK, |i| {
-            query_corners(crate::mesh::triangle(positions, indices, i))
-        });
-        let live = parallel::map_reduce(
+        // One pass writes the corners and gathers each chunk's box and live count (reduced in chunk order).
+        self.chunk_sums
+            .resize(n.div_ceil(CHUNK).max(1), (Aabb::EMPTY, 0));
+        parallel::fill_chunks_with(
             par,
-            &self.tris,
+            &mut self.tris,
             CHUNK,
-            (Aabb::EMPTY, 0u64),
-            |ts| {
-                ts.iter()
-                    .filter(|t| !is_collapsed(t))
-                    .fold((Aabb::EMPTY, 0), |(b, k), t| {
-                        (b.union(&Aabb::from_triangle(t[0], t[1], t[2])), k + 1)
-                    })
+            &mut self.chunk_sums,
+            |c, ts, sum| {
+                let (mut b, mut k) = (Aabb::EMPTY, 0);
+                for (j, t) in ts.iter_mut().enumerate() {
+                    *t = query_corners(crate::mesh::triangle(positions, indices, c * CHUNK + j));
+                    if !is_collapsed(t) {
+                        b = b.union(&Aabb::from_triangle(t[0], t[1], t[2]));
+                        k += 1;
+                    }
+                }
+                *sum = (b, k);
             },
-            |(a, i), (b, j)| (a.union(&b), i + j),
         );
-        let (box_, live) = live;
+        let (box_, live) = self.chunk_sums[..n.div_ceil(CHUNK)]
+            .iter()
+            .fold((Aabb::EMPTY, 0u64), |(a, i), (b, j)| (a.union(b), i + j));
         let mut lambda = self.options.lambda as f64;
         let mut before = None;
         loop {
@@ -117,31 +122,32 @@ impl UniformGrid {
         self.inv_cell = self.res.as_vec3() / self.bounds.extent();
     }
 
-    /// Each triangle's cell range (its box grown by the margin); returns the total number of references.
+    /// Each triangle's cell range (its box grown by the margin); returns the total number of references
+    /// (summed per chunk in the same pass, then in chunk order).
     fn bin(&mut self) -> u64 {
         let par = self.options.parallel;
         let n = self.tris.len();
         self.ranges.resize(n, [UVec3::ONE, UVec3::ZERO]);
         let mut ranges = std::mem::take(&mut self.ranges);
+        let mut sums = std::mem::take(&mut self.chunk_sums);
         let (grid, m) = (&*self, self.margin);
-        parallel::fill(par, &mut ranges, CHUNK, |i| {
-            let tris = &grid.tris;
-            let t = &tris[i];
-            if is_collapsed(t) || grid.bounds.is_empty() {
-                return [UVec3::ONE, UVec3::ZERO];
+        parallel::fill_chunks_with(par, &mut ranges, CHUNK, &mut sums, |c, rs, sum| {
+            let mut refs = 0;
+            for (r, t) in rs.iter_mut().zip(&grid.tris[c * CHUNK..]) {
+                *r = if is_collapsed(t) || grid.bounds.is_empty() {
+                    [UVec3::ONE, UVec3::ZERO]
+                } else {
+                    let b = Aabb::from_triangle(t[0], t[1], t[2]);
+                    [grid.cell_of(b.min - m), grid.cell_of(b.max + m)]
+                };
+                refs += range_cells(r);
             }
-            let b = Aabb::from_triangle(t[0], t[1], t[2]);
-            [grid.cell_of(b.min - m), grid.cell_of(b.max + m)]
+            sum.1 = refs;
         });
+        let total = sums[..n.div_ceil(CHUNK)].iter().map(|s| s.1).sum();
         self.ranges = ranges;
-        parallel::map_reduce(
-            par,
-            &self.ranges,
-            CHUNK,
-            0u64,
-            |rs| rs.iter().map(range_cells).sum(),
-            |a, b| a + b,
-        )
+        self.chunk_sums = sums;
+        total
     }
 
     /// The counting sort: per-cell counts, prefix sums (each cell's end), then triangles written in reverse
@@ -180,7 +186,7 @@ impl UniformGrid {
             *c = sum;
         }
         cell_start[cells] = sum;
-        refs.clear();
+        // Every entry is written below: only entries past the old length need a value.
         refs.resize(sum as usize, 0);
         for_slabs(
             par,
@@ -231,24 +237,22 @@ impl UniformGrid {
         );
     }
 
-    /// Which `M³` blocks of cells hold any reference.
+    /// Which `M³` blocks of cells hold any reference: per row of cells, one comparison of the prefix sums
+    /// at the ends of each run of `M` cells (a run holds references exactly when they differ).
     fn mark_macrocells(&mut self) {
         let m = self.options.macrocell;
-        self.macro_res = (self.res + (m - 1)) / m;
+        let (r, mr) = (self.res, (self.res + (m - 1)) / m);
+        self.macro_res = mr;
         self.macro_full.clear();
-        self.macro_full.resize(
-            (self.macro_res.x * self.macro_res.y * self.macro_res.z) as usize,
-            false,
-        );
-        let r = self.res;
+        self.macro_full.resize((mr.x * mr.y * mr.z) as usize, false);
         for z in 0..r.z {
             for y in 0..r.y {
-                for x in 0..r.x {
-                    let c = self.cell_index(UVec3::new(x, y, z));
-                    if self.cell_start[c + 1] > self.cell_start[c] {
-                        let mc = UVec3::new(x, y, z) / m;
-                        let i = mc.x + self.macro_res.x * (mc.y + self.macro_res.y * mc.z);
-                        self.macro_full[i as usize] = true;
+                let row = self.cell_index(UVec3::new(0, y, z));
+                let block = (mr.x * (y / m + mr.y * (z / m))) as usize;
+                for mx in 0..mr.x {
+                    let (x0, x1) = (mx * m, ((mx + 1) * m).min(r.x));
+                    if self.cell_start[row + x1 as usize] > self.cell_start[row + x0 as usize] {
+                        self.macro_full[block + mx as usize] = true;
                     }
                 }
             }
@@ -365,16 +369,20 @@ fn each_cell(
     if lo.x > hi.x || hi.z < z0 || lo.z >= z1 {
         return;
     }
-    for z in lo.z.max(z0)..=hi.z.min(z1 - 1) {
-        let layer = (z - z0) as usize * sxy;
-        for y in lo.y..=hi.y {
-            let row = layer + (y * rx) as usize;
-            for x in lo.x..=hi.x {
+    // Exclusive ranges and running indices: an inclusive range's exhaustion flag was a visible share of
+    // the build (callgrind).
+    let mut layer = (lo.z.max(z0) - z0) as usize * sxy + (lo.y * rx + lo.x) as usize;
+    for z in lo.z.max(z0)..hi.z.min(z1 - 1) + 1 {
+        let mut row = layer;
+        for y in lo.y..hi.y + 1 {
+            for (i, x) in (lo.x..hi.x + 1).enumerate() {
                 if keep(UVec3::new(x, y, z)) {
-                    f(row + x as usize);
+                    f(row + i);
                 }
             }
+            row += rx as usize;
         }
+        layer += sxy;
     }
 }
 

@@ -127,6 +127,8 @@ pub struct UniformGrid {
     /// Macrocells per axis and which of them hold any reference.
     macro_res: UVec3,
     macro_full: Vec<bool>,
+    /// Per build chunk: its triangles' box and live count, then its reference count (reused scratch).
+    chunk_sums: Vec<(Aabb, u64)>,
 }
 
 impl UniformGrid {
@@ -203,10 +205,12 @@ impl UniformGrid {
         origin.abs().max_element() + (origin - self.bounds.center()).length() > self.far_limit
     }
 
-    /// The cell `c` of `p` on every axis, clamped into the grid.
+    /// The cell `c` of `p` on every axis, clamped into the grid: `floor` of the cell coordinate, taken as
+    /// the truncation of its non-negative part (the same cells; `floor` is a library call on baseline
+    /// x86-64 and was a sixth of the build).
     #[inline]
     fn cell_of(&self, p: Vec3) -> UVec3 {
-        let c = ((p - self.bounds.min) * self.inv_cell).floor();
+        let c = (p - self.bounds.min) * self.inv_cell;
         c.max(Vec3::ZERO).as_uvec3().min(self.res - 1)
     }
 

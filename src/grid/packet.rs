@@ -185,8 +185,7 @@ impl UniformGrid {
             Vec4::new(p[u], -p[u], p[v], -p[v]) - (fa + fs * w)
         };
         let (g0, cs, res) = (self.bounds.min, self.cell, self.res);
-        let slice_of =
-            |x: f32| (((x - g0[k]) * self.inv_cell[k]).floor().max(0.0) as u32).min(res[k] - 1);
+        let slice_of = |x: f32| (((x - g0[k]) * self.inv_cell[k]).max(0.0) as u32).min(res[k] - 1);
         let (c_first, c_last) = (slice_of(x0), slice_of(sgn * s1));
         let mut tmax = [f32::INFINITY; MAX_PACKET];
         for (i, r) in rays.iter().enumerate() {
@@ -272,8 +271,11 @@ impl UniformGrid {
                 }
             }
             let (lo, hi) = (lo - m, hi + m);
+            // Cell coordinates are compared and truncated without `floor` (a library call on baseline
+            // x86-64): `h ≥ 0` and `l < res` hold for the unfloored values exactly when for the floored
+            // ones, and truncation of a non-negative value is its floor.
             let cell_range = |a: usize, j: usize| {
-                let to_cell = |x: f32| ((x - g0[a]) * self.inv_cell[a]).floor();
+                let to_cell = |x: f32| (x - g0[a]) * self.inv_cell[a];
                 let (l, h) = (to_cell(lo[j]), to_cell(hi[j]));
                 (h >= 0.0 && l < res[a] as f32)
                     .then(|| (l.max(0.0) as u32, (h as u32).min(res[a] - 1)))

@@ -30,6 +30,7 @@
 
 pub mod compact;
 mod discs;
+mod packet;
 mod proximity;
 pub mod simd;
 
