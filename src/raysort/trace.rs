@@ -286,8 +286,10 @@ impl RayScene {
             run.extend(valid.map(pair));
         }
         let packets = packet_ranges(&run, shadows, size, drop_bits);
-        let trace = |r: Range<usize>, out: &mut [(Answer, TraversalStats)]| {
-            let mut batch = [crate::Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+        // A packet's rays gathered into `batch` (kept from packet to packet on one thread: filling 64 rays
+        // anew per packet cost more than a short packet's traversal).
+        let empty = || [crate::Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+        let trace = |r: Range<usize>, batch: &mut [crate::Ray], out: &mut [_]| {
             for (b, &(i, _)) in batch.iter_mut().zip(&run[r.clone()]) {
                 *b = rays[i as usize].ray;
             }
@@ -307,13 +309,16 @@ impl RayScene {
                 work.push((r, out));
                 rest = tail;
             }
-            parallel::for_each_mut(true, &mut work, |_, (r, out)| trace(r.clone(), out));
+            parallel::for_each_mut(true, &mut work, |_, (r, out)| {
+                trace(r.clone(), &mut empty(), out)
+            });
             traced.record(ids(0..run.len()), done);
         } else {
             let mut out = [(Answer::Miss, TraversalStats::default()); MAX_PACKET];
+            let mut batch = empty();
             for r in packets {
                 let out = &mut out[..r.len()];
-                trace(r.clone(), out);
+                trace(r.clone(), &mut batch, out);
                 traced.record(ids(r), out.iter().copied());
             }
         }
