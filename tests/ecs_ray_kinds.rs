@@ -262,6 +262,7 @@ fn every_secondary_strategy_answers_as_brute_force() {
             SecondaryStrategy::Bvh,
             SecondaryStrategy::SortedBvh,
             SecondaryStrategy::SortedPackets,
+            SecondaryStrategy::SortedRuns,
             SecondaryStrategy::Crsh,
         ] {
             world.insert_resource(SecondaryRays::fixed(strategy));
@@ -337,14 +338,16 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
         picked.extend(batches.iter().map(|b| (b.1, b.3)));
     }
     // The sorting strategies' priors predict them cheaper than the BVH, so one of them is tried once the
-    // BVH has a measurement, whatever the times: which one, and whether the other follows, depends on what
-    // the first measured (the sorted BVH comes first; measured cheap, it can keep sorted packets from
-    // looking cheaper than the option chosen).
+    // BVH has a measurement, whatever the times: which one, and whether the others follow, depends on what
+    // the first measured (the sorted BVH comes first; measured cheap, it can keep sorted packets and runs
+    // from looking cheaper than the option chosen).
     assert!(
         picked.iter().any(|&(s, tried)| tried
             && matches!(
                 s,
-                SecondaryStrategy::SortedBvh | SecondaryStrategy::SortedPackets
+                SecondaryStrategy::SortedBvh
+                    | SecondaryStrategy::SortedPackets
+                    | SecondaryStrategy::SortedRuns
             )),
         "{picked:?}"
     );

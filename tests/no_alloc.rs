@@ -368,6 +368,7 @@ fn warm_secondary_ray_batches_do_not_allocate() {
         Some(SecondaryStrategy::Bvh),
         Some(SecondaryStrategy::SortedBvh),
         Some(SecondaryStrategy::SortedPackets),
+        Some(SecondaryStrategy::SortedRuns),
     ] {
         let (mut world, mut schedule, rest, e) = deforming_sphere_app(never, Structure::Bvh);
         let secondary = SecondaryRays::new(fixed, Default::default(), 8, 2).unwrap();

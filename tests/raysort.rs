@@ -11,7 +11,8 @@ use common::*;
 use glam::{DVec3, Vec3};
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::raysort::{
-    Answer, KeyLayout, RayHierarchy, RayKind, RayScene, SecondaryRay, Strategy, sort_rays,
+    Answer, KeyLayout, RayHierarchy, RayKind, RayScene, SecondaryRay, SortScratch, SortedRays,
+    Strategy, sort_rays,
 };
 use kinetrace::scenes::{folded_sheet, icosphere};
 use kinetrace::{Aabb, Error, Mesh, Ray};
@@ -320,6 +321,27 @@ fn sort_is_a_stable_permutation() {
         );
         // Sequential and parallel agree.
         assert_eq!(sort_rays(&rays, &layout, false).unwrap(), sorted);
+        // On the bits above the low ones only: the same, with keys cut there (all of them at 32 and
+        // beyond: request order).
+        for low in [1, 10, 13, 31, 32, 40] {
+            let cut = |k: u32| ((k as u64 >> low.min(32)) << low.min(32)) as u32;
+            let mut expect: Vec<(u32, u32)> = expect.iter().map(|&(k, i)| (cut(k), i)).collect();
+            expect.sort_by_key(|&(k, i)| (k, i));
+            for parallel in [false, true] {
+                let mut above = SortedRays::default();
+                let scratch = &mut SortScratch::default();
+                (above.sort_above(&rays, &layout, low, parallel, scratch)).unwrap();
+                let got: Vec<(u32, u32)> = (above.keys.iter().copied())
+                    .zip(above.order[..valid].iter().copied())
+                    .collect();
+                assert_eq!(got, expect, "low {low}");
+                assert_eq!(above.order[valid..], trimmed[..]);
+                assert!(
+                    above.chunks <= sorted.chunks,
+                    "coarser keys, no more chunks"
+                );
+            }
+        }
     }
 }
 

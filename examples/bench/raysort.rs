@@ -14,7 +14,8 @@ use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::ecs::SORTED_PACKET;
 use kinetrace::gpu::GpuContext;
 use kinetrace::raysort::{
-    KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, sort_rays, sort_rays_gpu, trace_crsh_gpu,
+    KeyLayout, RUN_LOW_BITS, RayKind, RayScene, SecondaryRay, SortScratch, SortedRays, Strategy,
+    sort_rays, sort_rays_gpu, trace_crsh_gpu,
 };
 use kinetrace::scenes::SceneRng;
 use kinetrace::{Mesh, Ray};
@@ -98,6 +99,23 @@ fn shuffled(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRa
         "rays per chunk",
         n / sorted.chunks as f64,
         "rays",
+    );
+    // The sort sorted runs use: on the key bits above the runs' cut only.
+    let (t_above, _) = one_thread(|| {
+        best_cpu(rec.reps(), || {
+            let mut sorted = SortedRays::default();
+            let scratch = &mut SortScratch::default();
+            (sorted.sort_above(rays, &layout, RUN_LOW_BITS, false, scratch)).unwrap();
+            sorted
+        })
+    });
+    rec.add(
+        SUITE,
+        name,
+        &format!("sort above {RUN_LOW_BITS} bits only"),
+        "Mrays/s 1 thread",
+        n / t_above / 1e6,
+        "Mrays/s",
     );
     let mut random = rays.to_vec();
     let mut r = SceneRng::new(7);
@@ -258,7 +276,7 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
             "sorted runs 64",
             Strategy::SortedRuns {
                 size: 64,
-                drop_bits: 10,
+                drop_bits: RUN_LOW_BITS,
             },
         ),
         (

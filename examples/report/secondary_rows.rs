@@ -2,7 +2,7 @@
 //! pixels (128², 32² in `--quick`); per primary hit one shadow ray from the frame's light to the point (the
 //! seed's direction) and one reflection ray leaving the surface. Each batch, in pixel order, goes through
 //! the [`kinetrace::raysort`] strategies the ECS plans among — the BVH, the sorted BVH, sorted packets of
-//! [`SORTED_PACKET`], CRSH with s = 8, D = 2 — and through the ECS's secondary planner
+//! [`SORTED_PACKET`], sorted runs of as many cut above [`RUN_LOW_BITS`], CRSH with s = 8, D = 2 — and through the ECS's secondary planner
 //! ([`Choice::secondary`]) over [`ROUNDS`] batches, each round's measured seconds taught as the ECS does
 //! once per frame. All on one thread.
 //!
@@ -17,7 +17,9 @@ use glam::Vec3;
 use kinetrace::adaptive::Choice;
 use kinetrace::bvh::{BuildOptions, Builder};
 use kinetrace::ecs::{SORTED_PACKET, SecondaryStrategy};
-use kinetrace::raysort::{Answer, KeyLayout, RayKind, RayScene, SecondaryRay, Strategy, Traced};
+use kinetrace::raysort::{
+    Answer, KeyLayout, RUN_LOW_BITS, RayKind, RayScene, SecondaryRay, Strategy, Traced,
+};
 use kinetrace::{Mesh, Ray};
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -27,10 +29,11 @@ use std::time::Instant;
 pub const ROUNDS: usize = 12;
 
 /// The fixed strategies, in their rows' order, then the planner's row.
-const FIXED: [SecondaryStrategy; 4] = [
+const FIXED: [SecondaryStrategy; 5] = [
     SecondaryStrategy::Bvh,
     SecondaryStrategy::SortedBvh,
     SecondaryStrategy::SortedPackets,
+    SecondaryStrategy::SortedRuns,
     SecondaryStrategy::Crsh,
 ];
 
@@ -51,6 +54,7 @@ fn name(s: SecondaryStrategy) -> &'static str {
         SecondaryStrategy::Bvh => "bvh",
         SecondaryStrategy::SortedBvh => "sorted-bvh",
         SecondaryStrategy::SortedPackets => "sorted-packets",
+        SecondaryStrategy::SortedRuns => "sorted-runs",
         SecondaryStrategy::Crsh => "crsh-s8-d2",
     }
 }
@@ -61,6 +65,10 @@ fn strategy(s: SecondaryStrategy) -> Strategy {
         SecondaryStrategy::SortedBvh => Strategy::SortedBvh,
         SecondaryStrategy::SortedPackets => Strategy::SortedPackets {
             size: SORTED_PACKET,
+        },
+        SecondaryStrategy::SortedRuns => Strategy::SortedRuns {
+            size: SORTED_PACKET,
+            drop_bits: RUN_LOW_BITS,
         },
         SecondaryStrategy::Crsh => Strategy::Crsh {
             branching: 8,
@@ -115,7 +123,7 @@ pub fn run(scene: &Scene, settings: &Settings) -> Vec<SecondaryRow> {
         }
         let mut planner = Choice::secondary();
         let (mut rates, mut tests, mut bad) = (Vec::with_capacity(ROUNDS), 0, 0);
-        let mut picks = [0usize; 4];
+        let mut picks = [0usize; FIXED.len()];
         for _ in 0..ROUNDS {
             let s = planner.decide(rays.len() as f64);
             let start = Instant::now();

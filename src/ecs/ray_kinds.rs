@@ -1,7 +1,8 @@
 //! Ray kinds in the batched queries (seed 002 in the ECS): requests queued as shadow rays toward a light or
 //! as reflection rays form the frame's secondary batches — one of closest-hit rays, one of occlusion
 //! segments — and each batch is traced in the way its planner picks: plain BVH traversal in request order,
-//! the same traversal in key order ([`crate::raysort`]), or the coherent ray-space hierarchy through the
+//! the same traversal in key order ([`crate::raysort`]), packets of sorted rays (cut every
+//! [`SORTED_PACKET`] rays, or also where the key changes: sorted runs), or the coherent ray-space hierarchy through the
 //! world ([`super::ray_crsh`]). Answers are the same whichever way; only the time differs.
 //!
 //! Primary requests (the default kind, what [`RayQueue::cast`] and [`RayQueue::shadow`] queue) never join a
@@ -12,7 +13,7 @@ use super::stats::{OptionStats, PlannedOption};
 use super::{RayHit, RayQueue, RayResults, TraceStats, TraceWorld};
 use crate::adaptive::Choice;
 use crate::geometry::Ray;
-use crate::raysort::{KeyLayout, RayKind, SecondaryRay, SortScratch, SortedRays};
+use crate::raysort::{KeyLayout, RUN_LOW_BITS, RayKind, SecondaryRay, SortScratch, SortedRays};
 use crate::{Result, parallel};
 use bevy_ecs::prelude::*;
 use std::time::Instant;
@@ -66,6 +67,12 @@ pub enum SecondaryStrategy {
     /// the sort; pays on shadow rays toward one light (1.16–1.44× the BVH's speed on the crowd), not on
     /// reflection rays (0.79–0.83×), whose sorted runs still spread too far for the packet's interval culling.
     SortedPackets,
+    /// Sorted packets cut also where the key changes above its low [`RUN_LOW_BITS`] bits, so that a
+    /// packet keeps one origin cell and one block of directions; the sort orders the rays on those high
+    /// bits only (ties in request order, cheaper than the full sort: [`SortedRays::sort_above`]). A packet
+    /// also ends at every [`SORTED_PACKET`]-th sorted ray. Pays where sorted packets spread too far:
+    /// reflection rays (see `bench raysort`).
+    SortedRuns,
     /// The coherent ray-space hierarchy over the sorted rays, culled against every mesh's world sphere
     /// and then its triangles' spheres; one sphere test per triangle of every mesh a top node reaches,
     /// so on the CPU far slower than the BVH on meshes of more than a few hundred triangles.
@@ -82,13 +89,16 @@ pub const SORTED_PACKET: usize = crate::bvh::MAX_PACKET;
 /// dev VM): seconds per ray relative to the BVH's, no overhead outside the batch. Sorted packets at 0.75,
 /// optimistic so that they are tried first (idle: 0.69× the BVH's time on shadow rays toward one light, 1.02×
 /// toward four, 1.2× on reflection rays); the sorted BVH at 0.8, optimistic so that it is tried
-/// (0.61–1.12× the BVH's speed on shuffled rays, slower on rays in pixel order); CRSH at 4 (it runs at
+/// (0.61–1.12× the BVH's speed on shuffled rays, slower on rays in pixel order); sorted runs at 0.75 too
+/// (tried after sorted packets; 1.18–1.22× the BVH's speed on shadow rays toward one light, 0.88–1.07× on
+/// reflection rays with the full sort); CRSH at 4 (it runs at
 /// 0.04–0.25× the BVH's rays per second), so the planner never tries it on its own on the CPU;
 /// [`SecondaryRays::fixed`] forces it. The planner leaves whichever measures slower.
-const PRIORS: [(SecondaryStrategy, f64, f64); 4] = [
+const PRIORS: [(SecondaryStrategy, f64, f64); 5] = [
     (SecondaryStrategy::Bvh, 1.0, 1.0),
     (SecondaryStrategy::SortedBvh, 0.8, 1.0),
     (SecondaryStrategy::SortedPackets, 0.75, 1.0),
+    (SecondaryStrategy::SortedRuns, 0.75, 1.0),
     (SecondaryStrategy::Crsh, 4.0, 1.0),
 ];
 
@@ -96,15 +106,15 @@ impl Choice<SecondaryStrategy> {
     /// A secondary batch's planner, as [`SecondaryRays`] keeps one per [`RayBatch`]: the BVH in use first,
     /// the others with the priors above. Teach it each batch's seconds with [`Choice::served`].
     pub fn secondary() -> Self {
-        Choice::new(&PRIORS).expect("four options")
+        Choice::new(&PRIORS).expect("five options")
     }
 }
 
 /// How secondary batches are traced: a fixed strategy, or (the default) the strategy each batch's
 /// planner ([`Choice`]) learns is cheapest from the measured seconds per ray of each, whatever the
 /// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
-/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorted BVH is tried (at
-/// most three frames unless it measures cheaper), the sort. The plugin inserts the default; replace
+/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorting strategies are tried (at
+/// most three frames each unless they measure cheaper), the sort. The plugin inserts the default; replace
 /// the resource to change it. CPU query path only: when a GPU mode answers the batched queries, the GPU
 /// answers secondary requests too, in request order, and nothing is planned.
 #[derive(Resource, Clone, Debug)]
@@ -332,7 +342,13 @@ fn trace_batch(
         parallel::fill(true, answers, 64, single);
         return Ok(());
     }
-    work.sorted.sort(rays, &config.layout, true, work.sort)?;
+    // Sorted runs read no key bit below RUN_LOW_BITS (see SecondaryStrategy::SortedRuns).
+    let low_bits = if strategy == SecondaryStrategy::SortedRuns {
+        RUN_LOW_BITS
+    } else {
+        0
+    };
+    (work.sorted).sort_above(rays, &config.layout, low_bits, true, work.sort)?;
     let valid = &work.sorted.order[..work.sorted.valid()];
     let done = &mut *work.done;
     done.clear();
@@ -342,15 +358,25 @@ fn trace_batch(
         SecondaryStrategy::SortedBvh => {
             parallel::fill(true, done, 64, |k| single(valid[k] as usize));
         }
-        SecondaryStrategy::SortedPackets => {
+        SecondaryStrategy::SortedPackets | SecondaryStrategy::SortedRuns => {
+            // Runs cut where the key changes above its low bits; plain packets never (all keys agree
+            // above 32 bits).
+            let cut = if strategy == SecondaryStrategy::SortedRuns {
+                RUN_LOW_BITS
+            } else {
+                32
+            };
+            let keys = &work.sorted.keys;
             parallel::fill_chunks(true, done, SORTED_PACKET, |c, out| {
-                let ids = &valid[c * SORTED_PACKET..c * SORTED_PACKET + out.len()];
+                let first = c * SORTED_PACKET;
+                let ids = &valid[first..first + out.len()];
+                let block = |k: usize| (keys[first + k] as u64) >> cut;
                 let mut start = 0;
                 while start < ids.len() {
-                    // A packet is a run of one filter.
+                    // A packet is a run of one filter (and, for runs, one key block).
                     let f = filter(ids[start] as usize);
                     let end = (start + 1..ids.len())
-                        .find(|&k| !filter(ids[k] as usize).same_as(f))
+                        .find(|&k| !filter(ids[k] as usize).same_as(f) || block(k) != block(start))
                         .unwrap_or(ids.len());
                     trace_packet(
                         world,

@@ -6,6 +6,11 @@
 //! (three 11-bit passes over 8-byte words: key and chunk number packed): batches in coherent request order
 //! have far fewer chunks than rays. [`SortedRays::sort`] with a kept [`SortScratch`] allocates nothing once
 //! its buffers have grown to the batch; [`sort_rays`] allocates them afresh.
+//!
+//! [`SortedRays::sort_above`] sorts on the key's high bits only, for callers that read nothing below them
+//! (sorted runs cut their packets on the bits above [`RUN_LOW_BITS`]): rays of equal high bits keep their
+//! request order, which in a camera's pixel order is already coherent, the chunks of equal high bits in
+//! request order are longer, and the radix sort needs fewer passes (two 11-bit passes for 22 bits).
 
 use super::{KeyLayout, SecondaryRay};
 use crate::bvh::radix_sort::{RadixScratch, sort_by_bits_with};
@@ -18,9 +23,10 @@ pub struct SortedRays {
     /// Request index of the ray at each sorted position: the valid rays by key, then the trimmed (invalid,
     /// see [`Ray::is_valid`](crate::Ray::is_valid)) rays in request order.
     pub order: Vec<u32>,
-    /// Key of each valid sorted ray (`order[..keys.len()]`), non-decreasing.
+    /// Key of each valid sorted ray (`order[..keys.len()]`), non-decreasing; with the bits below the sort's
+    /// (see [`SortedRays::sort_above`]) cleared.
     pub keys: Vec<u32>,
-    /// Runs of equal key in request order that the radix sort moved as one.
+    /// Runs of equal (sorted) key bits in request order that the radix sort moved as one.
     pub chunks: usize,
 }
 
@@ -53,7 +59,25 @@ impl SortedRays {
         parallel: bool,
         scratch: &mut SortScratch,
     ) -> Result<()> {
+        self.sort_above(rays, layout, 0, parallel, scratch)
+    }
+
+    /// [`sort`](Self::sort) on the keys' bits above their low `low_bits` only (clamped to 32: request
+    /// order), stable: rays whose keys agree there keep their request order, and [`keys`](Self::keys)
+    /// hold the keys with those low bits cleared. Cheaper than the full sort where the caller reads no
+    /// low bit: fewer radix passes (`⌈(32 − low_bits) / 11⌉`) over fewer, longer chunks.
+    pub fn sort_above(
+        &mut self,
+        rays: &[SecondaryRay],
+        layout: &KeyLayout,
+        low_bits: u32,
+        parallel: bool,
+        scratch: &mut SortScratch,
+    ) -> Result<()> {
         layout.validate()?;
+        let low = low_bits.min(32);
+        // The key with its low bits cleared (a u64 shift: 32 clears all).
+        let high = |k: u32| ((k as u64 >> low) << low) as u32;
         let s = scratch;
         // Trim: the valid rays, in request order, and their origins' bounds.
         s.valid.clear();
@@ -68,7 +92,7 @@ impl SortedRays {
         s.keys.resize(s.valid.len(), 0);
         let valid = &s.valid;
         parallel::fill(parallel, &mut s.keys, 4096, |j| {
-            layout.key(&rays[valid[j] as usize], &origins)
+            high(layout.key(&rays[valid[j] as usize], &origins))
         });
         // Compress: one word per run of equal key.
         s.chunks.clear();
@@ -82,7 +106,9 @@ impl SortedRays {
             }
         }
         s.starts.push(s.valid.len() as u32);
-        sort_by_bits_with(&mut s.chunks, &mut s.radix, 32, parallel, |&w| w >> 32);
+        sort_by_bits_with(&mut s.chunks, &mut s.radix, 32 - low, parallel, |&w| {
+            (w >> 32) >> low
+        });
         // Decompress: each sorted chunk's rays, in order; then the trimmed rays.
         self.order.clear();
         self.keys.clear();

@@ -10,10 +10,12 @@
 //!   raysort --quick`, packets of 64). Costs the sort and the packets' range scans; node tests count once
 //!   per packet.
 //! - [`Strategy::SortedRuns`]: the same packets, cut where the key changes above its low bits, so that a
-//!   packet never mixes origin cells or direction blocks. Traversal only (the sort's time left out),
-//!   reflection rays on the crowd (6,400 triangles, thread CPU time on a loaded 2-core VM): 1.30× the BVH
-//!   in pixel order at 1024², 1.06× at 512²; with the sort (38 ns a ray at 1024²) 1.07×. On a crowd of
-//!   192,000 triangles, 0.99× before the sort: pixel order is already coherent.
+//!   packet never mixes origin cells or direction blocks; sorted on those high bits only
+//!   ([`SortedRays::sort_above`]: 30 ns a ray against the full sort's 36, ties left in pixel order, which
+//!   traverses 4–6% faster than full key order). Reflection rays on the crowd (6,400 triangles, one
+//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.06–1.09× the BVH in pixel order at
+//!   1024², 0.85–0.88× at 512² (traversal alone 1.3× and 1.0×). On a crowd of 192,000 triangles, 0.99×
+//!   before the sort: pixel order is already coherent.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
 //!   children, and each level-1 node's survivors to the exact watertight test of its rays. Cost per top node:
@@ -24,12 +26,19 @@
 
 use super::cone::bounding_sphere;
 use super::hierarchy::RayHierarchy;
-use super::{KeyLayout, RayKind, SecondaryRay, SortedRays, sort_rays};
+use super::{KeyLayout, RayKind, SecondaryRay, SortScratch, SortedRays, sort_rays};
 use crate::bvh::{BuildOptions, Hit, MAX_PACKET, MeshBvh, TraversalStats, query_corners};
 use crate::geometry::TriangleRay;
 use crate::{Mesh, Result, parallel};
 use glam::Vec3;
+use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Low key bits a sorted run may differ in (`Strategy::SortedRuns`'s `drop_bits`, the ECS's sorted runs):
+/// with the default [`KeyLayout`], the low 5 bits of each direction angle, so that a run keeps one origin
+/// cell and one block of 32 × 32 direction steps. Of 6, 10 and 14 on the crowd's reflection rays at 1024²,
+/// 10 and 14 were fastest (1.30–1.32× the BVH before the sort, `bench raysort`, loaded 2-core dev VM).
+pub const RUN_LOW_BITS: u32 = 10;
 
 /// How a batch is traced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -109,8 +118,12 @@ pub struct Traced {
 impl Traced {
     /// Puts `done[k]`, the answer to ray `order[k]` and its BVH traversal counts, in place: two box tests
     /// per inner node visited, one exact test per primitive tested.
-    fn record(&mut self, order: &[u32], done: Vec<(Answer, TraversalStats)>) {
-        for (&i, (a, st)) in order.iter().zip(done) {
+    fn record(
+        &mut self,
+        order: impl IntoIterator<Item = u32>,
+        done: impl IntoIterator<Item = (Answer, TraversalStats)>,
+    ) {
+        for (i, (a, st)) in order.into_iter().zip(done) {
             self.answers[i as usize] = a;
             self.stats.node_tests += 2 * st.inner_visits;
             self.stats.triangle_tests += st.prim_tests;
@@ -176,8 +189,11 @@ impl RayScene {
                 Ok(self.trace_packets(rays, &sorted, size, 32, parallel))
             }
             Strategy::SortedRuns { size, drop_bits } => {
-                let sorted = sort_rays(rays, layout, parallel)?;
-                Ok(self.trace_packets(rays, &sorted, size, drop_bits.min(32), parallel))
+                // The runs read no key bit below `drop_bits`: sort on the bits above only.
+                let (mut sorted, drop_bits) = (SortedRays::default(), drop_bits.min(32));
+                let scratch = &mut SortScratch::default();
+                sorted.sort_above(rays, layout, drop_bits, parallel, scratch)?;
+                Ok(self.trace_packets(rays, &sorted, size, drop_bits, parallel))
             }
             Strategy::Crsh { branching, depth } => {
                 let sorted = sort_rays(rays, layout, parallel)?;
@@ -196,8 +212,7 @@ impl RayScene {
 
     /// Every ray through the BVH in `order` (a permutation of the batch).
     fn trace_bvh(&self, rays: &[SecondaryRay], order: Vec<u32>, parallel: bool) -> Traced {
-        let mut done = vec![(Answer::Miss, TraversalStats::default()); rays.len()];
-        parallel::fill(parallel, &mut done, 256, |j| {
+        let one = |j: usize| {
             let r = &rays[order[j] as usize];
             let mut st = TraversalStats::default();
             let a = match r.kind {
@@ -211,17 +226,27 @@ impl RayScene {
                     .map_or(Answer::Miss, Answer::Hit),
             };
             (a, st)
-        });
+        };
         let mut traced = Traced {
             answers: vec![Answer::Miss; rays.len()],
             stats: RayTestStats::default(),
         };
-        traced.record(&order, done);
+        let requests = order.iter().copied();
+        if parallel {
+            let mut done = vec![(Answer::Miss, TraversalStats::default()); rays.len()];
+            parallel::fill(true, &mut done, 256, one);
+            traced.record(requests, done);
+        } else {
+            // On one thread each answer goes straight to its place.
+            traced.record(requests, (0..order.len()).map(one));
+        }
         traced
     }
 
     /// The valid sorted rays, split by kind (keeping their order), as packets of at most `size` consecutive
-    /// rays whose keys agree above their low `drop_bits` bits (32: any keys, packets of `size`).
+    /// rays whose keys agree above their low `drop_bits` bits (32: any keys, packets of `size`). Each
+    /// packet gathers its rays on the stack; beyond the answers, one 8-byte word per ray, and in parallel
+    /// the answers in trace order (on one thread they go straight to their place).
     fn trace_packets(
         &self,
         rays: &[SecondaryRay],
@@ -231,38 +256,71 @@ impl RayScene {
         parallel: bool,
     ) -> Traced {
         let size = size.clamp(1, MAX_PACKET);
+        let valid = sorted.order[..sorted.valid()].iter().zip(&sorted.keys);
+        let shadow = |r: &SecondaryRay| matches!(r.kind, RayKind::Shadow { .. });
+        // (request index, key) of each valid ray: the shadow rays, then the reflection rays, in key order.
+        // A batch of one kind (the usual one) is split without looking its rays up in key order.
+        let mut run: Vec<(u32, u32)> = Vec::with_capacity(sorted.valid());
+        let pair = |(&i, &k): (&u32, &u32)| (i, k);
+        let mixed = rays.iter().any(shadow) && !rays.iter().all(shadow);
+        let shadows = if mixed {
+            run.extend(
+                valid
+                    .clone()
+                    .filter(|(i, _)| shadow(&rays[**i as usize]))
+                    .map(pair),
+            );
+            run.len()
+        } else if rays.first().is_some_and(shadow) {
+            sorted.valid()
+        } else {
+            0
+        };
+        if mixed {
+            run.extend(
+                valid
+                    .filter(|(i, _)| !shadow(&rays[**i as usize]))
+                    .map(pair),
+            );
+        } else {
+            run.extend(valid.map(pair));
+        }
+        let packets = packet_ranges(&run, shadows, size, drop_bits);
+        // A packet's rays gathered into `batch` (kept from packet to packet on one thread: filling 64 rays
+        // anew per packet cost more than a short packet's traversal).
+        let empty = || [crate::Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+        let trace = |r: Range<usize>, batch: &mut [crate::Ray], out: &mut [_]| {
+            for (b, &(i, _)) in batch.iter_mut().zip(&run[r.clone()]) {
+                *b = rays[i as usize].ray;
+            }
+            self.trace_packet(&batch[..r.len()], r.start < shadows, out);
+        };
         let mut traced = Traced {
             answers: vec![Answer::Miss; rays.len()],
             stats: RayTestStats::default(),
         };
-        let valid = sorted.order[..sorted.valid()].iter().zip(&sorted.keys);
-        // (request index, key) of each valid ray, in key order.
-        type Keyed = Vec<(u32, u32)>;
-        let (shadow, reflect): (Keyed, Keyed) = valid
-            .map(|(&i, &k)| (i, k))
-            .partition(|&(i, _)| matches!(rays[i as usize].kind, RayKind::Shadow { .. }));
-        for (run, any) in [(shadow, true), (reflect, false)] {
-            let ids: Vec<u32> = run.iter().map(|&(i, _)| i).collect();
-            let batch: Vec<crate::Ray> = ids.iter().map(|&i| rays[i as usize].ray).collect();
-            let mut done = vec![(Answer::Miss, TraversalStats::default()); batch.len()];
-            // Each packet: its first ray's place and its rays' answers.
-            let mut packets = Vec::new();
+        let ids = |r: Range<usize>| run[r].iter().map(|&(i, _)| i);
+        if parallel {
+            let mut done = vec![(Answer::Miss, TraversalStats::default()); run.len()];
             let mut rest = &mut done[..];
-            let mut start = 0;
-            while start < run.len() {
-                let block = (run[start].1 as u64) >> drop_bits;
-                let end = (start + 1..run.len().min(start + size))
-                    .find(|&k| (run[k].1 as u64) >> drop_bits != block)
-                    .unwrap_or(run.len().min(start + size));
-                let (out, tail) = rest.split_at_mut(end - start);
-                packets.push((start, out));
+            let mut work = Vec::new();
+            for r in packets {
+                let (out, tail) = rest.split_at_mut(r.len());
+                work.push((r, out));
                 rest = tail;
-                start = end;
             }
-            parallel::for_each_mut(parallel, &mut packets, |_, (start, out)| {
-                self.trace_packet(&batch[*start..*start + out.len()], any, out);
+            parallel::for_each_mut(true, &mut work, |_, (r, out)| {
+                trace(r.clone(), &mut empty(), out)
             });
-            traced.record(&ids, done);
+            traced.record(ids(0..run.len()), done);
+        } else {
+            let mut out = [(Answer::Miss, TraversalStats::default()); MAX_PACKET];
+            let mut batch = empty();
+            for r in packets {
+                let out = &mut out[..r.len()];
+                trace(r.clone(), &mut batch, out);
+                traced.record(ids(r), out.iter().copied());
+            }
         }
         traced
     }
@@ -396,6 +454,30 @@ impl Walk<'_> {
             Some(h) => Answer::Hit(h),
         }
     }
+}
+
+/// The packets of `run` (sorted rays, the first `shadows` of them shadow rays) as ranges: at most `size`
+/// consecutive rays of one kind whose keys agree above their low `drop_bits` bits.
+fn packet_ranges(
+    run: &[(u32, u32)],
+    shadows: usize,
+    size: usize,
+    drop_bits: u32,
+) -> impl Iterator<Item = Range<usize>> + '_ {
+    let mut start = 0;
+    std::iter::from_fn(move || {
+        if start >= run.len() {
+            return None;
+        }
+        let limit = (start + size).min(if start < shadows { shadows } else { run.len() });
+        let block = (run[start].1 as u64) >> drop_bits;
+        let end = (start + 1..limit)
+            .find(|&k| (run[k].1 as u64) >> drop_bits != block)
+            .unwrap_or(limit);
+        let r = start..end;
+        start = end;
+        Some(r)
+    })
 }
 
 /// A packet's answers into `out`: `one` traces a lone ray, `many` the packet (its results start as
