@@ -6,43 +6,9 @@ use common::*;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::{MeshBvh, Ray};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 
-struct Counting;
-
-thread_local! {
-    // const-initialised: touching it never allocates.
-    static ALLOCS: Cell<usize> = const { Cell::new(0) };
-}
-
-fn allocations() -> usize {
-    ALLOCS.with(Cell::get)
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
-        let _ = ALLOCS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(l) }
-    }
-    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
-        unsafe { System.dealloc(p, l) }
-    }
-}
-
-#[global_allocator]
-static A: Counting = Counting;
-
-/// Held by every test for its whole run: the tests of this file run one at a time. Work a thread hands to
-/// rayon's global pool goes through a shared queue whose blocks are allocated by whichever thread's push
-/// crosses a block boundary; with another test pushing at the same time, that thread can be a test's frame
-/// thread at any frame (an allocation by the test harness, not by the code under test).
-static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// Takes [`ONE_AT_A_TIME`] (a test that failed while holding it does not poison the others).
-fn alone() -> std::sync::MutexGuard<'static, ()> {
-    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
-}
+mod alloc_counter;
+use alloc_counter::*;
 
 #[test]
 fn refit_and_single_ray_queries_do_not_allocate() {
@@ -78,41 +44,6 @@ fn refit_and_single_ray_queries_do_not_allocate() {
         assert_eq!(hits, 3 * rays.len());
         assert!(d.abs() < 1e-4);
     }
-}
-
-/// A plugin world run on the calling thread under `policy`, every mesh kept as `structure`, with a sphere
-/// whose `VertexPositions` the test rewrites: the world, its schedule, the sphere's rest mesh and its entity.
-fn deforming_sphere_app(
-    policy: kinetrace::ecs::RebuildPolicy,
-    structure: kinetrace::ecs::Structure,
-) -> (
-    bevy_ecs::world::World,
-    bevy_ecs::schedule::Schedule,
-    kinetrace::Mesh,
-    bevy_ecs::entity::Entity,
-) {
-    use bevy_ecs::prelude::*;
-    use kinetrace::ecs::*;
-    let mut world = World::new();
-    let mut schedule = Schedule::default();
-    schedule.set_executor(bevy_ecs::schedule::SingleThreadedExecutor::new());
-    KinetracePlugin {
-        config: TraceConfig {
-            policy,
-            structure,
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-    .build(&mut world, &mut schedule);
-    let rest = icosphere(3);
-    let e = world
-        .spawn((
-            TraceMesh(rest.clone()),
-            VertexPositions(rest.positions().to_vec()),
-        ))
-        .id();
-    (world, schedule, rest, e)
 }
 
 /// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
@@ -230,91 +161,6 @@ fn warm_collision_queries_do_not_allocate() {
         contacts > 0,
         "the spheres must touch for the test to mean anything"
     );
-}
-
-/// Warm batches of shape casts, closest points, overlaps and containment allocate nothing: on the frame's
-/// thread through the schedule, and on every thread of a rayon pool when answered there (each pool thread's
-/// count read with `broadcast`), for entities in their mesh's frame and in the world (a sheared one).
-#[cfg(feature = "parallel")]
-#[test]
-fn warm_shape_query_batches_do_not_allocate() {
-    let _alone = alone();
-    use glam::{Affine3A, Mat3, Quat};
-    use kinetrace::ecs::*;
-    use kinetrace::queries::Shape;
-    let never = RebuildPolicy::Lauterbach {
-        threshold: f32::INFINITY,
-    };
-    let (mut world, mut schedule, rest, e) = deforming_sphere_app(never, Structure::Bvh);
-    let sheared = Mat3::from_cols(Vec3::X, Vec3::new(0.5, 2.0, 0.0), Vec3::Z * 0.5);
-    for (i, m) in [Mat3::from_rotation_y(0.5) * 1.5, sheared]
-        .into_iter()
-        .enumerate()
-    {
-        let at = Vec3::new(3.0 * (i as f32 * 2.0 - 1.0), 0.0, 0.0);
-        world.spawn((
-            TraceMesh(icosphere(2)),
-            MotionHint::Rigid,
-            TraceTransform(Affine3A::from_mat3_translation(m, at)),
-        ));
-    }
-    let push = |q: &mut ShapeQueue| {
-        for i in 0..16 {
-            let c = Vec3::new(i as f32 * 0.5 - 4.0, 0.3, -3.0);
-            let f = QueryFilter::default;
-            q.cast(i, Shape::sphere(c, 0.3), Vec3::Z, 10.0, f());
-            q.cast(i, Shape::capsule(c, c + Vec3::Y, 0.2), Vec3::Z, 10.0, f());
-            q.cast(
-                i,
-                Shape::cuboid(c, Vec3::splat(0.3), Quat::IDENTITY),
-                Vec3::Z,
-                10.0,
-                f(),
-            );
-            q.closest_point(i, c, f32::INFINITY, f());
-            q.overlap(i, Shape::sphere(c + Vec3::Z * 3.0, 0.8), f());
-            q.contains(i, c + Vec3::Z * 3.0, f());
-        }
-    };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(2)
-        .build()
-        .unwrap();
-    let pool_allocations = || pool.broadcast(|_| allocations()).iter().sum::<usize>();
-    for f in 0..12 {
-        let s = 1.0 + 0.01 * f as f32;
-        {
-            let mut vp = world.get_mut::<VertexPositions>(e).unwrap();
-            for (p, q) in vp.0.iter_mut().zip(rest.positions()) {
-                *p = *q * s;
-            }
-        }
-        push(&mut world.resource_mut::<ShapeQueue>());
-        let before = allocations();
-        schedule.run(&mut world);
-        world.clear_trackers();
-        let on_frame_thread = allocations() - before;
-        // The same batch again, answered on the pool.
-        let mut queue = ShapeQueue::default();
-        push(&mut queue);
-        let mut results = std::mem::take(&mut *world.resource_mut::<ShapeResults>());
-        let tw = world.resource::<TraceWorld>();
-        let before = pool_allocations();
-        pool.install(|| tw.answer_shapes(&queue, &mut results));
-        let on_pool = pool_allocations() - before;
-        if f >= 3 {
-            assert_eq!(on_frame_thread, 0, "frame {f}");
-            assert_eq!(on_pool, 0, "frame {f}, pool");
-        }
-        let hits = results.casts.iter().filter(|c| c.1.is_some()).count();
-        let overlapping = results.overlaps.iter().filter(|o| !o.1.is_empty()).count();
-        let inside = results.contains.iter().filter(|o| !o.1.is_empty()).count();
-        assert!(
-            hits > 10 && overlapping > 3 && inside > 2,
-            "{hits} {overlapping} {inside}"
-        );
-        *world.resource_mut::<ShapeResults>() = results;
-    }
 }
 
 /// A warm ray sort (its [`SortedRays`](kinetrace::raysort::SortedRays) and scratch kept from a batch as
