@@ -133,10 +133,12 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             r.strategy
         );
     }
-    // Secondary rays: per scene two batches of rays, each with the four fixed strategies and the planner;
-    // every strategy's answers equal the BVH's, whose sample equals brute force; the section is in the
-    // summary.
-    assert_eq!(report.secondary.len(), scenes.len() * 2 * 5);
+    // Secondary rays: per scene two batches of rays, each with every fixed strategy and the planner; every
+    // strategy's answers equal the BVH's, whose sample equals brute force; the section is in the summary.
+    assert_eq!(
+        report.secondary.len(),
+        scenes.len() * 2 * (secondary_rows::FIXED.len() + 1)
+    );
     assert!(summary.contains("## Secondary rays"));
     for r in &report.secondary {
         assert_eq!(

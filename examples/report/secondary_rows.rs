@@ -29,7 +29,7 @@ use std::time::Instant;
 pub const ROUNDS: usize = 12;
 
 /// The fixed strategies, in their rows' order, then the planner's row.
-const FIXED: [SecondaryStrategy; 5] = [
+pub const FIXED: [SecondaryStrategy; 5] = [
     SecondaryStrategy::Bvh,
     SecondaryStrategy::SortedBvh,
     SecondaryStrategy::SortedPackets,
