@@ -250,9 +250,8 @@ mod tests {
     #[test]
     fn disc_bound_is_below_the_exact_distance_and_tight_above_the_face() {
         let mut rng = SceneRng::new(7);
-        let v = |rng: &mut SceneRng, s: f32| {
-            Vec3::new(rng.unit() - 0.5, rng.unit() - 0.5, rng.unit() - 0.5) * s
-        };
+        // Uniform in the cube of side `s` around the origin.
+        let v = |rng: &mut SceneRng, s: f32| rng.vec3(-0.5 * s, 0.5 * s);
         let (mut above, mut bounded) = (0, 0);
         for round in 0..5_000 {
             let scale = [1e-4, 1.0, 1e4][round % 3];
