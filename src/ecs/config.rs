@@ -219,7 +219,10 @@ pub struct TraceConfig {
     /// Which structure answers rays, for meshes without a [`TraceStructure`]; [`Structure::Bvh`] by
     /// default.
     pub structure: Structure,
-    /// Options of the grids of meshes kept as grids.
+    /// Options of the grids of meshes kept as grids. Out of range (a λ that is not finite and positive, a
+    /// zero macrocell), every mesh kept as a grid fails with a [`TraceError`](super::TraceError) holding
+    /// [`Error::InvalidOption`](crate::Error::InvalidOption) and is not queried until the options are
+    /// fixed and the error component removed.
     pub grid: GridOptions,
     /// Let [`TraceMode::GpuWhenAvailable`] use a software adapter (false by default; read when the plugin
     /// is built).

@@ -412,7 +412,9 @@ impl TraceWorld {
         }
     }
 
-    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts.
+    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts. `None`
+    /// for an invalid ray ([`Ray::is_valid`]: non-finite origin or direction, zero direction, NaN range)
+    /// and for a NaN `max_t`.
     pub fn cast_ray(&self, ray: &Ray, max_t: f32, filter: &QueryFilter) -> Option<RayHit> {
         self.cast(ray, max_t, filter, None)
     }
@@ -435,7 +437,7 @@ impl TraceWorld {
         filter: &QueryFilter,
         stats: Option<&mut TraversalStats>,
     ) -> Option<RayHit> {
-        let ray = Ray::with_range(ray.origin, ray.dir(), ray.tmin, ray.tmax.min(max_t));
+        let ray = ray.clipped(max_t);
         if !ray.is_valid() {
             return None;
         }
