@@ -309,8 +309,10 @@ fn crsh_shapes_answer_as_brute_force() {
 
 #[test]
 fn planner_picks_per_batch_and_answers_stay_exact() {
-    // The default policy: the batch planner needs no adaptive rebuild policy.
+    // The default policy: the batch planner needs no adaptive rebuild policy. The scene's batches are
+    // far below MIN_TRIED_RAYS: tries on every batch.
     let (mut world, mut schedule) = app_with(TraceConfig::default());
+    world.insert_resource(SecondaryRays::default().tries_from(0));
     let scene = Scene::spawn(&mut world);
     let mut r = rng(21);
     let mut picked = Vec::new();
@@ -351,6 +353,37 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
             )),
         "{picked:?}"
     );
+}
+
+#[test]
+fn small_batches_try_nothing() {
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    let scene = Scene::spawn(&mut world);
+    let mut r = rng(21);
+    for f in 0..8 {
+        scene.animate(&mut world, f as f32 * 0.2);
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let requests = scene.requests(&world, &mut r);
+        assert!(requests.len() < MIN_TRIED_RAYS);
+        let results = run(&mut world, &mut schedule, &requests);
+        if f % 4 == 3 {
+            check(&mut world, &requests, &results, &format!("frame {f}"));
+        }
+        let stats = world.resource::<TraceStats>();
+        let picks: Vec<_> = (stats.options.iter())
+            .filter_map(|o| match o.option {
+                PlannedOption::Secondary(_, s) => Some((s, o.tried)),
+                _ => None,
+            })
+            .collect();
+        // Both batches planned, neither tried: the BVH, learned.
+        assert_eq!(picks.len(), 2, "frame {f}: {picks:?}");
+        assert!(
+            (picks.iter()).all(|&p| p == (SecondaryStrategy::Bvh, false)),
+            "frame {f}: {picks:?}"
+        );
+    }
 }
 
 #[test]
