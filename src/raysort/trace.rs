@@ -13,8 +13,9 @@
 //!   packet never mixes origin cells or direction blocks; sorted on those high bits only
 //!   ([`SortedRays::sort_above`]: 30 ns a ray against the full sort's 36, ties left in pixel order, which
 //!   traverses 4–6% faster than full key order). Reflection rays on the crowd (6,400 triangles, one
-//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.06–1.09× the BVH in pixel order at
-//!   1024², 0.85–0.88× at 512² (traversal alone 1.3× and 1.0×). On a crowd of 192,000 triangles, 0.99×
+//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.01–1.05× the BVH in pixel order
+//!   (single rays through the 4-wide tree, as the packets) at 1024², 0.84–0.88× at 512² (traversal
+//!   alone 1.2× and 0.95–0.99×). On a crowd of 192,000 triangles, 0.99×
 //!   before the sort: pixel order is already coherent.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
