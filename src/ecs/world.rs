@@ -24,6 +24,9 @@ pub(crate) struct Instance {
     pub inverse: Affine3A,
     /// Inverse transpose of the linear part, for normals.
     pub normal_matrix: Mat3A,
+    /// The transform's scale when it is a similarity (shape queries then go into the mesh's frame), else
+    /// `None` (see `shape_queries`): worked out with the transform, not per query.
+    pub similar_scale: Option<f32>,
     pub world_bounds: Aabb,
     pub layers: u32,
     pub frames_since_rebuild: u32,
@@ -113,6 +116,7 @@ impl Instance {
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
             normal_matrix: Mat3A::IDENTITY,
+            similar_scale: Some(1.0),
             world_bounds: Aabb::EMPTY,
             layers: u32::MAX,
             frames_since_rebuild: 0,
@@ -135,6 +139,7 @@ impl Instance {
         self.transform = t;
         self.inverse = t.inverse();
         self.normal_matrix = self.inverse.matrix3.transpose();
+        self.similar_scale = super::shape_queries::similarity_scale(&t);
         self.update_world_bounds();
     }
 
