@@ -4,7 +4,10 @@
 //! `TriMesh::set_vertices` (a refit of its BVH; for containment also its pseudo-normals, which its
 //! inside test needs). Throughput counts refit + queries. The `ecs batch` rows ask the same closest points
 //! and sphere overlaps through a `bevy_ecs` world ([`ShapeQueue`] answered in the plugin's schedule, which
-//! also maintains the mesh from its new `VertexPositions`), against the same parry rows.
+//! also maintains the mesh from its new `VertexPositions`), against the same parry rows. The plugin runs
+//! with its default settings, what a user gets: Lauterbach's rule and `TraceConfig::builder`'s LBVH tree
+//! (the direct rows build binned SAH). Under `RebuildPolicy::ADAPTIVE` the planner would choose the tree
+//! from the measured query time (docs/BENCHMARKS.md, issue 18, for what it chose here).
 //!
 //! For profiling (callgrind counts instructions, not time, so a loaded machine does not matter),
 //! `KINETRACE_QUERY_ROWS` keeps only the rows named in it (comma-separated, e.g. `closest point,ecs batch
@@ -320,9 +323,12 @@ fn ecs_frames(
             VertexPositions(rest.positions().to_vec()),
         ))
         .id();
-    // The first frame builds the tree, as the immediate side's build before its clock starts.
-    schedule.run(&mut world);
-    world.clear_trackers();
+    // The first frame builds the tree and the second profiles the new mesh (the characteriser runs
+    // before maintenance), as the immediate side's build before its clock starts: once per mesh.
+    for _ in 0..2 {
+        schedule.run(&mut world);
+        world.clear_trackers();
+    }
     let mut answers = 0;
     let t = Instant::now();
     for pos in poses {
