@@ -134,9 +134,9 @@ impl Choice<SecondaryStrategy> {
 /// How secondary batches are traced: a fixed strategy, or (the default) the strategy each batch's
 /// planner ([`Choice`]) learns is cheapest from the measured seconds per ray of each, whatever the
 /// rebuild policy: it needs only the batch's own time (the pick is in [`TraceStats::options`] as
-/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorting strategies are tried (at
-/// most three frames each unless they measure cheaper, only on batches of [`MIN_TRIED_RAYS`] or more), the sort. The plugin inserts the default; replace
-/// the resource to change it. CPU query path only: when a GPU mode answers the batched queries, the GPU
+/// [`PlannedOption::Secondary`]). Costs a clock read per batch and, while the sorting strategies are
+/// tried (at most three frames each unless they measure cheaper, only on batches of [`MIN_TRIED_RAYS`]
+/// or more), the sort. The plugin inserts the default; replace the resource to change it. CPU query path only: when a GPU mode answers the batched queries, the GPU
 /// answers secondary requests too, in request order, and nothing is planned.
 #[derive(Resource, Clone, Debug)]
 pub struct SecondaryRays {
