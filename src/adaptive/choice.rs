@@ -168,7 +168,7 @@ impl<T: Copy + PartialEq> Choice<T> {
 
     /// This choice, re-trying stale estimates (see the module docs): for a choice whose options'
     /// costs drift apart as a scene changes (a BVH against a grid over an explosion). Costs nothing
-    /// while the option in use's cost holds within [`MIN_GAIN`] of what it was when the others were
+    /// while the option in use's cost holds within 15% of what it was when the others were
     /// measured; a re-try costs up to three frames of the other option.
     pub fn retry_stale(self) -> Self {
         Choice {
@@ -208,8 +208,8 @@ impl<T: Copy + PartialEq> Choice<T> {
     }
 
     /// Learns a frame of `option`: `units` of work served in `seconds` (ignored unless `units` > 0, the
-    /// time is finite and not negative, and `option` is one of the choice's; a stall is clipped, see
-    /// [`STALL`]).
+    /// time is finite and not negative, and `option` is one of the choice's; a sample above four
+    /// times the mean is clipped, taken for a stall of the machine).
     pub fn served(&mut self, option: T, units: f64, seconds: f64) {
         if units > 0.0
             && seconds.is_finite()
@@ -224,8 +224,8 @@ impl<T: Copy + PartialEq> Choice<T> {
         }
     }
 
-    /// Learns a frame of `option`'s overhead: the seconds it added to keeping the mesh current (a stall
-    /// clipped, see [`STALL`]).
+    /// Learns a frame of `option`'s overhead: the seconds it added to keeping the mesh current (a sample
+    /// above four times the mean clipped, taken for a stall of the machine).
     pub fn kept(&mut self, option: T, seconds: f64) {
         if seconds.is_finite()
             && seconds >= 0.0
@@ -302,7 +302,7 @@ impl<T: Copy + PartialEq> Choice<T> {
 
     /// The option to use for a frame with `units` of work: among the measured options the cheapest
     /// predicted, the one chosen before kept unless another beats it by `z` standard deviations of the
-    /// difference of their means and by [`MIN_GAIN`]; or an
+    /// difference of their means and by 15%; or an
     /// option measured fewer than three times whose optimistic prediction beats that (tried: once
     /// measured, it is chosen only if it beats the kept one by the margin like any other).
     pub fn decide(&mut self, units: f64) -> T {
@@ -506,7 +506,7 @@ impl Choice<StructureKind> {
     /// the grid frames' learned seconds per triangle. A try must pay for itself over the horizon
     /// (`worth_trying`); stale estimates are re-tried ([`retry_stale`](Self::retry_stale)).
     ///
-    /// Why the BVH first, whatever the rule picked: with [`MIN_GAIN`]'s hysteresis the structure in use
+    /// Why the BVH first, whatever the rule picked: with the 15% hysteresis the structure in use
     /// is kept against one measured up to 15% cheaper, so the first one should be the one that costs
     /// least where the rule is wrong. On time the rule's grid picks were all wrong at 20k triangles on an
     /// idle machine (stop 26: lauterbach-0.4 the best fixed structure on the soup, the explosion and the

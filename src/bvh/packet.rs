@@ -148,8 +148,8 @@ pub(super) struct Packet<'a> {
 
 impl MeshBvh {
     /// [`closest_hit`](Self::closest_hit) for every ray of `rays`, traced as packets of up to
-    /// [`MAX_PACKET`] consecutive rays (see the [module docs](self) for the scheme and when a packet is
-    /// traced ray by ray). `out` must be as long as `rays`; single-threaded (see
+    /// [`MAX_PACKET`] consecutive rays (each node culled for the whole packet by interval arithmetic; a
+    /// packet whose rays share no direction sign on any axis is traced ray by ray). `out` must be as long as `rays`; single-threaded (see
     /// [`closest_hits_packets`](Self::closest_hits_packets)).
     pub fn closest_hits_packet(
         &self,

@@ -1,6 +1,6 @@
 //! The GPU-resident frame ([`TraceConfig::resident`]): in a GPU mode that found an adapter, one
 //! submission per frame skins every GPU-skinned mesh, refits or rebuilds every changed tree, builds the top
-//! level, answers the batched rays and shadow rays ([`crate::gpu::ResidentScene`]) and traverses the pairs
+//! level, answers the batched rays and shadow rays (the GPU's resident scene) and traverses the pairs
 //! of [`Collider`]s, whose exact tests run on the CPU when the answers come back (`gpu_collide`): contacts
 //! arrive with the ray answers, [`GpuOnly`] colliders included.
 //!
@@ -34,7 +34,7 @@
 //! **GPU phase times**: on a device with timestamp queries, [`TraceStats::gpu_phases`] holds the GPU time of
 //! each phase (maintenance, top level, queries, collider pairs) of the frame whose answers were published.
 //!
-//! **Immediate queries and other CPU features** ([`SpatialRays`](super::SpatialRays), requests with a
+//! **Immediate queries and other CPU features** ([`SpatialRays`], requests with a
 //! predicate or several exclusions, shape and sound queries) read the CPU's trees. By default
 //! every entity keeps a CPU mirror: the CPU skins and maintains it as in [`TraceMode::Cpu`], so those
 //! features see the same geometry as the GPU — at the CPU mode's cost of skinning and maintenance per

@@ -37,7 +37,7 @@ pub struct PlocBuildCounts {
 /// bytes per triangle, see [`GpuMeshBvh`]) and nothing per triangle beyond them: the clustering state
 /// (cluster boxes 64 over `2n - 1` ids, the cluster list in the unused fourth word of the first `n`
 /// boxes' minima, the survivors' list, neighbours and scan offsets 12, merge links 8) lives in that
-/// tree's buffers that the sort leaves free ([`GpuMeshBvh::ploc_scratch`]); only the scan's block sums
+/// tree's buffers that the sort leaves free (`GpuMeshBvh`'s PLOC scratch); only the scan's block sums
 /// (4 bytes per 256 triangles) and a few words of state are its own.
 pub struct GpuPloc {
     lbvh: GpuMeshBvh,

@@ -41,7 +41,8 @@ type Best = Option<(f32, u32, f32, f32)>;
 
 impl UniformGrid {
     /// [`closest_hit`](Self::closest_hit) for every ray of `rays`, traced as packets of up to [`MAX_PACKET`]
-    /// consecutive rays (see the [module docs](self) for when a packet falls back to single rays).
+    /// consecutive rays (a packet whose directions do not share a sign on their major axis, that
+    /// holds a far ray, or whose slopes spread too wide is traced ray by ray).
     /// `out` must be as long as `rays`; single-threaded (see [`closest_hits_packets`](Self::closest_hits_packets)).
     pub fn closest_hits_packet(
         &self,

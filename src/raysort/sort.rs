@@ -8,9 +8,10 @@
 //! its buffers have grown to the batch; [`sort_rays`] allocates them afresh.
 //!
 //! [`SortedRays::sort_above`] sorts on the key's high bits only, for callers that read nothing below them
-//! (sorted runs cut their packets on the bits above [`RUN_LOW_BITS`]): rays of equal high bits keep their
-//! request order, which in a camera's pixel order is already coherent, the chunks of equal high bits in
-//! request order are longer, and the radix sort needs fewer passes (two 11-bit passes for 22 bits).
+//! (sorted runs cut their packets on the bits above [`RUN_LOW_BITS`](super::RUN_LOW_BITS)): rays of equal
+//! high bits keep their request order, which in a camera's pixel order is already coherent, the chunks of
+//! equal high bits in request order are longer, and the radix sort needs fewer passes (two 11-bit passes for
+//! 22 bits).
 
 use super::{KeyLayout, SecondaryRay};
 use crate::bvh::radix_sort::{RadixScratch, sort_by_bits_with};

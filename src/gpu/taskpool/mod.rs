@@ -9,7 +9,7 @@
 //! # Bounded rounds, bounded claims
 //!
 //! WGSL promises no forward progress between workgroups, so no invocation here ever waits for another: a
-//! round is a fixed sequence of dispatches (plan, the crate's [scan](super::scan), size, work, advance,
+//! round is a fixed sequence of dispatches (plan, the crate's scan, size, work, advance,
 //! finish). `size` reads the round's chunk total and sizes the work dispatch so that its invocations, each
 //! claiming at most a few chunks (4) from one atomic cursor, cover every chunk; an invocation that finds no
 //! chunk left leaves. Phase changes and child insertion read chunk results only in the next dispatch, after
