@@ -164,7 +164,7 @@ impl WideBvh {
 }
 
 /// The lane discs of a mesh's wide tree, fitted on the first proximity query after its triangles changed,
-/// so that meshes that only answer rays never pay for them. Fitting costs about two thirds of a refit
+/// so that meshes that only answer rays never pay for them. Fitting costs about three fifths of a refit's time
 /// (one pass over the wide nodes and their leaves' triangles, four lanes at a time); the discs take 128
 /// bytes per wide node, about 51 per triangle.
 #[derive(Default)]
