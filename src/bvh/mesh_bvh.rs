@@ -7,7 +7,7 @@ use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_node
 use crate::geometry::{Aabb, Ray, TriangleRay};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -111,7 +111,9 @@ pub(crate) fn is_collapsed(t: &[Vec3; 3]) -> bool {
 /// cross product in `f32`), so that rounding in the ray's frame can never turn a degenerate triangle into a hit.
 #[inline]
 pub(crate) fn query_corners(t: [Vec3; 3]) -> [Vec3; 3] {
-    if (t[1] - t[0]).cross(t[2] - t[0]) == Vec3::ZERO {
+    // In SIMD lanes: the same products and differences as `Vec3`'s, a third of the instructions.
+    let [a, b, c] = t.map(Vec3A::from);
+    if (b - a).cross(c - a) == Vec3A::ZERO {
         [t[0]; 3]
     } else {
         t
@@ -260,9 +262,10 @@ impl MeshBvh {
             // The vertices stay in cache: read them in leaf order, straight into the node pass.
             let (tris, idx) = (&mut self.tris, &self.slot_indices);
             let d = refit_nodes(&mut self.bvh.nodes, |slot| {
-                let [a, b, c] = idx[slot].map(|i| positions[i as usize]);
-                tris[slot] = query_corners([a, b, c]);
-                Aabb::from_triangle(a, b, c)
+                let t = idx[slot].map(|i| positions[i as usize]);
+                tris[slot] = query_corners(t);
+                let [a, b, c] = t.map(Vec3A::from);
+                (a.min(b).min(c), a.max(b).max(c))
             });
             return Ok(self.refit_wide(d));
         }
@@ -275,7 +278,7 @@ impl MeshBvh {
             self.slot_bounds[slot] = Aabb::from_triangle(a, b, c);
         }
         let boxes = &self.slot_bounds;
-        let d = refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot]);
+        let d = refit_nodes(&mut self.bvh.nodes, |slot| boxes[slot].lanes());
         Ok(self.refit_wide(d))
     }
 

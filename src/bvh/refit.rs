@@ -10,8 +10,9 @@
 //! the thesis rebuilds above 0.40. Differences are signed, as in the thesis (a node can also get tighter).
 
 use super::{Bvh, Node};
-use crate::geometry::{Aabb, sa_ratio};
+use crate::geometry::{Aabb, sa_ratio, sa_ratio_of_extents};
 use crate::{Error, Result};
+use glam::Vec3A;
 
 impl Bvh {
     /// Refits to new primitive boxes (indexed by primitive id, as given to [`Bvh::build`]) and returns the
@@ -23,7 +24,7 @@ impl Bvh {
         self.check_bounds(prim_bounds)?;
         let prims = &self.prims;
         Ok(refit_nodes(&mut self.nodes, |slot| {
-            prim_bounds[prims[slot] as usize]
+            prim_bounds[prims[slot] as usize].lanes()
         }))
     }
 
@@ -57,21 +58,35 @@ impl Bvh {
     }
 }
 
-/// Recomputes all boxes of `nodes` from `slot_bounds(slot)` at the leaves; returns the degradation metric.
-/// Build-time ratios are kept.
-pub(crate) fn refit_nodes(nodes: &mut [Node], mut slot_bounds: impl FnMut(usize) -> Aabb) -> f32 {
+/// Recomputes all boxes of `nodes` from `slot_bounds(slot)` (a box's minimum and maximum corners) at the
+/// leaves; returns the degradation metric. Build-time ratios are kept. The boxes are combined in SIMD
+/// lanes: `min`/`max` and [`sa_ratio`]'s arithmetic round per lane exactly as the scalar forms do, so
+/// the boxes and the metric are those of the scalar pass, bit for bit.
+pub(crate) fn refit_nodes(
+    nodes: &mut [Node],
+    mut slot_bounds: impl FnMut(usize) -> (Vec3A, Vec3A),
+) -> f32 {
     let mut sum = 0f64;
     for i in (0..nodes.len()).rev() {
         let n = nodes[i];
-        if n.is_leaf() {
-            let b = n.slots().fold(Aabb::EMPTY, |b, s| b.union(&slot_bounds(s)));
-            nodes[i].set_aabb(&b);
+        let (min, max) = if n.is_leaf() {
+            let mut slots = n.slots();
+            // A leaf holds at least one slot.
+            let first = slot_bounds(slots.next().unwrap_or(0));
+            slots.fold(first, |(lo, hi), s| {
+                let (l, h) = slot_bounds(s);
+                (lo.min(l), hi.max(h))
+            })
         } else {
-            let (l, r) = (nodes[n.left()].aabb(), nodes[n.left() + 1].aabb());
-            let b = l.union(&r);
-            sum += (sa_ratio(&b, &l, &r) - n.sa_ratio) as f64;
-            nodes[i].set_aabb(&b);
-        }
+            let (l, r) = (&nodes[n.left()], &nodes[n.left() + 1]);
+            let (lmin, lmax) = (Vec3A::from_array(l.min), Vec3A::from_array(l.max));
+            let (rmin, rmax) = (Vec3A::from_array(r.min), Vec3A::from_array(r.max));
+            let (min, max) = (lmin.min(rmin), lmax.max(rmax));
+            sum += f64::from(sa_ratio_of_extents(max - min, lmax - lmin, rmax - rmin) - n.sa_ratio);
+            (min, max)
+        };
+        nodes[i].min = min.to_array();
+        nodes[i].max = max.to_array();
     }
     normalise(sum, nodes)
 }

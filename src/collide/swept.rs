@@ -88,7 +88,7 @@ impl SweptMesh {
         let (tris, idx) = (&mut self.tris, &self.slot_indices);
         Ok(refit_nodes(self.bvh.nodes_mut(), |slot| {
             tris[slot] = corners(&idx[slot], prev, curr);
-            swept_box(&idx[slot], prev, curr)
+            swept_box(&idx[slot], prev, curr).lanes()
         }))
     }
 

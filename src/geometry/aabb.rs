@@ -1,6 +1,6 @@
 //! Axis-aligned bounding boxes.
 
-use glam::Vec3;
+use glam::{Vec3, Vec3A, Vec3Swizzles};
 
 /// An axis-aligned box, `min <= max` on every axis when non-empty.
 ///
@@ -63,6 +63,12 @@ impl Aabb {
     #[inline]
     pub fn is_empty(&self) -> bool {
         self.min.cmpgt(self.max).any()
+    }
+
+    /// The corners as SIMD lanes (`min`, `max`), as a refit combines boxes.
+    #[inline]
+    pub(crate) fn lanes(&self) -> (Vec3A, Vec3A) {
+        (self.min.into(), self.max.into())
     }
 
     /// The smallest box holding both.
@@ -158,19 +164,31 @@ impl Aabb {
 /// [`MAX_SA_RATIO`], the same cap that bounds every other ratio. The GPU refit computes the same expression.
 #[inline]
 pub fn sa_ratio(parent: &Aabb, left: &Aabb, right: &Aabb) -> f32 {
-    let pe = parent.extent();
+    sa_ratio_of_extents(
+        parent.extent().into(),
+        left.extent().into(),
+        right.extent().into(),
+    )
+}
+
+/// [`sa_ratio`] from the three boxes' extents, in SIMD lanes (a refit has its boxes in them): the same
+/// operations in the same order, so the same bits.
+#[inline]
+pub(crate) fn sa_ratio_of_extents(pe: Vec3A, le: Vec3A, re: Vec3A) -> f32 {
     let scale = pe.max_element();
     if scale.is_nan() || scale <= 0.0 || scale.is_infinite() {
         // A point (or extents past f32::MAX, which only coordinates near ±3e38 produce): nothing to compare.
         return 1.0;
     }
     let inv = 1.0 / scale;
-    let ha = |e: Vec3| {
-        let e = (e * inv).max(Vec3::ZERO);
-        e.x * e.y + e.y * e.z + e.z * e.x
+    let ha = |e: Vec3A| {
+        let e = (e * inv).max(Vec3A::ZERO);
+        // `x·y + y·z + z·x`, summed left to right.
+        let p = e * e.yzx();
+        p.x + p.y + p.z
     };
     let sp = ha(pe);
-    let sc = ha(left.extent()) + ha(right.extent());
+    let sc = ha(le) + ha(re);
     if sp <= 0.0 {
         // A flat line segment: every box involved has zero area, nothing to compare.
         return 1.0;

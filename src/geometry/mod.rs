@@ -8,6 +8,7 @@ mod ray;
 mod transform;
 mod triangle;
 
+pub(crate) use aabb::sa_ratio_of_extents;
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
 pub(crate) use morton::spread10;
 pub use morton::{morton30, morton30_cube, morton63};

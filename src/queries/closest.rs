@@ -231,7 +231,7 @@ impl MeshBvh {
     /// Cost: nearest-first descent of the wide tree when the mesh has one (else the binary tree): per node,
     /// four box distances and four disc bounds in one SIMD test each (a flat disc around each leaf's
     /// triangles, far tighter than their box; fitted on the first closest-point query after a build or
-    /// refit, about two thirds of a refit's time, 128 bytes per wide node); about `log
+    /// refit, about three fifths of a refit's time, 128 bytes per wide node); about `log
     /// n` nodes and a handful of triangles for a point near the surface, more for a point almost
     /// equidistant from a band of the surface (near a torus's axis: hundreds of leaves). Past eight leaves,
     /// triangles are first ruled out four at a time by a conservative `f32` bound. On the 20k-triangle

@@ -15,8 +15,8 @@
 //! Cost: fitting is one pass over the wide nodes and the leaves' triangles (O(n)); a query pays about as
 //! much again as the four-box distance test per node, and skips most leaves it would have opened.
 
-use super::{MAX_WIDE_LEAF, WIDTH, WideBvh, is_leaf, leaf_slots};
-use glam::{BVec4A, Vec3, Vec4};
+use super::{EMPTY_LANE, WIDTH, WideBvh, is_leaf, leaf_slots};
+use glam::{Vec3, Vec4};
 use std::fmt;
 use std::ops::Range;
 use std::sync::{Mutex, OnceLock, PoisonError};
@@ -63,22 +63,16 @@ fn dot(v: &V4, w: &V4) -> Vec4 {
     v[0] * w[0] + v[1] * w[1] + v[2] * w[2]
 }
 
-/// The `j`-th triangle of each lane's `slots` as lanes (corner, axis; zeros where a lane has none), and the
-/// lanes that have one.
+/// The `j`-th triangle of each lane as lanes (corner, axis), read straight from `tris`: lane `i`'s slot
+/// `first[i] + j`, or its `last[i]` past its end (a lane without a leaf reads slot 0, any triangle: its
+/// lane is masked out). No per-lane branch and no detour through memory (assembling the lanes from a
+/// stack copy stalled on store forwarding, the fit's largest cost).
 #[inline(always)]
-fn round(tris: &[[Vec3; 3]], slots: &[Range<usize>; WIDTH], j: usize) -> ([V4; 3], BVec4A) {
-    let has: [bool; WIDTH] = std::array::from_fn(|i| slots[i].start + j < slots[i].end);
-    let t: [[Vec3; 3]; WIDTH] = std::array::from_fn(|i| {
-        if has[i] {
-            tris[slots[i].start + j]
-        } else {
-            [Vec3::ZERO; 3]
-        }
-    });
-    let rows = std::array::from_fn(|k| {
+fn round(tris: &[[Vec3; 3]], first: &[usize; WIDTH], last: &[usize; WIDTH], j: usize) -> [V4; 3] {
+    let t: [&[Vec3; 3]; WIDTH] = std::array::from_fn(|i| &tris[(first[i] + j).min(last[i])]);
+    std::array::from_fn(|k| {
         std::array::from_fn(|a| Vec4::new(t[0][k][a], t[1][k][a], t[2][k][a], t[3][k][a]))
-    });
-    (rows, BVec4A::new(has[0], has[1], has[2], has[3]))
+    })
 }
 
 /// The discs of four lanes' triangles (`slots[i]` for lane `i`, empty for a lane without a leaf), four
@@ -88,28 +82,31 @@ fn round(tris: &[[Vec3; 3]], slots: &[Range<usize>; WIDTH], j: usize) -> ([V4; 3
 /// a leaf, or whose fit overflows, gets no disc. (Absent triangles, collapsed to a point, are fitted too:
 /// a disc that holds more is still a bound.)
 fn fit4(tris: &[[Vec3; 3]], slots: &[Range<usize>; WIDTH]) -> LaneDiscs {
-    let rounds = slots.iter().map(Range::len).max().unwrap_or(0);
+    let len: [usize; WIDTH] = std::array::from_fn(|i| slots[i].len());
+    let rounds = len.into_iter().max().unwrap_or(0);
     if rounds == 0 {
         return LaneDiscs::NONE;
     }
-    let mut gathered = [([[Vec4::ZERO; 3]; 3], BVec4A::FALSE); MAX_WIDE_LEAF];
-    let (mut sum, mut normal, mut corners) = ([Vec4::ZERO; 3], [Vec4::ZERO; 3], Vec4::ZERO);
-    for (j, g) in gathered[..rounds].iter_mut().enumerate() {
-        *g = round(tris, slots, j);
-        // Lanes without a `j`-th triangle hold zeros here: they add nothing.
-        let ([a, b, c], has) = g;
+    let first = std::array::from_fn(|i| slots[i].start);
+    let last = std::array::from_fn(|i| (slots[i].start + len[i]).saturating_sub(1));
+    let count = Vec4::from_array(len.map(|l| l as f32));
+    let (mut sum, mut normal) = ([Vec4::ZERO; 3], [Vec4::ZERO; 3]);
+    for j in 0..rounds {
+        let [a, b, c] = &round(tris, &first, &last, j);
         let (e, f) = (sub(b, a), sub(c, a));
         let area = [
             e[1] * f[2] - e[2] * f[1],
             e[2] * f[0] - e[0] * f[2],
             e[0] * f[1] - e[1] * f[0],
         ];
+        // Lanes past their last triangle re-read it: counted once only.
+        let has = Vec4::splat(j as f32).cmplt(count);
         for x in 0..3 {
-            sum[x] += a[x] + b[x] + c[x];
-            normal[x] += area[x];
+            sum[x] += Vec4::select(has, a[x] + b[x] + c[x], Vec4::ZERO);
+            normal[x] += Vec4::select(has, area[x], Vec4::ZERO);
         }
-        corners += Vec4::select(*has, Vec4::splat(3.0), Vec4::ZERO);
     }
+    let corners = count * 3.0;
     let centre = sum.map(|s| s / corners);
     let inv = Vec4::ONE / dot(&normal, &normal).sqrt();
     let n = normal.map(|x| x * inv);
@@ -118,10 +115,12 @@ fn fit4(tris: &[[Vec3; 3]], slots: &[Range<usize>; WIDTH]) -> LaneDiscs {
         .cmple(Vec4::splat(MARGIN / 4.0));
     let n = n.map(|x| Vec4::select(unit, x, Vec4::ZERO));
     let (mut h, mut r2) = (Vec4::ZERO, Vec4::ZERO);
-    for (t, has) in &gathered[..rounds] {
-        for v in t {
-            // A lane without this triangle is taken at its centre: no distance.
-            let r = std::array::from_fn(|x| Vec4::select(*has, v[x] - centre[x], Vec4::ZERO));
+    // The triangles are read again (in cache), cheaper than zeroing room for eight rounds. A lane's
+    // re-read last triangle changes no maximum; a lane without a leaf has no centre (0 / 0) and gets no
+    // disc below.
+    for j in 0..rounds {
+        for v in &round(tris, &first, &last, j) {
+            let r = std::array::from_fn(|x| v[x] - centre[x]);
             h = h.max(dot(&r, &n).abs());
             r2 = r2.max(dot(&r, &r));
         }
@@ -153,12 +152,11 @@ impl WideBvh {
     pub(crate) fn fit_discs(&self, tris: &[[Vec3; 3]], out: &mut Vec<LaneDiscs>) {
         out.clear();
         out.extend(self.nodes.iter().map(|node| {
+            // A lane that is not a leaf gets no slots: `0..0` by multiplication, without a branch.
             let slots = node.child.map(|c| {
-                if c != super::EMPTY_LANE && is_leaf(c) {
-                    leaf_slots(c)
-                } else {
-                    0..0
-                }
+                let s = leaf_slots(c);
+                let leaf = usize::from((c != EMPTY_LANE) & is_leaf(c));
+                s.start * leaf..s.end * leaf
             });
             fit4(tris, &slots)
         }));
@@ -166,7 +164,7 @@ impl WideBvh {
 }
 
 /// The lane discs of a mesh's wide tree, fitted on the first proximity query after its triangles changed,
-/// so that meshes that only answer rays never pay for them. Fitting costs about two thirds of a refit
+/// so that meshes that only answer rays never pay for them. Fitting costs about three fifths of a refit's time
 /// (one pass over the wide nodes and their leaves' triangles, four lanes at a time); the discs take 128
 /// bytes per wide node, about 51 per triangle.
 #[derive(Default)]
