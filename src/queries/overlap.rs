@@ -1,6 +1,5 @@
 //! Which triangles of a mesh a shape overlaps.
 
-use super::closest::present;
 use super::frame::Frame;
 use super::shapes::{OverlapTest, Shape};
 use crate::MeshBvh;
@@ -59,7 +58,9 @@ impl MeshBvh {
                 }
                 return;
             }
-            for (slot, t) in present(tris, slots, frame) {
+            // The frame by reference: `present` would copy it (13 words) into each leaf's iterator.
+            for slot in slots.filter(|&s| !is_collapsed(&tris[s])) {
+                let t = frame.triangle(&tris[slot]);
                 // The triangle's box against the shape's (conservative) box first: exact comparisons.
                 let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
                 let reach = lo.cmple(bounds.max.as_dvec3()) & hi.cmpge(bounds.min.as_dvec3());
