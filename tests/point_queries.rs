@@ -705,6 +705,40 @@ fn capsule_and_box_overlaps_agree_with_parry() {
     }
 }
 
+/// Shapes that hold whole subtrees of the wide tree (reported without a test per triangle): a ball or a
+/// turned box around the whole mesh reports every present triangle and no absent one (the analytic answer),
+/// and so does the binary walk, which tests every triangle.
+#[test]
+fn shapes_around_the_whole_mesh_report_every_present_triangle() {
+    for (name, m) in scenes() {
+        let (lo, hi) = m
+            .positions()
+            .iter()
+            .fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &p| {
+                (lo.min(p), hi.max(p))
+            });
+        let (c, half) = ((lo + hi) * 0.5, (hi - lo) * 0.5);
+        let want: Vec<u32> = (0..m.triangle_count() as u32)
+            .filter(|&i| !absent(m.triangle(i as usize)))
+            .collect();
+        // Room for the f32 rounding of the centre at the scene's magnitude.
+        let room = (half.length() + scale(&m) as f32 * 1e-5) * 1.01;
+        let q = Quat::from_axis_angle(Vec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
+        for shape in [
+            Shape::sphere(c, room),
+            Shape::cuboid(c, Vec3::splat(room), q),
+            Shape::cuboid(c, half * 1.01 + scale(&m) as f32 * 1e-5, Quat::IDENTITY),
+        ] {
+            for wide in [true, false] {
+                let bvh = MeshBvh::build(&m, &BuildOptions::default().wide(wide)).unwrap();
+                let mut out = Vec::new();
+                bvh.overlapping(&shape, &mut out);
+                assert_eq!(out, want, "{name} wide {wide}: {shape:?}");
+            }
+        }
+    }
+}
+
 #[test]
 fn invalid_shapes_overlap_nothing() {
     let bvh = MeshBvh::build(&icosphere(1), &BuildOptions::default()).unwrap();

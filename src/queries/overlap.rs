@@ -1,10 +1,10 @@
 //! Which triangles of a mesh a shape overlaps.
 
-use super::closest::present;
 use super::frame::Frame;
-use super::shapes::Shape;
+use super::shapes::{OverlapTest, Shape};
 use crate::MeshBvh;
-use crate::bvh::traverse_by;
+use crate::bvh::{is_collapsed, traverse_by};
+use std::ops::Range;
 
 impl MeshBvh {
     /// Writes into `out` (cleared first) the primitive indices of the triangles that the closed `shape`
@@ -17,7 +17,10 @@ impl MeshBvh {
     ///
     /// Cost: a traversal of the boxes that overlap the shape's bounding box (for a sphere on the wide tree:
     /// the boxes within its radius), four boxes per test when the mesh has a wide tree, one exact test per
-    /// triangle in them, and a sort of the result. No allocation once `out` has grown to the result's size.
+    /// triangle in them, and a sort of the result. On the wide tree a subtree whose box lies inside a sphere
+    /// or box is reported whole, without tests below it (the same answer: every triangle in it passes the
+    /// exact test); a box's test accepts a triangle with a corner well inside it before its separating
+    /// axes. No allocation once `out` has grown to the result's size.
     ///
     /// ```
     /// use kinetrace::{Mesh, MeshBvh, bvh::BuildOptions, queries::Shape};
@@ -43,25 +46,42 @@ impl MeshBvh {
             return;
         }
         let bounds = shape.bounds();
+        let test = OverlapTest::new(shape);
         let tris = self.slot_triangles();
         let prims = self.bvh().prim_indices();
-        let mut visit = |slots| {
-            for (slot, t) in present(tris, slots, frame) {
+        // A leaf's slots, and whether the walk found the leaf inside the shape: every present triangle of
+        // such a leaf overlaps, by the exact test below too (see `walk_within`, `OverlapTest::holds`).
+        let mut visit = |slots: Range<usize>, whole: bool| {
+            if whole {
+                for slot in slots.filter(|&s| !is_collapsed(&tris[s])) {
+                    found(prims[slot]);
+                }
+                return;
+            }
+            // The frame by reference: `present` would copy it (13 words) into each leaf's iterator.
+            for slot in slots.filter(|&s| !is_collapsed(&tris[s])) {
+                let t = frame.triangle(&tris[slot]);
                 // The triangle's box against the shape's (conservative) box first: exact comparisons.
                 let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
                 let reach = lo.cmple(bounds.max.as_dvec3()) & hi.cmpge(bounds.min.as_dvec3());
-                if reach.all() && shape.overlaps_triangle(t) {
+                if reach.all() && test.triangle(t) {
                     found(prims[slot]);
                 }
             }
         };
         match (frame, self.wide()) {
             // In the mesh's frame the wide tree's lanes are the boxes as stored: four at a time.
+            // A ball's whole leaves lie within `r·(1 − 4·10⁻⁷)` of its centre: their corners pass the
+            // corner test (exact to 10⁻¹⁵) and lie in the ball's box.
             (Frame::Mesh, Some(wide)) => match *shape {
                 Shape::Sphere { center, radius } => {
                     wide.walk_within(center, f64::from(radius).powi(2), visit)
                 }
-                _ => wide.walk_overlapping(&bounds, visit),
+                _ => wide.walk_overlapping(
+                    &bounds,
+                    |b| test.holds(b) && bounds.contains_box(b),
+                    visit,
+                ),
             },
             _ => traverse_by(
                 self.bvh().nodes(),
@@ -69,7 +89,7 @@ impl MeshBvh {
                 &mut (),
                 |n, _| frame.node_box(n).overlaps(&bounds).then_some(()),
                 |slots, _| {
-                    visit(slots);
+                    visit(slots, false);
                     false
                 },
             ),

@@ -97,27 +97,83 @@ impl Shape {
         };
         widen(b)
     }
+}
 
-    /// Whether the closed shape and the closed triangle share a point, decided in `f64`.
-    pub(crate) fn overlaps_triangle(&self, t: [DVec3; 3]) -> bool {
-        match *self {
-            Shape::Sphere { center, radius } => {
-                let (c, r) = (center.as_dvec3(), f64::from(radius));
-                // A corner in the ball settles it (common when the ball is large against the triangles).
-                t.iter().any(|p| p.distance_squared(c) <= r * r)
-                    || closest_on_triangle(c, t).dist2 <= r * r
-            }
-            Shape::Capsule { a, b, radius } => {
-                let r = f64::from(radius);
-                segment_triangle_closest(a.as_dvec3(), b.as_dvec3(), t).1 <= r * r
-            }
+/// Relative margin, against the box's centre and half-extents, by which a point must lie inside an oriented
+/// box for [`OverlapTest`] to accept without the separating-axis test: far above that test's `f64` rounding
+/// (a few `2⁻⁵³` of the same magnitudes), so a point inside by it passes every axis of the test.
+const BOX_INSIDE_MARGIN: f64 = 1e-9;
+
+/// A shape made ready for the overlap tests of one query: its `f64` form (for a box, the rotation's matrix)
+/// computed once instead of per triangle.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum OverlapTest {
+    /// Centre and squared radius.
+    Ball { center: DVec3, r2: f64 },
+    /// Core segment and squared radius.
+    Capsule { a: DVec3, b: DVec3, r2: f64 },
+    /// The box and the absolute margin of [`BOX_INSIDE_MARGIN`].
+    Box { dbox: DBox, margin: f64 },
+}
+
+impl OverlapTest {
+    /// The test of `shape` (valid, [`Shape::is_valid`]).
+    pub(crate) fn new(shape: &Shape) -> OverlapTest {
+        match *shape {
+            Shape::Sphere { center, radius } => OverlapTest::Ball {
+                center: center.as_dvec3(),
+                r2: f64::from(radius) * f64::from(radius),
+            },
+            Shape::Capsule { a, b, radius } => OverlapTest::Capsule {
+                a: a.as_dvec3(),
+                b: b.as_dvec3(),
+                r2: f64::from(radius) * f64::from(radius),
+            },
             Shape::Box {
                 center,
                 half,
                 rotation,
-            } => DBox::new(center, half, rotation)
-                .sweep(DVec3::ZERO, t)
-                .is_some(),
+            } => OverlapTest::Box {
+                dbox: DBox::new(center, half, rotation),
+                margin: BOX_INSIDE_MARGIN
+                    * f64::from(center.abs().max_element() + half.max_element()),
+            },
+        }
+    }
+
+    /// Whether the closed shape and the closed triangle share a point, decided in `f64`.
+    #[inline]
+    pub(crate) fn triangle(&self, t: [DVec3; 3]) -> bool {
+        match *self {
+            // A corner in the ball settles it (common when the ball is large against the triangles); the
+            // three corners are compared without a branch each (which corner is in is a coin toss).
+            OverlapTest::Ball { center, r2 } => {
+                let d = t.map(|p| p.distance_squared(center));
+                ((d[0] <= r2) | (d[1] <= r2) | (d[2] <= r2))
+                    || closest_on_triangle(center, t).dist2 <= r2
+            }
+            OverlapTest::Capsule { a, b, r2 } => segment_triangle_closest(a, b, t).1 <= r2,
+            // A corner inside by the margin settles it: the separating-axis test would pass too.
+            OverlapTest::Box { dbox, margin } => {
+                let v = t.map(|p| dbox.local(p));
+                v.iter().any(|&x| dbox.holds(x, DVec3::ZERO, margin)) || dbox.overlaps_local(&v)
+            }
+        }
+    }
+
+    /// True when [`triangle`](Self::triangle) accepts every triangle whose corners lie in `b` (and whose box
+    /// meets the shape's): for a box when `b` lies inside it by twice the margin (then so do the triangles'
+    /// corners by the margin). Lets a whole subtree be reported without a test per triangle. Never for a
+    /// capsule, nor a ball (its walk has a four-lane test of its own, `WideBvh::walk_within`).
+    #[inline(always)]
+    pub(crate) fn holds(&self, b: &Aabb) -> bool {
+        match *self {
+            OverlapTest::Ball { .. } | OverlapTest::Capsule { .. } => false,
+            OverlapTest::Box { dbox, margin } => {
+                let (lo, hi) = (b.min.as_dvec3(), b.max.as_dvec3());
+                let extent = (dbox.axes.transpose().abs()) * ((hi - lo) * 0.5);
+                dbox.holds(dbox.local((lo + hi) * 0.5), extent, 2.0 * margin)
+            }
         }
     }
 }
@@ -207,8 +263,16 @@ impl DBox {
     }
 
     /// A world point in the box's frame.
+    #[inline]
     pub(crate) fn local(&self, p: DVec3) -> DVec3 {
         self.axes.transpose() * (p - self.center)
+    }
+
+    /// Whether the box-frame box of centre `at` and half-extents `extent` lies inside this box shrunk by
+    /// `margin` on every side.
+    #[inline]
+    fn holds(&self, at: DVec3, extent: DVec3, margin: f64) -> bool {
+        (at.abs() + extent).cmple(self.half - margin).all()
     }
 
     /// Separating-axis sweep (Eberly's method of separating axes for moving convex polyhedra) of the closed
@@ -221,7 +285,6 @@ impl DBox {
     pub(crate) fn sweep(&self, d: DVec3, t: [DVec3; 3]) -> Option<(f64, Option<DVec3>)> {
         let v = t.map(|p| self.local(p));
         let dl = self.axes.transpose() * d;
-        let edges = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
         let (mut first, mut last) = (0.0f64, f64::INFINITY);
         let mut normal = None;
         let mut axis_test = |axis: DVec3| -> bool {
@@ -249,17 +312,41 @@ impl DBox {
             last = last.min(exit);
             first <= last
         };
-        let n = edges[0].cross(edges[1]);
-        let all = [DVec3::X, DVec3::Y, DVec3::Z, n].into_iter().chain(
-            [DVec3::X, DVec3::Y, DVec3::Z]
-                .into_iter()
-                .flat_map(|a| edges.map(|e| a.cross(e))),
-        );
-        for axis in all {
+        for axis in candidate_axes(&v) {
             if !axis_test(axis) {
                 return None;
             }
         }
         Some((first, normal.filter(|_| first > 0.0)))
     }
+
+    /// Whether the closed box and the closed triangle with corners `v` (in the box's frame, [`local`]) share a
+    /// point: [`sweep`](Self::sweep) with `d = 0`, the same arithmetic on the same axes, without the
+    /// intervals of time (an axis separates when the triangle's projection misses `[-r, r]`).
+    ///
+    /// [`local`]: Self::local
+    pub(crate) fn overlaps_local(&self, v: &[DVec3; 3]) -> bool {
+        candidate_axes(v).all(|axis| {
+            if axis == DVec3::ZERO {
+                return true;
+            }
+            let p = v.map(|x| x.dot(axis));
+            let r = self.half.dot(axis.abs());
+            p[0].min(p[1]).min(p[2]) <= r && p[0].max(p[1]).max(p[2]) >= -r
+        })
+    }
+}
+
+/// The candidate separating axes of a box and a triangle with corners `v` in the box's frame, in the order
+/// they are tried: the box's three, the triangle's normal, the nine cross products of the box's axes with the
+/// triangle's edges (zero ones separate nothing).
+#[inline]
+fn candidate_axes(v: &[DVec3; 3]) -> impl Iterator<Item = DVec3> {
+    let edges = [v[1] - v[0], v[2] - v[1], v[0] - v[2]];
+    let n = edges[0].cross(edges[1]);
+    [DVec3::X, DVec3::Y, DVec3::Z, n].into_iter().chain(
+        [DVec3::X, DVec3::Y, DVec3::Z]
+            .into_iter()
+            .flat_map(move |a| edges.map(|e| a.cross(e))),
+    )
 }

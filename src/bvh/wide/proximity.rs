@@ -138,28 +138,57 @@ impl WideBvh {
     }
 
     /// Calls `leaf` with the slots of every leaf whose box overlaps `b` (touching counts), in tree order.
-    /// The same comparisons as [`Aabb::overlaps`], four lanes at a time.
-    pub(crate) fn walk_overlapping(&self, b: &Aabb, leaf: impl FnMut(Range<usize>)) {
+    /// The same comparisons as [`Aabb::overlaps`], four lanes at a time. `leaf`'s flag says that the leaf
+    /// lies in a lane (its own or an ancestor's) whose box `whole` accepted: under an accepted inner lane
+    /// every leaf is handed over without further tests.
+    pub(crate) fn walk_overlapping(
+        &self,
+        b: &Aabb,
+        whole: impl Fn(&Aabb) -> bool,
+        leaf: impl FnMut(Range<usize>, bool),
+    ) {
         // An unused lane's empty box overlaps no box with finite corners.
         let unbounded = !(b.min.is_finite() && b.max.is_finite());
-        self.walk_lanes(|node| keep_used(overlap4(node, b), node, unbounded), leaf);
-    }
-
-    /// Calls `leaf` with the slots of every leaf whose box may lie within squared distance `bound` of `p`
-    /// (a ball's leaves: tighter than its bounding box, which holds twice its volume), in tree order. `p`
-    /// must be finite.
-    pub(crate) fn walk_within(&self, p: Vec3, bound: f64, leaf: impl FnMut(Range<usize>)) {
-        let limit = bound_f32(bound);
-        let unbounded = limit == f32::INFINITY;
         self.walk_lanes(
-            |node| keep_used(dist4(node, p, limit).1, node, unbounded),
+            |node| {
+                let keep = keep_used(overlap4(node, b), node, unbounded);
+                let accepted = (0..WIDTH).fold(0, |m, i| {
+                    m | (u32::from(keep >> i & 1 != 0 && whole(&node.lane_box(i))) << i)
+                });
+                (keep, accepted)
+            },
             leaf,
         );
     }
 
-    /// Depth-first walk into the lanes `test` keeps (bit `i` for lane `i`; `test` must drop unused lanes).
+    /// Calls `leaf` with the slots of every leaf whose box may lie within squared distance `bound` of `p`
+    /// (a ball's leaves: tighter than its bounding box, which holds twice its volume), in tree order. `p`
+    /// must be finite. `leaf`'s flag says that every point of the leaf's box lies within squared distance
+    /// `bound · (1 − 9·10⁻⁷)` of `p` (exactly: the four-lane farthest-corner test keeps a margin above its
+    /// `f32` rounding); a lane that close is not opened but handed over leaf by leaf without further tests.
+    pub(crate) fn walk_within(&self, p: Vec3, bound: f64, leaf: impl FnMut(Range<usize>, bool)) {
+        let limit = bound_f32(bound);
+        let unbounded = limit == f32::INFINITY;
+        let inside = Vec4::splat((bound * (1.0 - 1e-6)) as f32);
+        self.walk_lanes(
+            |node| {
+                let keep = keep_used(dist4(node, p, limit).1, node, unbounded);
+                let far = far4(node, p) * INSIDE_SCALE + Vec4::splat(f32::MIN_POSITIVE);
+                (keep, keep & far.cmple(inside).bitmask())
+            },
+            leaf,
+        );
+    }
+
+    /// Depth-first walk into the lanes `test` keeps (its first mask, bit `i` for lane `i`; `test` must drop
+    /// unused lanes), handing `leaf` each kept leaf's slots and whether it lies under a lane of `test`'s
+    /// second mask (a subset of the first), whose subtrees are not tested further.
     #[inline(always)]
-    fn walk_lanes(&self, test: impl Fn(&WideNode) -> u32, mut leaf: impl FnMut(Range<usize>)) {
+    fn walk_lanes(
+        &self,
+        test: impl Fn(&WideNode) -> (u32, u32),
+        mut leaf: impl FnMut(Range<usize>, bool),
+    ) {
         if self.nodes.is_empty() {
             return;
         }
@@ -167,7 +196,29 @@ impl WideBvh {
         stack.push(0);
         while let Some(top) = stack.pop() {
             let node = &self.nodes[top as usize];
-            let mut mask = test(node);
+            let (mut mask, whole) = test(node);
+            while mask != 0 {
+                let i = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let (c, all) = (node.child[i], whole >> i & 1 != 0);
+                if is_leaf(c) {
+                    leaf(leaf_slots(c), all);
+                } else if all {
+                    self.each_leaf(c, |slots| leaf(slots, true));
+                } else {
+                    stack.push(c);
+                }
+            }
+        }
+    }
+
+    /// Calls `leaf` with the slots of every leaf under the inner node `root`.
+    fn each_leaf(&self, root: u32, mut leaf: impl FnMut(Range<usize>)) {
+        let mut stack = Stack::<u32, WIDE_STACK>::new();
+        stack.push(root);
+        while let Some(top) = stack.pop() {
+            let node = &self.nodes[top as usize];
+            let mut mask = used_lanes(node);
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
@@ -180,6 +231,24 @@ impl WideBvh {
             }
         }
     }
+}
+
+/// Scales the `f32` squared distance of a box's farthest corner up to an upper bound of the exact one (within
+/// `(1 + 5u)` of it, `u = 2⁻²⁴`, as [`LOWER_BOUND_SCALE`]'s; the walk adds the smallest normal `f32` for the
+/// subnormal range).
+const INSIDE_SCALE: f32 = 1.0 + 1.0 / (1 << 20) as f32;
+
+/// Each lane's squared distance from `p` to its box's farthest corner, in `f32` (unused lanes: infinite).
+#[inline(always)]
+fn far4(node: &WideNode, p: Vec3) -> Vec4 {
+    let b = &node.bounds;
+    let p = p.to_array();
+    (0..3).fold(Vec4::ZERO, |sum, a| {
+        let pa = Vec4::splat(p[a]);
+        let lo = (Vec4::from_array(b[a]) - pa).abs();
+        let d = lo.max((Vec4::from_array(b[3 + a]) - pa).abs());
+        sum + d * d
+    })
 }
 
 /// Whether any lane of `node` is a leaf (only leaf lanes have discs).
