@@ -14,8 +14,10 @@
 //!    over the G-buffer less in a moving scene whose extremes stay near where they were;
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
-//!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked (`Δ` is computed for every texel beforehand, in one vectorised pass over the
+//!    compared with the nine texels' depths: where some may shade it (one lies in front of it by more
+//!    than the constant bias) and some may not, the pixel is *potentially incorrect* and marked (a
+//!    one-sided form of the thesis's `[s − Δ, s + Δ]` overlap, which also marks the occluder's own lit
+//!    side at its silhouette; see `classify::selective`) (`Δ` is computed for every texel beforehand, in one vectorised pass over the
 //!    map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels read neighbouring texels).
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
