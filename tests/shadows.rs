@@ -164,10 +164,10 @@ fn selective_matches_ray_traced_on_crowd_frames() {
 }
 
 /// The pixels the selective classification (thesis §6.3.3) marks, recomputed from the pass's shadow map
-/// through its public accessors alone: the texel under the receiver, `Δ` from its eight neighbours read one
-/// by one, the slope-scaled tolerances and the `[d̂, d]` against `[s − Δ, s + Δ]` overlap — the oracle for
-/// the pass, which reads `Δ` from a table computed for every texel beforehand and takes short cuts in the
-/// verdict.
+/// through its public accessors alone: the texel under the receiver, `Δ` and the nearest and farthest depth
+/// from its eight neighbours read one by one, the slope-scaled tolerances and the receiver's span `[d̂, d]`
+/// against them — the oracle for the pass, which reads `Δ` from a table computed for every texel
+/// beforehand and takes short cuts in the verdict.
 fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> Vec<u32> {
     let map = pass.shadow_map();
     let (res, w) = (map.resolution(), map.texel_size());
@@ -191,17 +191,23 @@ fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> V
             marked.push(k as u32);
             continue;
         }
-        let mut delta = 0f32;
+        let (mut delta, mut nearest, mut farthest) = (0f32, f32::INFINITY, 0f32);
         for y in j - 1..=j + 1 {
             for x in i - 1..=i + 1 {
-                delta = delta.max((map.depth(x, y) - depth).abs());
+                let t = map.depth(x, y);
+                delta = delta.max((t - depth).abs());
+                (nearest, farthest) = (nearest.min(t), farthest.max(t));
             }
         }
         let c = cos.max(1.0 / 64.0);
         let reach = w * std::f32::consts::SQRT_2 * ((1.0 - c * c).max(0.0).sqrt() / c);
         let bias = w * s.bias_texels + reach;
         let d = q.z;
-        if delta > edge && d - reach - bias <= depth + delta && d + bias >= depth - delta {
+        // At an edge: lit when no texel lies in front of the receiver by more than the constant bias,
+        // shadowed when all lie in front of its whole span `[d̂, d]` by more than the bias, else marked.
+        let lit = d <= nearest + w * s.bias_texels;
+        let shadowed = d - reach - bias > farthest;
+        if delta > edge && !lit && !shadowed {
             marked.push(k as u32);
         }
     }

@@ -14,8 +14,10 @@
 //!    over the G-buffer less in a moving scene whose extremes stay near where they were;
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
-//!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
-//!    incorrect* and marked (`Δ` is computed for every texel beforehand, in one vectorised pass over the
+//!    compared with the nine texels' depths: where some may shade it (one lies in front of it by more
+//!    than the constant bias) and some may not, the pixel is *potentially incorrect* and marked (a
+//!    one-sided form of the thesis's `[s − Δ, s + Δ]` overlap, which also marks the occluder's own lit
+//!    side at its silhouette; see `classify::selective`) (`Δ` is computed for every texel beforehand, in one vectorised pass over the
 //!    map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels read neighbouring texels).
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
@@ -31,10 +33,10 @@
 //! [`ShadowMode`] switches between the shadow map alone (always hard), the selective pipeline and rays for
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
-//! penumbra mask), and rays for the marked pixels only (2–7% of them on the crowd). On the CPU the map and the
+//! penumbra mask), and rays for the marked pixels only (1.5–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
 //! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows take only 1.3–1.4× less CPU than a ray per
+//! shadow ray's cost, so on the crowd selective hard shadows take only about 1.2× less CPU than a ray per
 //! pixel traced as packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench
 //! suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
@@ -59,7 +61,7 @@ pub use shadow_map::ShadowMap;
 use crate::{Error, Result, parallel};
 use classify::Class;
 use deltas::Deltas;
-use glam::{BVec3, Vec3};
+use glam::Vec3;
 use std::time::{Duration, Instant};
 
 /// Which pixels get shadow rays.
@@ -539,16 +541,17 @@ fn classify_pixels(
 const NO_BOUNDS: (Vec3, Vec3) = (Vec3::MAX, Vec3::MIN);
 
 /// Bounds `b` grown by the receiver at `p` with normal `nrm` when it faces the light (`n · towards` above
-/// 0): its coordinates across `map` and `p · towards`. Without a branch: a pixel facing away is moved to
-/// where it widens nothing.
+/// 0): its coordinates across `map` and `p · towards`. Without a branch: a pixel facing away is moved an
+/// infinite way out, where it widens nothing (one select of a scalar, not one per coordinate).
 #[inline(always)]
 fn receiver(b: (Vec3, Vec3), map: &ShadowMap, towards: Vec3, p: Vec3, nrm: Vec3) -> (Vec3, Vec3) {
     let q = map.across(p).extend(p.dot(towards));
-    let faces = BVec3::splat(nrm.dot(towards) > 0.0);
-    (
-        b.0.min(Vec3::select(faces, q, NO_BOUNDS.0)),
-        b.1.max(Vec3::select(faces, q, NO_BOUNDS.1)),
-    )
+    let out = Vec3::splat(if nrm.dot(towards) > 0.0 {
+        0.0
+    } else {
+        f32::INFINITY
+    });
+    (b.0.min(q + out), b.1.max(q - out))
 }
 
 /// The smallest bounds holding `a` and `b`.
