@@ -1,5 +1,6 @@
-//! Refit and queries allocate nothing: counted with a global allocator in this test binary, per thread, so
-//! that rayon's pool threads (still settling after a parallel build) do not count.
+//! Refit and queries allocate nothing: counted with a global allocator in this test binary, per thread —
+//! direct calls on the test's thread, plugin frames on the thread of a one-thread pool they run in
+//! ([`frame_allocations`]), so that their parallel work is counted too.
 
 mod common;
 use common::*;
@@ -46,8 +47,9 @@ fn refit_and_single_ray_queries_do_not_allocate() {
     }
 }
 
-/// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the frame's
-/// thread once warm, under a fixed policy and under the adaptive one (its SAH cost, decision and query
+/// A frame whose meshes only refit and whose rigid entities only move allocates nothing on the threads of
+/// the pool it runs in once warm (its queued rays and shadow rays single and as packets, and a packet asked of the
+/// world directly), under a fixed policy and under the adaptive one (its SAH cost, decision and query
 /// attribution included, for the meshes and for the top level), and with every mesh kept as a grid (the
 /// deforming one's grid rebuilt in place every frame, closest and any hits through it).
 #[test]
@@ -77,6 +79,8 @@ fn refit_only_ecs_frames_do_not_allocate() {
                     .id()
             })
             .collect();
+        let from = |i: u64| Vec3::new(0.01 * i as f32, 0.0, -5.0);
+        let pool = frame_pool();
         for f in 0..20 {
             for &w in &walkers {
                 let mut t = world.get_mut::<TraceTransform>(w).unwrap();
@@ -91,15 +95,28 @@ fn refit_only_ecs_frames_do_not_allocate() {
                 }
                 let mut queue = world.resource_mut::<RayQueue>();
                 for i in 0..8 {
-                    let from = Vec3::new(0.01 * i as f32, 0.0, -5.0);
-                    queue.cast(i, Ray::new(from, Vec3::Z), QueryFilter::default());
-                    queue.shadow(i, from, Vec3::ZERO, QueryFilter::default());
+                    queue.cast(i, Ray::new(from(i), Vec3::Z), QueryFilter::default());
+                    queue.shadow(i, from(i), Vec3::ZERO, QueryFilter::default());
                 }
+                // The same rays again as packets, between single requests.
+                let tile: Vec<Ray> = (0..8).map(|i| Ray::new(from(i), Vec3::Z)).collect();
+                let points: Vec<Vec3> = (0..8).map(from).collect();
+                queue.cast_packet(100, &tile, QueryFilter::default());
+                queue.shadow_packet(100, &points, Vec3::ZERO, QueryFilter::default());
+                queue.cast(200, tile[0], QueryFilter::default());
+                queue.shadow(200, points[0], Vec3::ZERO, QueryFilter::default());
             }
+            let mut allocated = frame_allocations(&pool, &mut world, &mut schedule);
+            // A packet asked of the world directly, on this thread.
             let before = allocations();
-            schedule.run(&mut world);
-            world.clear_trackers();
-            let allocated = allocations() - before;
+            let tile: [Ray; 8] = std::array::from_fn(|i| Ray::new(from(i as u64), Vec3::Z));
+            let segments: [(Vec3, Vec3); 8] = std::array::from_fn(|i| (from(i as u64), Vec3::ZERO));
+            let (mut hits, mut blocked) = ([None; 8], [false; 8]);
+            let trace_world = world.resource::<TraceWorld>();
+            trace_world.cast_packet(&tile, f32::INFINITY, &QueryFilter::default(), &mut hits);
+            trace_world.occluded_packet(&segments, &QueryFilter::default(), &mut blocked);
+            allocated += allocations() - before;
+            assert!(hits.iter().all(Option::is_some) && blocked.iter().all(|b| *b));
             let stats = world.resource::<TraceStats>();
             let structure_of = |e| world.resource::<TraceWorld>().structure(e).unwrap().0;
             assert_eq!(
@@ -199,7 +216,7 @@ fn warm_ray_sort_does_not_allocate() {
 }
 
 /// Warm secondary batches (reflection rays and shadow rays toward two lights, an invalid ray among them)
-/// allocate nothing on the frame's thread, planned and with each fixed strategy but CRSH (which builds its
+/// allocate nothing on the frame's pool threads, planned and with each fixed strategy but CRSH (which builds its
 /// hierarchy per batch): the path keeps its sort and answer buffers in [`SecondaryRays`]. Answers are
 /// checked against the sphere's analytic distance.
 #[test]
@@ -219,6 +236,7 @@ fn warm_secondary_ray_batches_do_not_allocate() {
         let (mut world, mut schedule, rest, e) = deforming_sphere_app(never, Structure::Bvh);
         let secondary = SecondaryRays::new(fixed, Default::default(), 8, 2).unwrap();
         world.insert_resource(secondary);
+        let pool = frame_pool();
         for f in 0..8 {
             let s = 1.0 + 0.01 * f as f32;
             {
@@ -243,10 +261,7 @@ fn warm_secondary_ray_batches_do_not_allocate() {
                     queue.shadow_kind(i, from, Vec3::ZERO, light, f());
                 }
             }
-            let before = allocations();
-            schedule.run(&mut world);
-            world.clear_trackers();
-            let allocated = allocations() - before;
+            let allocated = frame_allocations(&pool, &mut world, &mut schedule);
             if f >= 3 {
                 assert_eq!(allocated, 0, "{fixed:?} frame {f}");
             }

@@ -5,6 +5,7 @@ use crate::bvh::MAX_PACKET;
 use crate::{Error, Ray, parallel};
 use bevy_ecs::prelude::*;
 use glam::Vec3;
+use std::ops::Range;
 use std::time::Instant;
 
 /// Starts the frame's statistics.
@@ -238,33 +239,42 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
 }
 
 /// Runs `answer(range, is_packet, out[range])` for every queued packet and every run of up to 64 single
-/// requests between them, on all threads. Allocates two short lists (the units and their output parts)
-/// when packets are queued, nothing otherwise; each packet's top-level walk fills a scratch list of the
-/// entities it reaches (one allocation per packet).
+/// requests between them, on all threads: the packets are split in halves recursively (`rayon::join`), each
+/// half with its part of `out`, so nothing is allocated.
 fn answer_units<T: Send>(
     out: &mut [T],
-    packets: &[std::ops::Range<usize>],
-    answer: impl Fn(std::ops::Range<usize>, bool, &mut [T]) + Sync + Send,
+    packets: &[Range<usize>],
+    answer: impl Fn(Range<usize>, bool, &mut [T]) + Sync + Send,
 ) {
-    if packets.is_empty() {
-        // Single requests only: runs of MAX_PACKET, with no per-frame allocation.
-        let len = out.len();
+    answer_split(out, 0, packets, &answer);
+}
+
+/// [`answer_units`] for `out` = requests `first..first + out.len()`, holding exactly `packets`.
+fn answer_split<T: Send>(
+    out: &mut [T],
+    first: usize,
+    packets: &[Range<usize>],
+    answer: &(impl Fn(Range<usize>, bool, &mut [T]) + Sync + Send),
+) {
+    let Some(packet) = packets.get(packets.len() / 2) else {
+        // Single requests only: runs of MAX_PACKET.
+        let end = first + out.len();
         return parallel::fill_chunks(true, out, MAX_PACKET, |c, part| {
-            let start = c * MAX_PACKET;
-            answer(start..(start + MAX_PACKET).min(len), false, part)
+            let start = first + c * MAX_PACKET;
+            answer(start..(start + MAX_PACKET).min(end), false, part)
         });
-    }
-    let units = super::world_packets::packet_units(out.len(), packets);
-    let mut parts = Vec::with_capacity(units.len());
-    let mut rest = out;
-    for (range, packet) in units {
-        let (part, tail) = rest.split_at_mut(range.len());
-        rest = tail;
-        parts.push((range, packet, part));
-    }
-    parallel::for_each_mut(true, &mut parts, |_, (range, packet, part)| {
-        answer(range.clone(), *packet, part)
-    });
+    };
+    let mid = packets.len() / 2;
+    let (before, rest) = out.split_at_mut(packet.start - first);
+    let (inside, after) = rest.split_at_mut(packet.len());
+    parallel::join(
+        true,
+        || answer_split(before, first, &packets[..mid], answer),
+        || {
+            answer(packet.clone(), true, inside);
+            answer_split(after, packet.end, &packets[mid + 1..], answer)
+        },
+    );
 }
 
 /// [`TraceSystems::Queries`]: answers every queued request — on the GPU when a GPU mode found one, else on all

@@ -7,7 +7,8 @@
 //! closest hit so far still lies beyond its world box. Answers equal [`TraceWorld::cast_ray`] and
 //! [`TraceWorld::occluded`] ray by ray: the same distance, and the same entity and triangle unless two are
 //! hit at exactly that distance. Use it for batches of at least a few coherent rays; a packet of scattered
-//! rays costs about what single rays cost plus the entity sort.
+//! rays costs about what single rays cost plus the entity sort. Allocates nothing once the thread's list of
+//! reached entities has grown to the most a packet reached.
 
 use super::world::Instance;
 use super::{QueryFilter, RayHit, TraceWorld};
@@ -15,7 +16,13 @@ use crate::bvh::{Hit, MAX_PACKET, traverse};
 use crate::geometry::Ray;
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
-use std::ops::Range;
+use std::cell::RefCell;
+
+thread_local! {
+    /// The entities a packet's rays reach at the top level (entry distance, top-level slot), kept per
+    /// thread so that a warm packet allocates nothing; it grows to the most a packet has reached.
+    static REACHED: RefCell<Vec<(f32, u32)>> = const { RefCell::new(Vec::new()) };
+}
 
 impl TraceWorld {
     /// [`cast_ray`](Self::cast_ray) for every ray of `rays` (hits within `min(ray.tmax, max_t)`), traced as
@@ -43,31 +50,32 @@ impl TraceWorld {
         out: &mut [Option<RayHit>],
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let mut scratch = Vec::new();
-        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-            for (w, r) in world.iter_mut().zip(rays) {
-                *w = r.clipped(max_t);
-            }
-            let world = &world[..rays.len()];
-            let mut best = [None::<(Entity, Hit)>; MAX_PACKET];
-            self.packet_entities(world, filter, &mut scratch, |e, inst, object, idx, tmax| {
-                let mut hits = [None; MAX_PACKET];
-                let hits = &mut hits[..object.len()];
-                inst.closest_hits_packet(object, hits);
-                for (&i, h) in idx.iter().zip(hits.iter()) {
-                    if let Some(h) = h
-                        && best[i].is_none_or(|(_, b)| h.t < b.t)
-                    {
-                        best[i] = Some((e, *h));
-                        tmax[i] = h.t;
-                    }
+        REACHED.with_borrow_mut(|scratch| {
+            for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+                let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+                for (w, r) in world.iter_mut().zip(rays) {
+                    *w = r.clipped(max_t);
                 }
-            });
-            for (i, o) in out.iter_mut().enumerate() {
-                *o = best[i].map(|(e, h)| self.instances[&e].world_hit(e, &world[i], &h));
+                let world = &world[..rays.len()];
+                let mut best = [None::<(Entity, Hit)>; MAX_PACKET];
+                self.packet_entities(world, filter, scratch, |e, inst, object, idx, tmax| {
+                    let mut hits = [None; MAX_PACKET];
+                    let hits = &mut hits[..object.len()];
+                    inst.closest_hits_packet(object, hits);
+                    for (&i, h) in idx.iter().zip(hits.iter()) {
+                        if let Some(h) = h
+                            && best[i].is_none_or(|(_, b)| h.t < b.t)
+                        {
+                            best[i] = Some((e, *h));
+                            tmax[i] = h.t;
+                        }
+                    }
+                });
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = best[i].map(|(e, h)| self.instances[&e].world_hit(e, &world[i], &h));
+                }
             }
-        }
+        });
     }
 
     /// [`occluded`](Self::occluded) for every segment `(from, to)`, as packets of up to [`MAX_PACKET`]:
@@ -79,27 +87,28 @@ impl TraceWorld {
         out: &mut [bool],
     ) {
         assert_eq!(segments.len(), out.len(), "one output per segment");
-        let mut scratch = Vec::new();
-        for (segs, out) in segments.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-            for (w, &(from, to)) in world.iter_mut().zip(segs) {
-                *w = Ray::segment(from, to);
-            }
-            let world = &world[..segs.len()];
-            out.fill(false);
-            self.packet_entities(world, filter, &mut scratch, |_, inst, object, idx, tmax| {
-                let mut hit = [false; MAX_PACKET];
-                let hit = &mut hit[..object.len()];
-                inst.any_hits_packet(object, hit);
-                for (&i, &h) in idx.iter().zip(hit.iter()) {
-                    if h {
-                        // An occluded segment needs nothing more: no box is reached below −∞.
-                        out[i] = true;
-                        tmax[i] = f32::NEG_INFINITY;
-                    }
+        REACHED.with_borrow_mut(|scratch| {
+            for (segs, out) in segments.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+                let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+                for (w, &(from, to)) in world.iter_mut().zip(segs) {
+                    *w = Ray::segment(from, to);
                 }
-            });
-        }
+                let world = &world[..segs.len()];
+                out.fill(false);
+                self.packet_entities(world, filter, scratch, |_, inst, object, idx, tmax| {
+                    let mut hit = [false; MAX_PACKET];
+                    let hit = &mut hit[..object.len()];
+                    inst.any_hits_packet(object, hit);
+                    for (&i, &h) in idx.iter().zip(hit.iter()) {
+                        if h {
+                            // An occluded segment needs nothing more: no box is reached below −∞.
+                            out[i] = true;
+                            tmax[i] = f32::NEG_INFINITY;
+                        }
+                    }
+                });
+            }
+        });
     }
 
     /// Visits the accepted entities that some ray of `rays` (up to [`MAX_PACKET`], world space) reaches,
@@ -158,25 +167,4 @@ impl TraceWorld {
             visit(e, inst, &object[..n], &idx[..n], &mut tmax);
         }
     }
-}
-
-/// `0..len` cut into the given packets (sorted, disjoint ranges) and, between them, runs of up to
-/// [`MAX_PACKET`] single requests; `true` marks a packet.
-pub(super) fn packet_units(len: usize, packets: &[Range<usize>]) -> Vec<(Range<usize>, bool)> {
-    let mut units = Vec::new();
-    let mut at = 0;
-    let singles = |from: usize, to: usize, units: &mut Vec<(Range<usize>, bool)>| {
-        units.extend(
-            (from..to)
-                .step_by(MAX_PACKET)
-                .map(|s| (s..(s + MAX_PACKET).min(to), false)),
-        );
-    };
-    for p in packets {
-        singles(at, p.start, &mut units);
-        units.push((p.clone(), true));
-        at = p.end;
-    }
-    singles(at, len, &mut units);
-    units
 }

@@ -40,6 +40,55 @@ pub fn alone() -> std::sync::MutexGuard<'static, ()> {
     ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// Runs one frame of `schedule` on `world` inside `pool` and returns the allocations made on the pool's
+/// threads meanwhile (each one's count read with `broadcast`). The frame runs on a pool thread, so the
+/// parallel work it hands out goes to the pool's own deques; a frame run from outside a pool enters it
+/// through the pool's shared injector queue, which allocates a block on whichever push crosses a block
+/// boundary (every 63 jobs) — rayon's bookkeeping, amortised, not the code under test.
+#[cfg(feature = "parallel")]
+pub fn frame_allocations(
+    pool: &rayon::ThreadPool,
+    world: &mut bevy_ecs::world::World,
+    schedule: &mut bevy_ecs::schedule::Schedule,
+) -> usize {
+    let count = || pool.broadcast(|_| allocations()).iter().sum::<usize>();
+    let before = count();
+    pool.install(|| {
+        schedule.run(world);
+        world.clear_trackers();
+    });
+    count() - before
+}
+
+/// Without the `parallel` feature the frame runs on the calling thread, and its allocations are that
+/// thread's.
+#[cfg(not(feature = "parallel"))]
+pub fn frame_allocations(
+    _pool: &(),
+    world: &mut bevy_ecs::world::World,
+    schedule: &mut bevy_ecs::schedule::Schedule,
+) -> usize {
+    let before = allocations();
+    schedule.run(world);
+    world.clear_trackers();
+    allocations() - before
+}
+
+/// The pool [`frame_allocations`] runs frames in: one thread, so that the per-thread scratch a frame's
+/// parallel work keeps (e.g. each thread's list of the entities a ray packet reaches) is warm on every
+/// thread of it after the first frames, whichever thread the work lands on.
+#[cfg(feature = "parallel")]
+pub fn frame_pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+}
+
+/// No pool without the `parallel` feature.
+#[cfg(not(feature = "parallel"))]
+pub fn frame_pool() {}
+
 /// A plugin world run on the calling thread under `policy`, every mesh kept as `structure`, with a sphere
 /// whose `VertexPositions` the test rewrites: the world, its schedule, the sphere's rest mesh and its entity.
 pub fn deforming_sphere_app(
