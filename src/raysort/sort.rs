@@ -93,6 +93,11 @@ impl SortedRays {
         s.keys.resize(s.valid.len(), 0);
         let valid = &s.valid;
         parallel::fill(parallel, &mut s.keys, 4096, |j| {
+            // The pass above has pushed the batch's rays out of L2 (64 bytes a ray): ask for a ray's line a
+            // dozen keys ahead (the keys' share of the sorted runs' samples 14% -> 10% at 1024²).
+            if let Some(&ahead) = valid.get(j + PREFETCH_AHEAD) {
+                prefetch(&rays[ahead as usize]);
+            }
             high(layout.key(&rays[valid[j] as usize], &origins))
         });
         // Compress: one word per run of equal key.
@@ -127,6 +132,22 @@ impl SortedRays {
         self.chunks = s.chunks.len();
         Ok(())
     }
+}
+
+/// Rays ahead of the one being keyed whose cache line the key pass asks for.
+const PREFETCH_AHEAD: usize = 12;
+
+/// Asks the CPU to bring `x`'s cache line in (x86-64; nothing elsewhere).
+#[inline(always)]
+fn prefetch<T>(x: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE is part of the x86-64 baseline; a prefetch reads nothing and never faults.
+    unsafe {
+        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+        _mm_prefetch::<_MM_HINT_T0>((x as *const T).cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = x;
 }
 
 /// Sorts `rays` by their keys under `layout`; `Error::InvalidOption` for a layout over 32 bits. Allocates

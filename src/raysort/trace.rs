@@ -12,11 +12,11 @@
 //! - [`Strategy::SortedRuns`]: the same packets, cut where the key changes above its low bits, so that a
 //!   packet never mixes origin cells or direction blocks; sorted on those high bits only
 //!   ([`SortedRays::sort_above`]: 30 ns a ray against the full sort's 36, ties left in pixel order, which
-//!   traverses 4–6% faster than full key order). Reflection rays on the crowd (6,400 triangles, one
-//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.01–1.05× the BVH in pixel order
-//!   (single rays through the 4-wide tree, as the packets) at 1024², 0.84–0.88× at 512² (traversal
-//!   alone 1.2× and 0.95–0.99×). On a crowd of 192,000 triangles, 0.99×
-//!   before the sort: pixel order is already coherent.
+//!   traverses 4–6% faster than full key order). Reflection rays on the crowd (`bench raysort`'s, 23,040
+//!   triangles; one thread, thread CPU time on a loaded 2-core VM), sort counted: 1.25–1.27× the BVH in
+//!   pixel order (single rays through the 4-wide tree; the packets walk the same tree, leaves tested four
+//!   rays at a time) at 1024², 1.05–1.07× at 512² (traversal alone about 1.5× and 1.2×). On a crowd of
+//!   192,000 triangles (an earlier tree), 0.99× before the sort: pixel order is already coherent.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
 //!   children, and each level-1 node's survivors to the exact watertight test of its rays. Cost per top node:

@@ -8,8 +8,15 @@
 //! has its first ray, then downward until each has its last: a coherent tile pays a few four-box tests per
 //! node instead of one per ray. Children are visited nearer-first by their interval lower bound, the
 //! others pushed with their ranges; a popped child whose bound lies beyond every active ray's closest hit
-//! is dropped. A leaf tests each ray of its range against the leaf box (skipped for the two ends when it is
-//! entered straight from its parent's scan) and then its triangles.
+//! is dropped. A leaf tests the rays of its range against the leaf box, four rays per SSE test (the two
+//! ends are known to hit it when it is entered straight from its parent's scan), and then its triangles.
+//! The interval culling takes the four child boxes of a node in one SSE pass ([`LaneBounds`]).
+//!
+//! What the four-ray leaf test buys: on the crowd's sorted reflection runs (1024², 36 rays a packet) a
+//! packet visits about half the inner nodes its rays visit alone (4.9 four-box tests a ray against 10.2),
+//! but its rays part near the leaves, and testing each ray of a leaf's range against the leaf box, one at a
+//! time (4.4 box tests a ray), gave most of that back: the runs were no faster than single rays. Four rays a
+//! test, the runs trace 14–16% faster (thread CPU time, loaded 2-core VM).
 //!
 //! **Answers equal single rays.** A ray whose own traversal reaches a leaf lies, at every ancestor, inside
 //! the range the packet gives that child (the scans stop at the first and the last ray whose own test
@@ -21,10 +28,11 @@
 //! (5 KB for 64 rays) on the call stack.
 
 use super::simd::{RayLanes, hit4};
-use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, is_leaf, leaf_slots};
+use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots};
 use crate::bvh::packet::{Bounds, Packet, lanes, range_mask};
 use crate::bvh::stack::Stack;
 use crate::bvh::{MeshBvh, TraversalStats};
+use crate::geometry::ROBUST_TMAX_SCALE;
 
 /// A child waiting on the stack: its payload, where its box lives (`parent` node, `lane`), its range of
 /// rays and its interval lower bound.
@@ -62,6 +70,7 @@ impl WideBvh {
             *l = RayLanes::new(r);
         }
         let test = |p: &Packet, node, i: usize| hit4(node, &pre[i], p.tmax[i]).0;
+        let lanes4 = LaneBounds::new(bounds);
         let mut tmax_all = p.tmax_all();
         let mut stack = Stack::<Entry, WIDE_STACK>::new();
         let mut cur = Entry {
@@ -89,15 +98,7 @@ impl WideBvh {
             } else {
                 stats.inner_visits += 1;
                 let node = &nodes[cur.child as usize];
-                let mut keys = [f32::INFINITY; WIDTH];
-                let mut culled = 0u32;
-                for (c, key) in keys.iter_mut().enumerate() {
-                    if node.child[c] != EMPTY_LANE
-                        && let Some(k) = bounds.enter(&node.lane_box(c), tmax_all)
-                    {
-                        (*key, culled) = (k, culled | 1 << c);
-                    }
-                }
+                let (culled, keys) = lanes4.enter4(node, tmax_all);
                 let mask = p.active & range_mask(first, last);
                 let (mut lo, mut hi) = ([0u8; WIDTH], [0u8; WIDTH]);
                 let mut found = 0u32;
@@ -161,5 +162,172 @@ impl WideBvh {
                 }
             }
         }
+    }
+}
+
+/// The packet's interval bounds ([`Bounds`]) set out for a wide node's four lanes: per axis on which the
+/// packet can cull, the rows of the near and the far plane and the origin ends they are taken against,
+/// chosen once per packet instead of per box.
+#[derive(Clone, Copy)]
+struct LaneBounds {
+    /// Per usable axis: near-plane row, the origin end it is taken against, far-plane row, its origin end,
+    /// and the reciprocal interval's ends.
+    axes: [(usize, f32, usize, f32, f32, f32); 3],
+    /// Usable axes (at least one: a packet without one is traced ray by ray).
+    count: usize,
+    tmin: f32,
+}
+
+impl LaneBounds {
+    fn new(b: &Bounds) -> Self {
+        let (neg, usable) = (b.neg.bitmask(), b.usable.bitmask());
+        let mut axes = [(0, 0.0, 0, 0.0, 0.0, 0.0); 3];
+        let mut count = 0;
+        for a in (0..3).filter(|a| usable >> a & 1 == 1) {
+            let (r0, r1) = (b.rlo[a], b.rhi[a]);
+            axes[count] = if neg >> a & 1 == 1 {
+                (3 + a, b.olo[a], a, b.ohi[a], r0, r1)
+            } else {
+                (a, b.ohi[a], 3 + a, b.olo[a], r0, r1)
+            };
+            count += 1;
+        }
+        Self {
+            axes,
+            count,
+            tmin: b.tmin,
+        }
+    }
+
+    /// [`Bounds::enter`] for the four lanes of `node` at once: bit `c` set when some ray may reach lane
+    /// `c`'s box within `tmax`, and each such lane's lower bound of the entry distances. The same rounded
+    /// operations as `Bounds::enter` on every lane (no NaN arises: a usable axis has finite non-zero
+    /// reciprocals, and empty lanes' infinite planes give infinite, culled bounds), so the same lanes and
+    /// bounds.
+    #[inline]
+    fn enter4(&self, node: &WideNode, tmax: f32) -> (u32, [f32; WIDTH]) {
+        let used = node.child.iter().enumerate();
+        let used = used.fold(0, |m, (c, &ch)| m | u32::from(ch != EMPTY_LANE) << c);
+        #[cfg(target_arch = "x86_64")]
+        {
+            let (mask, keys) = self.enter4_sse(node, tmax);
+            (mask & used, keys)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let b = &node.bounds;
+            let mut keys = [f32::INFINITY; WIDTH];
+            let mut mask = 0;
+            for (c, key) in keys.iter_mut().enumerate() {
+                let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
+                for &(nr, no, fr, fo, r0, r1) in &self.axes[..self.count] {
+                    let (n, f) = (b[nr][c] - no, b[fr][c] - fo);
+                    near = near.max((n * r0).min(n * r1));
+                    far = far.min((f * r0).max(f * r1));
+                }
+                *key = near.max(self.tmin);
+                if *key <= (far * ROBUST_TMAX_SCALE).min(tmax) {
+                    mask |= 1 << c;
+                }
+            }
+            (mask & used, keys)
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    fn enter4_sse(&self, node: &WideNode, tmax: f32) -> (u32, [f32; WIDTH]) {
+        use std::arch::x86_64::*;
+        // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the loads read the node's `[f32; 4]` rows
+        // and the store writes `keys` (16 bytes each), all unaligned forms.
+        unsafe {
+            let row = |i: usize| _mm_loadu_ps(node.bounds[i].as_ptr());
+            let mut near = _mm_set1_ps(f32::NEG_INFINITY);
+            let mut far = _mm_set1_ps(f32::INFINITY);
+            for &(nr, no, fr, fo, r0, r1) in &self.axes[..self.count] {
+                let (r0, r1) = (_mm_set1_ps(r0), _mm_set1_ps(r1));
+                let n = _mm_sub_ps(row(nr), _mm_set1_ps(no));
+                let f = _mm_sub_ps(row(fr), _mm_set1_ps(fo));
+                near = _mm_max_ps(near, _mm_min_ps(_mm_mul_ps(n, r0), _mm_mul_ps(n, r1)));
+                far = _mm_min_ps(far, _mm_max_ps(_mm_mul_ps(f, r0), _mm_mul_ps(f, r1)));
+            }
+            let tnear = _mm_max_ps(near, _mm_set1_ps(self.tmin));
+            // `minps` returns its second operand when one is NaN: `tmax` first, as `f32::min` ignores it.
+            let limit = _mm_min_ps(
+                _mm_set1_ps(tmax),
+                _mm_mul_ps(far, _mm_set1_ps(ROBUST_TMAX_SCALE)),
+            );
+            let mask = _mm_movemask_ps(_mm_cmple_ps(tnear, limit)) as u32;
+            let mut keys = [0.0f32; WIDTH];
+            _mm_storeu_ps(keys.as_mut_ptr(), tnear);
+            (mask, keys)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Ray;
+    use crate::scenes::SceneRng;
+    use glam::Vec3;
+
+    #[test]
+    fn four_lanes_at_once_cull_as_the_packet_bounds_do_box_by_box() {
+        let mut rng = SceneRng::new(29);
+        let mut checked = 0;
+        for round in 0..3_000 {
+            // A packet whose directions share a sign on some axes (those can cull), origins nearby.
+            let (base, spread) = (rng.range(-3.0, 3.0), rng.range(0.0, 1.0));
+            let signs = [0, 1, 2].map(|_| rng.next_u64() % 3);
+            let n = 1 + (rng.next_u64() % 64) as usize;
+            let rays: Vec<Ray> = (0..n)
+                .map(|_| {
+                    let o = Vec3::new(base, base * 0.5, -base)
+                        + spread * Vec3::splat(rng.range(-1.0, 1.0));
+                    let d = Vec3::from(signs.map(|s| match s {
+                        0 => rng.range(0.1, 1.0),
+                        1 => -rng.range(0.1, 1.0),
+                        _ => rng.range(-1.0, 1.0),
+                    }));
+                    Ray::with_range(o, d, rng.range(0.0, 0.1), f32::INFINITY)
+                })
+                .collect();
+            let Some(bounds) = Bounds::new(&rays, u64::MAX >> (64 - n)) else {
+                continue;
+            };
+            let mut node = WideNode::EMPTY;
+            for c in 0..WIDTH {
+                if rng.next_u64().is_multiple_of(5) {
+                    continue; // an unused lane: the empty box
+                }
+                let (a, b) = (
+                    [0; 3].map(|_| rng.range(-4.0, 4.0)),
+                    [0; 3].map(|_| rng.range(-4.0, 4.0)),
+                );
+                for k in 0..3 {
+                    node.bounds[k][c] = a[k].min(b[k]);
+                    node.bounds[3 + k][c] = a[k].max(b[k]);
+                }
+                node.child[c] = c as u32;
+            }
+            let tmax = if round % 3 == 0 {
+                f32::INFINITY
+            } else {
+                rng.range(0.0, 8.0)
+            };
+            let (mask, keys) = LaneBounds::new(&bounds).enter4(&node, tmax);
+            for (c, key) in keys.iter().enumerate() {
+                let one = (node.child[c] != EMPTY_LANE)
+                    .then(|| bounds.enter(&node.lane_box(c), tmax))
+                    .flatten();
+                assert_eq!(mask >> c & 1 == 1, one.is_some(), "round {round} lane {c}");
+                if let Some(k) = one {
+                    assert_eq!(key.to_bits(), k.to_bits(), "round {round} lane {c}");
+                    checked += 1;
+                }
+            }
+        }
+        assert!(checked > 1_000, "only {checked} lanes entered");
     }
 }
