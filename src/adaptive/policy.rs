@@ -53,6 +53,8 @@ pub enum Verdict {
     #[default]
     Keep,
     /// Rebuild to measure a build not tried yet: its expected gain over the horizon exceeds its cost.
+    /// Also a rebuild due by the rent that builds binned SAH first, so that the try the frame after
+    /// learns its quality against an exact anchor.
     Explore,
     /// Rebuild: the SAH ratio against a fresh binned-SAH tree, extrapolated one frame, would pass
     /// [`AdaptivePolicy::sah_bound`].
@@ -71,6 +73,18 @@ pub enum Verdict {
 enum Update {
     Full,
     Partial,
+}
+
+/// Why [`View::plan`] picked its build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pick {
+    /// The build of least predicted cost (or, before any was measured, the first build).
+    Chosen,
+    /// A build not measured on the asset, tried.
+    Try,
+    /// Binned SAH instead of a try that is worth making but would learn its quality against a stale
+    /// anchor: the try comes the frame after, against this tree.
+    Reanchor,
 }
 
 /// The numbers behind the last decision of [`AdaptivePolicy::after_refit`]: what users see in
@@ -151,6 +165,8 @@ pub struct AdaptivePolicy {
     last: Prediction,
     /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
     partial_rate: Estimate,
+    /// Whether the last rebuild built binned SAH to re-anchor before a try ([`Pick::Reanchor`]).
+    reanchored: bool,
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
     /// [`sibling`](Self::sibling) never (what the first measures reaches it through the table).
     explores: bool,
@@ -205,6 +221,7 @@ impl AdaptivePolicy {
             last_ratio: 1.0,
             last: Prediction::default(),
             partial_rate: Estimate::default(),
+            reanchored: false,
             explores: true,
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
@@ -313,8 +330,9 @@ impl AdaptivePolicy {
                 });
             }
         }
-        // A build tried on a frame that would have refitted says nothing of when rebuilds are due.
-        if self.frames > 0 && self.last.verdict != Verdict::Explore {
+        // A build tried on a frame that would have refitted says nothing of when rebuilds are due (a
+        // re-anchoring rebuild was due).
+        if self.frames > 0 && (self.last.verdict != Verdict::Explore || self.reanchored) {
             self.interval.add(self.frames as f64);
         }
         let t = self.costs.lock();
@@ -364,8 +382,15 @@ impl AdaptivePolicy {
                 // assumption.
                 let exact = self.exact.filter(|_| old > 0.0).and_then(|e| {
                     let t = self.costs.lock();
+                    let v = self.view(&t);
                     let unit = t.quality(&self.asset, e.build)?.mean()?;
-                    Some(e.sah * e.carried / unit)
+                    // One frame old, the tree carried at the mean drift (see `View::anchor_fresh`).
+                    let carried = if v.anchor_fresh() {
+                        v.mean_drift(e.frames)
+                    } else {
+                        e.carried
+                    };
+                    Some(e.sah * carried / unit)
                 });
                 let now = match exact {
                     Some(unit) => unit,
@@ -419,7 +444,7 @@ impl AdaptivePolicy {
         }
         let t = self.costs.lock();
         let v = self.view(&t);
-        let (build, _) = v.plan(true);
+        let (build, pick) = v.plan(true);
         let (rebuild_s, rebuild_spread) = v.time(build).unwrap_or((0.0, 0.0));
         let mut p = Prediction {
             verdict: Verdict::Keep,
@@ -487,11 +512,18 @@ impl AdaptivePolicy {
                 }
                 Verdict::Guard
             } else if p.rent_s > 0.0 && pays(p.rent_s, rebuild_s, p.margin_s / self.z, self.z) {
-                Verdict::Rent
+                // A rebuild due by the rent that builds binned SAH only so that the try after it
+                // learns against an exact anchor is a step of that try.
+                match pick {
+                    Pick::Reanchor => Verdict::Explore,
+                    _ => Verdict::Rent,
+                }
             } else {
                 // With no rays a build is tried only where the guard rebuilds anyway.
-                match (rays > 0.0).then(|| v.plan(false)) {
-                    Some((b, true)) => {
+                // The frame after a re-anchoring rebuild, the try it deferred is priced as it was
+                // then: riding on that rebuild.
+                match (rays > 0.0).then(|| v.plan(self.reanchored)) {
+                    Some((b, Pick::Try)) => {
                         p.build = b;
                         p.rebuild_s = v.time(b).map_or(0.0, |t| t.0);
                         Verdict::Explore
@@ -501,6 +533,7 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        self.reanchored = pick == Pick::Reanchor && p.verdict != Verdict::Keep;
         if let Some(e) = &mut self.exact {
             e.carried = exact_carried;
         }
@@ -914,9 +947,13 @@ impl View<'_> {
         }
     }
 
-    /// The build to use, and whether it is an exploration. `rebuilding`: a rebuild is due anyway, so
-    /// trying a build costs only its extra time over the chosen one's; otherwise its whole time.
-    fn plan(&self, rebuilding: bool) -> (Build, bool) {
+    /// The build to use, and why. `rebuilding`: a rebuild is due anyway, so trying a build costs only
+    /// its extra time over the chosen one's; otherwise its whole time. A build is tried only where its
+    /// quality can be learned against a binned-SAH tree of the frame before
+    /// ([`anchor_fresh`](Self::anchor_fresh)); where one is worth trying but the last binned-SAH tree
+    /// is older, a due rebuild builds binned SAH instead ([`Pick::Reanchor`]) and the try comes the
+    /// frame after.
+    fn plan(&self, rebuilding: bool) -> (Build, Pick) {
         let builds = &self.p.builds;
         let measured = builds
             .iter()
@@ -931,16 +968,33 @@ impl View<'_> {
                 .filter_map(|&b| Some((b, self.relative(b).filter(|r| r.2)?.0)))
                 .min_by(|a, b| a.1.total_cmp(&b.1));
             return match best_tree {
-                Some((b, _)) => (b, false),
-                None => (self.first_build(), false),
+                Some((b, _)) => (b, Pick::Chosen),
+                None => (self.first_build(), Pick::Chosen),
             };
         };
         if self.p.explores
             && let Some(b) = self.worth_trying(chosen, rebuilding)
         {
-            return (b, true);
+            let sah = builds.iter().copied().find(is_sah);
+            match sah {
+                _ if is_sah(&b) || self.anchor_fresh() => return (b, Pick::Try),
+                Some(s) if rebuilding => return (s, Pick::Reanchor),
+                None => return (b, Pick::Try),
+                Some(_) => {}
+            }
         }
-        (chosen, false)
+        (chosen, Pick::Chosen)
+    }
+
+    /// Whether a build tried now learns its quality against a binned-SAH tree built the frame before,
+    /// carried one frame at the asset's mean drift (learned): the error is then one frame's deviation
+    /// from the mean drift. Carried further, only the guard's conservative factor bounds the fresh
+    /// cost, and a quality learned against that is too high by all of it (issue 19: the report's soup
+    /// learned hybrid's quality against a binned-SAH tree carried 137 frames, the explosion LBVH's
+    /// against one whose root area had grown by half, and neither was chosen again).
+    fn anchor_fresh(&self) -> bool {
+        let drift_known = (self.t.drift.get(&self.p.asset)).is_some_and(|d| d.samples() > 0);
+        drift_known && self.p.exact.is_some_and(|e| e.frames <= 1)
     }
 
     /// The first build of an asset nobody measured: binned SAH where one is offered and the bound is
@@ -978,7 +1032,14 @@ impl View<'_> {
         // build tried is priced over that, not over a single frame.
         let interval = (self.p.interval.mean()).unwrap_or(self.p.frames as f64);
         let chosen_c = self.candidate_over(chosen, interval)?.0;
-        let horizon = self.p.age as f64;
+        // A build tried on a frame that would have refitted saves nothing before the next rebuild,
+        // about an interval away: it has the horizon less that interval to repay its whole time. (Before
+        // any interval was measured that is none: a scene not rebuilt yet tries nothing on its own.)
+        let horizon = if rebuilding {
+            self.p.age as f64
+        } else {
+            (self.p.age as f64 - interval).max(0.0)
+        };
         let chosen_time = self.time(chosen).map_or(0.0, |t| t.0);
         self.p.builds.iter().copied().find(|&b| {
             let Some((c, false)) = self.candidate_over(b, interval) else {
