@@ -362,12 +362,17 @@ impl AdaptivePolicy {
                 if old > 0.0 && self.frames > 0 && !assumed {
                     let k = self.frames as f64;
                     let x = (self.reference / old).ln();
-                    let trend = (self.costs.lock().drift.get(&self.asset))
-                        .and_then(Estimate::mean)
-                        .unwrap_or(0.0);
+                    let trend = (self.costs.lock().drift.get(&self.asset)).and_then(Estimate::mean);
                     self.costs.learn_drift(self.asset, x / k);
-                    // Between two binned-SAH trees nothing but the walk moved the anchor.
-                    if self.current.is_some_and(|b| is_sah(&b)) && is_sah(&build) {
+                    // Between two binned-SAH trees nothing but the walk moved the anchor: its
+                    // deviation from the trend, once a trend was learned (before, the whole move is
+                    // the trend's first sample, not the walk: issue 19, the explosion's first frame,
+                    // re-anchored SAH to SAH, learned a walk of 0.43 per frame, the guard then assumed
+                    // the fresh cost fell by 80% a frame and rebuilt every frame).
+                    if let Some(trend) = trend
+                        && self.current.is_some_and(|b| is_sah(&b))
+                        && is_sah(&build)
+                    {
                         self.costs
                             .learn_walk(self.asset, (x - trend * k).powi(2) / k);
                     }
