@@ -17,17 +17,19 @@
 //! phase, refits, rebuilds and queries; every `--png-every` frames the scene is ray traced from a camera with
 //! shadows from the sun (`--shadows`: shadow map alone, selective ray-traced — the default — or a shadow
 //! ray per pixel, see `kinetrace::shadows`; `--soft RAD` makes the sun a disc of that angular radius with soft
-//! shadows), the turret's hits marked red. Batched queries run on the GPU when one is found
+//! shadows), the turret's hits marked red; camera rays go as 8×8 packets or ray by ray, whichever the
+//! planner measured faster on this scene (see `primary_hits`). Batched queries run on the GPU when one is found
 //! (`--cpu` keeps them on the CPU).
 
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec2, Vec3};
+use kinetrace::adaptive::Choice;
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
 use kinetrace::shadows::{GBuffer, HardShadows, Packets, ShadowMode, ShadowSettings};
 use kinetrace::{Mesh, Ray};
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// What to run.
@@ -132,6 +134,9 @@ struct Crowd {
     turret_marks: Vec<Vec3>,
     shadows: ShadowMode,
     sun_angle: f32,
+    /// Whether camera rays go as 8×8 packets or ray by ray: the planner's choice, learned from the
+    /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
+    camera_packets: Mutex<Choice<bool>>,
 }
 
 /// The images' shadow mode and the sun's angular radius (see [`Options`]), to switch them between frames.
@@ -392,6 +397,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         turret_marks: Vec::new(),
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
+        camera_packets: Mutex::new(Choice::packets()),
     });
     schedule.add_systems((
         walk.before(TraceSystems::TopLevel),
@@ -486,7 +492,20 @@ fn run_frames(
                 View::Shaded,
             )
             .save(&path)?;
-            world.resource_mut::<Crowd>().summary.pngs.push(path);
+            let crowd = world.resource_mut::<Crowd>().into_inner();
+            let packets = (crowd.camera_packets.lock())
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+                .current();
+            println!(
+                "    {}: camera rays {} (the planner's pick)",
+                path.display(),
+                if packets {
+                    "as 8x8 packets"
+                } else {
+                    "ray by ray"
+                }
+            );
+            crowd.summary.pngs.push(path);
         }
     }
     let crowd = world.remove_resource::<Crowd>().expect("inserted");
@@ -563,8 +582,23 @@ fn pixel_ray(w: u32, h: u32, camera: &Camera) -> impl Fn(u32, u32) -> Ray {
     }
 }
 
-/// The primary hit of every pixel, traced as packets of 8×8 pixels ([`TraceWorld::cast_packet`]), and
-/// the G-buffer of those hits (normals turned towards the camera) that the shadow pass reads.
+/// Groups of tiles an image is traced in, each a planner's frame (see [`primary_hits`]).
+const GROUPS: u32 = 8;
+
+/// The primary hit of every pixel, and the G-buffer of those hits (normals turned towards the camera)
+/// that the shadow pass reads.
+///
+/// The image is traced in tiles of 8×8 pixels, in [`GROUPS`] groups of every `GROUPS`-th tile (so that
+/// each group samples the whole image and costs per ray compare between groups; bands of rows did not:
+/// sky and crowd differ too much). Each group goes either as packets ([`TraceWorld::cast_packet`]) or
+/// ray by ray ([`TraceWorld::cast_ray`]) — the same hits either way — as the planner's
+/// [`Choice::packets`] picks from the seconds per ray each way measured on the groups traced so far
+/// (kept from image to image). Which is faster depends on the scene: on the 4-wide trees single rays
+/// measured 1.3× packets' speed on the default crowd (64 characters of 10,880 triangles), the two within
+/// 5% of each other on 8 characters of 1,500 (docs/BENCHMARKS.md). The same choice serves any coherent
+/// batch: `decide` before the batch with its ray count, `served` after with its rays and seconds. The
+/// seconds are wall-clock: on a machine busy with other work a try can measure the faster way slower
+/// and keep the other for a while.
 pub fn primary_hits(
     world: &World,
     w: u32,
@@ -572,13 +606,20 @@ pub fn primary_hits(
     camera: &Camera,
 ) -> (Vec<Option<RayHit>>, GBuffer) {
     let tw = world.resource::<TraceWorld>();
+    let mut planner = (world.resource::<Crowd>().camera_packets.lock())
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     let all = QueryFilter::default();
     let ray_at = pixel_ray(w, h, camera);
     let mut g = GBuffer::new(w as usize, h as usize);
     let mut hits = vec![None; (w * h) as usize];
     let (mut tile, mut idx, mut out) = (Vec::new(), Vec::new(), Vec::new());
-    for ty in (0..h).step_by(8) {
-        for tx in (0..w).step_by(8) {
+    let (across, down) = (w.div_ceil(8), h.div_ceil(8));
+    let (tiles, groups) = (across * down, GROUPS.min(across * down));
+    for group in 0..groups {
+        let packets = planner.decide(f64::from(w * h) / f64::from(groups));
+        let (mut traced, mut rays) = (Duration::ZERO, 0);
+        for k in (group..tiles).step_by(groups as usize) {
+            let (tx, ty) = (8 * (k % across), 8 * (k / across));
             tile.clear();
             idx.clear();
             for y in ty..(ty + 8).min(h) {
@@ -589,7 +630,16 @@ pub fn primary_hits(
             }
             out.clear();
             out.resize(tile.len(), None);
-            tw.cast_packet(&tile, 200.0, &all, &mut out);
+            let t = Instant::now();
+            if packets {
+                tw.cast_packet(&tile, 200.0, &all, &mut out);
+            } else {
+                for (ray, hit) in tile.iter().zip(out.iter_mut()) {
+                    *hit = tw.cast_ray(ray, 200.0, &all);
+                }
+            }
+            traced += t.elapsed();
+            rays += tile.len();
             for ((ray, &i), hit) in tile.iter().zip(&idx).zip(&out) {
                 if let Some(hit) = hit {
                     let n = if hit.normal.dot(ray.dir()) > 0.0 {
@@ -602,6 +652,7 @@ pub fn primary_hits(
                 hits[i] = *hit;
             }
         }
+        planner.served(packets, rays as f64, traced.as_secs_f64());
     }
     (hits, g)
 }
@@ -649,7 +700,8 @@ pub fn sun_visibility<'a>(
     pass.run(settings, triangles, g, rays)
 }
 
-/// Ray traces the world from `camera`: primary rays as packets of 8×8 pixels, sun shadows as the
+/// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see
+/// [`primary_hits`]), sun shadows as the
 /// crowd's shadow mode says (selective by default).
 pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> image::RgbImage {
     let tw = world.resource::<TraceWorld>();

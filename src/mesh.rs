@@ -37,7 +37,16 @@ impl Mesh {
     /// Checks and wraps `positions` and `indices` (three per triangle, counter-clockwise is not required).
     ///
     /// Errors name the first offending entry: [`Error::NonFiniteVertex`], [`Error::IndexOutOfRange`],
-    /// [`Error::IndexCountNotMultipleOfThree`], [`Error::TooManyPrimitives`].
+    /// [`Error::IndexCountNotMultipleOfThree`], [`Error::TooManyPrimitives`]. No positions and no indices
+    /// make an empty mesh, which every query misses; triangles that repeat an index or have collinear
+    /// corners are kept and never hit.
+    ///
+    /// Any finite coordinate is accepted, but ray queries are exact (watertight, matching brute force)
+    /// only while coordinates relative to the ray's origin stay below about 1e18: the triangle test
+    /// multiplies two of them, and past `sqrt(f32::MAX)` ≈ 1.8e19 the products overflow. Beyond that a
+    /// ray may miss a triangle it touches; it never reports one it does not (`tests/bad_input.rs`).
+    /// Closest-point, shape-cast and containment queries decide in `f64` and stay exact there (tested at
+    /// 1e30).
     pub fn new(positions: impl Into<Arc<[Vec3]>>, indices: impl Into<Arc<[u32]>>) -> Result<Self> {
         let positions = positions.into();
         let indices = indices.into();

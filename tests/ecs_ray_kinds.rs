@@ -307,10 +307,13 @@ fn crsh_shapes_answer_as_brute_force() {
     assert!(matches!(bad, Err(kinetrace::Error::InvalidOption(_))));
 }
 
-#[test]
-fn planner_picks_per_batch_and_answers_stay_exact() {
+/// Eight frames of the scene's requests under `secondary` (answers checked every fourth frame): each
+/// frame's secondary picks and whether each was a try, after asserting one pick per batch, both batches
+/// present, no entity (a batch choice).
+fn planned_frames(secondary: SecondaryRays) -> Vec<(SecondaryStrategy, bool)> {
     // The default policy: the batch planner needs no adaptive rebuild policy.
     let (mut world, mut schedule) = app_with(TraceConfig::default());
+    world.insert_resource(secondary);
     let scene = Scene::spawn(&mut world);
     let mut r = rng(21);
     let mut picked = Vec::new();
@@ -319,6 +322,7 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
         schedule.run(&mut world);
         world.clear_trackers();
         let requests = scene.requests(&world, &mut r);
+        assert!(requests.len() < MIN_TRIED_RAYS);
         let results = run(&mut world, &mut schedule, &requests);
         if f % 4 == 3 {
             check(&mut world, &requests, &results, &format!("frame {f}"));
@@ -330,13 +334,19 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
                 _ => None,
             })
             .collect();
-        // One pick per batch, both batches present, no entity (a batch choice).
         assert_eq!(batches.len(), 2, "frame {f}: {batches:?}");
         assert!(batches.iter().any(|b| b.0 == RayBatch::Closest));
         assert!(batches.iter().any(|b| b.0 == RayBatch::Occlusion));
         assert!(batches.iter().all(|b| b.2 == Entity::PLACEHOLDER));
         picked.extend(batches.iter().map(|b| (b.1, b.3)));
     }
+    picked
+}
+
+#[test]
+fn planner_picks_per_batch_and_answers_stay_exact() {
+    // The scene's batches are far below MIN_TRIED_RAYS: tries on every batch.
+    let picked = planned_frames(SecondaryRays::default().tries_from(0));
     // The sorting strategies' priors predict them cheaper than the BVH, so one of them is tried once the
     // BVH has a measurement, whatever the times: which one, and whether the others follow, depends on what
     // the first measured (the sorted BVH comes first; measured cheap, it can keep sorted packets and runs
@@ -349,6 +359,16 @@ fn planner_picks_per_batch_and_answers_stay_exact() {
                     | SecondaryStrategy::SortedPackets
                     | SecondaryStrategy::SortedRuns
             )),
+        "{picked:?}"
+    );
+}
+
+#[test]
+fn small_batches_try_nothing() {
+    // Both batches planned every frame, neither tried: the BVH, learned.
+    let picked = planned_frames(SecondaryRays::default());
+    assert!(
+        (picked.iter()).all(|&p| p == (SecondaryStrategy::Bvh, false)),
         "{picked:?}"
     );
 }

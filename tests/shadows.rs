@@ -284,8 +284,10 @@ fn adversarial_scene(seed: u64, towards: Vec3) -> (Vec<[Vec3; 3]>, GBuffer) {
 fn selective_marks_what_the_full_classification_marks() {
     let never = |_: Vec3, _: Vec3| false;
     let mut checked = 0;
+    // A pass kept from frame to frame samples the receivers' bounds where the last frame's extremes were.
+    let mut warm = [HardShadows::new(), HardShadows::new()];
     for (frames, world, g) in crowd_frames() {
-        for parallel in [false, true] {
+        for (parallel, warm) in [false, true].into_iter().zip(&mut warm) {
             let s = ShadowSettings {
                 parallel,
                 ..settings(ShadowMode::Selective, crowd::sun())
@@ -299,6 +301,9 @@ fn selective_marks_what_the_full_classification_marks() {
                 want,
                 "frame {frames}, parallel {parallel}"
             );
+            let vis = crowd::sun_visibility(&world, &g, &s, warm, &mut Vec::new()).unwrap();
+            assert_eq!(vis, pass.visibility(), "frame {frames}, warm pass");
+            assert_eq!(warm.marked(), pass.marked(), "frame {frames}, warm pass");
             checked += want.len();
         }
     }
@@ -324,6 +329,61 @@ fn selective_marks_what_the_full_classification_marks() {
         }
     }
     println!("{checked} marked pixels agree");
+}
+
+/// The map is fitted to every receiver facing the light, whatever rows the pass samples first: with two
+/// lone receivers far beyond the others in rows between the sampled ones (one of them extreme along any
+/// axis across the light), every receiver lies inside the map's one-texel margin and the extremes on it
+/// (the exact fit); the pass says it fitted the map twice, a second pass over the same image finds the
+/// extremes from the first's and fits once, with the same map and image, for hard and soft shadows.
+#[test]
+fn the_map_covers_every_receiver_whatever_rows_are_sampled() {
+    let (tris, bvh, mut g) = square_over_ground();
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let w = g.width;
+    g.set(5 * w + 40, Vec3::new(-8.0, 0.0, -8.0), Vec3::Y);
+    g.set(7 * w + 60, Vec3::new(8.0, 0.0, -8.0), Vec3::Y);
+    for light_angle in [0.0, 0.02] {
+        let s = ShadowSettings {
+            map_resolution: 64,
+            light_angle,
+            ..settings(ShadowMode::Selective, Vec3::new(0.3, 1.0, 0.2))
+        };
+        let mut pass = HardShadows::new();
+        let first = pass.run(&s, &tris, &g, occluded).unwrap().to_vec();
+        assert!(pass.stats().refitted, "the sample skips the lone receivers");
+        let map = pass.shadow_map();
+        let res = map.resolution() as f32;
+        let q: Vec<Vec3> = g.positions.iter().map(|&p| map.project(p)).collect();
+        let (lo, hi) = q.iter().fold((Vec3::MAX, Vec3::MIN), |(lo, hi), &q| {
+            (lo.min(q), hi.max(q))
+        });
+        // The lowest receiver `m` texels in on both axes: the one-texel margin, plus for soft shadows the
+        // penumbra's reach; the highest as far in on the map's longer axis, no further out on the other.
+        let (eps, m) = (1e-3, lo.x.min(lo.y));
+        assert!(
+            (lo.x - m).abs() < eps && (lo.y - m).abs() < eps,
+            "lowest {lo}"
+        );
+        assert!(
+            m >= 1.0 - eps && (light_angle > 0.0 || m < 1.0 + eps),
+            "lowest {lo}"
+        );
+        assert!(
+            hi.x <= res - m + eps && hi.y <= res - m + eps,
+            "highest {hi}"
+        );
+        assert!((hi.x.max(hi.y) - (res - m)).abs() < eps, "highest {hi}");
+        let depths: Vec<f32> = (0..64 * 64).map(|k| map.depth(k % 64, k / 64)).collect();
+        let again = pass.run(&s, &tris, &g, occluded).unwrap().to_vec();
+        assert!(
+            !pass.stats().refitted,
+            "the last pass's extremes are sampled"
+        );
+        let map = pass.shadow_map();
+        assert!((0..64 * 64).all(|k| map.depth(k % 64, k / 64).to_bits() == depths[k].to_bits()));
+        assert_eq!(again, first, "light angle {light_angle}");
+    }
 }
 
 /// Every pixel of the fully ray-traced image that faces the sun is lit exactly when the brute-force oracle

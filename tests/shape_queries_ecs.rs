@@ -690,3 +690,82 @@ fn extreme_radii_and_far_offsets_through_the_ecs() {
         }
     }
 }
+
+/// Issue 18: batched shape queries are work the planner weighs, as rays are. The wide tree's costs are
+/// scripted (the test hook): on, 1 ms a frame to keep and 1 µs per query; off (the binary tree), nothing
+/// to keep and 2 µs per query. With 100 rays a frame the binary tree is cheaper (0.2 ms against 1.1 ms);
+/// with 2,000 closest points a frame beside them the wide tree is (3.1 ms against 4.2 ms). A deforming
+/// mesh under the adaptive policy must settle on each — which it can only do if the closest points
+/// count (uncounted, both runs see 100 rays and drop the wide tree). The batched answers of the last
+/// frame equal brute force.
+#[test]
+fn point_query_work_changes_the_planners_wide_tree_choice() {
+    assert!(!wide_tree_after(0), "100 rays a frame: the binary tree");
+    assert!(
+        wide_tree_after(2_000),
+        "and 2,000 closest points: the wide tree"
+    );
+}
+
+/// Runs 40 frames of a deforming sphere under the adaptive policy with the wide tree's costs scripted as
+/// in [`point_query_work_changes_the_planners_wide_tree_choice`], 100 rays and `points` closest points a
+/// frame; checks the last frame's closest points against brute force and returns whether the mesh keeps
+/// its wide tree at the end.
+fn wide_tree_after(points: usize) -> bool {
+    let config = TraceConfig {
+        policy: RebuildPolicy::ADAPTIVE,
+        ..TraceConfig::default()
+    };
+    let (mut world, mut schedule) = app_with(config);
+    let rest = icosphere(3);
+    let e = world
+        .spawn((TraceMesh(rest.clone()), VertexPositions(wobble(&rest, 0))))
+        .id();
+    world
+        .resource_mut::<TraceWorld>()
+        .script_costs(Some(Arc::new(|_, option| match option {
+            PlannedOption::Wide(on) => Some(ScriptedCost {
+                overhead_s: if on { 1e-3 } else { 1e-6 },
+                per_ray_s: if on { 1e-6 } else { 2e-6 },
+            }),
+            _ => None,
+        })));
+    let mut r = rng(18);
+    let mut asked = Vec::new();
+    let mut wide = None;
+    for f in 0..40 {
+        world.get_mut::<VertexPositions>(e).unwrap().0 = wobble(&rest, f);
+        let mut rays = world.resource_mut::<RayQueue>();
+        for i in 0..100 {
+            let origin = rand_vec(&mut r, -4.0, 4.0);
+            let ray = kinetrace::Ray::new(origin, -origin.normalize());
+            rays.cast(i, ray, QueryFilter::default());
+        }
+        asked = (0..points).map(|_| rand_vec(&mut r, -3.0, 3.0)).collect();
+        let mut shapes = world.resource_mut::<ShapeQueue>();
+        for (i, &p) in asked.iter().enumerate() {
+            shapes.closest_point(i as u64, p, f32::INFINITY, QueryFilter::default());
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let stats = world.resource::<TraceStats>();
+        wide = stats.options.iter().find_map(|o| match o.option {
+            PlannedOption::Wide(on) if o.entity == e => Some(on),
+            _ => None,
+        });
+    }
+    let (keys, tris) = world_triangles(&mut world, &QueryFilter::default());
+    let results = world.resource::<ShapeResults>();
+    assert_eq!(results.closest.len(), points);
+    for (i, (&p, (tag, got))) in asked.iter().zip(&results.closest).enumerate().step_by(50) {
+        let (k, want) = brute_nearest(&tris, p).unwrap();
+        let got = got.expect("a mesh is always in reach");
+        assert_eq!(*tag, i as u64);
+        assert!(
+            (got.distance as f64 - want).abs() <= TOL,
+            "point {i} {p}: {got:?} vs {want} on {:?}",
+            keys[k]
+        );
+    }
+    wide.expect("the mesh's wide tree is planned every frame")
+}

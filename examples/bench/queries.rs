@@ -4,17 +4,22 @@
 //! `TriMesh::set_vertices` (a refit of its BVH; for containment also its pseudo-normals, which its
 //! inside test needs). Throughput counts refit + queries. The `ecs batch` rows ask the same closest points
 //! and sphere overlaps through a `bevy_ecs` world ([`ShapeQueue`] answered in the plugin's schedule, which
-//! also maintains the mesh from its new `VertexPositions`), against the same parry rows.
+//! also maintains the mesh from its new `VertexPositions`), against the same parry rows. The plugin runs
+//! with its default settings, what a user gets: Lauterbach's rule and `TraceConfig::builder`'s LBVH tree
+//! (the direct rows build binned SAH). Under `RebuildPolicy::ADAPTIVE` the planner would choose the tree
+//! from the measured query time (docs/BENCHMARKS.md, issue 18, for what it chose here).
 //!
 //! For profiling (callgrind counts instructions, not time, so a loaded machine does not matter),
 //! `KINETRACE_QUERY_ROWS` keeps only the rows named in it (comma-separated, e.g. `closest point,ecs batch
 //! closest point`) and runs only our side of them, once, printing a fingerprint of every answer (a hash of
 //! their `Debug` forms, to check that a change leaves them bit for bit as they were) unless
 //! `KINETRACE_QUERY_FINGERPRINT=0` (the hashing costs about as much as the queries);
-//! `KINETRACE_QUERY_REPS=n` repeats them `n` times (for `perf stat`'s CPU time, setup amortised).
+//! `KINETRACE_QUERY_REPS=n` repeats them `n` times and prints the least thread CPU time of the timed frames
+//! (refit + queries; time slices lost to other processes do not count, so builds compare on a loaded
+//! machine); `KINETRACE_QUERY_SIDE=parry` runs parry3d's side of the direct rows instead.
 
 use crate::cpu::one_thread;
-use crate::record::{Records, machine};
+use crate::record::{CpuClock, Records, cpu_seconds, machine};
 use bevy_ecs::prelude::*;
 use glam::Quat;
 use glam::Vec3;
@@ -129,6 +134,9 @@ pub fn run(rec: &mut Records) {
     let only = std::env::var("KINETRACE_QUERY_ROWS").ok();
     let hashing = std::env::var("KINETRACE_QUERY_FINGERPRINT").map_or(true, |v| v != "0");
     PROFILING.store(only.is_some() && hashing, Ordering::Relaxed);
+    THREAD_CLOCK.store(only.is_some(), Ordering::Relaxed);
+    let parry_side =
+        only.is_some() && std::env::var("KINETRACE_QUERY_SIDE").is_ok_and(|s| s == "parry");
     for kind in KINDS {
         let count = (frames * n) as f64;
         let reps = match &only {
@@ -141,15 +149,18 @@ pub fn run(rec: &mut Records) {
                 Kind::EcsClosestPoint | Kind::EcsSphereOverlap => {
                     ecs_frames(kind, &rest, &poses, &queries)
                 }
+                _ if parry_side => parry_frames(kind.immediate(), &rest, &poses, &queries),
                 _ => kinetrace_frames(kind, &rest, &poses, &queries),
             })
         });
         if only.is_some() {
             println!(
-                "  kinetrace {}: {} answers, fingerprint {:016x}",
+                "  {} {}: {} answers, fingerprint {:016x}, best of {reps}: {:.2} ms thread CPU time",
+                if parry_side { "parry3d" } else { "kinetrace" },
                 kind.name(),
                 ours.1,
-                FINGERPRINT.swap(0, Ordering::Relaxed)
+                FINGERPRINT.swap(0, Ordering::Relaxed),
+                ours.0.as_secs_f64() * 1e3
             );
             continue;
         }
@@ -206,6 +217,35 @@ fn fingerprint(answer: &impl std::fmt::Debug) {
         FINGERPRINT.load(Ordering::Relaxed).hash(&mut h);
         format!("{answer:?}").hash(&mut h);
         FINGERPRINT.store(h.finish(), Ordering::Relaxed);
+    }
+}
+
+/// Whether the frames are timed in this thread's CPU time (when profiling: time slices lost to other
+/// processes do not count, so two builds compare on a loaded machine) rather than wall time.
+static THREAD_CLOCK: AtomicBool = AtomicBool::new(false);
+
+/// The time of a row's frames: wall time, or this thread's CPU time under [`THREAD_CLOCK`].
+struct Timer(Instant, f64);
+
+impl Timer {
+    fn start() -> Timer {
+        let cpu = THREAD_CLOCK.load(Ordering::Relaxed);
+        Timer(
+            Instant::now(),
+            if cpu {
+                cpu_seconds(CpuClock::Thread)
+            } else {
+                0.0
+            },
+        )
+    }
+
+    fn elapsed(&self) -> Duration {
+        if THREAD_CLOCK.load(Ordering::Relaxed) {
+            Duration::from_secs_f64(cpu_seconds(CpuClock::Thread) - self.1)
+        } else {
+            self.0.elapsed()
+        }
     }
 }
 
@@ -267,7 +307,7 @@ fn kinetrace_frames(
     let mut bvh = MeshBvh::build(rest, &BuildOptions::default()).expect("a valid mesh");
     let mut found = Vec::new();
     let mut answers = 0;
-    let t = Instant::now();
+    let t = Timer::start();
     for pos in poses {
         bvh.refit(pos).expect("same vertex count");
         for q in queries {
@@ -320,11 +360,14 @@ fn ecs_frames(
             VertexPositions(rest.positions().to_vec()),
         ))
         .id();
-    // The first frame builds the tree, as the immediate side's build before its clock starts.
-    schedule.run(&mut world);
-    world.clear_trackers();
+    // The first frame builds the tree and the second profiles the new mesh (the characteriser runs
+    // before maintenance), as the immediate side's build before its clock starts: once per mesh.
+    for _ in 0..2 {
+        schedule.run(&mut world);
+        world.clear_trackers();
+    }
     let mut answers = 0;
-    let t = Instant::now();
+    let t = Timer::start();
     for pos in poses {
         world
             .get_mut::<VertexPositions>(e)
@@ -396,7 +439,7 @@ fn parry_frames(
         .collect();
     let mut found = Vec::new();
     let mut answers = 0;
-    let t = Instant::now();
+    let t = Timer::start();
     for pos in &frames {
         mesh.set_vertices(pos);
         for q in queries {

@@ -4,6 +4,10 @@
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
 //! less.
+//!
+//! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`) runs only that mode's hard
+//! shadows, `KINETRACE_SHADOW_REPS` times (default 60) after one warm pass, prints the last pass's phase
+//! times and nothing else: what `perf record` should see.
 
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
@@ -18,6 +22,9 @@ const SOFT_ANGLE: f32 = 0.02;
 
 /// Passes of each of selective and ray-traced hard shadows in the alternated comparison.
 const ALTERNATIONS: usize = 10;
+
+/// Consecutive frames of the moving crowd over which the selective pass's second map fits are counted.
+const MOVING_FRAMES: usize = 10;
 
 pub fn run(rec: &mut Records) {
     println!("suite shadows on {}", crate::record::machine());
@@ -40,6 +47,38 @@ pub fn run(rec: &mut Records) {
     println!("\n{scene}");
     let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
     let (mut pass, mut tris) = (HardShadows::new(), Vec::new());
+    if let Ok(mode) = std::env::var("KINETRACE_SHADOW_PROFILE") {
+        let mode = match mode.as_str() {
+            "traced" => ShadowMode::RayTraced,
+            "map" => ShadowMode::ShadowMap,
+            _ => ShadowMode::Selective,
+        };
+        let reps = std::env::var("KINETRACE_SHADOW_REPS").map_or(60, |r| r.parse().unwrap_or(60));
+        let settings = ShadowSettings {
+            mode,
+            towards_light: crowd::sun(),
+            map_resolution: side as usize,
+            ..Default::default()
+        };
+        let cpu = cpu_seconds(CpuClock::Process);
+        for _ in 0..=reps {
+            std::hint::black_box(
+                crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris)
+                    .expect("valid settings"),
+            );
+        }
+        let s = pass.stats();
+        println!(
+            "  {mode:?} x{reps}: {:.3} ms CPU a pass; last pass: map {:?}, classify {:?}, rays {:?}, {} rays, refitted {}",
+            (cpu_seconds(CpuClock::Process) - cpu) * 1e3 / (reps + 1) as f64,
+            s.map_time,
+            s.classify_time,
+            s.trace_time,
+            s.rays,
+            s.refitted
+        );
+        return;
+    }
     let mut image = |mode, map_resolution, light_angle| {
         let settings = ShadowSettings {
             mode,
@@ -215,4 +254,27 @@ pub fn run(rec: &mut Records) {
     ] {
         rec.add(SUITE, &scene, subject, metric, value, unit);
     }
+    // Consecutive frames of the moving crowd through one warm pass: how often the receivers' bounds
+    // sampled where the last frame's extremes were missed one, so the map was fitted twice.
+    let settings = ShadowSettings {
+        towards_light: crowd::sun(),
+        map_resolution: side_map,
+        ..Default::default()
+    };
+    let mut refits = 0;
+    for _ in 0..MOVING_FRAMES {
+        crowd::step(&mut world, &mut schedule);
+        let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
+        crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris).expect("valid settings");
+        refits += pass.stats().refitted as usize;
+    }
+    let moving = format!("selective, {MOVING_FRAMES} moving frames");
+    rec.add(
+        SUITE,
+        &scene,
+        &moving,
+        "maps fitted twice",
+        refits as f64,
+        "frames",
+    );
 }

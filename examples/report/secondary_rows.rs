@@ -4,7 +4,7 @@
 //! the [`kinetrace::raysort`] strategies the ECS plans among — the BVH, the sorted BVH, sorted packets of
 //! [`SORTED_PACKET`], sorted runs of as many cut above [`RUN_LOW_BITS`], CRSH with s = 8, D = 2 — and through the ECS's secondary planner
 //! ([`Choice::secondary`]) over [`ROUNDS`] batches, each round's measured seconds taught as the ECS does
-//! once per frame. All on one thread.
+//! once per frame, and batches under [`MIN_TRIED_RAYS`] trying nothing, as in the ECS. All on one thread.
 //!
 //! Per row: Mrays/s (best of three for the fixed strategies, the rounds' median for the planner), tests per
 //! ray (coarse + exact), and mismatches: answers unlike the BVH's (every ray; hits by distance and
@@ -16,7 +16,7 @@ use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::Choice;
 use kinetrace::bvh::{BuildOptions, Builder};
-use kinetrace::ecs::{SORTED_PACKET, SecondaryStrategy};
+use kinetrace::ecs::{MIN_TRIED_RAYS, SORTED_PACKET, SecondaryStrategy};
 use kinetrace::raysort::{
     Answer, KeyLayout, RUN_LOW_BITS, RayKind, RayScene, SecondaryRay, Strategy, Traced,
 };
@@ -125,7 +125,7 @@ pub fn run(scene: &Scene, settings: &Settings) -> Vec<SecondaryRow> {
         let (mut rates, mut tests, mut bad) = (Vec::with_capacity(ROUNDS), 0, 0);
         let mut picks = [0usize; FIXED.len()];
         for _ in 0..ROUNDS {
-            let s = planner.decide(rays.len() as f64);
+            let s = planner.decide_batch(rays.len(), MIN_TRIED_RAYS);
             let start = Instant::now();
             let traced = trace(&rays, s);
             let t = start.elapsed().as_secs_f64();

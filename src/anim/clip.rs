@@ -47,7 +47,8 @@ pub struct Channel {
 }
 
 impl Channel {
-    /// The value at `t`; before the first key the first value, after the last the last (glTF clamps).
+    /// The value at `t`; before the first key the first value, after the last the last (glTF clamps). A
+    /// NaN `t` gives the first value.
     pub fn sample(&self, t: f32) -> Vec4 {
         let n = self.times.len();
         let cubic = self.interpolation == Interpolation::CubicSpline;
@@ -61,7 +62,7 @@ impl Channel {
         if n == 0 {
             return Vec4::ZERO;
         }
-        if n == 1 || t <= self.times[0] {
+        if n == 1 || t.is_nan() || t <= self.times[0] {
             return value(0);
         }
         if t >= self.times[n - 1] {
@@ -111,7 +112,8 @@ pub struct Clip {
 }
 
 impl Clip {
-    /// Overwrites the driven properties of `pose` with their values at time `t`.
+    /// Overwrites the driven properties of `pose` with their values at time `t` (a NaN `t` poses the
+    /// first keys, see [`Channel::sample`]).
     pub fn sample(&self, t: f32, pose: &mut [Transform]) {
         for c in &self.channels {
             if matches!(c.property, Property::Weights { .. }) {

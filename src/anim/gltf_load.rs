@@ -47,7 +47,13 @@ fn err(m: impl Into<String>) -> Error {
 /// Loads glTF or GLB bytes already in memory; `base` is the directory relative buffer URIs are read under
 /// (none allowed without it), with the same restrictions as [`load_gltf`].
 pub fn load_gltf_slice(bytes: &[u8], base: Option<&Path>) -> Result<Vec<GltfMesh>> {
-    let doc = gltf::Gltf::from_slice(bytes).map_err(|e| err(e.to_string()))?;
+    // gltf's own validation indexes some arrays unchecked: what it would panic on is checked first.
+    let gltf::Gltf { document, blob } =
+        gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| err(e.to_string()))?;
+    check_before_validation(document.as_json())?;
+    let document =
+        gltf::Document::from_json(document.into_json()).map_err(|e| err(e.to_string()))?;
+    let doc = gltf::Gltf { document, blob };
     let buffers = load_buffers(&doc, base)?;
     let nodes: Vec<_> = doc.nodes().collect();
     // Parents and world matrices of every node.
@@ -166,6 +172,42 @@ fn load_buffers(doc: &gltf::Gltf, base: Option<&Path>) -> Result<Vec<Vec<u8>>> {
         .collect()
 }
 
+/// Checks what gltf's validation (1.4) indexes or unwraps unchecked: every primitive's `POSITION`
+/// accessor exists (its validation reads the accessor's bounds), and every animation channel targets a
+/// node that exists with a known property (left unvalidated, unwrapped by its readers).
+fn check_before_validation(root: &gltf::json::Root) -> Result<()> {
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let position = gltf::json::validation::Checked::Valid(gltf::Semantic::Positions);
+            if let Some(a) = prim.attributes.get(&position)
+                && a.value() >= root.accessors.len()
+            {
+                return Err(err(format!(
+                    "mesh {m} primitive {p}: POSITION accessor {} does not exist",
+                    a.value()
+                )));
+            }
+        }
+    }
+    for (a, anim) in root.animations.iter().enumerate() {
+        for (c, ch) in anim.channels.iter().enumerate() {
+            let node = ch.target.node.value();
+            if node >= root.nodes.len() {
+                return Err(err(format!(
+                    "animation {a} channel {c}: target node {node} does not exist ({} nodes)",
+                    root.nodes.len()
+                )));
+            }
+            if !matches!(ch.target.path, gltf::json::validation::Checked::Valid(_)) {
+                return Err(err(format!(
+                    "animation {a} channel {c}: unknown target property"
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Checks that an accessor can be read as `count` elements of `dims` components of one of `types`, entirely
 /// inside its buffer: what gltf's readers assume.
 fn check_accessor(
@@ -196,14 +238,16 @@ fn check_accessor(
             "{name}: stride {stride} is smaller than an element ({size} bytes)"
         )));
     }
-    let need = if a.count() == 0 {
-        0
-    } else {
-        a.offset() + stride * (a.count() - 1) + size
-    };
-    if need > view.length() {
+    // glTF requires at least one element, and gltf's readers compute `count - 1`.
+    if a.count() == 0 {
+        return Err(err(format!("{name}: has no elements")));
+    }
+    let need = (stride.checked_mul(a.count() - 1))
+        .and_then(|n| n.checked_add(a.offset()))
+        .and_then(|n| n.checked_add(size));
+    if need.is_none_or(|need| need > view.length()) {
         return Err(err(format!(
-            "{name}: {} elements overrun buffer view {} ({need} > {} bytes)",
+            "{name}: {} elements overrun buffer view {} ({} bytes)",
             a.count(),
             view.index(),
             view.length()

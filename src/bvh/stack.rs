@@ -29,6 +29,16 @@ impl<T: Copy, const N: usize> Stack<T, N> {
         self.len += 1;
     }
 
+    /// Writes `items` above the top and keeps the first `n` of them (at most `M`) pushed: a push of a
+    /// varying count without a branch per entry. Panics when the `M` entries would not fit.
+    #[inline(always)]
+    pub(crate) fn push_first<const M: usize>(&mut self, items: [T; M], n: usize) {
+        for (slot, x) in self.items[self.len..self.len + M].iter_mut().zip(items) {
+            slot.write(x);
+        }
+        self.len += n.min(M);
+    }
+
     /// Pops the entry pushed last, or `None` when the stack is empty.
     #[inline(always)]
     pub(crate) fn pop(&mut self) -> Option<T> {
@@ -55,6 +65,18 @@ mod tests {
         assert_eq!(s.pop(), None);
         s.push((9, 1.0));
         assert_eq!(s.pop(), Some((9, 1.0)));
+    }
+
+    /// `push_first` keeps the first `n` of its entries, in order, on top of what was there.
+    #[test]
+    fn push_first_keeps_the_first_n() {
+        let mut s = Stack::<u32, 8>::new();
+        s.push(7);
+        s.push_first([1, 2, 3], 2);
+        s.push_first([4, 5, 6], 0);
+        s.push_first([8, 9, 10], 1);
+        let popped: Vec<u32> = std::iter::from_fn(|| s.pop()).collect();
+        assert_eq!(popped, [8, 2, 1, 7]);
     }
 
     #[test]

@@ -131,7 +131,9 @@ pub enum RebuildPolicy {
     /// rays a mesh receives. That is exact for rays spread evenly over the scene and off by the ratio of
     /// a mesh's real ray density to the modelled one otherwise (a mesh that every ray aims at is
     /// under-charged, one that none aims at over-charged); counting real per-mesh traversal work would
-    /// cost every query. Immediate queries ([`SpatialRays`](super::SpatialRays)) are not timed, so a scene
+    /// cost every query. Batched shape queries ([`ShapeQueue`](super::ShapeQueue): casts, closest points,
+    /// overlaps, containment) are timed and apportioned the same way, and teach what answers them — the
+    /// mesh's rebuilds, builder and wide tree, not its grid or packet choices. Immediate queries ([`SpatialRays`](super::SpatialRays)) are not timed, so a scene
     /// queried only through them is treated as ray-free: it rebuilds only on the cost guard
     /// ([`AdaptivePolicy::sah_bound`](crate::adaptive::AdaptivePolicy::sah_bound): 1.5 × a fresh binned-SAH
     /// tree's SAH cost).
@@ -219,7 +221,10 @@ pub struct TraceConfig {
     /// Which structure answers rays, for meshes without a [`TraceStructure`]; [`Structure::Bvh`] by
     /// default.
     pub structure: Structure,
-    /// Options of the grids of meshes kept as grids.
+    /// Options of the grids of meshes kept as grids. Out of range (a λ that is not finite and positive, a
+    /// zero macrocell), every mesh kept as a grid fails with a [`TraceError`](super::TraceError) holding
+    /// [`Error::InvalidOption`](crate::Error::InvalidOption) and is not queried until the options are
+    /// fixed and the error component removed.
     pub grid: GridOptions,
     /// Let [`TraceMode::GpuWhenAvailable`] use a software adapter (false by default; read when the plugin
     /// is built).

@@ -374,7 +374,7 @@ fn start_from_sibling(
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
 /// first call, [`Choice::wide`]; with `hold`, the settled option, no try): the option is applied (a
 /// collapse when the tree comes back) and charged this frame's maintenance of the mesh since `start`,
-/// its rays are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+/// its rays and shape queries are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
     start: Instant,
@@ -382,11 +382,12 @@ fn plan_wide<'a>(
     e: Entity,
     hold: bool,
 ) -> &'a Choice<bool> {
+    let queries = inst.tree_queries();
     let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
     let on = if hold {
         wide.hold()
     } else {
-        wide.decide(inst.rays)
+        wide.decide(queries)
     };
     inst.bvh.set_wide(on);
     let measured = start.elapsed().as_secs_f64();
@@ -720,6 +721,7 @@ impl Asked<'_> {
                 (policy(&input), None)
             }
             RebuildPolicy::Adaptive { builders } => {
+                let queries = inst.tree_queries();
                 let Some(policy) = inst.kept.adaptive.as_mut() else {
                     // The policy became adaptive at run time: rebuild once to start measuring.
                     let policy = inst
@@ -733,7 +735,7 @@ impl Asked<'_> {
                 }
                 let cost = TreeCost::of(inst.bvh.bvh());
                 inst.sah = cost.sah;
-                let rebuild = policy.after_refit(cost, inst.rays);
+                let rebuild = policy.after_refit(cost, queries);
                 // Only a rebuild due by the rent weighs the partial one: a mesh that is kept pays no
                 // pass over its nodes for it.
                 let partial = policy.prediction().verdict == Verdict::Rent && {

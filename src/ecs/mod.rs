@@ -117,7 +117,9 @@ pub use stats::{
 // Structure choice (issue 12): which structure answers a mesh's rays.
 pub use crate::grid::{ChoiceReason, StructureKind};
 pub use config::{Structure, TraceStructure};
-pub use ray_kinds::{RayBatch, RequestKind, SORTED_PACKET, SecondaryRays, SecondaryStrategy};
+pub use ray_kinds::{
+    MIN_TRIED_RAYS, RayBatch, RequestKind, SORTED_PACKET, SecondaryRays, SecondaryStrategy,
+};
 pub use stats::{OptionStats, PlannedOption, StructureStats, StructureWhy};
 pub use transform_sync::TransformSource;
 pub use world::TraceWorld;

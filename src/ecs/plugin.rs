@@ -127,7 +127,10 @@ impl KinetracePlugin {
             maintain_system.in_set(TraceSystems::Maintain),
             top_level_system.in_set(TraceSystems::TopLevel),
             queries_system.in_set(TraceSystems::Queries),
-            super::shape_batch::shape_queries_system.in_set(TraceSystems::Queries),
+            // Before the rays, whose system hands both timings to the adaptive policy.
+            super::shape_batch::shape_queries_system
+                .before(queries_system)
+                .in_set(TraceSystems::Queries),
             super::collide::collide_system
                 .run_if(super::collide::collisions_needed)
                 .in_set(TraceSystems::Queries),

@@ -174,14 +174,20 @@ impl TraceWorld {
     }
 }
 
-/// Part of [`TraceSystems::Queries`](super::TraceSystems::Queries): answers and drains the [`ShapeQueue`].
+/// Part of [`TraceSystems::Queries`](super::TraceSystems::Queries), before the ray queries: answers and
+/// drains the [`ShapeQueue`], and records how many requests took how long
+/// ([`TraceStats::batched_shapes`], [`TraceStats::shape_query_time`]), which the ray queries' system
+/// hands to the adaptive policy with its own.
 pub(crate) fn shape_queries_system(
     world: Res<TraceWorld>,
     mut queue: ResMut<ShapeQueue>,
     mut results: ResMut<ShapeResults>,
-    stats: Res<TraceStats>,
+    mut stats: ResMut<TraceStats>,
 ) {
+    let start = std::time::Instant::now();
     results.frame = stats.frame;
     world.answer_shapes(&queue, &mut results);
+    stats.batched_shapes = queue.len();
     queue.clear();
+    stats.shape_query_time = start.elapsed();
 }

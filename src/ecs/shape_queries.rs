@@ -21,7 +21,7 @@ use super::{QueryFilter, TraceWorld, world::Instance};
 use crate::bvh::traverse_by;
 use crate::queries::{CastHit, Feature, Frame, PointHit, Shape, Sweep, box_dist2};
 use bevy_ecs::entity::Entity;
-use glam::{Mat3, Quat, Vec2, Vec3};
+use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
 
 /// Where a swept shape first touches an entity, in world space.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -96,7 +96,17 @@ enum Placement {
 }
 
 fn placement(inst: &Instance) -> Placement {
-    let m = inst.transform.matrix3;
+    match inst.similar_scale {
+        Some(scale) => Placement::Similar { scale },
+        None => Placement::General,
+    }
+}
+
+/// The scale of `t` when it is a similarity (`translation · scale · rotation`, see the module docs), else
+/// `None`. Kept with the instance's transform ([`Instance::similar_scale`]) and read from there by every
+/// query, instead of three lengths, three dot products and a determinant per query and entity.
+pub(super) fn similarity_scale(t: &Affine3A) -> Option<f32> {
+    let m = t.matrix3;
     let cols = [m.x_axis, m.y_axis, m.z_axis];
     let lens = cols.map(|c| c.length());
     let s = (lens[0] + lens[1] + lens[2]) / 3.0;
@@ -107,11 +117,7 @@ fn placement(inst: &Instance) -> Placement {
             .iter()
             .all(|&(i, j)| (cols[i].dot(cols[j]) / (s * s)).abs() <= TOL)
         && m.determinant() > 0.0;
-    if similar {
-        Placement::Similar { scale: s }
-    } else {
-        Placement::General
-    }
+    similar.then_some(s)
 }
 
 /// A world shape in the mesh's frame of an entity placed by a similarity of `scale`.

@@ -200,6 +200,11 @@ pub struct TraceStats {
     pub batched_rays: usize,
     /// The same count of the previous frame (what the policy sees).
     pub rays_last_frame: usize,
+    /// Batched shape casts, closest points, overlaps and containment requests answered
+    /// ([`ShapeQueue`](super::ShapeQueue)).
+    pub batched_shapes: usize,
+    /// The same count of the previous frame (what the adaptive policy sees beside the rays).
+    pub shapes_last_frame: usize,
     /// Time per phase: clip sampling and joint matrices.
     pub animate_time: Duration,
     /// Skinning.
@@ -208,8 +213,10 @@ pub struct TraceStats {
     pub maintain_time: Duration,
     /// Transforms and the top level.
     pub top_level_time: Duration,
-    /// Batched queries.
+    /// Batched ray queries.
     pub query_time: Duration,
+    /// Batched shape queries ([`ShapeQueue`](super::ShapeQueue)).
+    pub shape_query_time: Duration,
     /// This frame's GPU traffic: bytes uploaded and read back, submissions, blocking waits, and bytes of
     /// device buffers allocated (nonzero in a frame that made or grew a tree's or builder's buffers; all
     /// zero without a GPU context).

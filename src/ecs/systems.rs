@@ -25,6 +25,7 @@ pub(crate) fn begin_frame(mut stats: ResMut<TraceStats>) {
         structures,
         options,
         rays_last_frame: stats.batched_rays,
+        shapes_last_frame: stats.batched_shapes,
         ..Default::default()
     };
 }
@@ -172,7 +173,10 @@ pub(crate) fn top_level_system(
             Err(err) => fail(e, err, &mut world, &mut commands, &mut errors, &mut stats),
         }
     }
-    stats.top_level = world.update_tlas(&config.policy, stats.rays_last_frame);
+    stats.top_level = world.update_tlas(
+        &config.policy,
+        stats.rays_last_frame + stats.shapes_last_frame,
+    );
     stats.top_level_time = t.elapsed();
 }
 
@@ -323,14 +327,18 @@ pub(crate) fn queries_system(
     attribute(&mut world, &config, &stats);
 }
 
-/// Under the adaptive policy, tells every mesh its share of the frame's batched query time (see
+/// Under the adaptive policy, tells every mesh its share of the frame's batched query time, rays and
+/// shape queries (answered before the rays, see [`shape_queries_system`](super::shape_batch)) apart (see
 /// [`TraceWorld::attribute_queries`]); other policies pay nothing for it. Not a change of what queries
 /// read, so it bypasses change detection.
 pub(super) fn attribute(world: &mut ResMut<TraceWorld>, config: &TraceConfig, stats: &TraceStats) {
     if matches!(config.policy, RebuildPolicy::Adaptive { .. }) {
-        world
-            .bypass_change_detection()
-            .attribute_queries(stats.batched_rays, stats.query_time.as_secs_f64());
+        world.bypass_change_detection().attribute_queries(
+            stats.batched_rays,
+            stats.query_time.as_secs_f64(),
+            stats.batched_shapes,
+            stats.shape_query_time.as_secs_f64(),
+        );
     }
 }
 

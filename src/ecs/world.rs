@@ -24,6 +24,9 @@ pub(crate) struct Instance {
     pub inverse: Affine3A,
     /// Inverse transpose of the linear part, for normals.
     pub normal_matrix: Mat3A,
+    /// The transform's scale when it is a similarity (shape queries then go into the mesh's frame), else
+    /// `None` (see `shape_queries`): worked out with the transform, not per query.
+    pub similar_scale: Option<f32>,
     pub world_bounds: Aabb,
     pub layers: u32,
     pub frames_since_rebuild: u32,
@@ -39,6 +42,9 @@ pub(crate) struct Instance {
     /// Rays expected to reach the mesh per frame: last frame's batched requests × the mesh's share of the
     /// scene's surface area (adaptive policy only).
     pub rays: f64,
+    /// Shape queries (casts, closest points, overlaps, containment) expected to reach the mesh's tree per
+    /// frame, counted as [`rays`](Self::rays) are (adaptive policy only).
+    pub shapes: f64,
     /// Which structure answers the mesh's closest-hit and any-hit rays, and why.
     pub structure: StructureKind,
     pub why: StructureWhy,
@@ -88,6 +94,12 @@ impl Instance {
         }
     }
 
+    /// Queries expected to reach the mesh's tree per frame: its rays and its shape queries (what its
+    /// rebuild policy and its wide-tree choice serve).
+    pub fn tree_queries(&self) -> f64 {
+        self.rays + self.shapes
+    }
+
     /// Records a refit's degradation.
     pub fn remember(&mut self, degradation: f32) {
         if self.history.len() == HISTORY {
@@ -104,6 +116,7 @@ impl Instance {
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
             normal_matrix: Mat3A::IDENTITY,
+            similar_scale: Some(1.0),
             world_bounds: Aabb::EMPTY,
             layers: u32::MAX,
             frames_since_rebuild: 0,
@@ -113,6 +126,7 @@ impl Instance {
             kept,
             sah: 0.0,
             rays: 0.0,
+            shapes: 0.0,
             structure: StructureKind::Bvh,
             why: StructureWhy::Fixed,
         };
@@ -125,6 +139,7 @@ impl Instance {
         self.transform = t;
         self.inverse = t.inverse();
         self.normal_matrix = self.inverse.matrix3.transpose();
+        self.similar_scale = super::shape_queries::similarity_scale(&t);
         self.update_world_bounds();
     }
 
@@ -343,17 +358,30 @@ impl TraceWorld {
         gone
     }
 
-    /// Feeds the adaptive policies a frame's batched queries: `rays` requests answered in `seconds`.
+    /// Feeds the adaptive policies a frame's batched queries: `rays` ray requests answered in
+    /// `ray_seconds` and `shapes` shape, point, overlap and containment requests ([`ShapeQueue`](super::ShapeQueue))
+    /// in `shape_seconds`.
     ///
     /// The time is apportioned by expected traversal work: the top level's, its SAH cost `C_tlas` (every
-    /// ray enters it), and each mesh's, `p_i · C_i` with `p_i` the mesh's world-box area over the scene
+    /// query enters it), and each mesh's, `p_i · C_i` with `p_i` the mesh's world-box area over the scene
     /// box's (the chance that a ray through the scene reaches it) and `C_i` its SAH cost; each mesh is told
-    /// it received `rays · p_i` rays, the top level all of them (meshes kept as grids take no share: their
-    /// time is not BVH time; except where the planner chooses the structure, whose grid takes the share its
-    /// BVH would, `C_i` its BVH's last cost, and teaches only that choice). The shares add up to the measured time;
-    /// how far each is off is discussed at [`RebuildPolicy::Adaptive`](super::RebuildPolicy). O(meshes),
-    /// no allocation.
-    pub(crate) fn attribute_queries(&mut self, rays: usize, seconds: f64) {
+    /// it received `rays · p_i` rays and `shapes · p_i` shape queries, the top level all of them (meshes
+    /// kept as grids take no share: their time is not BVH time; except where the planner chooses the
+    /// structure, whose grid takes the share its BVH would, `C_i` its BVH's last cost, and teaches only
+    /// that choice). The shares add up to the measured time; how far each is off is discussed at
+    /// [`RebuildPolicy::Adaptive`](super::RebuildPolicy). Shape queries are charged by the same model
+    /// (a point query's box test is a ray's, and its cost grows with the tree's as a ray's does) to what
+    /// answers them: the mesh's tree — its rebuild policy (rent, builder) and its wide-tree choice — never
+    /// the grid, packet or overlap-test choices, which they do not use. So a mesh queried mostly by
+    /// closest points gets the builder and the wide tree that pay for those queries. O(meshes), no
+    /// allocation.
+    pub(crate) fn attribute_queries(
+        &mut self,
+        rays: usize,
+        ray_seconds: f64,
+        shapes: usize,
+        shape_seconds: f64,
+    ) {
         let scene = self.tlas.bounds().half_area_f64();
         let share = |i: &Instance| {
             if scene > 0.0 {
@@ -374,45 +402,56 @@ impl TraceWorld {
                 .values()
                 .map(|i| share(i) * bvh_sah(i))
                 .sum::<f64>();
-        self.attribute_top_level(rays, seconds, work);
+        self.attribute_top_level(rays + shapes, ray_seconds + shape_seconds, work);
         let script = self.script.as_ref();
         for (&e, inst) in self.instances.iter_mut() {
             let p = share(inst);
             inst.rays = rays as f64 * p;
+            inst.shapes = shapes as f64 * p;
             if work <= 0.0 || inst.kept.adaptive.is_none() {
                 continue;
             }
-            let share = seconds * p * bvh_sah(inst) / work;
-            let rays = inst.rays;
-            let learned = |option| scripted(script, e, option, share, |c| c.per_ray_s * rays);
+            let part = |seconds: f64| seconds * p * bvh_sah(inst) / work;
+            let (ray_share, shape_share) = (part(ray_seconds), part(shape_seconds));
+            let (rays, tree_queries) = (inst.rays, inst.tree_queries());
+            let learned = |option, seconds, units: f64| {
+                scripted(script, e, option, seconds, |c| c.per_ray_s * units)
+            };
             let sub_try = inst.sub_option_tried();
             if let Some(structure) = inst.kept.structure.as_mut().filter(|_| !sub_try) {
                 let kind = inst.structure;
-                structure.served(kind, rays, learned(PlannedOption::Structure(kind)));
+                let option = PlannedOption::Structure(kind);
+                structure.served(kind, rays, learned(option, ray_share, rays));
             }
             if let Some(overlap) = inst.kept.overlap.as_mut()
                 && inst.structure == StructureKind::Grid
             {
                 let on = overlap.current();
-                overlap.served(on, rays, learned(PlannedOption::Overlap(on)));
+                let option = PlannedOption::Overlap(on);
+                overlap.served(on, rays, learned(option, ray_share, rays));
             }
             if let Some(policy) = inst.kept.adaptive.as_mut()
                 && inst.structure == StructureKind::Bvh
             {
-                policy.queried(rays, inst.sah, share);
+                let tree_share = ray_share + shape_share;
+                policy.queried(tree_queries, inst.sah, tree_share);
                 if let Some(wide) = inst.kept.wide.as_mut() {
                     let on = inst.bvh.wide().is_some();
-                    wide.served(on, rays, learned(PlannedOption::Wide(on)));
+                    let option = PlannedOption::Wide(on);
+                    wide.served(on, tree_queries, learned(option, tree_share, tree_queries));
                 }
                 if let Some(packets) = inst.kept.packets.as_mut() {
                     let on = packets.current();
-                    packets.served(on, rays, learned(PlannedOption::Packets(on)));
+                    let option = PlannedOption::Packets(on);
+                    packets.served(on, rays, learned(option, ray_share, rays));
                 }
             }
         }
     }
 
-    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts.
+    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts. `None`
+    /// for an invalid ray ([`Ray::is_valid`]: non-finite origin or direction, zero direction, NaN range)
+    /// and for a NaN `max_t`.
     pub fn cast_ray(&self, ray: &Ray, max_t: f32, filter: &QueryFilter) -> Option<RayHit> {
         self.cast(ray, max_t, filter, None)
     }
@@ -435,7 +474,7 @@ impl TraceWorld {
         filter: &QueryFilter,
         stats: Option<&mut TraversalStats>,
     ) -> Option<RayHit> {
-        let ray = Ray::with_range(ray.origin, ray.dir(), ray.tmin, ray.tmax.min(max_t));
+        let ray = ray.clipped(max_t);
         if !ray.is_valid() {
             return None;
         }

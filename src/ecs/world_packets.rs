@@ -47,7 +47,7 @@ impl TraceWorld {
         for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
             let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
             for (w, r) in world.iter_mut().zip(rays) {
-                *w = Ray::with_range(r.origin, r.dir(), r.tmin, r.tmax.min(max_t));
+                *w = r.clipped(max_t);
             }
             let world = &world[..rays.len()];
             let mut best = [None::<(Entity, Hit)>; MAX_PACKET];

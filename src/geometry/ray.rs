@@ -37,7 +37,10 @@ impl Ray {
         Self::with_range(origin, dir, 0.0, f32::INFINITY)
     }
 
-    /// A ray over `t ∈ [tmin, tmax]`.
+    /// A ray over `t ∈ [tmin, tmax]`. A range with `tmin > tmax` is empty (nothing is hit); a NaN bound
+    /// makes the ray invalid. A negative `tmin` reaches behind the origin on the CPU, but GPU queries
+    /// raise it to 0 (their kernels mark a miss with a negative distance): keep `tmin ≥ 0` where the
+    /// GPU may answer.
     pub fn with_range(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
         let flush = |d: f32| {
             if d.abs() < f32::MIN_POSITIVE {
@@ -70,6 +73,20 @@ impl Ray {
     /// The same ray (origin and range) with another direction; the derived state is recomputed.
     pub fn with_dir(&self, dir: Vec3) -> Self {
         Self::with_range(self.origin, dir, self.tmin, self.tmax)
+    }
+
+    /// The same ray with its range cut at `max_t`: `tmax` becomes `min(tmax, max_t)`. A NaN on either side
+    /// gives a NaN `tmax`, so an invalid ray stays invalid ([`Ray::is_valid`]) and a NaN limit makes one,
+    /// rather than `f32::min` quietly taking the other value (which turned a NaN range into an unlimited
+    /// ray).
+    #[inline]
+    pub fn clipped(&self, max_t: f32) -> Self {
+        let tmax = if max_t.is_nan() || self.tmax.is_nan() {
+            f32::NAN
+        } else {
+            self.tmax.min(max_t)
+        };
+        Self { tmax, ..*self }
     }
 
     /// The direction, with zero and subnormal components flushed to signed zero.
@@ -178,6 +195,22 @@ mod tests {
         assert!(!Ray::new(Vec3::ZERO, Vec3::new(f32::INFINITY, 0.0, 0.0)).is_valid());
         assert!(Ray::new(Vec3::ZERO, Vec3::new(1e-40, 0.0, 1.0)).is_valid());
         assert_eq!(Ray::new(Vec3::ZERO, Vec3::new(1e-40, 0.0, 1.0)).dir.x, 0.0);
+    }
+
+    #[test]
+    fn clipping_keeps_nan_ranges_invalid() {
+        let r = Ray::new(Vec3::ZERO, Vec3::X);
+        assert_eq!(r.clipped(2.0).tmax, 2.0);
+        assert_eq!(r.clipped(f32::INFINITY).tmax, f32::INFINITY);
+        assert!(!r.clipped(f32::NAN).is_valid());
+        let nan = Ray::with_range(Vec3::ZERO, Vec3::X, 0.0, f32::NAN);
+        assert!(!nan.clipped(2.0).is_valid());
+        assert_eq!(
+            Ray::with_range(Vec3::ZERO, Vec3::X, 0.0, 1.0)
+                .clipped(5.0)
+                .tmax,
+            1.0
+        );
     }
 
     #[test]

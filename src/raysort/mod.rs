@@ -7,8 +7,8 @@
 //! one mesh. [`Strategy::SortedBvh`] costs one O(n) key pass plus a radix sort over the chunks of equal key
 //! and pays where request order is incoherent; [`Strategy::SortedPackets`] traces the sorted rays as
 //! packets (faster than the BVH on shadow rays toward one light, slower on reflection rays); [`Strategy::SortedRuns`] cuts
-//! those packets where the key changes and sorts on the bits above the cut only (1.3× the BVH on the
-//! crowd's reflection rays at 1024² before the sort, 1.06–1.09× with it). CRSH cuts intersection tests against RAH, but its traversal
+//! those packets where the key changes and sorts on the bits above the cut only (1.2× the wide
+//! single-ray BVH on the crowd's reflection rays at 1024² before the sort, 1.01–1.05× with it). CRSH cuts intersection tests against RAH, but its traversal
 //! tests every triangle sphere against every top node, so on the CPU it is slower than the BVH for meshes of
 //! more than a few hundred triangles: measure (`bench raysort`) before choosing it.
 //!

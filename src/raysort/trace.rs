@@ -13,8 +13,9 @@
 //!   packet never mixes origin cells or direction blocks; sorted on those high bits only
 //!   ([`SortedRays::sort_above`]: 30 ns a ray against the full sort's 36, ties left in pixel order, which
 //!   traverses 4–6% faster than full key order). Reflection rays on the crowd (6,400 triangles, one
-//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.06–1.09× the BVH in pixel order at
-//!   1024², 0.85–0.88× at 512² (traversal alone 1.3× and 1.0×). On a crowd of 192,000 triangles, 0.99×
+//!   thread, thread CPU time on a loaded 2-core VM), sort counted: 1.01–1.05× the BVH in pixel order
+//!   (single rays through the 4-wide tree, as the packets) at 1024², 0.84–0.88× at 512² (traversal
+//!   alone 1.2× and 0.95–0.99×). On a crowd of 192,000 triangles, 0.99×
 //!   before the sort: pixel order is already coherent.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
@@ -243,10 +244,11 @@ impl RayScene {
         traced
     }
 
-    /// The valid sorted rays, split by kind (keeping their order), as packets of at most `size` consecutive
-    /// rays whose keys agree above their low `drop_bits` bits (32: any keys, packets of `size`). Each
-    /// packet gathers its rays on the stack; beyond the answers, one 8-byte word per ray, and in parallel
-    /// the answers in trace order (on one thread they go straight to their place).
+    /// The valid sorted rays as packets of at most `size` consecutive rays of one kind whose keys agree
+    /// above their low `drop_bits` bits (32: any keys, packets of `size`). Each packet gathers its rays on
+    /// the stack; beyond the answers, one 8-byte word per ray, and in parallel the answers in trace order
+    /// (on one thread they go straight to their place). A batch of mixed kinds is cut where the kind
+    /// changes (read beside the ray the packet gathers), not split by a pass over the batch.
     fn trace_packets(
         &self,
         rays: &[SecondaryRay],
@@ -256,36 +258,12 @@ impl RayScene {
         parallel: bool,
     ) -> Traced {
         let size = size.clamp(1, MAX_PACKET);
-        let valid = sorted.order[..sorted.valid()].iter().zip(&sorted.keys);
-        let shadow = |r: &SecondaryRay| matches!(r.kind, RayKind::Shadow { .. });
-        // (request index, key) of each valid ray: the shadow rays, then the reflection rays, in key order.
-        // A batch of one kind (the usual one) is split without looking its rays up in key order.
-        let mut run: Vec<(u32, u32)> = Vec::with_capacity(sorted.valid());
-        let pair = |(&i, &k): (&u32, &u32)| (i, k);
-        let mixed = rays.iter().any(shadow) && !rays.iter().all(shadow);
-        let shadows = if mixed {
-            run.extend(
-                valid
-                    .clone()
-                    .filter(|(i, _)| shadow(&rays[**i as usize]))
-                    .map(pair),
-            );
-            run.len()
-        } else if rays.first().is_some_and(shadow) {
-            sorted.valid()
-        } else {
-            0
-        };
-        if mixed {
-            run.extend(
-                valid
-                    .filter(|(i, _)| !shadow(&rays[**i as usize]))
-                    .map(pair),
-            );
-        } else {
-            run.extend(valid.map(pair));
-        }
-        let packets = packet_ranges(&run, shadows, size, drop_bits);
+        let shadow = |i: u32| matches!(rays[i as usize].kind, RayKind::Shadow { .. });
+        // (request index, key) of each valid ray, in key order.
+        let run: Vec<(u32, u32)> = (sorted.order.iter().copied())
+            .zip(sorted.keys.iter().copied())
+            .collect();
+        let packets = packet_ranges(&run, size, drop_bits, shadow);
         // A packet's rays gathered into `batch` (kept from packet to packet on one thread: filling 64 rays
         // anew per packet cost more than a short packet's traversal).
         let empty = || [crate::Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
@@ -293,7 +271,7 @@ impl RayScene {
             for (b, &(i, _)) in batch.iter_mut().zip(&run[r.clone()]) {
                 *b = rays[i as usize].ray;
             }
-            self.trace_packet(&batch[..r.len()], r.start < shadows, out);
+            self.trace_packet(&batch[..r.len()], shadow(run[r.start].0), out);
         };
         let mut traced = Traced {
             answers: vec![Answer::Miss; rays.len()],
@@ -456,23 +434,23 @@ impl Walk<'_> {
     }
 }
 
-/// The packets of `run` (sorted rays, the first `shadows` of them shadow rays) as ranges: at most `size`
-/// consecutive rays of one kind whose keys agree above their low `drop_bits` bits.
-fn packet_ranges(
-    run: &[(u32, u32)],
-    shadows: usize,
+/// The packets of `run` (sorted rays) as ranges: at most `size` consecutive rays of one kind (`shadow`
+/// of a request index says which) whose keys agree above their low `drop_bits` bits.
+fn packet_ranges<'a>(
+    run: &'a [(u32, u32)],
     size: usize,
     drop_bits: u32,
-) -> impl Iterator<Item = Range<usize>> + '_ {
+    shadow: impl Fn(u32) -> bool + 'a,
+) -> impl Iterator<Item = Range<usize>> + 'a {
     let mut start = 0;
     std::iter::from_fn(move || {
         if start >= run.len() {
             return None;
         }
-        let limit = (start + size).min(if start < shadows { shadows } else { run.len() });
-        let block = (run[start].1 as u64) >> drop_bits;
+        let limit = (start + size).min(run.len());
+        let (block, kind) = ((run[start].1 as u64) >> drop_bits, shadow(run[start].0));
         let end = (start + 1..limit)
-            .find(|&k| (run[k].1 as u64) >> drop_bits != block)
+            .find(|&k| (run[k].1 as u64) >> drop_bits != block || shadow(run[k].0) != kind)
             .unwrap_or(limit);
         let r = start..end;
         start = end;

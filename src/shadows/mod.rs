@@ -7,7 +7,11 @@
 //! [`Packets`], e.g. `TraceWorld::occluded_packet`), and writes a visibility per pixel:
 //!
 //! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
-//!    pixels' surfaces ([`ShadowMap`]);
+//!    pixels' surfaces ([`ShadowMap`]). The footprint is first taken from a sample of the image's rows
+//!    (every 16th, and those around where the last pass found its extremes); step 2, which reads every
+//!    pixel anyway, finds the exact footprint, and where the sample missed part of it the map is rendered
+//!    and step 2 run again ([`ShadowStats::refitted`]): the same map and image either way, for a pass
+//!    over the G-buffer less in a moving scene whose extremes stay near where they were;
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the occluders' (`[s − Δ, s + Δ]`); where they overlap the pixel is *potentially
@@ -161,6 +165,9 @@ pub struct ShadowStats {
     pub facing: usize,
     /// Pixels that got a shadow ray (the marked, potentially incorrect pixels in selective mode).
     pub rays: usize,
+    /// Whether the receivers' bounds over the sample of image rows the map was first fitted to missed an
+    /// extreme, so the map was rendered and every pixel classified a second time, over the exact bounds.
+    pub refitted: bool,
     /// Time rendering the shadow map.
     pub map_time: Duration,
     /// Time classifying and compacting.
@@ -182,6 +189,9 @@ impl ShadowStats {
 /// row.
 const BAND: usize = 8;
 
+/// The receivers' bounds a map is first fitted to come from every this many image rows (and the last).
+const SAMPLE_ROWS: usize = 16;
+
 /// One band of pixels' share of a pass's classification.
 #[derive(Clone, Debug, Default)]
 struct Chunk {
@@ -191,6 +201,8 @@ struct Chunk {
     start: usize,
     /// Its pixels showing a surface that faces the light.
     facing: usize,
+    /// Its receivers' bounds, when the classification finds them.
+    bounds: (Vec3, Vec3),
 }
 
 /// One hard-shadow pass, kept between frames so a warm pass does not allocate (see the module docs).
@@ -208,8 +220,13 @@ pub struct HardShadows {
     /// Soft shadows: per texel, whether a penumbra may reach it.
     mask: Vec<bool>,
     visibility: Vec<f32>,
-    /// Per chunk of pixels, the receivers' bounds across the light (scratch of [`Self::receivers`]).
+    /// The image rows the receivers' bounds are sampled from, and each one's bounds (scratch of
+    /// [`Self::receivers`]).
+    rows: Vec<usize>,
     bounds: Vec<(Vec3, Vec3)>,
+    /// The bands of [`BAND`] rows that held the last pass's extreme receivers (lowest x, y and z across
+    /// and along the light, highest x and y): sampled again, with their neighbours, by the next pass.
+    extremes: Vec<usize>,
     stats: ShadowStats,
 }
 
@@ -238,61 +255,35 @@ impl HardShadows {
         let n = gbuffer.width * gbuffer.height;
         let s = settings;
         let soft = s.light_angle > 0.0;
-        let t0 = Instant::now();
-        if s.mode != ShadowMode::RayTraced {
+        let (mut map_time, mut classify_time) = (Duration::ZERO, Duration::ZERO);
+        // The map is fitted to the receivers' bounds over a sample of the image's rows first; the
+        // classification, which reads every pixel anyway, finds the exact bounds, and only where the
+        // sample missed an extreme is the map fitted to them and every pixel classified again: the same
+        // map and image as a fit to the exact bounds, for a twentieth of a pass over the G-buffer.
+        let sampled = (s.mode != ShadowMode::RayTraced).then(|| {
+            let t = Instant::now();
             self.map.aim(towards);
-            let (lo, hi) = self.receivers(gbuffer, towards, par);
-            let spread = s.light_angle.tan();
-            self.map
-                .render(triangles, (lo, hi), spread, s.map_resolution, par);
-            if soft && s.mode == ShadowMode::Selective {
-                // The deepest receiver's depth: top − its lowest `p · towards`.
-                let deepest = self.map.project(Vec3::ZERO).z - lo.z;
-                let edge = s.edge_texels * self.map.texel_size();
-                penumbra::mask(&self.map, s.light_angle, edge, deepest, &mut self.mask);
-            }
+            let sampled = self.receivers(gbuffer, towards, par);
+            self.fit_map(s, triangles, sampled);
+            map_time += t.elapsed();
+            sampled
+        });
+        let t = Instant::now();
+        let exact = self.classify(s, gbuffer, towards, sampled.is_some());
+        classify_time += t.elapsed();
+        let refitted = sampled.is_some_and(|b| !same_fit(b, exact, soft));
+        if sampled.is_some() {
+            self.note_extremes(exact);
         }
-        let t1 = Instant::now();
-        let edge = s.edge_texels * self.map.texel_size();
-        if s.mode == ShadowMode::Selective && !soft {
-            self.deltas.find(&self.map, edge, par);
+        if refitted {
+            let t = Instant::now();
+            self.fit_map(s, triangles, exact);
+            map_time += t.elapsed();
+            let t = Instant::now();
+            self.classify(s, gbuffer, towards, false);
+            classify_time += t.elapsed();
         }
-        let (map, mask, deltas, g) = (&self.map, &self.mask, &self.deltas, gbuffer);
-        // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
-        // The shadow map alone is hard: it shades everything at or below n·L = 0.
-        let horizon = s.light_angle.sin();
-        let away = if s.mode == ShadowMode::ShadowMap {
-            0.0
-        } else {
-            -horizon
-        };
-        // A pixel with no surface or one facing away from the light, else its n·L.
-        let toward = |i: usize| classify::facing(g.normals[i], towards, away);
-        let bias = s.bias_texels;
-        let (w, chunk) = (gbuffer.width, BAND * gbuffer.width);
-        let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
-        // One classification per mode, each its own loop (the test inlined, no dispatch per pixel).
-        let px = Pixels { w, n };
-        match s.mode {
-            ShadowMode::RayTraced => classify_pixels(par, px, vis, chunks, |i| {
-                toward(i).map_or_else(|c| c, |_| Class::Marked)
-            }),
-            ShadowMode::ShadowMap => classify_pixels(par, px, vis, chunks, |i| match toward(i) {
-                Ok(cos) => classify::shadow_map_only(map, g.positions[i], cos, bias),
-                Err(c) => c,
-            }),
-            ShadowMode::Selective if soft => {
-                classify_pixels(par, px, vis, chunks, |i| match toward(i) {
-                    Ok(cos) if cos <= horizon => Class::Marked,
-                    Ok(cos) => classify::soft(map, mask, g.positions[i], cos, bias),
-                    Err(c) => c,
-                })
-            }
-            ShadowMode::Selective => classify_pixels(par, px, vis, chunks, |i| match toward(i) {
-                Ok(cos) => classify::selective(map, deltas, g.positions[i], cos, bias),
-                Err(c) => c,
-            }),
-        }
+        let t = Instant::now();
         self.marked.clear();
         let mut facing = 0;
         for chunk in &mut self.chunks {
@@ -300,6 +291,7 @@ impl HardShadows {
             self.marked.extend_from_slice(&chunk.marked);
             facing += chunk.facing;
         }
+        classify_time += t.elapsed();
         let t2 = Instant::now();
         self.lit.resize(self.marked.len(), 0.0);
         let shoot = rays::Shoot {
@@ -314,6 +306,7 @@ impl HardShadows {
         };
         rays::trace(par, &self.marked, &mut self.lit, shoot, &rays);
         let lit = &self.lit;
+        let chunk = BAND * gbuffer.width;
         parallel::fill_chunks_with(
             par,
             &mut self.visibility,
@@ -329,11 +322,89 @@ impl HardShadows {
             pixels: n,
             facing,
             rays: self.marked.len(),
-            map_time: t1 - t0,
-            classify_time: t2 - t1,
+            refitted,
+            map_time,
+            classify_time,
             trace_time: t2.elapsed(),
         };
         Ok(&self.visibility)
+    }
+
+    /// Renders the map over the receivers' bounds `receivers` (see [`Self::receivers`]), with what the
+    /// mode classifies against: the penumbra mask (soft selective) or the smooth texels (hard selective).
+    fn fit_map(&mut self, s: &ShadowSettings, triangles: &[[Vec3; 3]], receivers: (Vec3, Vec3)) {
+        let (par, soft) = (s.parallel, s.light_angle > 0.0);
+        self.map.render(
+            triangles,
+            receivers,
+            s.light_angle.tan(),
+            s.map_resolution,
+            par,
+        );
+        let edge = s.edge_texels * self.map.texel_size();
+        if s.mode == ShadowMode::Selective && soft {
+            // The deepest receiver's depth: top − its lowest `p · towards`.
+            let deepest = self.map.project(Vec3::ZERO).z - receivers.0.z;
+            penumbra::mask(&self.map, s.light_angle, edge, deepest, &mut self.mask);
+        } else if s.mode == ShadowMode::Selective {
+            self.deltas.find(&self.map, edge, par);
+        }
+    }
+
+    /// Classifies every pixel against the last map as the mode says (visibility and each band's marked
+    /// pixels); with `bounds`, also returns the receivers' exact bounds ([`Self::receivers`] over every
+    /// pixel), else empty bounds.
+    fn classify(
+        &mut self,
+        s: &ShadowSettings,
+        g: &GBuffer,
+        towards: Vec3,
+        bounds: bool,
+    ) -> (Vec3, Vec3) {
+        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
+        let soft = s.light_angle > 0.0;
+        // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
+        // The shadow map alone is hard: it shades everything at or below n·L = 0.
+        let horizon = s.light_angle.sin();
+        let away = if s.mode == ShadowMode::ShadowMap {
+            0.0
+        } else {
+            -horizon
+        };
+        // A pixel with no surface or one facing away from the light, else its n·L.
+        let toward = |nrm| classify::facing(nrm, towards, away);
+        let bias = s.bias_texels;
+        let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
+        let px = Pixels {
+            g,
+            across: bounds.then_some((map, towards)),
+        };
+        // One classification per mode, each its own loop (the test inlined, no dispatch per pixel).
+        match s.mode {
+            ShadowMode::RayTraced => classify_pixels(s.parallel, px, vis, chunks, |_, nrm| {
+                toward(nrm).map_or_else(|c| c, |_| Class::Marked)
+            }),
+            ShadowMode::ShadowMap => {
+                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+                    Ok(cos) => classify::shadow_map_only(map, p, cos, bias),
+                    Err(c) => c,
+                })
+            }
+            ShadowMode::Selective if soft => {
+                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+                    Ok(cos) if cos <= horizon => Class::Marked,
+                    Ok(cos) => classify::soft(map, mask, p, cos, bias),
+                    Err(c) => c,
+                })
+            }
+            ShadowMode::Selective => {
+                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+                    Ok(cos) => classify::selective(map, deltas, p, cos, bias),
+                    Err(c) => c,
+                })
+            }
+        }
+        chunks.iter().fold(NO_BOUNDS, |a, c| union(a, c.bounds))
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
@@ -344,31 +415,49 @@ impl HardShadows {
     }
 
     /// The bounds of the pixels whose surface faces the light (lower corner above the upper where none
-    /// does): x and y across the light the map is aimed at, z along it (`p · towards`), in parallel over
-    /// chunks of pixels.
+    /// does): x and y across the light the map is aimed at, z along it (`p · towards`), over a sample of
+    /// the image, in parallel over rows: its first and last rows, every [`SAMPLE_ROWS`]th, and the bands
+    /// of [`BAND`] rows around those that held the last pass's extremes (where, in a moving scene, they
+    /// most likely are again). The classification finds the exact bounds of every pixel.
     fn receivers(&mut self, g: &GBuffer, towards: Vec3, par: bool) -> (Vec3, Vec3) {
-        const CHUNK: usize = 16384;
-        let none = (Vec3::MAX, Vec3::MIN);
-        let n = g.positions.len();
+        let (w, h) = (g.width, g.height);
         let map = &self.map;
-        self.bounds.resize(n.div_ceil(CHUNK), none);
-        parallel::fill(par, &mut self.bounds, 1, |c| {
-            let at = c * CHUNK..((c + 1) * CHUNK).min(n);
-            let mut b = none;
-            // Without a branch: a pixel facing away is moved to where it widens nothing.
-            for (&p, &nrm) in g.positions[at.clone()].iter().zip(&g.normals[at]) {
-                let q = map.across(p).extend(p.dot(towards));
-                let faces = BVec3::splat(nrm.dot(towards) > 0.0);
-                b = (
-                    b.0.min(Vec3::select(faces, q, none.0)),
-                    b.1.max(Vec3::select(faces, q, none.1)),
-                );
-            }
-            b
+        // At most every SAMPLE_ROWS-th row, the last, and three bands around each of five extremes: room
+        // for all, so that a warm pass allocates nothing whichever bands held the extremes.
+        let most = h.div_ceil(SAMPLE_ROWS) + 1 + 5 * 3 * BAND;
+        self.rows.clear();
+        self.rows.reserve(most);
+        self.bounds.reserve(most.saturating_sub(self.bounds.len()));
+        self.rows
+            .extend((0..h).step_by(SAMPLE_ROWS).chain(h.checked_sub(1)));
+        for &band in &self.extremes {
+            let near = band.saturating_sub(1) * BAND..((band + 2) * BAND).min(h);
+            self.rows.extend(near);
+        }
+        let rows = &self.rows;
+        self.bounds.resize(rows.len(), NO_BOUNDS);
+        parallel::fill(par, &mut self.bounds, 1, |k| {
+            let at = rows[k] * w..(rows[k] + 1) * w;
+            let row = g.positions[at.clone()].iter().zip(&g.normals[at]);
+            row.fold(NO_BOUNDS, |b, (&p, &nrm)| receiver(b, map, towards, p, nrm))
         });
-        self.bounds
-            .iter()
-            .fold(none, |a, b| (a.0.min(b.0), a.1.max(b.1)))
+        self.bounds.iter().fold(NO_BOUNDS, |a, &b| union(a, b))
+    }
+
+    /// Remembers the bands of the last classification that hold the extremes of its exact receivers'
+    /// bounds `exact` (see [`Self::extremes`]).
+    fn note_extremes(&mut self, exact: (Vec3, Vec3)) {
+        self.extremes.clear();
+        self.extremes.reserve(5);
+        let lowest = [(0, exact.0.x), (0, exact.0.y), (0, exact.0.z)];
+        let highest = [(1, exact.1.x), (1, exact.1.y)];
+        for (k, (side, at)) in lowest.into_iter().chain(highest).enumerate() {
+            let axis = k % 3;
+            let holds = |c: &Chunk| [c.bounds.0, c.bounds.1][side][axis] == at;
+            if let Some(band) = self.chunks.iter().position(holds) {
+                self.extremes.push(band);
+            }
+        }
     }
 
     /// Indices of the pixels the last pass sent shadow rays for, in the order they were traced: band by
@@ -388,33 +477,37 @@ impl HardShadows {
     }
 }
 
-/// The image's pixels as the classification visits them: `w` pixels a row, `n` in all, in bands of
-/// [`BAND`] rows, each band in blocks of [`BAND`] × [`BAND`] pixels.
+/// The image's pixels as the classification visits them: the G-buffer's, in bands of [`BAND`] rows,
+/// each band in blocks of [`BAND`] × [`BAND`] pixels; with `across`, their receivers' bounds are found on
+/// the way (across that map, along that light).
 #[derive(Clone, Copy)]
-struct Pixels {
-    w: usize,
-    n: usize,
+struct Pixels<'a> {
+    g: &'a GBuffer,
+    across: Option<(&'a ShadowMap, Vec3)>,
 }
 
-/// Classifies every pixel with `classify` (in parallel over bands of [`BAND`] rows): writes the map's
-/// verdict into `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked
-/// pixels in its chunk, in the order visited (block by block: neighbouring marked pixels stay together,
-/// so their rays make coherent packets), with its count of pixels facing the light. Generic over the
-/// test, so each mode's loop has its test inlined.
+/// Classifies every pixel with `classify(position, normal)` (in parallel over bands of [`BAND`] rows):
+/// writes the map's verdict into `visibility` (0 for a marked pixel, until its rays are in) and lists each
+/// band's marked pixels in its chunk, in the order visited (block by block: neighbouring marked pixels
+/// stay together, so their rays make coherent packets), with its count of pixels facing the light and,
+/// with `px.across`, the bounds of its receivers (else empty bounds). Generic over the test, so each
+/// mode's loop has its test inlined.
 fn classify_pixels(
     par: bool,
     px: Pixels,
     visibility: &mut Vec<f32>,
     chunks: &mut Vec<Chunk>,
-    classify: impl Fn(usize) -> Class + Sync,
+    classify: impl Fn(Vec3, Vec3) -> Class + Sync,
 ) {
-    let Pixels { w, n } = px;
+    let g = px.g;
+    let (w, n) = (g.width, g.width * g.height);
     let chunk = BAND * w;
     visibility.resize(n, 1.0);
     chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
     parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
         out.marked.clear();
         out.facing = 0;
+        let mut bounds = NO_BOUNDS;
         let rows = vis.len() / w;
         for x0 in (0..w).step_by(BAND) {
             for y in 0..rows {
@@ -422,7 +515,11 @@ fn classify_pixels(
                 let run = &mut vis[start..y * w + (x0 + BAND).min(w)];
                 for (k, v) in run.iter_mut().enumerate() {
                     let i = c * chunk + start + k;
-                    let class = classify(i);
+                    let (p, nrm) = (g.positions[i], g.normals[i]);
+                    if let Some((map, towards)) = px.across {
+                        bounds = receiver(bounds, map, towards, p, nrm);
+                    }
+                    let class = classify(p, nrm);
                     *v = match class {
                         Class::Empty | Class::Lit => 1.0,
                         Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
@@ -434,7 +531,38 @@ fn classify_pixels(
                 }
             }
         }
+        out.bounds = bounds;
     });
+}
+
+/// Bounds holding nothing: the lower corner above the upper.
+const NO_BOUNDS: (Vec3, Vec3) = (Vec3::MAX, Vec3::MIN);
+
+/// Bounds `b` grown by the receiver at `p` with normal `nrm` when it faces the light (`n · towards` above
+/// 0): its coordinates across `map` and `p · towards`. Without a branch: a pixel facing away is moved to
+/// where it widens nothing.
+#[inline(always)]
+fn receiver(b: (Vec3, Vec3), map: &ShadowMap, towards: Vec3, p: Vec3, nrm: Vec3) -> (Vec3, Vec3) {
+    let q = map.across(p).extend(p.dot(towards));
+    let faces = BVec3::splat(nrm.dot(towards) > 0.0);
+    (
+        b.0.min(Vec3::select(faces, q, NO_BOUNDS.0)),
+        b.1.max(Vec3::select(faces, q, NO_BOUNDS.1)),
+    )
+}
+
+/// The smallest bounds holding `a` and `b`.
+fn union(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> (Vec3, Vec3) {
+    (a.0.min(b.0), a.1.max(b.1))
+}
+
+/// Whether a map fitted to receivers' bounds `a` is the one fitted to `b`: the same extent across the
+/// light and, for soft shadows (whose map and mask reach as deep as the deepest receiver), the same
+/// deepest receiver. (`==`, not bits: a zero of either sign gives the same map.)
+fn same_fit(a: (Vec3, Vec3), b: (Vec3, Vec3), soft: bool) -> bool {
+    a.0.truncate() == b.0.truncate()
+        && a.1.truncate() == b.1.truncate()
+        && (!soft || a.0.z == b.0.z)
 }
 
 /// Checks the settings and the G-buffer; returns the unit light direction.
