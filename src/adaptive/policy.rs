@@ -167,6 +167,9 @@ pub struct AdaptivePolicy {
     partial_rate: Estimate,
     /// Whether the last rebuild built binned SAH to re-anchor before a try ([`Pick::Reanchor`]).
     reanchored: bool,
+    /// The last build tried against a carried binned-SAH tree, until the next binned-SAH tree: see
+    /// [`Bracket`].
+    bracket: Option<Bracket>,
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
     /// [`sibling`](Self::sibling) never (what the first measures reaches it through the table).
     explores: bool,
@@ -222,6 +225,7 @@ impl AdaptivePolicy {
             last: Prediction::default(),
             partial_rate: Estimate::default(),
             reanchored: false,
+            bracket: None,
             explores: true,
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
@@ -240,6 +244,8 @@ impl AdaptivePolicy {
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
             work: RentWork::default(),
+            // The next binned-SAH tree of another pose brackets nothing of this mesh's try.
+            bracket: None,
             explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
@@ -321,6 +327,9 @@ impl AdaptivePolicy {
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
             if is_sah(&build) {
+                if let Some(b) = self.bracket.take() {
+                    b.revise(&self.costs, self.asset, self.age, sah_cost);
+                }
                 self.exact = Some(Exact {
                     build,
                     sah: sah_cost,
@@ -389,14 +398,24 @@ impl AdaptivePolicy {
                     let t = self.costs.lock();
                     let v = self.view(&t);
                     let unit = t.quality(&self.asset, e.build)?.mean()?;
-                    // One frame old, the tree carried at the mean drift (see `View::anchor_fresh`).
-                    let carried = if v.anchor_fresh() {
-                        v.mean_drift(e.frames)
-                    } else {
-                        e.carried
+                    // One frame old, the tree carried at the mean drift (see `View::anchor_fresh`),
+                    // until the next binned-SAH tree brackets the try.
+                    let bracket = v.anchor_fresh().then_some(Bracket {
+                        build,
+                        sah: sah_cost,
+                        before: e.sah / unit,
+                        before_frames: e.frames,
+                        at: self.age,
+                        unit,
+                    });
+                    let carried = match bracket {
+                        Some(_) => v.mean_drift(e.frames),
+                        None => e.carried,
                     };
-                    Some(e.sah * carried / unit)
+                    Some((e.sah * carried / unit, bracket))
                 });
+                self.bracket = exact.and_then(|e| e.1);
+                let exact = exact.map(|e| e.0);
                 let now = match exact {
                     Some(unit) => unit,
                     None if old > 0.0 => old * self.guard_factor,
@@ -655,6 +674,44 @@ struct Exact {
     frames: u32,
     /// The factor the guard last carried its cost forward by (trend, walk and spread).
     carried: f64,
+}
+
+/// A build tried against the last binned-SAH tree carried forward at the mean drift (one frame: see
+/// [`View::anchor_fresh`]), kept until the mesh's next binned-SAH tree. The two binned-SAH trees
+/// bracket the try's frame, and the fresh cost there, interpolated between them (geometrically, at the
+/// try's place in the bracket: a constant drift between them), replaces the carried estimate in the
+/// build's quality ([`CostTable::revise_quality`]). Under a random walk around a trend its error is
+/// at most the one-frame carry's walk, and a trend that changes (a decelerating explosion) errs only by
+/// its curvature: carried at the mean drift, the report's explosion learned LBVH at 1.458 × binned SAH
+/// (rebuild-lbvh's trees: 1.093 on average) from a try on frame 2, when the mean drift was still frame
+/// 1's fall of 48% and the explosion fell 31%. Cost: a few operations at the next binned-SAH rebuild.
+#[derive(Clone, Copy, Debug)]
+struct Bracket {
+    /// The build tried.
+    build: Build,
+    /// Its tree's SAH cost.
+    sah: f64,
+    /// The binned-SAH tree before it: its cost in the asset's unit, and its age at the try.
+    before: f64,
+    before_frames: u32,
+    /// The mesh's age at the try.
+    at: u32,
+    /// The asset's unit (binned SAH's relative cost) the costs are divided by.
+    unit: f64,
+}
+
+impl Bracket {
+    /// Revises the tried build's quality against a binned-SAH tree of cost `sah` built at `age`.
+    fn revise(self, costs: &CostTable, asset: Asset, age: u32, sah: f64) {
+        let after = age.saturating_sub(self.at);
+        let span = (self.before_frames + after) as f64;
+        if after == 0 || self.before <= 0.0 || self.unit <= 0.0 {
+            return;
+        }
+        let w = self.before_frames as f64 / span;
+        let fresh = self.before * (sah / self.unit / self.before).powf(w);
+        costs.revise_quality(asset, self.build, self.sah / fresh);
+    }
 }
 
 /// What the rent has summed since the last rebuild (or partial rebuild), in ray × SAH units, priced in
@@ -1220,6 +1277,36 @@ mod tests {
         p.after_refit(10.0, 0.0);
         let why = p.prediction();
         assert!((why.fresh_sah - 10.0 * fall).abs() < 1e-9, "{why:?}");
+    }
+
+    /// A build tried the frame after a binned-SAH tree learns its quality against that tree carried at
+    /// the mean drift, and the next binned-SAH tree revises it to the fresh cost interpolated between
+    /// the two. Binned SAH at 10, then 5 a frame later (drift `ln 0.5`); LBVH the frame after at 4,
+    /// learned against `5 · 0.5`: 1.6; binned SAH the frame after at 3.2, so the fresh cost at the try
+    /// was `√(5 · 3.2)` = 4 and LBVH's quality is 1. Once measured, later binned-SAH trees leave it.
+    #[test]
+    fn the_next_binned_sah_tree_revises_a_tried_builds_quality() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        let quality = |p: &AdaptivePolicy| {
+            (p.costs.lock())
+                .quality(&p.asset, Build::cpu(Builder::LBVH))
+                .and_then(Estimate::mean)
+        };
+        p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        p.after_refit(10.0, 0.0);
+        p.built(Builder::SAH, 1000, 1e-2, 5.0);
+        p.after_refit(5.0, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 4.0);
+        assert!((quality(&p).unwrap() - 1.6).abs() < 1e-12);
+        p.after_refit(4.0, 0.0);
+        p.built(Builder::SAH, 1000, 1e-2, 3.2);
+        assert!((quality(&p).unwrap() - 1.0).abs() < 1e-12);
+        // Revised once: a later binned-SAH tree leaves it.
+        p.after_refit(3.2, 0.0);
+        p.built(Builder::LBVH, 1000, 1e-3, 4.0);
+        p.after_refit(4.0, 0.0);
+        p.built(Builder::SAH, 1000, 1e-2, 1.0);
+        assert!((quality(&p).unwrap() - 1.0).abs() < 1e-12);
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
