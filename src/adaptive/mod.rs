@@ -63,7 +63,11 @@
 //!   reported as [`Verdict::Explore`] when the rent made it due) and the try comes the frame after, priced as
 //!   riding on that rebuild (issue 19: a tried build measured against a binned-SAH tree carried 138
 //!   frames by the guard's conservative factor learned a quality too high by all of it, and the guard
-//!   then rebuilt the report's soup 44 times). Without a binned-SAH build offered, a build tried is
+//!   then rebuilt the report's soup 44 times). The mesh's next binned-SAH tree revises that quality:
+//!   the two binned-SAH trees bracket the try, and the fresh cost interpolated between them replaces
+//!   the one carried at the mean drift (issue 19: the report's explosion tried LBVH on frame 2, when its
+//!   mean drift was still frame 1's fall of 48%, and learned 1.458 × binned SAH; revised 1.050, its
+//!   tree's true ratio 1.148). Without a binned-SAH build offered, a build tried is
 //!   measured against the reference carried forward by the guard's (conservative) factor, so an error
 //!   in it errs towards an earlier guard. Before an interval between rebuilds was measured, a build
 //!   tried is priced over the frames the current one has lasted, and a rebuild that tried a build
