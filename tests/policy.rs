@@ -447,8 +447,7 @@ struct Counted {
     explorations: usize,
     /// Rebuilds per verdict: Explore, Guard, Rent.
     verdicts: [usize; 3],
-    /// Rebuilds with a measured build different from the previous measured one (the binned-SAH rebuild
-    /// that precedes a try not counted: it is no choice).
+    /// Rebuilds with a measured build different from the previous measured one.
     flips: usize,
 }
 
@@ -491,10 +490,7 @@ impl Script {
                     Verdict::Partial => unreachable!("no partial rebuild is offered"),
                 };
                 counted.verdicts[slot] += 1;
-                if why.verdict == Verdict::Explore && p.costs().measured(&asset, build) {
-                    // Binned SAH built so that the try the frame after learns against it: a step of
-                    // measuring, not a choice.
-                } else if p.costs().measured(&asset, build) {
+                if p.costs().measured(&asset, build) {
                     counted.flips += (last_measured.is_some_and(|l| l != build)) as usize;
                     last_measured = Some(build);
                 } else {
@@ -632,10 +628,6 @@ fn timing_noise_never_flips_the_build() {
     for seed in 0..8 {
         for z in [DEFAULT_Z, 0.0] {
             let mut s = script(2e5, 0.1, 10 + seed);
-            // Binned SAH priced within the noise of hybrid (4.3 ms, not the script's 5 ms: with every
-            // try learning its tree against a binned-SAH tree of the frame before, hybrid's measured
-            // quality is its true one, and at 5 ms binned SAH is no longer a close call).
-            s.builds[2].1 = 4.3e-3;
             let mut p = AdaptivePolicy::shared(&OFFERED, &CostTable::new(), Asset::default());
             p.z = z;
             let counted = s.run(&mut p, Asset::default(), 600);
@@ -743,12 +735,8 @@ fn the_guard_rebuilds_rarely_below_the_bound_and_always_before_it() {
 }
 
 /// Through the ECS: two entities of one mesh share the plugin's cost table. The first is run alone until
-/// it measured every builder offered; the second, spawned then in the first's pose (a crowd's instances
-/// share a pose family; what the first measured of its trees then holds for the second's), never
-/// explores, and its every build — the first included — is one the first entity measured. (Spawned in
-/// the mesh's rest pose after the first had random-walked up to 120 frames, the second took over a fresh
-/// cost of the walked soup, 77 against its own tree's 60, and neither rent nor guard came due in 40
-/// frames.)
+/// it measured every builder offered; the second, spawned then, never explores, and its every build —
+/// the first included — is one the first entity measured.
 #[test]
 fn a_second_entity_of_one_mesh_explores_nothing() {
     let _serial = measured_time();
@@ -773,11 +761,13 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
         3,
         "the first entity measured every builder: {used:?}"
     );
-    // The second entity: the same mesh (the same index buffer) in the first's pose, its own motion.
+    // The second entity: the same mesh (the same index buffer), its own motion.
     let mesh = world.get::<TraceMesh>(a.entity).unwrap().0.clone();
-    let pose = world.get::<VertexPositions>(a.entity).unwrap().0.clone();
     let entity = world
-        .spawn((TraceMesh(mesh.clone()), VertexPositions(pose)))
+        .spawn((
+            TraceMesh(mesh.clone()),
+            VertexPositions(mesh.positions().to_vec()),
+        ))
         .id();
     let mut b = Walk {
         entity,
@@ -1159,17 +1149,12 @@ fn a_custom_policy_gets_partial_rebuilds_and_exact_answers() {
 /// and the pass that counts the degraded triangles runs exactly in the frames whose rent made a rebuild
 /// due (`Rent` or `Partial`): never in a frame that keeps the tree, explores or guards.
 /// The corner churns slowly under many rays, so that the rent makes a rebuild due before the degradation
-/// brings the guard (which always rebuilds whole) to act. Binned SAH is the one build offered: with
-/// builds to try, the first rebuilds the rent makes due are tries (a binned-SAH rebuild, then the try
-/// the frame after, both `Explore`), and in 60 frames the rent may make none due after them.
+/// brings the guard (which always rebuilds whole) to act.
 #[test]
 fn the_adaptive_policy_rebuilds_a_churning_corner_partially() {
     let _serial = measured_time();
     const N: usize = 4000;
-    let sah_only = RebuildPolicy::Adaptive {
-        builders: &[Builder::SAH],
-    };
-    let (mut world, mut schedule) = app(sah_only, TraceMode::Cpu);
+    let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
     let mut walk = Walk::spawn(&mut world, N, 43, 0.0005);
     let mut r = rng(44);
     frame(&mut world, &mut schedule, &walk, &mut r, 64, 8);

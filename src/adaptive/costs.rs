@@ -113,20 +113,6 @@ impl CostTable {
         );
     }
 
-    /// Replaces what `asset` learned of `build`'s quality by `relative` where that is a single sample
-    /// (a try's, learned against an estimate of the fresh cost that `relative` improves on); a quality
-    /// resting on more samples is kept.
-    pub(super) fn revise_quality(&self, asset: Asset, build: Build, relative: f64) {
-        let mut t = self.lock();
-        let Some(list) = t.quality.get_mut(&asset) else {
-            return;
-        };
-        if let Some(e) = (list.iter_mut().find(|e| e.0 == build)).filter(|e| e.1.samples() == 1) {
-            e.1 = Estimate::default();
-            e.1.add(relative);
-        }
-    }
-
     /// Learns one per-frame drift of `ln` of a fresh tree's cost on `asset`.
     pub(super) fn learn_drift(&self, asset: Asset, per_frame: f64) {
         self.lock().drift.entry(asset).or_default().add(per_frame);

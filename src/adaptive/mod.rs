@@ -50,29 +50,14 @@
 //!   what is unknown may be better than assumed) times the horizon exceeds what trying it costs (its whole
 //!   time on a frame that would have refitted, its extra time over the chosen build's when a rebuild is
 //!   due). The horizon is the frames seen so far (a scene that ran `n` frames is expected to run about `n`
-//!   more), so short scenes explore little and long ones what can repay itself; a try on a frame that
-//!   would have refitted saves nothing before the next rebuild, so it has that horizon less an interval
-//!   (none before an interval was measured: a scene never rebuilt tries nothing, issue 19: `report
-//!   --quick` paid LBVH and hybrid tries on frames 1 and 2 of scenes that never rebuilt again, 1.46 × the
-//!   best fixed strategy on the crowd). One exception: the first
+//!   more), so short scenes explore little and long ones what can repay itself. One exception: the first
 //!   rebuild due on an asset with no binned-SAH tree measured builds one, because the bound is stated
-//!   against it. A build tried is measured against the last binned-SAH tree of the mesh, and only when
-//!   that tree was built the frame before and the asset's drift is known: carried one frame at the mean
-//!   drift, its error is one frame's deviation from that mean. Where a try is worth making but the
-//!   last binned-SAH tree is older, the rebuild due builds binned SAH instead (a re-anchoring rebuild,
-//!   reported as [`Verdict::Explore`] when the rent made it due) and the try comes the frame after, priced as
-//!   riding on that rebuild (issue 19: a tried build measured against a binned-SAH tree carried 138
-//!   frames by the guard's conservative factor learned a quality too high by all of it, and the guard
-//!   then rebuilt the report's soup 44 times). The mesh's next binned-SAH tree revises that quality:
-//!   the two binned-SAH trees bracket the try, and the fresh cost interpolated between them replaces
-//!   the one carried at the mean drift (issue 19: the report's explosion tried LBVH on frame 2, when its
-//!   mean drift was still frame 1's fall of 48%, and learned 1.458 × binned SAH; revised 1.050, its
-//!   tree's true ratio 1.148). Without a binned-SAH build offered, a build tried is
-//!   measured against the reference carried forward by the guard's (conservative) factor, so an error
-//!   in it errs towards an earlier guard. Before an interval between rebuilds was measured, a build
-//!   tried is priced over the frames the current one has lasted, and a rebuild that tried a build
-//!   teaches no interval. The first build of an asset nobody measured is the one of least predicted
-//!   time.
+//!   against it. A build tried is measured against the last binned-SAH tree of the mesh carried forward
+//!   by the guard's factor for it (an exact anchor, carried conservatively); without one, against the reference carried forward by the
+//!   guard's (conservative) factor, so an error in it errs towards an earlier guard. Before an interval
+//!   between rebuilds was measured, a build tried is priced over the frames the current one has lasted,
+//!   and a rebuild that tried a build teaches no interval. The first build of an asset
+//!   nobody measured is the one of least predicted time.
 //! - **Guard (the SAH bound)**: the bound ([`AdaptivePolicy::sah_bound`], 1.5) is on the quantity the
 //!   report measures: the tree's SAH cost over a fresh *binned-SAH* tree's of the same frame. The fresh
 //!   cost is predicted from the last rebuild (its build's measured relative cost and the asset's measured

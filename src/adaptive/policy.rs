@@ -53,8 +53,6 @@ pub enum Verdict {
     #[default]
     Keep,
     /// Rebuild to measure a build not tried yet: its expected gain over the horizon exceeds its cost.
-    /// Also a rebuild due by the rent that builds binned SAH first, so that the try the frame after
-    /// learns its quality against an exact anchor.
     Explore,
     /// Rebuild: the SAH ratio against a fresh binned-SAH tree, extrapolated one frame, would pass
     /// [`AdaptivePolicy::sah_bound`].
@@ -73,18 +71,6 @@ pub enum Verdict {
 enum Update {
     Full,
     Partial,
-}
-
-/// Why [`View::plan`] picked its build.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Pick {
-    /// The build of least predicted cost (or, before any was measured, the first build).
-    Chosen,
-    /// A build not measured on the asset, tried.
-    Try,
-    /// Binned SAH instead of a try that is worth making but would learn its quality against a stale
-    /// anchor: the try comes the frame after, against this tree.
-    Reanchor,
 }
 
 /// The numbers behind the last decision of [`AdaptivePolicy::after_refit`]: what users see in
@@ -165,11 +151,6 @@ pub struct AdaptivePolicy {
     last: Prediction,
     /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
     partial_rate: Estimate,
-    /// Whether the last rebuild built binned SAH to re-anchor before a try ([`Pick::Reanchor`]).
-    reanchored: bool,
-    /// The last build tried against a carried binned-SAH tree, until the next binned-SAH tree: see
-    /// [`Bracket`].
-    bracket: Option<Bracket>,
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
     /// [`sibling`](Self::sibling) never (what the first measures reaches it through the table).
     explores: bool,
@@ -224,8 +205,6 @@ impl AdaptivePolicy {
             last_ratio: 1.0,
             last: Prediction::default(),
             partial_rate: Estimate::default(),
-            reanchored: false,
-            bracket: None,
             explores: true,
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
@@ -244,8 +223,6 @@ impl AdaptivePolicy {
     pub fn sibling(&self) -> AdaptivePolicy {
         AdaptivePolicy {
             work: RentWork::default(),
-            // The next binned-SAH tree of another pose brackets nothing of this mesh's try.
-            bracket: None,
             explores: false,
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
@@ -327,9 +304,6 @@ impl AdaptivePolicy {
             self.anchor(build, sah_cost);
             self.sah_built = sah_cost;
             if is_sah(&build) {
-                if let Some(b) = self.bracket.take() {
-                    b.revise(&self.costs, self.asset, self.age, sah_cost);
-                }
                 self.exact = Some(Exact {
                     build,
                     sah: sah_cost,
@@ -339,9 +313,8 @@ impl AdaptivePolicy {
                 });
             }
         }
-        // A build tried on a frame that would have refitted says nothing of when rebuilds are due (a
-        // re-anchoring rebuild was due).
-        if self.frames > 0 && (self.last.verdict != Verdict::Explore || self.reanchored) {
+        // A build tried on a frame that would have refitted says nothing of when rebuilds are due.
+        if self.frames > 0 && self.last.verdict != Verdict::Explore {
             self.interval.add(self.frames as f64);
         }
         let t = self.costs.lock();
@@ -371,17 +344,12 @@ impl AdaptivePolicy {
                 if old > 0.0 && self.frames > 0 && !assumed {
                     let k = self.frames as f64;
                     let x = (self.reference / old).ln();
-                    let trend = (self.costs.lock().drift.get(&self.asset)).and_then(Estimate::mean);
+                    let trend = (self.costs.lock().drift.get(&self.asset))
+                        .and_then(Estimate::mean)
+                        .unwrap_or(0.0);
                     self.costs.learn_drift(self.asset, x / k);
-                    // Between two binned-SAH trees nothing but the walk moved the anchor: its
-                    // deviation from the trend, once a trend was learned (before, the whole move is
-                    // the trend's first sample, not the walk: issue 19, the explosion's first frame,
-                    // re-anchored SAH to SAH, learned a walk of 0.43 per frame, the guard then assumed
-                    // the fresh cost fell by 80% a frame and rebuilt every frame).
-                    if let Some(trend) = trend
-                        && self.current.is_some_and(|b| is_sah(&b))
-                        && is_sah(&build)
-                    {
+                    // Between two binned-SAH trees nothing but the walk moved the anchor.
+                    if self.current.is_some_and(|b| is_sah(&b)) && is_sah(&build) {
                         self.costs
                             .learn_walk(self.asset, (x - trend * k).powi(2) / k);
                     }
@@ -396,26 +364,9 @@ impl AdaptivePolicy {
                 // assumption.
                 let exact = self.exact.filter(|_| old > 0.0).and_then(|e| {
                     let t = self.costs.lock();
-                    let v = self.view(&t);
                     let unit = t.quality(&self.asset, e.build)?.mean()?;
-                    // One frame old, the tree carried at the mean drift (see `View::anchor_fresh`),
-                    // until the next binned-SAH tree brackets the try.
-                    let bracket = v.anchor_fresh().then_some(Bracket {
-                        build,
-                        sah: sah_cost,
-                        before: e.sah / unit,
-                        before_frames: e.frames,
-                        at: self.age,
-                        unit,
-                    });
-                    let carried = match bracket {
-                        Some(_) => v.mean_drift(e.frames),
-                        None => e.carried,
-                    };
-                    Some((e.sah * carried / unit, bracket))
+                    Some(e.sah * e.carried / unit)
                 });
-                self.bracket = exact.and_then(|e| e.1);
-                let exact = exact.map(|e| e.0);
                 let now = match exact {
                     Some(unit) => unit,
                     None if old > 0.0 => old * self.guard_factor,
@@ -468,7 +419,7 @@ impl AdaptivePolicy {
         }
         let t = self.costs.lock();
         let v = self.view(&t);
-        let (build, pick) = v.plan(true);
+        let (build, _) = v.plan(true);
         let (rebuild_s, rebuild_spread) = v.time(build).unwrap_or((0.0, 0.0));
         let mut p = Prediction {
             verdict: Verdict::Keep,
@@ -536,18 +487,11 @@ impl AdaptivePolicy {
                 }
                 Verdict::Guard
             } else if p.rent_s > 0.0 && pays(p.rent_s, rebuild_s, p.margin_s / self.z, self.z) {
-                // A rebuild due by the rent that builds binned SAH only so that the try after it
-                // learns against an exact anchor is a step of that try.
-                match pick {
-                    Pick::Reanchor => Verdict::Explore,
-                    _ => Verdict::Rent,
-                }
+                Verdict::Rent
             } else {
                 // With no rays a build is tried only where the guard rebuilds anyway.
-                // The frame after a re-anchoring rebuild, the try it deferred is priced as it was
-                // then: riding on that rebuild.
-                match (rays > 0.0).then(|| v.plan(self.reanchored)) {
-                    Some((b, Pick::Try)) => {
+                match (rays > 0.0).then(|| v.plan(false)) {
+                    Some((b, true)) => {
                         p.build = b;
                         p.rebuild_s = v.time(b).map_or(0.0, |t| t.0);
                         Verdict::Explore
@@ -557,7 +501,6 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
-        self.reanchored = pick == Pick::Reanchor && p.verdict != Verdict::Keep;
         if let Some(e) = &mut self.exact {
             e.carried = exact_carried;
         }
@@ -674,44 +617,6 @@ struct Exact {
     frames: u32,
     /// The factor the guard last carried its cost forward by (trend, walk and spread).
     carried: f64,
-}
-
-/// A build tried against the last binned-SAH tree carried forward at the mean drift (one frame: see
-/// [`View::anchor_fresh`]), kept until the mesh's next binned-SAH tree. The two binned-SAH trees
-/// bracket the try's frame, and the fresh cost there, interpolated between them (geometrically, at the
-/// try's place in the bracket: a constant drift between them), replaces the carried estimate in the
-/// build's quality ([`CostTable::revise_quality`]). Under a random walk around a trend its error is
-/// at most the one-frame carry's walk, and a trend that changes (a decelerating explosion) errs only by
-/// its curvature: carried at the mean drift, the report's explosion learned LBVH at 1.458 × binned SAH
-/// (rebuild-lbvh's trees: 1.093 on average) from a try on frame 2, when the mean drift was still frame
-/// 1's fall of 48% and the explosion fell 31%. Cost: a few operations at the next binned-SAH rebuild.
-#[derive(Clone, Copy, Debug)]
-struct Bracket {
-    /// The build tried.
-    build: Build,
-    /// Its tree's SAH cost.
-    sah: f64,
-    /// The binned-SAH tree before it: its cost in the asset's unit, and its age at the try.
-    before: f64,
-    before_frames: u32,
-    /// The mesh's age at the try.
-    at: u32,
-    /// The asset's unit (binned SAH's relative cost) the costs are divided by.
-    unit: f64,
-}
-
-impl Bracket {
-    /// Revises the tried build's quality against a binned-SAH tree of cost `sah` built at `age`.
-    fn revise(self, costs: &CostTable, asset: Asset, age: u32, sah: f64) {
-        let after = age.saturating_sub(self.at);
-        let span = (self.before_frames + after) as f64;
-        if after == 0 || self.before <= 0.0 || self.unit <= 0.0 {
-            return;
-        }
-        let w = self.before_frames as f64 / span;
-        let fresh = self.before * (sah / self.unit / self.before).powf(w);
-        costs.revise_quality(asset, self.build, self.sah / fresh);
-    }
 }
 
 /// What the rent has summed since the last rebuild (or partial rebuild), in ray × SAH units, priced in
@@ -1009,13 +914,9 @@ impl View<'_> {
         }
     }
 
-    /// The build to use, and why. `rebuilding`: a rebuild is due anyway, so trying a build costs only
-    /// its extra time over the chosen one's; otherwise its whole time. A build is tried only where its
-    /// quality can be learned against a binned-SAH tree of the frame before
-    /// ([`anchor_fresh`](Self::anchor_fresh)); where one is worth trying but the last binned-SAH tree
-    /// is older, a due rebuild builds binned SAH instead ([`Pick::Reanchor`]) and the try comes the
-    /// frame after.
-    fn plan(&self, rebuilding: bool) -> (Build, Pick) {
+    /// The build to use, and whether it is an exploration. `rebuilding`: a rebuild is due anyway, so
+    /// trying a build costs only its extra time over the chosen one's; otherwise its whole time.
+    fn plan(&self, rebuilding: bool) -> (Build, bool) {
         let builds = &self.p.builds;
         let measured = builds
             .iter()
@@ -1030,33 +931,16 @@ impl View<'_> {
                 .filter_map(|&b| Some((b, self.relative(b).filter(|r| r.2)?.0)))
                 .min_by(|a, b| a.1.total_cmp(&b.1));
             return match best_tree {
-                Some((b, _)) => (b, Pick::Chosen),
-                None => (self.first_build(), Pick::Chosen),
+                Some((b, _)) => (b, false),
+                None => (self.first_build(), false),
             };
         };
         if self.p.explores
             && let Some(b) = self.worth_trying(chosen, rebuilding)
         {
-            let sah = builds.iter().copied().find(is_sah);
-            match sah {
-                _ if is_sah(&b) || self.anchor_fresh() => return (b, Pick::Try),
-                Some(s) if rebuilding => return (s, Pick::Reanchor),
-                None => return (b, Pick::Try),
-                Some(_) => {}
-            }
+            return (b, true);
         }
-        (chosen, Pick::Chosen)
-    }
-
-    /// Whether a build tried now learns its quality against a binned-SAH tree built the frame before,
-    /// carried one frame at the asset's mean drift (learned): the error is then one frame's deviation
-    /// from the mean drift. Carried further, only the guard's conservative factor bounds the fresh
-    /// cost, and a quality learned against that is too high by all of it (issue 19: the report's soup
-    /// learned hybrid's quality against a binned-SAH tree carried 137 frames, the explosion LBVH's
-    /// against one whose root area had grown by half, and neither was chosen again).
-    fn anchor_fresh(&self) -> bool {
-        let drift_known = (self.t.drift.get(&self.p.asset)).is_some_and(|d| d.samples() > 0);
-        drift_known && self.p.exact.is_some_and(|e| e.frames <= 1)
+        (chosen, false)
     }
 
     /// The first build of an asset nobody measured: binned SAH where one is offered and the bound is
@@ -1094,14 +978,7 @@ impl View<'_> {
         // build tried is priced over that, not over a single frame.
         let interval = (self.p.interval.mean()).unwrap_or(self.p.frames as f64);
         let chosen_c = self.candidate_over(chosen, interval)?.0;
-        // A build tried on a frame that would have refitted saves nothing before the next rebuild,
-        // about an interval away: it has the horizon less that interval to repay its whole time. (Before
-        // any interval was measured that is none: a scene not rebuilt yet tries nothing on its own.)
-        let horizon = if rebuilding {
-            self.p.age as f64
-        } else {
-            (self.p.age as f64 - interval).max(0.0)
-        };
+        let horizon = self.p.age as f64;
         let chosen_time = self.time(chosen).map_or(0.0, |t| t.0);
         self.p.builds.iter().copied().find(|&b| {
             let Some((c, false)) = self.candidate_over(b, interval) else {
@@ -1277,36 +1154,6 @@ mod tests {
         p.after_refit(10.0, 0.0);
         let why = p.prediction();
         assert!((why.fresh_sah - 10.0 * fall).abs() < 1e-9, "{why:?}");
-    }
-
-    /// A build tried the frame after a binned-SAH tree learns its quality against that tree carried at
-    /// the mean drift, and the next binned-SAH tree revises it to the fresh cost interpolated between
-    /// the two. Binned SAH at 10, then 5 a frame later (drift `ln 0.5`); LBVH the frame after at 4,
-    /// learned against `5 · 0.5`: 1.6; binned SAH the frame after at 3.2, so the fresh cost at the try
-    /// was `√(5 · 3.2)` = 4 and LBVH's quality is 1. Once measured, later binned-SAH trees leave it.
-    #[test]
-    fn the_next_binned_sah_tree_revises_a_tried_builds_quality() {
-        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
-        let quality = |p: &AdaptivePolicy| {
-            (p.costs.lock())
-                .quality(&p.asset, Build::cpu(Builder::LBVH))
-                .and_then(Estimate::mean)
-        };
-        p.built(Builder::SAH, 1000, 1e-2, 10.0);
-        p.after_refit(10.0, 0.0);
-        p.built(Builder::SAH, 1000, 1e-2, 5.0);
-        p.after_refit(5.0, 0.0);
-        p.built(Builder::LBVH, 1000, 1e-3, 4.0);
-        assert!((quality(&p).unwrap() - 1.6).abs() < 1e-12);
-        p.after_refit(4.0, 0.0);
-        p.built(Builder::SAH, 1000, 1e-2, 3.2);
-        assert!((quality(&p).unwrap() - 1.0).abs() < 1e-12);
-        // Revised once: a later binned-SAH tree leaves it.
-        p.after_refit(3.2, 0.0);
-        p.built(Builder::LBVH, 1000, 1e-3, 4.0);
-        p.after_refit(4.0, 0.0);
-        p.built(Builder::SAH, 1000, 1e-2, 1.0);
-        assert!((quality(&p).unwrap() - 1.0).abs() < 1e-12);
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
