@@ -100,6 +100,23 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
         1 + report.rows.len() * harness::Settings::QUICK.frames as usize,
         "a CSV line per frame per strategy per scene"
     );
+    // Only the adaptive policy's guard estimates the SAH ratio, and it does once it has a fresh cost.
+    assert!(csv.lines().next().unwrap().ends_with(",guard_ratio"));
+    let mut guarded = 0;
+    for line in csv.lines().skip(1) {
+        let fields: Vec<&str> = line.split(',').collect();
+        assert_eq!(fields.len(), 10, "{line}");
+        let guard: f64 = fields[9].parse().unwrap();
+        assert!(
+            guard.is_nan() || fields[1].starts_with("adaptive"),
+            "{line}"
+        );
+        guarded += guard.is_finite() as usize;
+    }
+    assert!(
+        guarded > 0,
+        "no adaptive frame carries the guard's estimate"
+    );
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(summary.contains("| adaptive |") && summary.contains("Goal "));
     for png in &pngs {

@@ -161,6 +161,7 @@ fn run_grid(
                 sah_ratio: f64::NAN,
                 steps_ratio: steps as f64 / rays.len().max(1) as f64 / reference.steps.max(1e-30),
                 mismatches: mismatches(answer, mesh, checked),
+                guard_ratio: f64::NAN,
             }
         })
         .collect()

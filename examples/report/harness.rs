@@ -137,6 +137,11 @@ pub struct FrameRecord {
     pub steps_ratio: f64,
     /// Sampled rays whose answer differs from brute force.
     pub mismatches: u32,
+    /// The adaptive policy's guard's own estimate of `sah_ratio` for the refitted tree, made before it
+    /// decided (NaN for other strategies, on the first frame and before it has a fresh cost): on a
+    /// frame that kept the tree, `sah_ratio` below this is the guard's error, the margin the SAH bound
+    /// rests on.
+    pub guard_ratio: f64,
 }
 
 /// The run's sizes.
@@ -426,6 +431,7 @@ pub fn run_strategy(
     let mut records = Vec::with_capacity(frames.len());
     for (f, (mesh, rays, light, reference)) in frames.iter().enumerate() {
         let start = Instant::now();
+        let mut guard_ratio = f64::NAN;
         let rebuilt = if f == 0 {
             true
         } else {
@@ -467,6 +473,10 @@ pub fn run_strategy(
                 Strategy::Adaptive { partial, .. } => {
                     bvh.refit(mesh.positions()).expect("same topology");
                     let due = adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64);
+                    let p = adaptive.prediction();
+                    if p.fresh_sah > 0.0 {
+                        guard_ratio = p.sah / p.fresh_sah;
+                    }
                     // As the plugin: the degraded triangles are counted only when the rent made a
                     // rebuild due.
                     let options = PartialOptions::default();
@@ -512,6 +522,7 @@ pub fn run_strategy(
             sah_ratio: cost / reference.sah.max(1e-30),
             steps_ratio: steps as f64 / rays.len().max(1) as f64 / reference.steps.max(1e-30),
             mismatches: mismatches(|r| bvh.closest_hit(r).map(|h| h.t), mesh, checked),
+            guard_ratio,
         });
     }
     records

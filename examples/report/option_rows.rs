@@ -257,6 +257,7 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
             },
             steps_ratio: steps as f64 / n.max(1.0) / reference.steps.max(1e-30),
             mismatches: mismatches(answer, mesh, checked),
+            guard_ratio: f64::NAN,
         });
     }
     if let Some(p) = &planners {

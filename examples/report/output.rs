@@ -112,7 +112,7 @@ pub fn write_report(
     let names: Vec<String> = strategies.iter().map(Strategy::name).collect();
     let looks = plots::looks(&strategies);
     let mut csv = String::from(
-        "scene,strategy,frame,update_ms,query_ms,rebuilt,sah_ratio,steps_ratio,mismatches\n",
+        "scene,strategy,frame,update_ms,query_ms,rebuilt,sah_ratio,steps_ratio,mismatches,guard_ratio\n",
     );
     let (mut rows, mut files) = (Vec::new(), Vec::new());
     let mut cold = Vec::new();
@@ -136,7 +136,7 @@ pub fn write_report(
             for r in recs {
                 let _ = writeln!(
                     csv,
-                    "{},{},{},{:.4},{:.4},{},{:.4},{:.4},{}",
+                    "{},{},{},{:.4},{:.4},{},{:.4},{:.4},{},{:.4}",
                     scene.name,
                     s.name(),
                     r.frame,
@@ -145,7 +145,8 @@ pub fn write_report(
                     r.rebuilt as u8,
                     r.sah_ratio,
                     r.steps_ratio,
-                    r.mismatches
+                    r.mismatches,
+                    r.guard_ratio
                 );
             }
             rows.push(row(scene.name, s, recs));
