@@ -50,32 +50,30 @@ impl TraceWorld {
         out: &mut [Option<RayHit>],
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        REACHED.with_borrow_mut(|scratch| {
-            for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-                let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-                for (w, r) in world.iter_mut().zip(rays) {
-                    *w = r.clipped(max_t);
-                }
-                let world = &world[..rays.len()];
-                let mut best = [None::<(Entity, Hit)>; MAX_PACKET];
-                self.packet_entities(world, filter, scratch, |e, inst, object, idx, tmax| {
-                    let mut hits = [None; MAX_PACKET];
-                    let hits = &mut hits[..object.len()];
-                    inst.closest_hits_packet(object, hits);
-                    for (&i, h) in idx.iter().zip(hits.iter()) {
-                        if let Some(h) = h
-                            && best[i].is_none_or(|(_, b)| h.t < b.t)
-                        {
-                            best[i] = Some((e, *h));
-                            tmax[i] = h.t;
-                        }
-                    }
-                });
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = best[i].map(|(e, h)| self.instances[&e].world_hit(e, &world[i], &h));
-                }
+        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+            let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+            for (w, r) in world.iter_mut().zip(rays) {
+                *w = r.clipped(max_t);
             }
-        });
+            let world = &world[..rays.len()];
+            let mut best = [None::<(Entity, Hit)>; MAX_PACKET];
+            self.packet_entities(world, filter, |e, inst, object, idx, tmax| {
+                let mut hits = [None; MAX_PACKET];
+                let hits = &mut hits[..object.len()];
+                inst.closest_hits_packet(object, hits);
+                for (&i, h) in idx.iter().zip(hits.iter()) {
+                    if let Some(h) = h
+                        && best[i].is_none_or(|(_, b)| h.t < b.t)
+                    {
+                        best[i] = Some((e, *h));
+                        tmax[i] = h.t;
+                    }
+                }
+            });
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = best[i].map(|(e, h)| self.instances[&e].world_hit(e, &world[i], &h));
+            }
+        }
     }
 
     /// [`occluded`](Self::occluded) for every segment `(from, to)`, as packets of up to [`MAX_PACKET`]:
@@ -87,84 +85,85 @@ impl TraceWorld {
         out: &mut [bool],
     ) {
         assert_eq!(segments.len(), out.len(), "one output per segment");
-        REACHED.with_borrow_mut(|scratch| {
-            for (segs, out) in segments.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-                let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-                for (w, &(from, to)) in world.iter_mut().zip(segs) {
-                    *w = Ray::segment(from, to);
-                }
-                let world = &world[..segs.len()];
-                out.fill(false);
-                self.packet_entities(world, filter, scratch, |_, inst, object, idx, tmax| {
-                    let mut hit = [false; MAX_PACKET];
-                    let hit = &mut hit[..object.len()];
-                    inst.any_hits_packet(object, hit);
-                    for (&i, &h) in idx.iter().zip(hit.iter()) {
-                        if h {
-                            // An occluded segment needs nothing more: no box is reached below −∞.
-                            out[i] = true;
-                            tmax[i] = f32::NEG_INFINITY;
-                        }
-                    }
-                });
+        for (segs, out) in segments.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+            let mut world = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+            for (w, &(from, to)) in world.iter_mut().zip(segs) {
+                *w = Ray::segment(from, to);
             }
-        });
+            let world = &world[..segs.len()];
+            out.fill(false);
+            self.packet_entities(world, filter, |_, inst, object, idx, tmax| {
+                let mut hit = [false; MAX_PACKET];
+                let hit = &mut hit[..object.len()];
+                inst.any_hits_packet(object, hit);
+                for (&i, &h) in idx.iter().zip(hit.iter()) {
+                    if h {
+                        // An occluded segment needs nothing more: no box is reached below −∞.
+                        out[i] = true;
+                        tmax[i] = f32::NEG_INFINITY;
+                    }
+                }
+            });
+        }
     }
 
     /// Visits the accepted entities that some ray of `rays` (up to [`MAX_PACKET`], world space) reaches,
     /// nearest first. For each, `visit(entity, instance, object_rays, indices, bounds)` traces the rays that
     /// still reach the entity's box — transformed to its object space with their current bound — and
-    /// lowers `bounds[i]` of ray `i` when it found something nearer (−∞ ends the ray).
+    /// lowers `bounds[i]` of ray `i` when it found something nearer (−∞ ends the ray). The reached entities
+    /// are gathered in the thread's [`REACHED`] list.
     fn packet_entities(
         &self,
         rays: &[Ray],
         filter: &QueryFilter,
-        scratch: &mut Vec<(f32, u32)>,
         mut visit: impl FnMut(Entity, &Instance, &[Ray], &[usize], &mut [f32; MAX_PACKET]),
     ) {
-        // Top level, ray by ray: each reached entity with the nearest entry of any ray into its box.
-        scratch.clear();
-        for r in rays.iter().filter(|r| r.is_valid()) {
-            traverse(self.tlas.nodes(), r, &mut (), |slots, _| {
-                for s in slots {
-                    let p = self.tlas.prim_indices()[s];
-                    let t = r
-                        .intersect_aabb(&self.tlas_bounds[p as usize], r.tmax)
-                        .unwrap_or(f32::INFINITY);
-                    scratch.push((t, p));
-                }
-                false
-            });
-        }
-        scratch.sort_unstable_by(|a, b| a.1.cmp(&b.1).then(a.0.total_cmp(&b.0)));
-        scratch.dedup_by_key(|x| x.1);
-        scratch.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut tmax = [f32::NEG_INFINITY; MAX_PACKET];
-        for (t, r) in tmax.iter_mut().zip(rays) {
-            if r.is_valid() {
-                *t = r.tmax;
+        REACHED.with_borrow_mut(|scratch| {
+            // Top level, ray by ray: each reached entity with the nearest entry of any ray into its box.
+            scratch.clear();
+            for r in rays.iter().filter(|r| r.is_valid()) {
+                traverse(self.tlas.nodes(), r, &mut (), |slots, _| {
+                    for s in slots {
+                        let p = self.tlas.prim_indices()[s];
+                        let t = r
+                            .intersect_aabb(&self.tlas_bounds[p as usize], r.tmax)
+                            .unwrap_or(f32::INFINITY);
+                        scratch.push((t, p));
+                    }
+                    false
+                });
             }
-        }
-        let mut object = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-        let mut idx = [0usize; MAX_PACKET];
-        for &(_, p) in scratch.iter() {
-            let e = self.tlas_entities[p as usize];
-            let inst = &self.instances[&e];
-            if !filter.accepts(e, inst.layers) {
-                continue;
-            }
-            let mut n = 0;
-            for (i, r) in rays.iter().enumerate() {
-                if tmax[i] >= r.tmin && r.intersect_aabb(&inst.world_bounds, tmax[i]).is_some() {
-                    object[n] = inst.object_ray(r, tmax[i]);
-                    idx[n] = i;
-                    n += 1;
+            scratch.sort_unstable_by(|a, b| a.1.cmp(&b.1).then(a.0.total_cmp(&b.0)));
+            scratch.dedup_by_key(|x| x.1);
+            scratch.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut tmax = [f32::NEG_INFINITY; MAX_PACKET];
+            for (t, r) in tmax.iter_mut().zip(rays) {
+                if r.is_valid() {
+                    *t = r.tmax;
                 }
             }
-            if n == 0 {
-                continue;
+            let mut object = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
+            let mut idx = [0usize; MAX_PACKET];
+            for &(_, p) in scratch.iter() {
+                let e = self.tlas_entities[p as usize];
+                let inst = &self.instances[&e];
+                if !filter.accepts(e, inst.layers) {
+                    continue;
+                }
+                let mut n = 0;
+                for (i, r) in rays.iter().enumerate() {
+                    if tmax[i] >= r.tmin && r.intersect_aabb(&inst.world_bounds, tmax[i]).is_some()
+                    {
+                        object[n] = inst.object_ray(r, tmax[i]);
+                        idx[n] = i;
+                        n += 1;
+                    }
+                }
+                if n == 0 {
+                    continue;
+                }
+                visit(e, inst, &object[..n], &idx[..n], &mut tmax);
             }
-            visit(e, inst, &object[..n], &idx[..n], &mut tmax);
-        }
+        });
     }
 }
