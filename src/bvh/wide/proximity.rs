@@ -192,41 +192,25 @@ impl WideBvh {
         if self.nodes.is_empty() {
             return;
         }
-        let mut stack = Stack::<u32, WIDE_STACK>::new();
-        stack.push(0);
-        while let Some(top) = stack.pop() {
+        // Each entry: a node, and whether it lies under an accepted lane (all its leaves go, untested).
+        let mut stack = Stack::<(u32, bool), WIDE_STACK>::new();
+        stack.push((0, false));
+        while let Some((top, under)) = stack.pop() {
             let node = &self.nodes[top as usize];
-            let (mut mask, whole) = test(node);
+            let (mut mask, whole) = if under {
+                let used = used_lanes(node);
+                (used, used)
+            } else {
+                test(node)
+            };
             while mask != 0 {
                 let i = mask.trailing_zeros() as usize;
                 mask &= mask - 1;
                 let (c, all) = (node.child[i], whole >> i & 1 != 0);
                 if is_leaf(c) {
                     leaf(leaf_slots(c), all);
-                } else if all {
-                    self.each_leaf(c, |slots| leaf(slots, true));
                 } else {
-                    stack.push(c);
-                }
-            }
-        }
-    }
-
-    /// Calls `leaf` with the slots of every leaf under the inner node `root`.
-    fn each_leaf(&self, root: u32, mut leaf: impl FnMut(Range<usize>)) {
-        let mut stack = Stack::<u32, WIDE_STACK>::new();
-        stack.push(root);
-        while let Some(top) = stack.pop() {
-            let node = &self.nodes[top as usize];
-            let mut mask = used_lanes(node);
-            while mask != 0 {
-                let i = mask.trailing_zeros() as usize;
-                mask &= mask - 1;
-                let c = node.child[i];
-                if is_leaf(c) {
-                    leaf(leaf_slots(c));
-                } else {
-                    stack.push(c);
+                    stack.push((c, all));
                 }
             }
         }
