@@ -182,8 +182,8 @@ impl RayColumns {
 impl MeshBvh {
     /// [`closest_hit`](Self::closest_hit) for every ray of `rays`, traced as packets of up to
     /// [`MAX_PACKET`] consecutive rays (each node culled for the whole packet by interval arithmetic; a
-    /// packet whose rays share no direction sign on any axis is traced ray by ray). `out` must be as long as `rays`; single-threaded (see
-    /// [`closest_hits_packets`](Self::closest_hits_packets)).
+    /// packet whose rays share no direction sign on any axis is traced ray by ray). `out` must be as long
+    /// as `rays`; single-threaded (see [`closest_hits_packets`](Self::closest_hits_packets)).
     pub fn closest_hits_packet(
         &self,
         rays: &[Ray],

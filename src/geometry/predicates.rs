@@ -20,7 +20,8 @@ use std::cmp::Ordering;
 /// points are coplanar (or `a`, `b`, `c` are collinear).
 ///
 /// The sign is exact for all finite input (Shewchuk's filter: an `f64` evaluation with a static error bound,
-/// exact expansion arithmetic where the bound does not settle the sign). Returns `Equal` when any coordinate is not finite.
+/// exact expansion arithmetic where the bound does not settle the sign). Returns `Equal` when any
+/// coordinate is not finite.
 ///
 /// Cost: about 30 flops when the filter decides, which is all but nearly degenerate cases; the exact
 /// fallback costs a few thousand flops.
