@@ -14,6 +14,7 @@
 //! 22 bits).
 
 use super::{KeyLayout, SecondaryRay};
+use crate::bvh::prefetch;
 use crate::bvh::radix_sort::{RadixScratch, sort_by_bits_with};
 use crate::geometry::Aabb;
 use crate::{Result, parallel};
@@ -96,7 +97,7 @@ impl SortedRays {
             // The pass above has pushed the batch's rays out of L2 (64 bytes a ray): ask for a ray's line a
             // dozen keys ahead (the keys' share of the sorted runs' samples 14% -> 10% at 1024²).
             if let Some(&ahead) = valid.get(j + PREFETCH_AHEAD) {
-                prefetch(&rays[ahead as usize]);
+                prefetch(std::ptr::from_ref(&rays[ahead as usize]));
             }
             high(layout.key(&rays[valid[j] as usize], &origins))
         });
@@ -136,19 +137,6 @@ impl SortedRays {
 
 /// Rays ahead of the one being keyed whose cache line the key pass asks for.
 const PREFETCH_AHEAD: usize = 12;
-
-/// Asks the CPU to bring `x`'s cache line in (x86-64; nothing elsewhere).
-#[inline(always)]
-fn prefetch<T>(x: &T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: SSE is part of the x86-64 baseline; a prefetch reads nothing and never faults.
-    unsafe {
-        use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-        _mm_prefetch::<_MM_HINT_T0>((x as *const T).cast());
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = x;
-}
 
 /// Sorts `rays` by their keys under `layout`; `Error::InvalidOption` for a layout over 32 bits. Allocates
 /// its buffers: per frame, keep a [`SortedRays`] and a [`SortScratch`] and call [`SortedRays::sort`].

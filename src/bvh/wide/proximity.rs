@@ -20,6 +20,7 @@ use super::{
     EMPTY_LANE, FIRST_MASK, NearStack, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots,
     nearest_first,
 };
+use crate::bvh::prefetch;
 use crate::bvh::stack::Stack;
 use crate::geometry::Aabb;
 use glam::{Vec3, Vec4};
@@ -108,33 +109,25 @@ impl WideBvh {
     /// fault, whatever the address.
     #[inline(always)]
     fn prefetch_lanes<T>(&self, node: &WideNode, mask: u32, slot_data: &[T], discs: &[LaneDiscs]) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let here: *const i8 = (node as *const WideNode).cast();
-            for (i, &c) in node.child.iter().enumerate() {
-                let first = (c & FIRST_MASK) as usize;
-                let slot: *const i8 = slot_data.as_ptr().wrapping_add(first).cast();
-                let inner: *const i8 = self.nodes.as_ptr().wrapping_add(c as usize).cast();
-                let disc: *const i8 = if discs.is_empty() {
-                    inner
-                } else {
-                    discs.as_ptr().wrapping_add(c as usize).cast()
-                };
-                let (a, b) = match (mask >> i & 1 != 0, is_leaf(c)) {
-                    (false, _) => (here, here),
-                    (true, true) => (slot, slot),
-                    (true, false) => (inner, disc),
-                };
-                for at in [a, a.wrapping_add(64), b, b.wrapping_add(64)] {
-                    // SAFETY: a prefetch reads nothing and cannot fault, for any address (SSE, x86-64
-                    // baseline).
-                    unsafe { _mm_prefetch::<_MM_HINT_T0>(at) };
-                }
+        let here: *const i8 = (node as *const WideNode).cast();
+        for (i, &c) in node.child.iter().enumerate() {
+            let first = (c & FIRST_MASK) as usize;
+            let slot: *const i8 = slot_data.as_ptr().wrapping_add(first).cast();
+            let inner: *const i8 = self.nodes.as_ptr().wrapping_add(c as usize).cast();
+            let disc: *const i8 = if discs.is_empty() {
+                inner
+            } else {
+                discs.as_ptr().wrapping_add(c as usize).cast()
+            };
+            let (a, b) = match (mask >> i & 1 != 0, is_leaf(c)) {
+                (false, _) => (here, here),
+                (true, true) => (slot, slot),
+                (true, false) => (inner, disc),
+            };
+            for at in [a, a.wrapping_add(64), b, b.wrapping_add(64)] {
+                prefetch(at);
             }
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        let _ = (node, mask, slot_data, discs);
     }
 
     /// Calls `leaf` with the slots of every leaf whose box overlaps `b` (touching counts), in tree order.
