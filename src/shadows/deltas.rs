@@ -5,9 +5,9 @@
 //! scattered reads and eight differences per pixel with one read per pixel: the table holds the depth of
 //! each smooth texel (`Δ` at most the edge threshold) and NaN at the others, so most pixels read 4 bytes
 //! of it and nothing else, and the few over an edge texel read their nine texels' depth range from the
-//! map ([`range`]). A table of `[depth, Δ]` pairs read twice the bytes at every pixel. A first attempt skipped the
-//! test over 8 × 8-texel tiles whose depth range (with a one-texel border) stayed within the edge
-//! threshold; it skipped nothing on the crowd, because a receiver plane seen at an angle by the light (the
+//! map ([`range`]). A table of `[depth, Δ]` pairs read twice the bytes at every pixel. A first attempt
+//! skipped the test over 8 × 8-texel tiles whose depth range (with a one-texel border) stayed within the
+//! edge threshold; it skipped nothing on the crowd, because a receiver plane seen at an angle by the light (the
 //! ground under a low sun) changes depth by about a texel per texel, so no tile of it stays within 1.5
 //! texels, while each texel's `Δ` does.
 
@@ -21,7 +21,7 @@ const ROWS: usize = 16;
 /// `b`, `c`: the rows above, through and below) and its eight neighbours. A finite middle depth makes an
 /// empty neighbour's difference infinite, never NaN.
 #[inline(always)]
-pub(super) fn delta(a: &[f32], b: &[f32], c: &[f32]) -> f32 {
+fn delta(a: &[f32], b: &[f32], c: &[f32]) -> f32 {
     let s = b[1];
     let diff = |n: f32| (n - s).abs();
     let (top, bottom) = (

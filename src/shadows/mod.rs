@@ -17,8 +17,9 @@
 //!    compared with the nine texels' depths: where some may shade it (one lies in front of it by more
 //!    than the constant bias) and some may not, the pixel is *potentially incorrect* and marked (a
 //!    one-sided form of the thesis's `[s − Δ, s + Δ]` overlap, which also marks the occluder's own lit
-//!    side at its silhouette; see `classify::selective`) (`Δ` is computed for every texel beforehand, in one vectorised pass over the
-//!    map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels read neighbouring texels).
+//!    side at its silhouette; see `classify::selective`). `Δ` is computed for every texel beforehand, in
+//!    one vectorised pass over the map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels
+//!    read neighbouring texels.
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
