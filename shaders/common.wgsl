@@ -13,6 +13,14 @@ const LEAF_BIT: u32 = 0x80000000u;
 const WG: u32 = 256u;
 const MAX_RATIO: f32 = 1024.0;
 
+// glam's Vec3::dot and Vec3::cross, operation for operation. WGSL's `dot` and `cross` leave the order of
+// their multiplies and adds, and whether they fuse, to the driver; these round as the CPU does once the
+// kernels are compiled without contraction (src/gpu/precise.rs).
+fn dot3(a: vec3<f32>, b: vec3<f32>) -> f32 { return a.x * b.x + a.y * b.y + a.z * b.z; }
+fn cross3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
+}
+
 fn is_leaf(n: Node) -> bool { return (n.index & LEAF_BIT) != 0u; }
 fn leaf_first(n: Node) -> u32 { return n.index & 0x07ffffffu; }
 fn leaf_count(n: Node) -> u32 { return (n.index >> 27u) & 0xfu; }

@@ -70,17 +70,17 @@ struct TriHit { ok: bool, t: f32, u: f32, v: f32 }
 fn intersect(ray: GpuRay, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, tmax: f32) -> TriHit {
     var miss = TriHit(false, 0.0, 0.0, 0.0);
     // Zero-area triangles never hit (the CPU stores them collapsed to a point).
-    let n = cross(v1 - v0, v2 - v0);
+    let n = cross3(v1 - v0, v2 - v0);
     if all(n == vec3<f32>(0.0)) { return miss; }
     let a = v0 - ray.origin;
     let b = v1 - ray.origin;
     let c = v2 - ray.origin;
-    let ax = dot(ray.row_x, a);
-    let ay = dot(ray.row_y, a);
-    let bx = dot(ray.row_x, b);
-    let by = dot(ray.row_y, b);
-    let cx = dot(ray.row_x, c);
-    let cy = dot(ray.row_y, c);
+    let ax = dot3(ray.row_x, a);
+    let ay = dot3(ray.row_y, a);
+    let bx = dot3(ray.row_x, b);
+    let by = dot3(ray.row_y, b);
+    let cx = dot3(ray.row_x, c);
+    let cy = dot3(ray.row_y, c);
     var u = cx * by - cy * bx;
     var v = ax * cy - ay * cx;
     var w = bx * ay - by * ax;
@@ -92,7 +92,7 @@ fn intersect(ray: GpuRay, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, tmax: f32
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) { return miss; }
     let det = u + v + w;
     if det == 0.0 { return miss; }
-    let big_t = u * dot(ray.row_z, a) + v * dot(ray.row_z, b) + w * dot(ray.row_z, c);
+    let big_t = u * dot3(ray.row_z, a) + v * dot3(ray.row_z, b) + w * dot3(ray.row_z, c);
     let rcp = 1.0 / det;
     let t = big_t * rcp;
     if !(t >= ray.tmin && t <= tmax) { return miss; }

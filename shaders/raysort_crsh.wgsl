@@ -46,12 +46,13 @@ var<workgroup> survives: array<u32, 64>;
 // CPU's 1e-5 slack (conservative on both devices).
 fn node_hits_sphere(n: RayNode, c: vec3<f32>, r: f32) -> bool {
     let v = c - n.center;
-    let len = length(v);
-    let along = dot(v, n.axis);
+    let len = sqrt(dot3(v, v));
+    let along = dot3(v, n.axis);
     let m = abs(n.center);
     let reach = r + n.radius + 1e-5 * (len + max(m.x, max(m.y, m.z)));
     if along >= len * n.cos_spread { return true; }
-    let s = length(cross(v, n.axis));
+    let w = cross3(v, n.axis);
+    let s = sqrt(dot3(w, w));
     var dist = len;
     if along * n.cos_spread + s * n.sin_spread > 0.0 {
         dist = s * n.cos_spread - along * n.sin_spread;

@@ -78,7 +78,7 @@ fn interleave3(a: u32, b: u32, c: u32, bits: u32) -> u32 {
 // The polar step (cos θ in equal steps from +z) and the azimuth step (the diamond angle of (x, y) from -x,
 // 1 + x' for y <= 0 and 3 - x' above, x' = x / (|x| + |y|), -1 along ±z), as key.rs's `direction`.
 fn direction(d: vec3<f32>, bits: u32) -> u32 {
-    let polar = quantise((1.0 - d.z / sqrt(dot(d, d))) * 0.5, bits);
+    let polar = quantise((1.0 - d.z / sqrt(dot3(d, d))) * 0.5, bits);
     let s = abs(d.x) + abs(d.y);
     var x = -1.0;
     if s > 0.0 { x = d.x / s; }

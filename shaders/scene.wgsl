@@ -113,7 +113,7 @@ fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
                 let c = vertex(v + indices[i + 2u]);
                 let h = intersect(ray, a, b, c, best.t);
                 if h.ok && (!best.found || h.t < best.t || t < best.prim) {
-                    best = Best(h.t, t, h.u, h.v, cross(b - a, c - a), true);
+                    best = Best(h.t, t, h.u, h.v, cross3(b - a, c - a), true);
                     if any { return best; }
                 }
             }

@@ -15,6 +15,16 @@ fn gpu() -> Option<GpuContext> {
     gpu_or_skip()
 }
 
+/// On Vulkan (lavapipe in CI, NVIDIA's and every other driver: wgpu passes SPIR-V through) every kernel is compiled
+/// without floating-point contraction: the premise of the exact comparisons in this file on drivers
+/// that would fuse multiplies and adds.
+#[test]
+fn vulkan_kernels_are_compiled_without_contraction() {
+    let Some(g) = gpu() else { return };
+    let vulkan = g.adapter_info().backend == wgpu::Backend::Vulkan;
+    assert_eq!(g.contraction_free(), vulkan, "{}", g.adapter_details());
+}
+
 const SIZES: [usize; 6] = [0, 1, 2, 3, 1023, 1025];
 const BIG: usize = (1 << 20) + 7;
 

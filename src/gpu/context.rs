@@ -139,7 +139,8 @@ impl GpuContext {
             info.device_type,
             info.backend
         );
-        let wanted = wgpu::Features::TIMESTAMP_QUERY;
+        // Passthrough SPIR-V lets the kernels forbid floating-point contraction (see `precise`).
+        let wanted = wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::PASSTHROUGH_SHADERS;
         let features = adapter.features() & wanted;
         // Ask for what the adapter can do (big meshes need big storage buffers) unless told otherwise.
         let limits = options.limits.clone().unwrap_or_else(|| adapter.limits());
@@ -200,12 +201,27 @@ impl GpuContext {
         &self.info
     }
 
-    /// Backend and driver, for logs.
+    /// Backend and driver, for logs, and whether the kernels are free of contraction.
     pub fn adapter_details(&self) -> String {
         format!(
-            "{:?}, {} {}",
-            self.info.backend, self.info.driver, self.info.driver_info
+            "{:?}, {} {}{}",
+            self.info.backend,
+            self.info.driver,
+            self.info.driver_info,
+            if self.contraction_free() {
+                ", kernels without contraction"
+            } else {
+                ", kernels may contract"
+            }
         )
+    }
+
+    /// Whether every kernel was compiled without floating-point contraction, so that its arithmetic
+    /// rounds as the CPU's does on any driver (Vulkan: passthrough SPIR-V, see the `gpu` module docs).
+    /// Where false (Metal, DX12, or a Vulkan driver without passthrough), a driver that fuses multiplies
+    /// and adds may answer rays through shared edges and build trees differently from the CPU.
+    pub fn contraction_free(&self) -> bool {
+        self.kernels.contraction_free
     }
 
     /// Whether the device can time passes with timestamp queries.

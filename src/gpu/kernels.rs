@@ -23,12 +23,13 @@ pub(crate) struct Module {
 
 impl Module {
     fn new(
-        device: &wgpu::Device,
+        compiler: &Compiler,
         name: &'static str,
         source: &'static str,
         bindings: &[B],
         entries: &[&'static str],
     ) -> Self {
+        let device = compiler.device;
         let layout_entries: Vec<wgpu::BindGroupLayoutEntry> = bindings
             .iter()
             .enumerate()
@@ -56,10 +57,8 @@ impl Module {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(source.into()),
-        });
+        let (shader, precise) = super::precise::shader_module(device, name, source);
+        compiler.precise.set(compiler.precise.get() && precise);
         let pipelines = entries
             .iter()
             .map(|&e| {
@@ -135,28 +134,41 @@ pub(crate) struct Kernels {
     pub dacrt: Module,
     /// The BVH build on the task pool.
     pub pool_build: Module,
+    /// Every kernel was compiled without floating-point contraction (see `precise`).
+    pub contraction_free: bool,
+}
+
+/// The device the kernels are compiled for, and whether every one of them so far was compiled without
+/// floating-point contraction.
+struct Compiler<'a> {
+    device: &'a wgpu::Device,
+    precise: std::cell::Cell<bool>,
 }
 
 impl Kernels {
     pub fn new(device: &wgpu::Device) -> Self {
         use B::*;
-        Self {
+        let compiler = Compiler {
+            device,
+            precise: std::cell::Cell::new(true),
+        };
+        let kernels = Self {
             scan: Module::new(
-                device,
+                &compiler,
                 "scan",
                 shader!("scan.wgsl"),
                 &[Write, Write, Uniform],
                 &["scan_blocks", "add_offsets"],
             ),
             sort: Module::new(
-                device,
+                &compiler,
                 "sort",
                 shader!("sort.wgsl"),
                 &[Read, Read, Write, Write, Write, Uniform, Uniform],
                 &["count", "scatter"],
             ),
             lbvh: Module::new(
-                device,
+                &compiler,
                 "lbvh",
                 shader!("lbvh.wgsl"),
                 &[
@@ -165,7 +177,7 @@ impl Kernels {
                 &["tri_bounds", "reduce_bounds", "morton", "karras", "walk_up"],
             ),
             levels: Module::new(
-                device,
+                &compiler,
                 "levels",
                 shader!("levels.wgsl"),
                 &[Read, Read, Read, Write, Write, Write, Write, Uniform, Write],
@@ -179,21 +191,21 @@ impl Kernels {
                 ],
             ),
             reduce: Module::new(
-                device,
+                &compiler,
                 "reduce",
                 shader!("reduce.wgsl"),
                 &[Read, Write, Uniform],
                 &["sum_blocks", "sum_pairs"],
             ),
             trace: Module::new(
-                device,
+                &compiler,
                 "trace",
                 shader!(rays "trace.wgsl"),
                 &[Read, Read, Read, Read, Read, Write, Uniform],
                 &["closest", "any_hit"],
             ),
             scene: Module::new(
-                device,
+                &compiler,
                 "scene",
                 shader!(rays "scene.wgsl"),
                 &[
@@ -202,21 +214,21 @@ impl Kernels {
                 &["scene_trace"],
             ),
             skin: Module::new(
-                device,
+                &compiler,
                 "skin",
                 shader!("skin.wgsl"),
                 &[Read, Read, Read, Read, Write, Uniform, Read, Read],
                 &["skin"],
             ),
             frame: Module::new(
-                device,
+                &compiler,
                 "frame",
                 shader!("frame.wgsl"),
                 &[Read, Read, Read, Read, Write, Write, Uniform],
                 &["instance_boxes", "order_instances"],
             ),
             frame_sah: Module::new(
-                device,
+                &compiler,
                 "frame_sah",
                 concat!(
                     include_str!("../../shaders/common.wgsl"),
@@ -227,14 +239,14 @@ impl Kernels {
                 &["sah_blocks", "sum_pairs"],
             ),
             histogram: Module::new(
-                device,
+                &compiler,
                 "histogram",
                 shader!("histogram.wgsl"),
                 &[Read, Write, Uniform],
                 &["histogram_clear", "histogram"],
             ),
             collide: Module::new(
-                device,
+                &compiler,
                 "collide",
                 shader!("collide.wgsl"),
                 &[
@@ -243,7 +255,7 @@ impl Kernels {
                 &["pairs_init", "pairs_args", "pairs_round"],
             ),
             sah: Module::new(
-                device,
+                &compiler,
                 "sah",
                 shader!("sah_build.wgsl"),
                 &[
@@ -265,7 +277,7 @@ impl Kernels {
                 ],
             ),
             ploc: Module::new(
-                device,
+                &compiler,
                 "ploc",
                 shader!("ploc.wgsl"),
                 &[
@@ -282,21 +294,21 @@ impl Kernels {
                 ],
             ),
             raysort: Module::new(
-                device,
+                &compiler,
                 "raysort",
                 shader!("raysort_keys.wgsl"),
                 &[Read, Write, Write, Write, Write, Uniform],
                 &["origin_bounds", "ray_keys", "gather_invalid", "gather_keys"],
             ),
             raysort_crsh: Module::new(
-                device,
+                &compiler,
                 "raysort_crsh",
                 shader!(rays "raysort_crsh.wgsl"),
                 &[Read, Read, Read, Read, Read, Write],
                 &["crsh_trace"],
             ),
             dacrt: Module::new(
-                device,
+                &compiler,
                 "dacrt",
                 concat!(
                     shader!(rays "taskpool.wgsl"),
@@ -308,7 +320,7 @@ impl Kernels {
                 POOL_ENTRIES,
             ),
             pool_build: Module::new(
-                device,
+                &compiler,
                 "pool_build",
                 concat!(
                     shader!("taskpool.wgsl"),
@@ -321,7 +333,7 @@ impl Kernels {
             ),
             #[cfg(feature = "testing")]
             taskpool: Module::new(
-                device,
+                &compiler,
                 "taskpool",
                 concat!(
                     shader!("taskpool.wgsl"),
@@ -330,6 +342,11 @@ impl Kernels {
                 &[Read, Write, Write, Write, Write, Uniform, Write],
                 POOL_ENTRIES,
             ),
+            contraction_free: false,
+        };
+        Self {
+            contraction_free: compiler.precise.get(),
+            ..kernels
         }
     }
 }

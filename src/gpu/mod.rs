@@ -34,6 +34,7 @@ mod context;
 mod frame;
 mod kernels;
 mod ploc;
+mod precise;
 mod scan;
 pub(crate) mod scene;
 mod skin;
