@@ -21,6 +21,56 @@ fn cross3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
 }
 
+// Veltkamp split of a (no overflow for |a| < 2^115): a = hi + lo exactly, each with at most 12 bits.
+fn split(a: f32) -> vec2<f32> {
+    let c = 4097.0 * a;
+    let hi = c - (c - a);
+    return vec2<f32>(hi, a - hi);
+}
+
+// The exact error of fl(a * b): a * b = fl(a * b) + err (Dekker).
+fn product_error(a: f32, b: f32, p: f32) -> f32 {
+    let x = split(a);
+    let y = split(b);
+    return ((x.x * y.x - p) + x.x * y.y + x.y * y.x) + x.y * y.y;
+}
+
+// a / b rounded to nearest, as the CPU divides. Vulkan lets a driver's division err by 2.5 ulp, and
+// NVIDIA's does: the mantissas' quotient (in (1/2, 2), scaled by a power of two, exactly) is moved to the
+// neighbour with the smaller exact remainder m − c·n (Dekker's product error: exact without contraction,
+// no underflow at these magnitudes) until neither neighbour is nearer. A quotient that is zero, not
+// finite, or below the smallest normal (where the scaling back would round again) is the driver's.
+fn div_rn(a: f32, b: f32) -> f32 {
+    let q = a / b;
+    if a == 0.0 || !(abs(q) >= 1.17549435e-38 && abs(q) <= fmax()) || !(abs(b) <= fmax()) { return q; }
+    let fa = frexp(a);
+    let fb = frexp(b);
+    let m = fa.fract;
+    let n = fb.fract;
+    var c = m / n;
+    var r = remainder_of(m, n, c);
+    for (var k = 0u; k < 3u; k++) {
+        // The true quotient lies beyond c in the direction of r / n: one ulp that way.
+        let away = ((r > 0.0) == (n > 0.0)) == (c > 0.0);
+        let d = bitcast<f32>(select(bitcast<u32>(c) - 1u, bitcast<u32>(c) + 1u, away));
+        let rd = remainder_of(m, n, d);
+        if !(abs(rd) < abs(r)) { break; }
+        c = d;
+        r = rd;
+    }
+    return ldexp(c, fa.exp - fb.exp);
+}
+
+// m − c·n for c·n within a few ulp of m: m − fl(c·n) is exact (Sterbenz), then the product's error.
+fn remainder_of(m: f32, n: f32, c: f32) -> f32 {
+    let p = c * n;
+    return (m - p) - product_error(c, n, p);
+}
+
+fn div3_rn(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    return vec3<f32>(div_rn(a.x, b.x), div_rn(a.y, b.y), div_rn(a.z, b.z));
+}
+
 fn is_leaf(n: Node) -> bool { return (n.index & LEAF_BIT) != 0u; }
 fn leaf_first(n: Node) -> u32 { return n.index & 0x07ffffffu; }
 fn leaf_count(n: Node) -> u32 { return (n.index >> 27u) & 0xfu; }
@@ -56,10 +106,10 @@ fn sa_ratio(pmin: vec3<f32>, pmax: vec3<f32>, lmin: vec3<f32>, lmax: vec3<f32>, 
     let pe = pmax - pmin;
     let scale = max(max(pe.x, pe.y), pe.z);
     if !(scale > 0.0 && scale <= fmax()) { return 1.0; }
-    let inv = 1.0 / scale;
+    let inv = div_rn(1.0, scale);
     let sp = half_area_scaled(pe, inv);
     let sc = half_area_scaled(lmax - lmin, inv) + half_area_scaled(rmax - rmin, inv);
     if sp <= 0.0 { return 1.0; }
     if sc <= 0.0 { return MAX_RATIO; }
-    return min(sp / sc, MAX_RATIO);
+    return min(div_rn(sp, sc), MAX_RATIO);
 }

@@ -14,10 +14,10 @@ fn sah_term(i: u32) -> f32 {
     let n = nodes[i];
     let weight = select(1.0, f32(leaf_count(n)), is_leaf(n));
     if !(scale > 0.0 && scale <= fmax()) { return weight; }
-    let inv = 1.0 / scale;
+    let inv = div_rn(1.0, scale);
     let ra = half_area_scaled(re, inv);
     if !(ra > 0.0) { return weight; }
-    return half_area_scaled(n.max - n.min, inv) / ra * weight;
+    return div_rn(half_area_scaled(n.max - n.min, inv), ra) * weight;
 }
 
 @compute @workgroup_size(256)

@@ -108,7 +108,7 @@ fn spread10(v: u32) -> u32 {
 fn morton30(p: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>) -> u32 {
     var e = hi - lo;
     if params.cube != 0u { e = vec3<f32>(max(e.x, max(e.y, e.z))); }
-    let inv = select(vec3<f32>(0.0), vec3<f32>(1.0) / e, e > vec3<f32>(0.0));
+    let inv = select(vec3<f32>(0.0), div3_rn(vec3<f32>(1.0), e), e > vec3<f32>(0.0));
     let n = clamp((p - lo) * inv, vec3<f32>(0.0), vec3<f32>(1.0));
     let q = vec3<u32>(min(n * 1024.0, vec3<f32>(1023.0)));
     return spread10(q.x) | (spread10(q.y) << 1u) | (spread10(q.z) << 2u);

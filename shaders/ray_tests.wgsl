@@ -42,20 +42,6 @@ fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     return -1.0;
 }
 
-// Veltkamp split of a (no overflow for |a| < 2^115): a = hi + lo exactly, each with at most 12 bits.
-fn split(a: f32) -> vec2<f32> {
-    let c = 4097.0 * a;
-    let hi = c - (c - a);
-    return vec2<f32>(hi, a - hi);
-}
-
-// The exact error of fl(a * b): a * b = fl(a * b) + err (Dekker).
-fn product_error(a: f32, b: f32, p: f32) -> f32 {
-    let x = split(a);
-    let y = split(b);
-    return ((x.x * y.x - p) + x.x * y.y + x.y * y.x) + x.y * y.y;
-}
-
 // p·q' − p'·q rounded once: when the two rounded products are equal, the exact difference is the
 // difference of their rounding errors, which is what the CPU's f64 fallback rounds to f32.
 fn edge(px: f32, py: f32, qx: f32, qy: f32) -> f32 {
@@ -93,7 +79,7 @@ fn intersect(ray: GpuRay, v0: vec3<f32>, v1: vec3<f32>, v2: vec3<f32>, tmax: f32
     let det = u + v + w;
     if det == 0.0 { return miss; }
     let big_t = u * dot3(ray.row_z, a) + v * dot3(ray.row_z, b) + w * dot3(ray.row_z, c);
-    let rcp = 1.0 / det;
+    let rcp = div_rn(1.0, det);
     let t = big_t * rcp;
     if !(t >= ray.tmin && t <= tmax) { return miss; }
     return TriHit(true, t, v * rcp, w * rcp);

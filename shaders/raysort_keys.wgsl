@@ -81,7 +81,7 @@ fn direction(d: vec3<f32>, bits: u32) -> u32 {
     let polar = quantise((1.0 - d.z / sqrt(dot3(d, d))) * 0.5, bits);
     let s = abs(d.x) + abs(d.y);
     var x = -1.0;
-    if s > 0.0 { x = d.x / s; }
+    if s > 0.0 { x = div_rn(d.x, s); }
     var diamond = 3.0 - x;
     if d.y <= 0.0 { diamond = 1.0 + x; }
     return interleave2(polar, quantise(diamond * 0.25, bits), bits);
@@ -126,7 +126,7 @@ fn ray_keys(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
             let lo = unordered(atomicLoad(&bounds[a]));
             let extent = unordered(atomicLoad(&bounds[a + 3u])) - lo;
             var f = 0.0;
-            if extent > 0.0 { f = (r.origin[a] - lo) / extent; }
+            if extent > 0.0 { f = div_rn(r.origin[a] - lo, extent); }
             cell[a] = quantise(f, origin_bits);
         }
         let origin = interleave3(cell.x, cell.y, cell.z, origin_bits);

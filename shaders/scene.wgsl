@@ -74,13 +74,13 @@ fn object_ray(inst: Instance, world: GpuRay, dir: vec3<f32>, tmax: f32) -> GpuRa
         kx = ky;
         ky = t;
     }
-    let sx = d[kx] / d[kz];
-    let sy = d[ky] / d[kz];
-    let sz = 1.0 / d[kz];
+    let sx = div_rn(d[kx], d[kz]);
+    let sy = div_rn(d[ky], d[kz]);
+    let sz = div_rn(1.0, d[kz]);
     var r: GpuRay;
     r.origin = o;
     r.tmin = world.tmin;
-    r.inv_dir = select(vec3<f32>(1.0) / d, vec3<f32>(0.0), zero);
+    r.inv_dir = select(div3_rn(vec3<f32>(1.0), d), vec3<f32>(0.0), zero);
     r.tmax = tmax;
     r.row_x = unit(kx) - sx * unit(kz);
     r.dir_bits = bits;

@@ -130,6 +130,9 @@ pub(crate) struct Kernels {
     /// The task pool's toy task (a test hook).
     #[cfg(feature = "testing")]
     pub taskpool: Module,
+    /// Correctly rounded division (a test hook).
+    #[cfg(feature = "testing")]
+    pub divide: Module,
     /// DACRT on the task pool.
     pub dacrt: Module,
     /// The BVH build on the task pool.
@@ -341,6 +344,14 @@ impl Kernels {
                 ),
                 &[Read, Write, Write, Write, Write, Uniform, Write],
                 POOL_ENTRIES,
+            ),
+            #[cfg(feature = "testing")]
+            divide: Module::new(
+                &compiler,
+                "divide",
+                shader!("divide.wgsl"),
+                &[Read, Read, Write],
+                &["divide"],
             ),
             contraction_free: false,
         };

@@ -64,6 +64,8 @@ pub(crate) use frame::{
     ReadTrees, ResidentPairs, ResidentScene, world_bound,
 };
 pub use ploc::{GpuPloc, PlocBuildCounts};
+#[cfg(feature = "testing")]
+pub use precise::divide;
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

@@ -151,6 +151,44 @@ pub(crate) fn shader_module(
     (module, false)
 }
 
+/// Test hook (feature `testing`): `a[i] / b[i]` by the kernels' correctly rounded division (`div_rn` in
+/// shaders/common.wgsl), read back, blocking. Equals the CPU's `a[i] / b[i]` bit for bit wherever the
+/// quotient is zero or a finite normal number.
+#[cfg(feature = "testing")]
+pub fn divide(ctx: &super::GpuContext, a: &[f32], b: &[f32]) -> crate::Result<Vec<f32>> {
+    use super::buffers::{GpuBuffer, bind_group};
+    assert_eq!(a.len(), b.len(), "one divisor per dividend");
+    let bytes = (a.len().max(1) * 4) as u64;
+    let (na, nb, q) = (
+        GpuBuffer::storage(ctx, "divide num", bytes),
+        GpuBuffer::storage(ctx, "divide den", bytes),
+        GpuBuffer::storage(ctx, "divide quot", (a.len() * 4) as u64),
+    );
+    na.write(ctx, a);
+    nb.write(ctx, b);
+    let module = &ctx.kernels.divide;
+    let group = bind_group(
+        ctx,
+        &module.layout,
+        &[
+            na.buffer().as_entire_binding(),
+            nb.buffer().as_entire_binding(),
+            q.buffer().as_entire_binding(),
+        ],
+    );
+    let mut enc = ctx.encoder();
+    if !a.is_empty() {
+        let (x, y) = ctx.groups(a.len() as u32, 256);
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_pipeline(module.pipeline("divide"));
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+    let out = super::Readback::<f32>::record(ctx, &mut enc, q.buffer(), a.len());
+    ctx.submit(enc);
+    out.wait(ctx)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
