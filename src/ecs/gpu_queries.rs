@@ -135,13 +135,20 @@ mod imp {
             (&self.ray_requests, &self.shadow_requests)
         }
 
+        /// Whether every read-back of the batch is there (polls, never blocks).
+        fn ready(&self, ctx: &GpuContext) -> bool {
+            let (Some(closest), Some(shadows)) = (&self.closest, &self.shadows) else {
+                return false;
+            };
+            closest.ready(ctx)
+                && shadows.ready(ctx)
+                && self.contacts.as_ref().is_none_or(|c| c.ready(ctx))
+                && self.phases.as_ref().is_none_or(|p| p.ready(ctx))
+        }
+
         /// The answers, if both read-backs are there (or `blocking`, after waiting for them).
         fn answers(&mut self, ctx: &GpuContext, blocking: bool) -> Option<crate::Result<Answers>> {
-            let (closest, shadows) = (self.closest.as_ref()?, self.shadows.as_ref()?);
-            let contacts_ready = self.contacts.as_ref().is_none_or(|c| c.ready(ctx))
-                && self.phases.as_ref().is_none_or(|p| p.ready(ctx));
-            let ready = blocking || (closest.ready(ctx) && shadows.ready(ctx) && contacts_ready);
-            if !ready {
+            if !(blocking || self.ready(ctx)) {
                 return None;
             }
             let (closest, shadows) = (self.closest.take()?, self.shadows.take()?);
@@ -251,6 +258,16 @@ mod imp {
                 timer: FrameTimer::new(ctx),
                 policies: Default::default(),
             })
+        }
+
+        /// Whether the GPU has finished every batch submitted so far (polls, never blocks). Under
+        /// [`Latency::NextFrame`](crate::ecs::Latency) a frame that starts while this holds publishes the
+        /// last frame's answers without waiting; a game that finds it false at the start of its frames
+        /// is GPU-bound, and the frame that meets a full queue of batches waits (counted in
+        /// `TraceStats::gpu.blocking_waits`).
+        pub fn caught_up(&self) -> bool {
+            let ctx = &self.inner.ctx;
+            self.inner.pending.iter().all(|p| p.ready(ctx))
         }
 
         /// Batches submitted and not collected yet.
