@@ -132,7 +132,14 @@ fn buffers_past_the_binding_limit_are_refused() {
         "nodes past the binding limit",
     );
     // 1,000 triangles fit (1,999 × 32 bytes < 64 KiB).
-    GpuMeshBvh::new(&g, &soup(17, 1000)).unwrap();
+    let bvh = GpuMeshBvh::new(&g, &soup(17, 1000)).unwrap();
+    // The SAH builder's bins share the tree's buffers with the small-split kernel; without it they are
+    // their own buffer, here 501 queued nodes' bins (hundreds of KB): an error, not wgpu's panic.
+    GpuSahBuilder::new(&g, &bvh, GpuSahOptions::default()).unwrap();
+    expect_gpu_error(
+        GpuSahBuilder::new(&g, &bvh, GpuSahOptions::default().small_split(false)),
+        "SAH bins past the binding limit",
+    );
 }
 
 #[test]

@@ -214,6 +214,10 @@ impl GpuSahBuilder {
         let shared = options.small_split
             && bin_words <= 3 * (2 * n - 1)
             && queue_bytes <= parents.buffer().size();
+        if !shared {
+            ctx.check_storage("sah bins", bin_words * 4)?;
+            ctx.check_storage("sah queues", queue_bytes)?;
+        }
         let own = (!shared).then(|| {
             Box::new([
                 GpuBuffer::storage(ctx, "sah bins", bin_words * 4),
