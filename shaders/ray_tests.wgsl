@@ -20,12 +20,16 @@ const ROBUST_TMAX_SCALE: f32 = 1.0000002384185791; // 1 + 2 ulp
 
 const BIG: f32 = 3.0e38;
 
+// `slab`'s answer for a box the ray misses: the most negative finite float, below `-BIG`.
+const NO_ENTRY: f32 = -3.4028234663852886e38;
+
 fn bits3(b: u32) -> vec3<bool> {
     return vec3<bool>((b & 1u) != 0u, (b & 2u) != 0u, (b & 4u) != 0u);
 }
 
-// Entry distance into the node's box within [tmin, tmax], or -1 for a miss (tmin >= 0 is enforced on
-// upload). WGSL lets implementations assume no NaN or infinity, so instead of the CPU's 0·∞ = NaN that
+// Entry distance into the node's box within [tmin, tmax], or NO_ENTRY for a miss (below every entry
+// distance: tmin >= -BIG is enforced on upload, so a negative tmin reaches behind the origin as on the
+// CPU). WGSL lets implementations assume no NaN or infinity, so instead of the CPU's 0·∞ = NaN that
 // drops out of max/min, an axis along which the ray does not move (its inv_dir is uploaded as 0) is
 // decided by whether the origin lies within the slab: unbounded if it does, empty if not. Same answers.
 fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
@@ -39,7 +43,12 @@ fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     let tnear = max(near.x, max(near.y, max(near.z, ray.tmin)));
     let tfar = min(far.x, min(far.y, far.z));
     if tnear <= min(tfar * ROBUST_TMAX_SCALE, tmax) { return tnear; }
-    return -1.0;
+    return NO_ENTRY;
+}
+
+// Whether `t`, from `slab`, is an entry distance rather than NO_ENTRY.
+fn entered(t: f32) -> bool {
+    return t > NO_ENTRY;
 }
 
 // p·q' − p'·q rounded once: when the two rounded products are equal, the exact difference is the
@@ -94,18 +103,18 @@ struct Stack {
     sp: u32,
 }
 
-// After testing an inner node's children (at `c` and `c + 1`, entry distances `ta`, `tb`, negative for a
+// After testing an inner node's children (at `c` and `c + 1`, entry distances `ta`, `tb`, NO_ENTRY for a
 // miss): the child to visit next, the nearer one, with the farther pushed; MISS when neither was hit.
 fn descend(stack: ptr<function, Stack>, c: u32, ta: f32, tb: f32) -> u32 {
-    if ta >= 0.0 && tb >= 0.0 {
+    if entered(ta) && entered(tb) {
         let a_first = ta <= tb;
         (*stack).node[(*stack).sp] = select(c, c + 1u, a_first);
         (*stack).t[(*stack).sp] = select(ta, tb, a_first);
         (*stack).sp += 1u;
         return select(c + 1u, c, a_first);
     }
-    if ta >= 0.0 { return c; }
-    if tb >= 0.0 { return c + 1u; }
+    if entered(ta) { return c; }
+    if entered(tb) { return c + 1u; }
     return MISS;
 }
 

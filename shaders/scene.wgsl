@@ -95,7 +95,7 @@ struct Best { t: f32, prim: u32, u: f32, v: f32, normal: vec3<f32>, found: bool 
 fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
     var best = Best(ray.tmax, MISS, 0.0, 0.0, vec3<f32>(0.0), false);
     let root = blas[inst.node_offset];
-    if slab(ray, root, best.t) < 0.0 { return best; }
+    if !entered(slab(ray, root, best.t)) { return best; }
     var stack: Stack;
     stack.sp = 0u;
     var cur = 0u;
@@ -147,7 +147,7 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     // Scene rays are tested against triangles only in object space, so the CPU sends the world direction in
     // row_x (the world-space shear rows would be unused).
     let dir = ray.row_x;
-    if (ray.dir_bits & 0x80000000u) != 0u || arrayLength(&tlas) == 0u || slab(ray, tlas[0], ray.tmax) < 0.0 {
+    if (ray.dir_bits & 0x80000000u) != 0u || arrayLength(&tlas) == 0u || !entered(slab(ray, tlas[0], ray.tmax)) {
         hits[i] = out;
         return;
     }

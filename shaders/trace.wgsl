@@ -26,7 +26,7 @@ fn vertex(i: u32) -> vec3<f32> {
 fn trace(ray: GpuRay, any: bool) -> GpuHit {
     var best = GpuHit(ray.tmax, MISS, 0.0, 0.0);
     if (ray.dir_bits & 0x80000000u) != 0u { return best; } // invalid ray
-    if arrayLength(&nodes) == 0u || slab(ray, nodes[0], ray.tmax) < 0.0 { return best; }
+    if arrayLength(&nodes) == 0u || !entered(slab(ray, nodes[0], ray.tmax)) { return best; }
     var stack: Stack;
     stack.sp = 0u;
     var cur = 0u;

@@ -39,14 +39,21 @@ type Placed = (Vec<(Entity, u32)>, Vec<[Vec3; 3]>);
 type Answers = BTreeMap<u64, RayResults>;
 
 /// Frame `f`'s `rays` rays and [`SHADOWS`] shadow segments: aimed from in front of the crowd through it.
+/// Every fourth ray starts 3 further on, inside the crowd, and reaches back to where the others start
+/// (`tmin = -3`): its hits may lie behind its origin.
 fn requests(f: u64, rays: usize) -> (Vec<Ray>, Vec<(Vec3, Vec3)>) {
     let mut r = rng(15 + f);
     let spread = |r: &mut _, lo, hi, scale: Vec3, shift: Vec3| rand_vec(r, lo, hi) * scale + shift;
     let rays = (0..rays)
-        .map(|_| {
+        .map(|i| {
             let from = spread(&mut r, -1.0, 3.5, Vec3::new(1.0, 0.6, 0.0), Vec3::Z * -3.0);
             let to = spread(&mut r, -0.5, 3.2, Vec3::new(1.0, 0.7, 0.3), Vec3::ZERO);
-            Ray::new(from, (to - from).normalize())
+            let d = (to - from).normalize();
+            if i % 4 == 0 {
+                Ray::with_range(from + 3.0 * d, d, -3.0, f32::INFINITY)
+            } else {
+                Ray::new(from, d)
+            }
         })
         .collect();
     let shadows = (0..SHADOWS)
@@ -303,7 +310,7 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
             match (ch, gh) {
                 (None, None) => {}
                 (Some(c), Some(g)) => {
-                    let rel = (c.distance - g.distance).abs() / c.distance;
+                    let rel = (c.distance - g.distance).abs() / c.distance.abs();
                     assert!(rel <= 1e-5, "{at}: t {} vs {}", g.distance, c.distance);
                     let (ce, ge) = (cpu.character(c.entity), gpu.character(g.entity));
                     if (ce, c.triangle) != (ge, g.triangle) {
@@ -311,7 +318,8 @@ fn assert_same_answers(cpu: &Run, gpu: &Run, what: &str) {
                         let e = cpu.spawned[ge];
                         let k = keys.iter().position(|&k| k == (e, g.triangle));
                         let v = ray_triangle(&rays[*tag as usize], tris[k.expect("a triangle")]);
-                        let tie = v.hit && (v.t as f32 - c.distance).abs() <= 1e-5 * c.distance;
+                        let tie =
+                            v.hit && (v.t as f32 - c.distance).abs() <= 1e-5 * c.distance.abs();
                         assert!(tie, "{at}: {g:?} vs {c:?}, oracle {v:?}");
                     }
                 }

@@ -38,9 +38,7 @@ impl Ray {
     }
 
     /// A ray over `t ∈ [tmin, tmax]`. A range with `tmin > tmax` is empty (nothing is hit); a NaN bound
-    /// makes the ray invalid. A negative `tmin` reaches behind the origin on the CPU, but GPU queries
-    /// raise it to 0 (their kernels mark a miss with a negative distance): keep `tmin ≥ 0` where the
-    /// GPU may answer.
+    /// makes the ray invalid. A negative `tmin` reaches behind the origin, on the CPU and the GPU alike.
     pub fn with_range(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
         let flush = |d: f32| {
             if d.abs() < f32::MIN_POSITIVE {

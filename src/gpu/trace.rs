@@ -27,10 +27,15 @@ pub(crate) struct GpuRay {
 
 const _: () = assert!(std::mem::size_of::<GpuRay>() == 80);
 
+/// The most negative `tmin` the kernels take (`BIG` in shaders/ray_tests.wgsl): their box test marks a
+/// miss with a value below it.
+const LOWEST_TMIN: f32 = 3.0e38;
+
 impl GpuRay {
     /// The GPU form of `ray`. The kernel avoids infinities (WGSL may assume none): `tmax = ∞` becomes
-    /// `f32::MAX` (same answers, hits are finite), zero direction components get a zero reciprocal and a
-    /// flag, and a negative `tmin` is raised to 0.
+    /// `f32::MAX` and a `tmin` below `-3e38` (`-∞`, say) becomes `-3e38` (same answers: no hit of a
+    /// finite scene lies that far out), and zero direction components get a zero reciprocal and a flag.
+    /// A negative `tmin` reaches behind the origin, as on the CPU.
     pub(crate) fn new(ray: &Ray) -> Self {
         if !ray.is_valid() {
             return GpuRay {
@@ -50,7 +55,7 @@ impl GpuRay {
             .map(|i| if i.is_finite() { i } else { 0.0 });
         GpuRay {
             origin: ray.origin.to_array(),
-            tmin: ray.tmin.max(0.0),
+            tmin: ray.tmin.max(-LOWEST_TMIN),
             inv_dir: inv,
             tmax: ray.tmax.min(f32::MAX),
             row_x: row_x.to_array(),
