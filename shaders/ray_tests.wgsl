@@ -16,7 +16,7 @@ struct GpuRay {
 
 const MISS: u32 = 0xffffffffu;
 
-const ROBUST_TMAX_SCALE: f32 = 1.0000002384185791; // 1 + 2 ulp
+const ROBUST_FAR_SLACK: f32 = 2.384185791015625e-7; // 2 ulp(1), as src/geometry/ray.rs robust_far
 
 const BIG: f32 = 3.0e38;
 
@@ -42,7 +42,8 @@ fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     let far = select(select(t1, t0, neg), select(vec3<f32>(-BIG), vec3<f32>(BIG), inside), zero);
     let tnear = max(near.x, max(near.y, max(near.z, ray.tmin)));
     let tfar = min(far.x, min(far.y, far.z));
-    if tnear <= min(tfar * ROBUST_TMAX_SCALE, tmax) { return tnear; }
+    let far_scale = 1.0 + select(ROBUST_FAR_SLACK, -ROBUST_FAR_SLACK, tfar < 0.0);
+    if tnear <= min(tfar * far_scale, tmax) { return tnear; }
     return NO_ENTRY;
 }
 

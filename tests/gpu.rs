@@ -245,36 +245,40 @@ fn ray_queries_equal_cpu_queries() {
 }
 
 /// A negative `tmin` reaches behind the origin on the GPU as on the CPU: rays from inside a closed sphere
-/// over `[tmin, ∞)` with `tmin` negative enough to take in the wall behind them find it first.
+/// and a closed box (flat, axis-aligned walls: boxes without thickness behind the origin) over
+/// `[tmin, ∞)` with `tmin` negative enough to take in the wall behind them find it first.
 #[test]
 fn negative_tmin_reaches_behind_the_origin_as_on_the_cpu() {
     let Some(g) = gpu() else { return };
-    let m = icosphere(3);
-    let mut r = rng(8);
-    let rays: Vec<Ray> = (0..3000)
-        .map(|i| {
-            let o = rand_vec(&mut r, -0.4, 0.4);
-            let tmin = [f32::NEG_INFINITY, -3.0, -1e-3][i % 3];
-            Ray::with_range(o, rand_dir(&mut r), tmin, f32::INFINITY)
-        })
-        .collect();
-    assert_eq!(check_traversal(&g, &m, &rays, "negative tmin"), rays.len());
-    // Brute force over every triangle, for the GPU's own answers. The sphere's wall lies within 1.7 of
-    // every origin: the rays whose `tmin` is -∞ or -3 (two in three) find it behind them first.
-    let cpu = MeshBvh::build(&m, &BuildOptions::new(Builder::SAH)).unwrap();
-    let gb = GpuMeshBvh::from_cpu(&g, &m, &cpu).unwrap();
-    let hits = GpuRays::new(&g)
-        .run(&g, &gb, &rays, Query::Closest)
-        .unwrap();
-    for (ray, h) in rays.iter().zip(&hits) {
-        assert_brute_hit(&m, ray, h.primitive().map(|p| (p, h.t)), "negative tmin");
+    let walls = kinetrace::scenes::shoebox(Vec3::splat(-0.5), Vec3::splat(0.5));
+    for (m, what) in [(icosphere(3), "sphere"), (walls, "box")] {
+        let mut r = rng(8);
+        let rays: Vec<Ray> = (0..3000)
+            .map(|i| {
+                let o = rand_vec(&mut r, -0.4, 0.4);
+                let tmin = [f32::NEG_INFINITY, -3.0, -1e-3][i % 3];
+                Ray::with_range(o, rand_dir(&mut r), tmin, f32::INFINITY)
+            })
+            .collect();
+        assert_eq!(check_traversal(&g, &m, &rays, what), rays.len());
+        // Brute force over every triangle, for the GPU's own answers. The walls lie within 1.7 of every
+        // origin and more than 0.09 away: the rays whose `tmin` is -∞ or -3 (two in three) find one
+        // behind them first, the others one ahead.
+        let cpu = MeshBvh::build(&m, &BuildOptions::new(Builder::SAH)).unwrap();
+        let gb = GpuMeshBvh::from_cpu(&g, &m, &cpu).unwrap();
+        let hits = GpuRays::new(&g)
+            .run(&g, &gb, &rays, Query::Closest)
+            .unwrap();
+        for (ray, h) in rays.iter().zip(&hits) {
+            assert_brute_hit(&m, ray, h.primitive().map(|p| (p, h.t)), what);
+        }
+        let behind = hits.iter().map(|h| h.t < 0.0);
+        let reaching_back = rays.iter().map(|r| r.tmin < -1.0);
+        assert!(
+            behind.eq(reaching_back),
+            "{what}: hits behind for the rays reaching back only"
+        );
     }
-    let behind = hits.iter().map(|h| h.t < 0.0);
-    let reaching_back = rays.iter().map(|r| r.tmin < -1.0);
-    assert!(
-        behind.eq(reaching_back),
-        "hits behind the origin for the rays reaching back only"
-    );
 }
 
 #[test]

@@ -430,3 +430,33 @@ fn bad_options_are_errors() {
     ));
     assert!(RayHierarchy::build(&[Ray::new(Vec3::ZERO, Vec3::ZERO)], 8, 2, false).is_err());
 }
+
+/// Rays whose range reaches behind their origin (`tmin < 0`): from inside the closed room, every one
+/// meets a wall behind it first.
+#[test]
+fn rays_reaching_behind_their_origin_equal_brute_force() {
+    let m = room();
+    let mut r = rng(31);
+    let rays: Vec<SecondaryRay> = (0..600)
+        .map(|i| {
+            let o = rand_vec(&mut r, -1.8, 1.8);
+            let tmin = [f32::NEG_INFINITY, -8.0, -0.5][i % 3];
+            let kind = if i % 2 == 0 {
+                RayKind::Reflection
+            } else {
+                RayKind::Shadow { light: 0 }
+            };
+            let ray = Ray::with_range(o, rand_dir(&mut r), tmin, 1.0);
+            SecondaryRay {
+                ray,
+                kind,
+                tag: i as u32,
+            }
+        })
+        .collect();
+    let (occluded, hit) = check(&m, &rays, "behind");
+    assert!(
+        occluded > 100 && hit > 100,
+        "{occluded} occluded, {hit} hit"
+    );
+}

@@ -33,7 +33,7 @@ use super::stack::Stack;
 use super::traverse::TraversalStats;
 use super::{MAX_DEPTH, MeshBvh, Node};
 use crate::bvh::Hit;
-use crate::geometry::{Aabb, ROBUST_TMAX_SCALE, Ray, TriangleRay};
+use crate::geometry::{Aabb, Ray, TriangleRay, robust_far};
 use crate::parallel;
 use glam::{BVec3, Vec3};
 use std::ops::Range;
@@ -113,7 +113,7 @@ impl Bounds {
         let near = Vec3::select(self.usable, near, Vec3::NEG_INFINITY);
         let far = Vec3::select(self.usable, far, Vec3::INFINITY);
         let tnear = near.max_element().max(self.tmin);
-        (tnear <= (far.min_element() * ROBUST_TMAX_SCALE).min(tmax)).then_some(tnear)
+        (tnear <= robust_far(far.min_element()).min(tmax)).then_some(tnear)
     }
 }
 
@@ -380,7 +380,7 @@ impl<'a> Packet<'a> {
                     far = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(fp, o), inv), far);
                 }
                 let tmax = _mm_loadu_ps(self.tmax[g..].as_ptr());
-                let limit = _mm_min_ps(_mm_mul_ps(far, _mm_set1_ps(ROBUST_TMAX_SCALE)), tmax);
+                let limit = _mm_min_ps(super::wide::simd::robust_far_sse(far), tmax);
                 _mm_movemask_ps(_mm_cmple_ps(near, limit)) as u64
             };
             out |= hit << g;

@@ -14,7 +14,7 @@ pub(crate) use morton::spread10;
 pub use morton::{morton30, morton30_cube, morton63};
 pub use predicates::orient3d;
 pub(crate) use predicates::{Plane, normal_est, orient2d_est};
-pub use ray::{ROBUST_TMAX_SCALE, Ray};
+pub use ray::{ROBUST_FAR_SLACK, Ray, robust_far};
 pub(crate) use ray::{max_keep, min_keep};
 pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};

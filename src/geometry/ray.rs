@@ -124,9 +124,10 @@ impl Ray {
     /// Conservative slab test: the entry distance into `b` when the ray's `[tmin, tmax]` overlaps the box,
     /// else `None`.
     ///
-    /// Follows Ize, "Robust BVH Ray Traversal" (JCGT 2013): the far distance is scaled by `1 + 2 ulp`, which
-    /// covers the rounding of the subtractions and products, so a box the ray touches is never culled. It may
-    /// accept boxes the ray misses by a rounding error; the triangle test settles those.
+    /// Follows Ize, "Robust BVH Ray Traversal" (JCGT 2013): the far distance is moved outward by `2 ulp` of
+    /// its size ([`robust_far`]; behind the origin too, for a negative `tmin`), which covers the rounding of
+    /// the subtractions and products, so a box the ray touches is never culled. It may accept boxes the ray
+    /// misses by a rounding error; the triangle test settles those.
     ///
     /// The near and far planes of each axis are chosen by the direction's sign. On an axis where the
     /// direction is zero the distances are `±∞` (origin inside or outside the slab) or NaN (origin exactly
@@ -141,7 +142,7 @@ impl Ray {
         let far = Vec3::select(self.dir_neg, t0, t1);
         let tnear = max_keep(near.x, max_keep(near.y, max_keep(near.z, self.tmin)));
         let tfar = min_keep(far.x, min_keep(far.y, min_keep(far.z, f32::INFINITY)));
-        (tnear <= min_keep(tfar * ROBUST_TMAX_SCALE, tmax)).then_some(tnear)
+        (tnear <= min_keep(robust_far(tfar), tmax)).then_some(tnear)
     }
 }
 
@@ -157,8 +158,17 @@ pub(crate) fn min_keep(x: f32, acc: f32) -> f32 {
     if x < acc { x } else { acc }
 }
 
-/// `1 + 2 ulp(1)`, Ize's factor for the far slab distance.
-pub const ROBUST_TMAX_SCALE: f32 = 1.0 + 2.0 * f32::EPSILON;
+/// Ize's rounding bound for the far slab distance, `2 ulp(1)` of its size (see [`robust_far`]).
+pub const ROBUST_FAR_SLACK: f32 = 2.0 * f32::EPSILON;
+
+/// The far slab distance `far` moved outward by [`ROBUST_FAR_SLACK`] of its size, so that rounding never
+/// culls a box the ray touches: `far · (1 + 2ε)` for a far plane ahead of the origin, `far · (1 − 2ε)` for
+/// one behind it (a range with a negative `tmin`: scaling by `1 + 2ε` there would pull it inward and cull
+/// a flat box the ray crosses behind its origin). Infinities stay infinite (an empty box's `−∞` too).
+#[inline(always)]
+pub fn robust_far(far: f32) -> f32 {
+    far * (1.0 + ROBUST_FAR_SLACK.copysign(far))
+}
 
 #[cfg(test)]
 mod tests {

@@ -9,6 +9,9 @@
 //! and 64 per triangle, a read-back of 16 bytes per ray, one blocking wait. The branching `s` may be at
 //! most 64 (one thread per ray of a level-1 node).
 //!
+//! Rays whose range reaches behind their origin (`tmin < 0`) lie outside the hierarchy's cones and are
+//! answered by the scene's BVH on the CPU, as [`Strategy::Crsh`](super::Strategy) does.
+//!
 //! Answers equal [`RayScene::trace`](super::RayScene::trace) with [`Strategy::Crsh`](super::Strategy):
 //! the same survivors reach the same exact test (both culls only drop triangles no ray of a node can
 //! reach), in the same triangle order, with the same tie rule; WGSL's division (2.5 ulp) may move `t`,
@@ -79,8 +82,15 @@ pub fn trace_crsh_gpu(
         )));
     }
     let sorted = sort_rays(rays, layout, true)?;
-    let order = &sorted.order[..sorted.valid()];
     let mut answers = vec![Answer::Miss; rays.len()];
+    // As on the CPU, a ray reaching behind its origin (`tmin < 0`) lies outside the hierarchy's cones: the
+    // CPU's BVH answers it.
+    let (behind, order): (Vec<u32>, Vec<u32>) =
+        (sorted.order[..sorted.valid()].iter()).partition(|&&i| rays[i as usize].ray.tmin < 0.0);
+    for i in behind {
+        answers[i as usize] = scene.bvh_answer(&rays[i as usize]).0;
+    }
+    let order = &order[..];
     if order.is_empty() {
         return Ok(answers);
     }

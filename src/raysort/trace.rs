@@ -213,21 +213,7 @@ impl RayScene {
 
     /// Every ray through the BVH in `order` (a permutation of the batch).
     fn trace_bvh(&self, rays: &[SecondaryRay], order: Vec<u32>, parallel: bool) -> Traced {
-        let one = |j: usize| {
-            let r = &rays[order[j] as usize];
-            let mut st = TraversalStats::default();
-            let a = match r.kind {
-                RayKind::Shadow { .. } if self.bvh.any_hit_counted(&r.ray, &mut st) => {
-                    Answer::Occluded
-                }
-                RayKind::Shadow { .. } => Answer::Miss,
-                RayKind::Reflection => self
-                    .bvh
-                    .closest_hit_counted(&r.ray, &mut st)
-                    .map_or(Answer::Miss, Answer::Hit),
-            };
-            (a, st)
-        };
+        let one = |j: usize| self.bvh_answer(&rays[order[j] as usize]);
         let mut traced = Traced {
             answers: vec![Answer::Miss; rays.len()],
             stats: RayTestStats::default(),
@@ -242,6 +228,19 @@ impl RayScene {
             traced.record(requests, (0..order.len()).map(one));
         }
         traced
+    }
+
+    /// One ray's answer through the BVH alone, and the traversal's counts.
+    pub(super) fn bvh_answer(&self, r: &SecondaryRay) -> (Answer, TraversalStats) {
+        let mut st = TraversalStats::default();
+        let a = match r.kind {
+            RayKind::Shadow { .. } if self.bvh.any_hit_counted(&r.ray, &mut st) => Answer::Occluded,
+            RayKind::Shadow { .. } => Answer::Miss,
+            RayKind::Reflection => {
+                (self.bvh.closest_hit_counted(&r.ray, &mut st)).map_or(Answer::Miss, Answer::Hit)
+            }
+        };
+        (a, st)
     }
 
     /// The valid sorted rays as packets of at most `size` consecutive rays of one kind whose keys agree
@@ -328,7 +327,9 @@ impl RayScene {
         }
     }
 
-    /// The valid rays of `order` through a hierarchy built over them in that order.
+    /// The valid rays of `order` through a hierarchy built over them in that order. The hierarchy's cones
+    /// hold the rays' directions from their origins forward, so a ray whose range reaches behind its origin
+    /// (`tmin < 0`) is answered by the BVH instead, its tests counted as the BVH's.
     fn trace_hierarchy(
         &self,
         rays: &[SecondaryRay],
@@ -338,6 +339,8 @@ impl RayScene {
         cull_mesh: bool,
         parallel: bool,
     ) -> Result<Traced> {
+        let (behind, order): (Vec<u32>, Vec<u32>) =
+            (order.into_iter()).partition(|&i| rays[i as usize].ray.tmin < 0.0);
         let ordered: Vec<_> = order.iter().map(|&i| rays[i as usize].ray).collect();
         let h = RayHierarchy::build(&ordered, branching, depth, parallel)?;
         let counts = [AtomicU64::new(0), AtomicU64::new(0)];
@@ -366,15 +369,19 @@ impl RayScene {
             counts[0].fetch_add(walk.stats.node_tests, Ordering::Relaxed);
             counts[1].fetch_add(walk.stats.triangle_tests, Ordering::Relaxed);
         });
-        let mut answers = vec![Answer::Miss; rays.len()];
-        for (&i, a) in order.iter().zip(done) {
-            answers[i as usize] = a;
-        }
-        let stats = RayTestStats {
-            node_tests: counts[0].load(Ordering::Relaxed),
-            triangle_tests: counts[1].load(Ordering::Relaxed),
+        let mut traced = Traced {
+            answers: vec![Answer::Miss; rays.len()],
+            stats: RayTestStats {
+                node_tests: counts[0].load(Ordering::Relaxed),
+                triangle_tests: counts[1].load(Ordering::Relaxed),
+            },
         };
-        Ok(Traced { answers, stats })
+        for (&i, a) in order.iter().zip(done) {
+            traced.answers[i as usize] = a;
+        }
+        let reaching_back = behind.iter().map(|&i| self.bvh_answer(&rays[i as usize]));
+        traced.record(behind.iter().copied(), reaching_back);
+        Ok(traced)
     }
 }
 

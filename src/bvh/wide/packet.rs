@@ -32,7 +32,6 @@ use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slot
 use crate::bvh::packet::{Bounds, Packet, lanes, range_mask};
 use crate::bvh::stack::Stack;
 use crate::bvh::{MeshBvh, TraversalStats};
-use crate::geometry::ROBUST_TMAX_SCALE;
 
 /// A child waiting on the stack: its payload, where its box lives (`parent` node, `lane`), its range of
 /// rays and its interval lower bound.
@@ -226,7 +225,7 @@ impl LaneBounds {
                     far = far.min((f * r0).max(f * r1));
                 }
                 *key = near.max(self.tmin);
-                if *key <= (far * ROBUST_TMAX_SCALE).min(tmax) {
+                if *key <= crate::geometry::robust_far(far).min(tmax) {
                     mask |= 1 << c;
                 }
             }
@@ -253,10 +252,7 @@ impl LaneBounds {
             }
             let tnear = _mm_max_ps(near, _mm_set1_ps(self.tmin));
             // `minps` returns its second operand when one is NaN: `tmax` first, as `f32::min` ignores it.
-            let limit = _mm_min_ps(
-                _mm_set1_ps(tmax),
-                _mm_mul_ps(far, _mm_set1_ps(ROBUST_TMAX_SCALE)),
-            );
+            let limit = _mm_min_ps(_mm_set1_ps(tmax), super::simd::robust_far_sse(far));
             let mask = _mm_movemask_ps(_mm_cmple_ps(tnear, limit)) as u32;
             let mut keys = [0.0f32; WIDTH];
             _mm_storeu_ps(keys.as_mut_ptr(), tnear);

@@ -1,7 +1,8 @@
 //! The four-box slab test of a [`WideNode`]: SSE on x86-64, NEON on aarch64, a portable loop elsewhere.
 //!
 //! Every path computes, lane by lane, exactly the operations of [`Ray::intersect_aabb`] in the same order
-//! (subtract, multiply, `max_keep`/`min_keep` chains, the `1 + 2 ulp` far scale, `<=`), with no fused
+//! (subtract, multiply, `max_keep`/`min_keep` chains, the far distance moved out by `2 ulp` of its size,
+//! `<=`), with no fused
 //! multiply-add, so all three give the same bits as the binary tree's scalar test and as each other: a
 //! ray that touches a box is never culled, NaN axes (a ray in a slab plane) fall out the same way.
 //!
@@ -10,7 +11,7 @@
 //! guarantees them, and the loads and stores take pointers to the node's `[f32; 4]` rows.
 
 use super::WideNode;
-use crate::geometry::{ROBUST_TMAX_SCALE, Ray, max_keep, min_keep};
+use crate::geometry::{ROBUST_FAR_SLACK, Ray, max_keep, min_keep, robust_far};
 
 /// Per-ray constants of the four-box test, computed once per query.
 #[derive(Clone, Copy, Debug)]
@@ -75,12 +76,25 @@ pub fn hit4_portable(node: &WideNode, r: &RayLanes, tmax: f32) -> (u32, [f32; 4]
             t(r.far[0], 0),
             min_keep(t(r.far[1], 1), min_keep(t(r.far[2], 2), f32::INFINITY)),
         );
-        if tnear <= min_keep(tfar * ROBUST_TMAX_SCALE, tmax) {
+        if tnear <= min_keep(robust_far(tfar), tmax) {
             mask |= 1 << i;
         }
         near[i] = tnear;
     }
     (mask, near)
+}
+
+/// [`robust_far`] on four lanes, with the scalar form's operations (the slack takes each lane's sign bit).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn robust_far_sse(far: std::arch::x86_64::__m128) -> std::arch::x86_64::__m128 {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE is part of the x86-64 baseline; register operations only.
+    unsafe {
+        let sign = _mm_and_ps(far, _mm_set1_ps(-0.0));
+        let slack = _mm_or_ps(_mm_set1_ps(ROBUST_FAR_SLACK), sign);
+        _mm_mul_ps(far, _mm_add_ps(_mm_set1_ps(1.0), slack))
+    }
 }
 
 /// SSE2 (x86-64 baseline): `maxps`/`minps` return their second operand on NaN, exactly `max_keep`/`min_keep`.
@@ -113,10 +127,7 @@ pub fn hit4_sse(node: &WideNode, r: &RayLanes, tmax: f32) -> (u32, [f32; 4]) {
                 _mm_min_ps(t(r.far[2], 2), _mm_set1_ps(f32::INFINITY)),
             ),
         );
-        let limit = _mm_min_ps(
-            _mm_mul_ps(tfar, _mm_set1_ps(ROBUST_TMAX_SCALE)),
-            _mm_set1_ps(tmax),
-        );
+        let limit = _mm_min_ps(robust_far_sse(tfar), _mm_set1_ps(tmax));
         let mask = _mm_movemask_ps(_mm_cmple_ps(tnear, limit)) as u32;
         let mut near = [0.0f32; 4];
         _mm_storeu_ps(near.as_mut_ptr(), tnear);
@@ -153,10 +164,13 @@ pub fn hit4_neon(node: &WideNode, r: &RayLanes, tmax: f32) -> (u32, [f32; 4]) {
                 min_k(t(r.far[2], 2), vdupq_n_f32(f32::INFINITY)),
             ),
         );
-        let limit = min_k(
-            vmulq_f32(tfar, vdupq_n_f32(ROBUST_TMAX_SCALE)),
-            vdupq_n_f32(tmax),
+        let sign = vandq_u32(vreinterpretq_u32_f32(tfar), vdupq_n_u32(1 << 31));
+        let slack = vorrq_u32(vreinterpretq_u32_f32(vdupq_n_f32(ROBUST_FAR_SLACK)), sign);
+        let far = vmulq_f32(
+            tfar,
+            vaddq_f32(vdupq_n_f32(1.0), vreinterpretq_f32_u32(slack)),
         );
+        let limit = min_k(far, vdupq_n_f32(tmax));
         let hit = vcleq_f32(tnear, limit);
         let lane_bits = vld1q_u32([1u32, 2, 4, 8].as_ptr());
         let bits = vandq_u32(hit, lane_bits);
