@@ -577,3 +577,23 @@ fn the_overlap_test_bins_a_triangle_into_exactly_the_cells_it_reaches() {
         assert_eq!(seq.reference_count(), exact.reference_count());
     }
 }
+
+/// Rays whose range reaches behind their origin (`tmin < 0`), from inside a closed sphere and a closed box
+/// (flat walls): the DDA walks back to where the range starts, and every ray meets a wall.
+#[test]
+fn rays_reaching_behind_their_origin_match_brute_force() {
+    let walls = kinetrace::scenes::shoebox(Vec3::splat(-0.5), Vec3::splat(0.5));
+    for (m, what) in [(cube_sphere(8), "sphere"), (walls, "box")] {
+        let mut r = rng(23);
+        let rays: Vec<Ray> = (0..640)
+            .map(|i| {
+                let tmin = [f32::NEG_INFINITY, -3.0, -1e-3][i % 3];
+                let (o, d) = (rand_vec(&mut r, -0.4, 0.4), rand_dir(&mut r));
+                Ray::with_range(o, d, tmin, f32::INFINITY)
+            })
+            .collect();
+        for g in grids(&m) {
+            assert_eq!(check(&m, &g, &rays, what), rays.len(), "{what}");
+        }
+    }
+}
