@@ -182,7 +182,7 @@ fn check_traversal(g: &GpuContext, m: &Mesh, rays: &[Ray], what: &str) -> usize 
             match c {
                 Some(h) => {
                     hits += 1;
-                    let t_ok = (gh.t - h.t).abs() <= 1e-5 * h.t.abs().max(1e-30);
+                    let t_ok = gh.t == h.t;
                     assert!(t_ok, "{what} {opt:?} ray {i}: t {} vs {}", gh.t, h.t);
                     if gh.primitive() != Some(h.primitive) {
                         // Only an exact tie may name another triangle (see MeshBvh's docs).

@@ -246,11 +246,6 @@ fn crsh_scene() -> kinetrace::raysort::RayScene {
     kinetrace::raysort::RayScene::build(&mesh, &kinetrace::bvh::BuildOptions::default()).unwrap()
 }
 
-/// WGSL division may be 2.5 ulp off: `t = T · (1 / det)` and `u`, `v` likewise, within 4 ulp.
-fn close(a: f32, b: f32) -> bool {
-    (a - b).abs() <= 4.0 * f32::EPSILON * a.abs().max(b.abs())
-}
-
 #[test]
 fn gpu_crsh_answers_equal_cpu_crsh() {
     use kinetrace::raysort::{Answer, Strategy, trace_crsh_gpu};
@@ -279,10 +274,7 @@ fn gpu_crsh_answers_equal_cpu_crsh() {
             match (c, d) {
                 (Answer::Hit(c), Answer::Hit(d)) => {
                     assert_eq!((c.primitive, c.normal), (d.primitive, d.normal), "{what}");
-                    assert!(
-                        close(c.t, d.t) && close(c.u, d.u) && close(c.v, d.v),
-                        "{what}"
-                    );
+                    assert_eq!([c.t, c.u, c.v], [d.t, d.u, d.v], "{what}");
                     hits += 1;
                 }
                 _ => assert_eq!(c, d, "{what}"),

@@ -14,8 +14,9 @@
 //!
 //! Answers equal [`RayScene::trace`](super::RayScene::trace) with [`Strategy::Crsh`](super::Strategy):
 //! the same survivors reach the same exact test (both culls only drop triangles no ray of a node can
-//! reach), in the same triangle order, with the same tie rule; WGSL's division (2.5 ulp) may move `t`,
-//! `u` and `v` by an ulp or two.
+//! reach), in the same triangle order, with the same tie rule and the same rounding (division rounded as
+//! the CPU's, and no contraction where [`GpuContext::contraction_free`] holds), so `t`, `u` and `v` are
+//! equal too.
 
 use super::hierarchy::{RayHierarchy, check_shape};
 use super::{Answer, KeyLayout, RayKind, RayScene, SecondaryRay, sort_rays};
