@@ -15,6 +15,12 @@ struct SkinParams { vertices: u32, targets: u32, _b: u32, _c: u32 }
 @group(0) @binding(6) var<storage, read> deltas: array<f32>;
 @group(0) @binding(7) var<storage, read> morph_weights: array<f32>;
 
+// `m · (p, 1)` in glam's order (`Mat4::transform_point3`: x, plus y, plus z, then the translation), not
+// the driver's matrix product, so that the GPU rounds as the CPU's `skin_positions` does.
+fn transform_point(m: mat4x4<f32>, p: vec3<f32>) -> vec3<f32> {
+    return ((m[0].xyz * p.x + m[1].xyz * p.y) + m[2].xyz * p.z) + m[3].xyz;
+}
+
 @compute @workgroup_size(256)
 fn skin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let i = linear_id(gid, nwg);
@@ -27,11 +33,10 @@ fn skin(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             r += vec3<f32>(deltas[d], deltas[d + 1u], deltas[d + 2u]) * w;
         }
     }
-    let p = vec4<f32>(r, 1.0);
     let j = joints[i];
     let w = weights[i];
-    let q = w.x * (matrices[j.x] * p) + w.y * (matrices[j.y] * p) + w.z * (matrices[j.z] * p)
-          + w.w * (matrices[j.w] * p);
+    let q = transform_point(matrices[j.x], r) * w.x + transform_point(matrices[j.y], r) * w.y
+          + transform_point(matrices[j.z], r) * w.z + transform_point(matrices[j.w], r) * w.w;
     positions[3u * i] = q.x;
     positions[3u * i + 1u] = q.y;
     positions[3u * i + 2u] = q.z;

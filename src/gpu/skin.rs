@@ -1,5 +1,7 @@
 //! Linear-blend skinning on the GPU (shaders/skin.wgsl), writing straight into a [`GpuMeshBvh`]'s
-//! positions so refit and rebuild read them with no CPU round trip.
+//! positions so refit and rebuild read them with no CPU round trip. The positions equal the CPU's
+//! [`skin_positions`](crate::anim::skin_positions) where the kernels are contraction-free
+//! ([`GpuContext::contraction_free`]): each joint's transform is written out in glam's operation order.
 
 use super::buffers::{GpuBuffer, ParamSlots, bind_group};
 use super::{GpuContext, GpuMeshBvh};
