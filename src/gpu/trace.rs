@@ -27,9 +27,9 @@ pub(crate) struct GpuRay {
 
 const _: () = assert!(std::mem::size_of::<GpuRay>() == 80);
 
-/// The most negative `tmin` the kernels take (`BIG` in shaders/ray_tests.wgsl): their box test marks a
-/// miss with a value below it.
-const LOWEST_TMIN: f32 = 3.0e38;
+/// The lowest `tmin` the kernels take (`-BIG` in shaders/ray_tests.wgsl): their box test marks a miss
+/// with a value below it.
+const TMIN_FLOOR: f32 = -3.0e38;
 
 impl GpuRay {
     /// The GPU form of `ray`. The kernel avoids infinities (WGSL may assume none): `tmax = ∞` becomes
@@ -55,7 +55,7 @@ impl GpuRay {
             .map(|i| if i.is_finite() { i } else { 0.0 });
         GpuRay {
             origin: ray.origin.to_array(),
-            tmin: ray.tmin.max(-LOWEST_TMIN),
+            tmin: ray.tmin.max(TMIN_FLOOR),
             inv_dir: inv,
             tmax: ray.tmax.min(f32::MAX),
             row_x: row_x.to_array(),

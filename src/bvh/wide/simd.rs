@@ -2,9 +2,9 @@
 //!
 //! Every path computes, lane by lane, exactly the operations of [`Ray::intersect_aabb`] in the same order
 //! (subtract, multiply, `max_keep`/`min_keep` chains, the far distance moved out by `2 ulp` of its size,
-//! `<=`), with no fused
-//! multiply-add, so all three give the same bits as the binary tree's scalar test and as each other: a
-//! ray that touches a box is never culled, NaN axes (a ray in a slab plane) fall out the same way.
+//! `<=`), with no fused multiply-add, so all three give the same bits as the binary tree's scalar test and
+//! as each other: a ray that touches a box is never culled, NaN axes (a ray in a slab plane) fall out the
+//! same way.
 //!
 //! SSE2 is part of the x86-64 baseline and NEON of the aarch64 one, so no runtime detection is needed for
 //! four lanes. Each SIMD function is one `unsafe` block: the intrinsics need it although the baseline
