@@ -135,8 +135,6 @@ impl Crowd {
     }
 }
 
-/// Runs `crowd.frames` frames (then, for `NextFrame`, empty frames until the last answers are in) of the
-/// crowd under `config` with the same requests every time.
 /// The rest of a game's frame: returns once the GPU has finished the frames submitted so far, as the
 /// no-wait assertions presume ("never reached while the GPU keeps up"). This loop's frames are far
 /// shorter than a game's, and a fast GPU (an H100: hundreds of small dispatches a frame) falls behind
@@ -151,6 +149,8 @@ fn keep_up(world: &bevy_ecs::world::World) {
     }
 }
 
+/// Runs `crowd.frames` frames (then, for `NextFrame`, empty frames until the last answers are in) of the
+/// crowd under `config` with the same requests every time.
 fn run(config: TraceConfig, crowd: Crowd) -> Run {
     let Crowd {
         triangles,
