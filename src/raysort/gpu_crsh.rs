@@ -19,6 +19,7 @@
 //! equal too.
 
 use super::hierarchy::{RayHierarchy, check_shape};
+use super::trace::split_reaching_back;
 use super::{Answer, KeyLayout, RayKind, RayScene, SecondaryRay, sort_rays};
 use crate::bvh::Hit;
 use crate::gpu::buffers::{GpuBuffer, bind_group};
@@ -84,14 +85,12 @@ pub fn trace_crsh_gpu(
     }
     let sorted = sort_rays(rays, layout, true)?;
     let mut answers = vec![Answer::Miss; rays.len()];
-    // As on the CPU, a ray reaching behind its origin (`tmin < 0`) lies outside the hierarchy's cones: the
-    // CPU's BVH answers it.
-    let (behind, order): (Vec<u32>, Vec<u32>) =
-        (sorted.order[..sorted.valid()].iter()).partition(|&&i| rays[i as usize].ray.tmin < 0.0);
+    // As on the CPU, the CPU's BVH answers the rays outside the hierarchy's cones.
+    let valid = sorted.order[..sorted.valid()].iter().copied();
+    let (behind, order) = split_reaching_back(valid, rays);
     for i in behind {
         answers[i as usize] = scene.bvh_answer(&rays[i as usize]).0;
     }
-    let order = &order[..];
     if order.is_empty() {
         return Ok(answers);
     }

@@ -339,8 +339,7 @@ impl RayScene {
         cull_mesh: bool,
         parallel: bool,
     ) -> Result<Traced> {
-        let (behind, order): (Vec<u32>, Vec<u32>) =
-            (order.into_iter()).partition(|&i| rays[i as usize].ray.tmin < 0.0);
+        let (behind, order) = split_reaching_back(order, rays);
         let ordered: Vec<_> = order.iter().map(|&i| rays[i as usize].ray).collect();
         let h = RayHierarchy::build(&ordered, branching, depth, parallel)?;
         let counts = [AtomicU64::new(0), AtomicU64::new(0)];
@@ -383,6 +382,16 @@ impl RayScene {
         traced.record(behind.iter().copied(), reaching_back);
         Ok(traced)
     }
+}
+
+/// The request indices `order` split into the rays whose range reaches behind their origin (`tmin < 0`),
+/// which the hierarchies' cones (directions from the origins forward) do not hold and the BVH answers, and
+/// the others, for the hierarchy; each part keeps `order`'s order.
+pub(super) fn split_reaching_back(
+    order: impl IntoIterator<Item = u32>,
+    rays: &[SecondaryRay],
+) -> (Vec<u32>, Vec<u32>) {
+    (order.into_iter()).partition(|&i| rays[i as usize].ray.tmin < 0.0)
 }
 
 /// The traversal of one top node's subtree.
