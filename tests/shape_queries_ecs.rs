@@ -700,24 +700,45 @@ fn extreme_radii_and_far_offsets_through_the_ecs() {
 /// frame equal brute force.
 #[test]
 fn point_query_work_changes_the_planners_wide_tree_choice() {
-    assert!(!wide_tree_after(0), "100 rays a frame: the binary tree");
+    let last = |w: Vec<bool>| *w.last().expect("frames ran");
     assert!(
-        wide_tree_after(2_000),
+        !last(wide_tree_by_frame(0, None)),
+        "100 rays a frame: the binary tree"
+    );
+    assert!(
+        last(wide_tree_by_frame(2_000, None)),
         "and 2,000 closest points: the wide tree"
+    );
+}
+
+/// A rebuild leaves the mesh's expected queries to its new tree: the planners of a rebuild frame choose
+/// for the frame's work, not for none. With the wide tree's costs scripted as in
+/// [`point_query_work_changes_the_planners_wide_tree_choice`] and 2,000 closest points a frame, a new
+/// index buffer at frame 20 (a rebuild for the topology) keeps the wide tree on that frame too. Before,
+/// the rebuilt instance counted no queries, the binary tree (nothing to keep) won its frame, and the
+/// adaptive policy's own rebuilds, which follow measured timings, made that test fail one run in 50.
+#[test]
+fn a_rebuild_frame_plans_for_the_meshs_queries() {
+    let wide = wide_tree_by_frame(2_000, Some(20));
+    let flips: Vec<usize> = (10..wide.len()).filter(|&f| !wide[f]).collect();
+    assert!(
+        flips.is_empty(),
+        "the wide tree was dropped on frames {flips:?}"
     );
 }
 
 /// Runs 40 frames of a deforming sphere under the adaptive policy with the wide tree's costs scripted as
 /// in [`point_query_work_changes_the_planners_wide_tree_choice`], 100 rays and `points` closest points a
-/// frame; checks the last frame's closest points against brute force and returns whether the mesh keeps
-/// its wide tree at the end.
-fn wide_tree_after(points: usize) -> bool {
+/// frame, the sphere's index buffer replaced by a coarser one at frame `new_topology` (checked to rebuild
+/// the mesh that frame); checks the last frame's closest points against brute force and returns per frame
+/// whether the mesh keeps its wide tree.
+fn wide_tree_by_frame(points: usize, new_topology: Option<u32>) -> Vec<bool> {
     let config = TraceConfig {
         policy: RebuildPolicy::ADAPTIVE,
         ..TraceConfig::default()
     };
     let (mut world, mut schedule) = app_with(config);
-    let rest = icosphere(3);
+    let mut rest = icosphere(3);
     let e = world
         .spawn((TraceMesh(rest.clone()), VertexPositions(wobble(&rest, 0))))
         .id();
@@ -732,8 +753,12 @@ fn wide_tree_after(points: usize) -> bool {
         })));
     let mut r = rng(18);
     let mut asked = Vec::new();
-    let mut wide = None;
+    let mut wide = Vec::new();
     for f in 0..40 {
+        if new_topology == Some(f) {
+            rest = icosphere(2);
+            world.get_mut::<TraceMesh>(e).unwrap().0 = rest.clone();
+        }
         world.get_mut::<VertexPositions>(e).unwrap().0 = wobble(&rest, f);
         let mut rays = world.resource_mut::<RayQueue>();
         for i in 0..100 {
@@ -749,10 +774,24 @@ fn wide_tree_after(points: usize) -> bool {
         schedule.run(&mut world);
         world.clear_trackers();
         let stats = world.resource::<TraceStats>();
-        wide = stats.options.iter().find_map(|o| match o.option {
+        if new_topology == Some(f) {
+            let rebuilt = stats.meshes.iter().any(|m| {
+                m.entity == e
+                    && matches!(
+                        m.action,
+                        MeshAction::Rebuild {
+                            reason: RebuildReason::Topology,
+                            ..
+                        }
+                    )
+            });
+            assert!(rebuilt, "frame {f}: the new index buffer rebuilds the mesh");
+        }
+        let on = stats.options.iter().find_map(|o| match o.option {
             PlannedOption::Wide(on) if o.entity == e => Some(on),
             _ => None,
         });
+        wide.push(on.expect("the mesh's wide tree is planned every frame"));
     }
     let (keys, tris) = world_triangles(&mut world, &QueryFilter::default());
     let results = world.resource::<ShapeResults>();
@@ -767,5 +806,5 @@ fn wide_tree_after(points: usize) -> bool {
             keys[k]
         );
     }
-    wide.expect("the mesh's wide tree is planned every frame")
+    wide
 }

@@ -479,11 +479,14 @@ impl Rebuilder<'_> {
             .get(&e)
             .and_then(|i| i.profile.as_deref())
             .is_some_and(|p| !p.uniform);
-        // What the old tree leaves to the new one: the learned model always, GPU buffers if still the size.
-        let mut kept = world
+        // What the old tree leaves to the new one: the learned model always, GPU buffers if still the size,
+        // and the queries expected per frame — not the tree's but the scene's: a new instance counting none
+        // made this frame's planners choose for a frame without work (the wide tree dropped on every
+        // rebuild frame, since without queries its collapse is all it costs).
+        let (mut kept, load) = world
             .instances
             .get_mut(&e)
-            .map(|i| std::mem::take(&mut i.kept))
+            .map(|i| (std::mem::take(&mut i.kept), (i.rays, i.shapes)))
             .unwrap_or_default();
         #[cfg(feature = "gpu")]
         if reason == RebuildReason::Topology {
@@ -516,6 +519,7 @@ impl Rebuilder<'_> {
             seconds * 1e3
         );
         let mut inst = Instance::new(bvh, topology_id(&mesh.0), kept);
+        (inst.rays, inst.shapes) = load;
         if let Some(policy) = inst.kept.adaptive.as_mut() {
             inst.sah = inst.bvh.bvh().sah_cost();
             policy.built(
