@@ -32,6 +32,9 @@ fn bits3(b: u32) -> vec3<bool> {
 // CPU). WGSL lets implementations assume no NaN or infinity, so instead of the CPU's 0·∞ = NaN that
 // drops out of max/min, an axis along which the ray does not move (its inv_dir is uploaded as 0) is
 // decided by whether the origin lies within the slab: unbounded if it does, empty if not. Same answers.
+// The far distance or `tmax`, whichever is nearer, is moved outward by the slack (`robust_far`): `tmax`
+// too, as on the CPU (src/bvh/traverse.rs says why), so that the hit kept does not depend on the order in
+// which this tree, built here, is visited.
 fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     let t0 = (n.min - ray.origin) * ray.inv_dir;
     let t1 = (n.max - ray.origin) * ray.inv_dir;
@@ -42,9 +45,13 @@ fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     let far = select(select(t1, t0, neg), select(vec3<f32>(-BIG), vec3<f32>(BIG), inside), zero);
     let tnear = max(near.x, max(near.y, max(near.z, ray.tmin)));
     let tfar = min(far.x, min(far.y, far.z));
-    let far_scale = 1.0 + select(ROBUST_FAR_SLACK, -ROBUST_FAR_SLACK, tfar < 0.0);
-    if tnear <= min(tfar * far_scale, tmax) { return tnear; }
+    if tnear <= robust_far(min(tfar, tmax)) { return tnear; }
     return NO_ENTRY;
+}
+
+// src/geometry/ray.rs robust_far: `far` moved outward (away from 0) by 2 ulp of its size.
+fn robust_far(far: f32) -> f32 {
+    return far * (1.0 + select(ROBUST_FAR_SLACK, -ROBUST_FAR_SLACK, far < 0.0));
 }
 
 // Whether `t`, from `slab`, is an entry distance rather than NO_ENTRY.
@@ -119,12 +126,13 @@ fn descend(stack: ptr<function, Stack>, c: u32, ta: f32, tb: f32) -> u32 {
     return MISS;
 }
 
-// The next waiting subtree that can still hold something within `tmax`, or MISS when none is left.
+// The next waiting subtree that can still hold something within `tmax` (moved outward as in `slab`), or
+// MISS when none is left.
 fn pop(stack: ptr<function, Stack>, tmax: f32) -> u32 {
     loop {
         if (*stack).sp == 0u { return MISS; }
         (*stack).sp -= 1u;
-        if (*stack).t[(*stack).sp] <= tmax { return (*stack).node[(*stack).sp]; }
+        if (*stack).t[(*stack).sp] <= robust_far(tmax) { return (*stack).node[(*stack).sp]; }
     }
     return MISS;
 }

@@ -265,10 +265,10 @@ impl MeshBvh {
             wide.trace_packet(self, p, &bounds, any, stats);
             return true;
         }
-        let mut tmax_all = p.tmax_all();
+        let mut limit_all = p.limit_all();
         let mut stack = Stack::<(u32, u8, u8), MAX_DEPTH>::new();
         let (mut cur, mut first, mut last) = (0usize, 0usize, MAX_PACKET - 1);
-        if bounds.enter(&nodes[0].aabb(), tmax_all).is_none() {
+        if bounds.enter(&nodes[0].aabb(), limit_all).is_none() {
             return true;
         }
         loop {
@@ -282,13 +282,13 @@ impl MeshBvh {
                         if p.active == 0 {
                             return true;
                         }
-                        tmax_all = p.tmax_all();
+                        limit_all = p.limit_all();
                     }
                 } else {
                     stats.inner_visits += 1;
                     let c = n.left();
-                    let a = bounds.enter(&nodes[c].aabb(), tmax_all);
-                    let b = bounds.enter(&nodes[c + 1].aabb(), tmax_all);
+                    let a = bounds.enter(&nodes[c].aabb(), limit_all);
+                    let b = bounds.enter(&nodes[c + 1].aabb(), limit_all);
                     let next = match (a, b) {
                         (Some(ka), Some(kb)) => {
                             let (near, far) = if ka <= kb { (c, c + 1) } else { (c + 1, c) };
@@ -345,7 +345,8 @@ impl<'a> Packet<'a> {
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            let hits = |&i: &usize| self.rays[i].intersect_aabb(b, self.tmax[i]).is_some();
+            let hits =
+                |&i: &usize| (self.rays[i].intersect_aabb(b, robust_far(self.tmax[i]))).is_some();
             lanes(mask).filter(hits).fold(0, |m, i| m | 1 << i)
         }
     }
@@ -379,8 +380,9 @@ impl<'a> Packet<'a> {
                     near = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(np, o), inv), near);
                     far = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(fp, o), inv), far);
                 }
+                // Each ray's far distance or its `tmax`, whichever is nearer, moved outward by the slack.
                 let tmax = _mm_loadu_ps(self.tmax[g..].as_ptr());
-                let limit = _mm_min_ps(super::wide::simd::robust_far_sse(far), tmax);
+                let limit = super::wide::simd::robust_far_sse(_mm_min_ps(far, tmax));
                 _mm_movemask_ps(_mm_cmple_ps(near, limit)) as u64
             };
             out |= hit << g;
@@ -389,19 +391,24 @@ impl<'a> Packet<'a> {
         out & mask
     }
 
-    /// The largest current `tmax` of the active rays: no box beyond it can matter to the packet.
+    /// The largest current `tmax` of the active rays moved outward by [`robust_far`]'s slack: no box whose
+    /// entry lies beyond it can matter to the packet (every ray's boxes are tested against its `tmax` so
+    /// moved, as single rays do; see `traverse`).
     #[inline]
-    pub(super) fn tmax_all(&self) -> f32 {
-        lanes(self.active)
-            .map(|i| self.tmax[i])
-            .fold(f32::NEG_INFINITY, f32::max)
+    pub(super) fn limit_all(&self) -> f32 {
+        robust_far(
+            lanes(self.active)
+                .map(|i| self.tmax[i])
+                .fold(f32::NEG_INFINITY, f32::max),
+        )
     }
 
     /// The first and last active ray in `first..=last` whose slab test accepts `n`'s box, or `None`.
     #[inline]
     fn scan(&self, n: &Node, first: usize, last: usize) -> Option<(usize, usize)> {
         let b = n.aabb();
-        let hits = |i: &usize| self.rays[*i].intersect_aabb(&b, self.tmax[*i]).is_some();
+        let hits =
+            |i: &usize| (self.rays[*i].intersect_aabb(&b, robust_far(self.tmax[*i]))).is_some();
         let mask = self.active & range_mask(first, last.min(self.rays.len() - 1));
         let f = lanes(mask).find(hits)?;
         let mut upper = mask & !range_mask(0, f);
@@ -508,7 +515,7 @@ mod tests {
             };
             let mask = p.active & rng.next_u64();
             let alone = lanes(mask)
-                .filter(|&i| rays[i].intersect_aabb(&b, p.tmax[i]).is_some())
+                .filter(|&i| rays[i].intersect_aabb(&b, robust_far(p.tmax[i])).is_some())
                 .fold(0, |m, i| m | 1 << i);
             assert_eq!(p.reach(&b, mask), alone, "round {round}");
         }

@@ -13,7 +13,7 @@
 use super::world::Instance;
 use super::{QueryFilter, RayHit, TraceWorld};
 use crate::bvh::{Hit, MAX_PACKET, traverse};
-use crate::geometry::Ray;
+use crate::geometry::{Ray, robust_far};
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
 use std::cell::RefCell;
@@ -126,7 +126,7 @@ impl TraceWorld {
                     for s in slots {
                         let p = self.tlas.prim_indices()[s];
                         let t = r
-                            .intersect_aabb(&self.tlas_bounds[p as usize], r.tmax)
+                            .intersect_aabb(&self.tlas_bounds[p as usize], robust_far(r.tmax))
                             .unwrap_or(f32::INFINITY);
                         scratch.push((t, p));
                     }
@@ -152,8 +152,9 @@ impl TraceWorld {
                 }
                 let mut n = 0;
                 for (i, r) in rays.iter().enumerate() {
-                    if tmax[i] >= r.tmin && r.intersect_aabb(&inst.world_bounds, tmax[i]).is_some()
-                    {
+                    // The box against the ray's bound moved outward, as every traversal tests boxes.
+                    let limit = robust_far(tmax[i]);
+                    if tmax[i] >= r.tmin && r.intersect_aabb(&inst.world_bounds, limit).is_some() {
                         object[n] = inst.object_ray(r, tmax[i]);
                         idx[n] = i;
                         n += 1;

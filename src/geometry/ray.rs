@@ -127,7 +127,9 @@ impl Ray {
     /// Follows Ize, "Robust BVH Ray Traversal" (JCGT 2013): the far distance is moved outward by `2 ulp` of
     /// its size ([`robust_far`]; behind the origin too, for a negative `tmin`), which covers the rounding of
     /// the subtractions and products, so a box the ray touches is never culled. It may accept boxes the ray
-    /// misses by a rounding error; the triangle test settles those.
+    /// misses by a rounding error; the triangle test settles those. The crate's traversals pass their
+    /// current closest hit moved outward the same way (`robust_far(tmax)`), since a triangle's `t` may
+    /// round below the entry distance of a box it lies in.
     ///
     /// The near and far planes of each axis are chosen by the direction's sign. On an axis where the
     /// direction is zero the distances are `±∞` (origin inside or outside the slab) or NaN (origin exactly

@@ -38,7 +38,7 @@ use super::node::{COUNT_SHIFT, FIRST_MASK};
 use super::stack::Stack;
 use super::traverse::Counter;
 use super::{LEAF_BIT, MAX_DEPTH, Node};
-use crate::geometry::{Aabb, Ray};
+use crate::geometry::{Aabb, Ray, robust_far};
 pub(crate) use discs::{DiscCache, LaneDiscs};
 use simd::{RayLanes, hit4};
 use std::ops::Range;
@@ -267,7 +267,9 @@ fn walk<N, C: Counter>(
         return;
     }
     let lanes = RayLanes::new(ray);
+    // Boxes against `tmax` moved outward by the far slack, as in the binary `traverse` (which says why).
     let mut tmax = ray.tmax;
+    let mut limit = robust_far(tmax);
     let mut stack = NearStack::new();
     let mut cur = 0u32;
     loop {
@@ -277,9 +279,10 @@ fn walk<N, C: Counter>(
             if leaf(slots, &mut tmax) {
                 return;
             }
+            limit = robust_far(tmax);
         } else {
             counter.inner();
-            let (mask, near, child) = visit(&nodes[cur as usize], &lanes, tmax);
+            let (mask, near, child) = visit(&nodes[cur as usize], &lanes, limit);
             if mask != 0 {
                 cur = nearest_first(&child, mask, &near, &mut stack);
                 continue;
@@ -290,7 +293,7 @@ fn walk<N, C: Counter>(
             let Some((node, entry)) = stack.pop() else {
                 return;
             };
-            if entry <= tmax {
+            if entry <= limit {
                 cur = node;
                 break;
             }

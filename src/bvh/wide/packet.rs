@@ -32,6 +32,7 @@ use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slot
 use crate::bvh::packet::{Bounds, Packet, lanes, range_mask};
 use crate::bvh::stack::Stack;
 use crate::bvh::{MeshBvh, TraversalStats};
+use crate::geometry::robust_far;
 
 /// A child waiting on the stack: its payload, where its box lives (`parent` node, `lane`), its range of
 /// rays and its interval lower bound.
@@ -68,9 +69,9 @@ impl WideBvh {
         for (l, r) in pre.iter_mut().zip(p.rays) {
             *l = RayLanes::new(r);
         }
-        let test = |p: &Packet, node, i: usize| hit4(node, &pre[i], p.tmax[i]).0;
+        let test = |p: &Packet, node, i: usize| hit4(node, &pre[i], robust_far(p.tmax[i])).0;
         let lanes4 = LaneBounds::new(bounds);
-        let mut tmax_all = p.tmax_all();
+        let mut limit_all = p.limit_all();
         let mut stack = Stack::<Entry, WIDE_STACK>::new();
         let mut cur = Entry {
             child: 0,
@@ -92,12 +93,12 @@ impl WideBvh {
                     if p.active == 0 {
                         return;
                     }
-                    tmax_all = p.tmax_all();
+                    limit_all = p.limit_all();
                 }
             } else {
                 stats.inner_visits += 1;
                 let node = &nodes[cur.child as usize];
-                let (culled, keys) = lanes4.enter4(node, tmax_all);
+                let (culled, keys) = lanes4.enter4(node, limit_all);
                 let mask = p.active & range_mask(first, last);
                 let (mut lo, mut hi) = ([0u8; WIDTH], [0u8; WIDTH]);
                 let mut found = 0u32;
@@ -155,7 +156,7 @@ impl WideBvh {
                 let Some(e) = stack.pop() else {
                     return;
                 };
-                if e.key <= tmax_all {
+                if e.key <= limit_all {
                     (cur, fresh) = (e, false);
                     break;
                 }
