@@ -128,3 +128,85 @@ fn exactly_one_hit_through_a_shared_edge_of_a_grid() {
         }
     }
 }
+
+/// The closest hit does not depend on the tree: on tiles in axis-aligned planes, each triangle present
+/// three times (as given, reversed, rotated — the same surface, whose `t` the watertight test rounds an
+/// ulp or two apart), every builder, leaf size, binary or wide tree, single ray or packet answers what
+/// brute force over every triangle with the same triangle test answers (smallest `t`, then smallest
+/// index), bit for bit. The oracle shares the triangle test, not the traversal: what is checked is that
+/// no traversal culls a box holding a nearer hit. Before boxes were tested against `tmax` moved outward
+/// by `robust_far`'s slack, a leaf whose box face held the nearer copy was culled at the farther copy's
+/// `t`, and the answer followed the visiting order.
+#[test]
+fn closest_hits_do_not_depend_on_the_tree() {
+    use kinetrace::geometry::TriangleRay;
+    let mut r = rng(19);
+    let (mut pos, mut idx) = (Vec::new(), Vec::<u32>::new());
+    let mut tris = Vec::new();
+    for _ in 0..300 {
+        // A triangle in a plane of constant x, y or z at a random height.
+        let axis = r.random_range(0..3usize);
+        let level = r.random_range(-2.0f32..2.0);
+        let corner = |r: &mut rand::rngs::SmallRng| {
+            let mut p = Vec3::new(
+                r.random_range(-2.0f32..2.0),
+                r.random_range(-2.0f32..2.0),
+                r.random_range(-2.0f32..2.0),
+            );
+            p[axis] = level;
+            p
+        };
+        let t = [corner(&mut r), corner(&mut r), corner(&mut r)];
+        tris.extend([[t[0], t[1], t[2]], [t[0], t[2], t[1]], [t[1], t[2], t[0]]]);
+    }
+    // Copies scattered through the index order, so that they fall into different leaves.
+    for i in (1..tris.len()).rev() {
+        tris.swap(i, r.random_range(0..=i));
+    }
+    for t in &tris {
+        idx.extend((0..3).map(|k| (pos.len() + k) as u32));
+        pos.extend(t);
+    }
+    let m = Mesh::new(pos, idx).unwrap();
+    let rays: Vec<Ray> = (0..4_000)
+        .map(|_| {
+            let o = rand_dir(&mut r) * 6.0;
+            let target = Vec3::new(
+                r.random_range(-2.0f32..2.0),
+                r.random_range(-2.0f32..2.0),
+                r.random_range(-2.0f32..2.0),
+            );
+            Ray::new(o, target - o)
+        })
+        .collect();
+    let brute = |ray: &Ray| {
+        let tr = TriangleRay::new(ray);
+        let mut best: Option<(u32, f32)> = None;
+        for (i, t) in tris.iter().enumerate() {
+            if let Some(h) = tr.intersect(t[0], t[1], t[2], ray.tmin, ray.tmax)
+                && best.is_none_or(|(_, bt)| h.t < bt)
+            {
+                best = Some((i as u32, h.t));
+            }
+        }
+        best.map(|(i, t)| (i, t.to_bits()))
+    };
+    let want: Vec<_> = rays.iter().map(brute).collect();
+    let hits = want.iter().filter(|w| w.is_some()).count();
+    assert!(hits > rays.len() / 3, "{hits} of {} rays hit", rays.len());
+    for b in Builder::ALL {
+        for (leaf, wide) in [(1, false), (4, false), (4, true), (8, true)] {
+            let options = BuildOptions::new(b).max_leaf_size(leaf).wide(wide);
+            let bvh = MeshBvh::build(&m, &options).unwrap();
+            let mut packets = vec![None; rays.len()];
+            bvh.closest_hits_packets(&rays, 16, &mut packets);
+            for (i, ray) in rays.iter().enumerate() {
+                let single = bvh.closest_hit(ray).map(|h| (h.primitive, h.t.to_bits()));
+                let packet = packets[i].map(|h| (h.primitive, h.t.to_bits()));
+                let what = format!("{b:?} leaf {leaf} wide {wide} ray {i}");
+                assert_eq!(single, want[i], "{what}: single ray");
+                assert_eq!(packet, want[i], "{what}: packet");
+            }
+        }
+    }
+}
