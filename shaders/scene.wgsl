@@ -163,7 +163,10 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
                 let inst = instances[s];
                 if !accepts(inst, filters[i]) { continue; }
                 let b = trace_blas(inst, object_ray(inst, ray, dir, out.t), any);
-                if b.found && (out.prim == MISS || b.t < out.t) {
+                // Nearer, or as near on a lower entity id (src/ecs/world.rs `nearer`): the same answer in
+                // whatever order the top level is visited.
+                let lower = inst.entity_hi < out.entity_hi || (inst.entity_hi == out.entity_hi && inst.entity_lo < out.entity_lo);
+                if b.found && (out.prim == MISS || b.t < out.t || (b.t == out.t && lower)) {
                     let n = normalize(b.normal);
                     let wn = normalize(inst.n0.xyz * n.x + inst.n1.xyz * n.y + inst.n2.xyz * n.z);
                     out = SceneHit(b.t, b.prim, b.u, b.v, s, inst.entity_lo, inst.entity_hi, 0u, wn, 0.0);

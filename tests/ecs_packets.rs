@@ -177,3 +177,66 @@ fn world_packets_match_brute_force() {
     assert!(out.iter().filter(|h| h.is_some()).count() > 50);
     assert!(out[3].is_none() && out[9].is_none());
 }
+
+/// Coincident entities (the same triangles at the same transform) are hit at the same distance; the answer
+/// is the entity with the lowest `Entity::to_bits`, on every path — immediate rays, batched single rays,
+/// batched packets, and the GPU's batches where an adapter exists — whatever order their top levels visit
+/// them in. The higher entity's mesh carries two far triangles more, so that its box holds every ray's
+/// origin and is visited first.
+#[test]
+fn coincident_entities_tie_to_the_lowest_entity_on_every_path() {
+    let mut configs = vec![TraceConfig::default()];
+    if gpu_or_skip().is_some() {
+        configs.push(TraceConfig {
+            mode: TraceMode::GpuRequired,
+            ..TraceConfig::default()
+        });
+    }
+    let sphere = icosphere(2);
+    let mut pos = sphere.positions().to_vec();
+    let mut idx = sphere.indices().to_vec();
+    for corner in [Vec3::splat(-10.0), Vec3::splat(10.0)] {
+        idx.extend((0..3).map(|k| (pos.len() + k) as u32));
+        pos.extend([corner, corner + Vec3::X * 0.1, corner + Vec3::Y * 0.1]);
+    }
+    let padded = kinetrace::Mesh::new(pos, idx).unwrap();
+    for config in configs {
+        let mode = config.mode;
+        let (mut world, mut schedule) = app_with(config);
+        let place = TraceTransform(Affine3A::from_translation(Vec3::new(0.3, -0.2, 0.5)));
+        let a = world.spawn(place).id();
+        let b = world.spawn(place).id();
+        let (low, high) = if a.to_bits() < b.to_bits() {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        world.entity_mut(low).insert(TraceMesh(sphere.clone()));
+        world.entity_mut(high).insert(TraceMesh(padded.clone()));
+        let mut r = rng(31);
+        let rays: Vec<Ray> = (0..64)
+            .map(|_| {
+                let o = Vec3::new(0.3, -0.2, 0.5) + rand_dir(&mut r) * 4.0;
+                Ray::new(o, Vec3::new(0.3, -0.2, 0.5) - o + rand_dir(&mut r) * 0.3)
+            })
+            .collect();
+        let mut queue = world.resource_mut::<RayQueue>();
+        for (i, ray) in rays.iter().enumerate() {
+            queue.cast(i as u64, *ray, QueryFilter::default());
+        }
+        queue.cast_packet(1_000, &rays[..16], QueryFilter::default());
+        schedule.run(&mut world);
+        let trace = world.resource::<TraceWorld>();
+        let results = world.resource::<RayResults>();
+        assert_eq!(results.hits.len(), rays.len() + 16, "{mode:?}");
+        for (tag, hit) in &results.hits {
+            let i = (*tag % 1_000) as usize;
+            let alone = trace.cast_ray(&rays[i], f32::INFINITY, &QueryFilter::default());
+            let alone = alone.expect("every ray is aimed at the sphere");
+            assert_eq!(alone.entity, low, "{mode:?} ray {i}: immediate");
+            let hit = hit.expect("every ray is aimed at the sphere");
+            assert_eq!(hit.entity, low, "{mode:?} ray {tag}: batched");
+            assert_eq!(hit.distance, alone.distance, "{mode:?} ray {tag}");
+        }
+    }
+}

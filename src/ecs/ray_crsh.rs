@@ -8,7 +8,7 @@
 //! per triangle of each reached mesh per top node: O(rays / s^D · triangles). The planner keeps it only
 //! where that beats the BVH ([`SecondaryStrategy::Crsh`](super::SecondaryStrategy)).
 
-use super::world::Instance;
+use super::world::{Instance, nearer};
 use super::{QueryFilter, TraceWorld};
 use crate::bvh::Hit;
 use crate::geometry::Ray;
@@ -130,7 +130,7 @@ impl Walk<'_> {
             (prims[s as usize], tris[s as usize])
         });
         if let Some(h) = best
-            && found.is_none_or(|(_, o)| h.t < o.t)
+            && nearer(h.t, m.entity, found.map(|(fe, o)| (o.t, fe)))
         {
             *found = Some((m.entity, h));
         }

@@ -10,7 +10,7 @@
 //! rays costs about what single rays cost plus the entity sort. Allocates nothing once the thread's list of
 //! reached entities has grown to the most a packet reached.
 
-use super::world::Instance;
+use super::world::{Instance, nearer};
 use super::{QueryFilter, RayHit, TraceWorld};
 use crate::bvh::{Hit, MAX_PACKET, traverse};
 use crate::geometry::{Ray, robust_far};
@@ -63,7 +63,7 @@ impl TraceWorld {
                 inst.closest_hits_packet(object, hits);
                 for (&i, h) in idx.iter().zip(hits.iter()) {
                     if let Some(h) = h
-                        && best[i].is_none_or(|(_, b)| h.t < b.t)
+                        && nearer(h.t, e, best[i].map(|(be, b)| (b.t, be)))
                     {
                         best[i] = Some((e, *h));
                         tmax[i] = h.t;
