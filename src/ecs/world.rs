@@ -449,7 +449,9 @@ impl TraceWorld {
         }
     }
 
-    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts. `None`
+    /// The nearest hit within `[ray.tmin, min(ray.tmax, max_t)]` on an entity the filter accepts (of hits
+    /// at the same distance, the one on the entity with the lowest [`Entity::to_bits`], then the lowest
+    /// triangle index; batched and GPU answers keep the same rule). `None`
     /// for an invalid ray ([`Ray::is_valid`]: non-finite origin or direction, zero direction, NaN range)
     /// and for a NaN `max_t`.
     pub fn cast_ray(&self, ray: &Ray, max_t: f32, filter: &QueryFilter) -> Option<RayHit> {
