@@ -3,7 +3,8 @@
 mod common;
 use common::*;
 use glam::Vec3;
-use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
+use kinetrace::grid::{GridOptions, UniformGrid};
 use kinetrace::{Mesh, MeshBvh, Ray};
 use rand::Rng;
 
@@ -131,7 +132,8 @@ fn exactly_one_hit_through_a_shared_edge_of_a_grid() {
 
 /// The closest hit does not depend on the tree: on tiles in axis-aligned planes, each triangle present
 /// three times (as given, reversed, rotated — the same surface, whose `t` the watertight test rounds an
-/// ulp or two apart), every builder, leaf size, binary or wide tree, single ray or packet answers what
+/// ulp or two apart), every builder, leaf size, binary or wide tree, and the uniform grid (without and with
+/// its overlap test), single ray or packet, answers what
 /// brute force over every triangle with the same triangle test answers (smallest `t`, then smallest
 /// index), bit for bit. The oracle shares the triangle test, not the traversal: what is checked is that
 /// no traversal culls a box holding a nearer hit. Before boxes were tested against `tmax` moved outward
@@ -207,6 +209,26 @@ fn closest_hits_do_not_depend_on_the_tree() {
                 assert_eq!(single, want[i], "{what}: single ray");
                 assert_eq!(packet, want[i], "{what}: packet");
             }
+        }
+    }
+    // The uniform grid, the structure the planner may choose instead, without and with its overlap test.
+    for overlap_test in [false, true] {
+        let options = GridOptions {
+            overlap_test,
+            ..Default::default()
+        };
+        let grid = UniformGrid::build(&m, &options).unwrap();
+        let mut packets = vec![None; rays.len()];
+        let mut stats = TraversalStats::default();
+        for (r, out) in rays.chunks(16).zip(packets.chunks_mut(16)) {
+            grid.closest_hits_packet(r, out, &mut stats);
+        }
+        for (i, ray) in rays.iter().enumerate() {
+            let single = grid.closest_hit(ray).map(|h| (h.primitive, h.t.to_bits()));
+            let packet = packets[i].map(|h| (h.primitive, h.t.to_bits()));
+            let what = format!("grid, overlap test {overlap_test}, ray {i}");
+            assert_eq!(single, want[i], "{what}: single ray");
+            assert_eq!(packet, want[i], "{what}: packet");
         }
     }
 }
