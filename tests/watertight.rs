@@ -133,9 +133,8 @@ fn exactly_one_hit_through_a_shared_edge_of_a_grid() {
 /// The closest hit does not depend on the tree: on tiles in axis-aligned planes, each triangle present
 /// three times (as given, reversed, rotated — the same surface, whose `t` the watertight test rounds an
 /// ulp or two apart), every builder, leaf size, binary or wide tree, and the uniform grid (without and with
-/// its overlap test), single ray or packet, answers what
-/// brute force over every triangle with the same triangle test answers (smallest `t`, then smallest
-/// index), bit for bit. The oracle shares the triangle test, not the traversal: what is checked is that
+/// its overlap test), single ray or packet, answers what brute force over every triangle with the same
+/// triangle test answers (smallest `t`, then smallest index), bit for bit. The oracle shares the triangle test, not the traversal: what is checked is that
 /// no traversal culls a box holding a nearer hit. Before boxes were tested against `tmax` moved outward
 /// by `robust_far`'s slack, a leaf whose box face held the nearer copy was culled at the farther copy's
 /// `t`, and the answer followed the visiting order.
