@@ -345,9 +345,9 @@ impl<'a> Packet<'a> {
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            let hits =
-                |&i: &usize| (self.rays[i].intersect_aabb(b, robust_far(self.tmax[i]))).is_some();
-            lanes(mask).filter(hits).fold(0, |m, i| m | 1 << i)
+            lanes(mask)
+                .filter(|&i| self.reaches(i, b))
+                .fold(0, |m, i| m | 1 << i)
         }
     }
 
@@ -391,6 +391,15 @@ impl<'a> Packet<'a> {
         out & mask
     }
 
+    /// Whether ray `i`'s own slab test ([`Ray::intersect_aabb`]) accepts `b` within its current `tmax`
+    /// moved outward by [`robust_far`]'s slack, as single rays test boxes (see `traverse`).
+    #[inline]
+    fn reaches(&self, i: usize, b: &Aabb) -> bool {
+        self.rays[i]
+            .intersect_aabb(b, robust_far(self.tmax[i]))
+            .is_some()
+    }
+
     /// The largest current `tmax` of the active rays moved outward by [`robust_far`]'s slack: no box whose
     /// entry lies beyond it can matter to the packet (every ray's boxes are tested against its `tmax` so
     /// moved, as single rays do; see `traverse`).
@@ -407,8 +416,7 @@ impl<'a> Packet<'a> {
     #[inline]
     fn scan(&self, n: &Node, first: usize, last: usize) -> Option<(usize, usize)> {
         let b = n.aabb();
-        let hits =
-            |i: &usize| (self.rays[*i].intersect_aabb(&b, robust_far(self.tmax[*i]))).is_some();
+        let hits = |&i: &usize| self.reaches(i, &b);
         let mask = self.active & range_mask(first, last.min(self.rays.len() - 1));
         let f = lanes(mask).find(hits)?;
         let mut upper = mask & !range_mask(0, f);
