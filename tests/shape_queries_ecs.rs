@@ -702,11 +702,11 @@ fn extreme_radii_and_far_offsets_through_the_ecs() {
 fn point_query_work_changes_the_planners_wide_tree_choice() {
     let last = |w: Vec<bool>| *w.last().expect("frames ran");
     assert!(
-        !last(wide_tree_by_frame(0, None)),
+        !last(wide_tree_by_frame(0, Event::None)),
         "100 rays a frame: the binary tree"
     );
     assert!(
-        last(wide_tree_by_frame(2_000, None)),
+        last(wide_tree_by_frame(2_000, Event::None)),
         "and 2,000 closest points: the wide tree"
     );
 }
@@ -719,7 +719,7 @@ fn point_query_work_changes_the_planners_wide_tree_choice() {
 /// adaptive policy's own rebuilds, which follow measured timings, made that test fail one run in 50.
 #[test]
 fn a_rebuild_frame_plans_for_the_meshs_queries() {
-    let wide = wide_tree_by_frame(2_000, Some(20));
+    let wide = wide_tree_by_frame(2_000, Event::NewTopology(20));
     let flips: Vec<usize> = (10..wide.len()).filter(|&f| !wide[f]).collect();
     assert!(
         flips.is_empty(),
@@ -727,21 +727,47 @@ fn a_rebuild_frame_plans_for_the_meshs_queries() {
     );
 }
 
+/// A new instance of an asset starts from its sibling's planners (issue 19: the second instance explores
+/// nothing) and from its sibling's expected queries: with the costs and work of
+/// [`point_query_work_changes_the_planners_wide_tree_choice`], a second sphere joining at frame 20 keeps
+/// the wide tree from its first frame on. Before, it planned its first frame for no work and dropped the
+/// wide tree there, to collapse it again the next frame.
+#[test]
+fn a_new_instance_plans_for_its_siblings_queries() {
+    let wide = wide_tree_by_frame(2_000, Event::Sibling(20));
+    let flips: Vec<usize> = (10..wide.len()).filter(|&f| !wide[f]).collect();
+    assert!(
+        flips.is_empty(),
+        "the wide tree was off on frames {flips:?}"
+    );
+}
+
+/// What happens to the scene of [`wide_tree_by_frame`] at a frame.
+#[derive(Clone, Copy, PartialEq)]
+enum Event {
+    None,
+    /// The sphere's index buffer is replaced by a coarser one (checked to rebuild the mesh that frame).
+    NewTopology(u32),
+    /// A second sphere, the same asset at the same place, joins (checked to start from its sibling).
+    Sibling(u32),
+}
+
 /// Runs 40 frames of a deforming sphere under the adaptive policy with the wide tree's costs scripted as
 /// in [`point_query_work_changes_the_planners_wide_tree_choice`], 100 rays and `points` closest points a
-/// frame, the sphere's index buffer replaced by a coarser one at frame `new_topology` (checked to rebuild
-/// the mesh that frame); checks the last frame's closest points against brute force and returns per frame
-/// whether the mesh keeps its wide tree.
-fn wide_tree_by_frame(points: usize, new_topology: Option<u32>) -> Vec<bool> {
+/// frame, and `event`; checks the last frame's closest points against brute force and returns per frame
+/// whether the newest sphere keeps its wide tree.
+fn wide_tree_by_frame(points: usize, event: Event) -> Vec<bool> {
     let config = TraceConfig {
         policy: RebuildPolicy::ADAPTIVE,
         ..TraceConfig::default()
     };
     let (mut world, mut schedule) = app_with(config);
     let mut rest = icosphere(3);
-    let e = world
-        .spawn((TraceMesh(rest.clone()), VertexPositions(wobble(&rest, 0))))
-        .id();
+    let mut spheres = vec![
+        world
+            .spawn((TraceMesh(rest.clone()), VertexPositions(wobble(&rest, 0))))
+            .id(),
+    ];
     world
         .resource_mut::<TraceWorld>()
         .script_costs(Some(Arc::new(|_, option| match option {
@@ -755,11 +781,21 @@ fn wide_tree_by_frame(points: usize, new_topology: Option<u32>) -> Vec<bool> {
     let mut asked = Vec::new();
     let mut wide = Vec::new();
     for f in 0..40 {
-        if new_topology == Some(f) {
-            rest = icosphere(2);
-            world.get_mut::<TraceMesh>(e).unwrap().0 = rest.clone();
+        match event {
+            Event::NewTopology(at) if at == f => {
+                rest = icosphere(2);
+                world.get_mut::<TraceMesh>(spheres[0]).unwrap().0 = rest.clone();
+            }
+            Event::Sibling(at) if at == f => {
+                let mesh = TraceMesh(rest.clone());
+                spheres.push(world.spawn((mesh, VertexPositions(Vec::new()))).id());
+            }
+            _ => {}
         }
-        world.get_mut::<VertexPositions>(e).unwrap().0 = wobble(&rest, f);
+        for &s in &spheres {
+            world.get_mut::<VertexPositions>(s).unwrap().0 = wobble(&rest, f);
+        }
+        let e = *spheres.last().expect("a sphere");
         let mut rays = world.resource_mut::<RayQueue>();
         for i in 0..100 {
             let origin = rand_vec(&mut r, -4.0, 4.0);
@@ -774,18 +810,27 @@ fn wide_tree_by_frame(points: usize, new_topology: Option<u32>) -> Vec<bool> {
         schedule.run(&mut world);
         world.clear_trackers();
         let stats = world.resource::<TraceStats>();
-        if new_topology == Some(f) {
-            let rebuilt = stats.meshes.iter().any(|m| {
-                m.entity == e
-                    && matches!(
-                        m.action,
-                        MeshAction::Rebuild {
-                            reason: RebuildReason::Topology,
-                            ..
-                        }
-                    )
-            });
-            assert!(rebuilt, "frame {f}: the new index buffer rebuilds the mesh");
+        let action = stats
+            .meshes
+            .iter()
+            .find(|m| m.entity == e)
+            .map(|m| m.action);
+        match event {
+            Event::NewTopology(at) if at == f => assert!(
+                matches!(
+                    action,
+                    Some(MeshAction::Rebuild {
+                        reason: RebuildReason::Topology,
+                        ..
+                    })
+                ),
+                "frame {f}: the new index buffer rebuilds the mesh: {action:?}"
+            ),
+            Event::Sibling(at) if at == f => assert_eq!(
+                stats.siblings, 1,
+                "frame {f}: the second sphere starts from the first"
+            ),
+            _ => {}
         }
         let on = stats.options.iter().find_map(|o| match o.option {
             PlannedOption::Wide(on) if o.entity == e => Some(on),

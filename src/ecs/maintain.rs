@@ -327,7 +327,8 @@ fn forget_orphans(world: &TraceWorld, costs: &CostTable, mut gone: Vec<u64>) {
 /// mesh (a sibling: same topology, a tree and a planner of its own) with the sibling's planner
 /// ([`AdaptivePolicy::sibling`]), so that the refit that follows judges the copy like any refitted tree
 /// instead of building from scratch: a crowd of one character pays one build and then a copy and a refit
-/// per instance (O(n) each instead of O(n log n)), and explores nothing the first instance measured.
+/// per instance (O(n) each instead of O(n log n)), and explores nothing the first instance measured. The
+/// sibling's expected queries stand in for the new entity's until its own are attributed.
 /// True if it did; errors only for an unusable transform.
 fn start_from_sibling(
     world: &mut TraceWorld,
@@ -339,7 +340,7 @@ fn start_from_sibling(
         return Ok(false);
     }
     let topology = topology_id(&mesh.0);
-    let Some((bvh, policy, wide, packets, structure, overlap)) =
+    let Some((bvh, policy, wide, packets, structure, overlap, load)) =
         world.instances.values().find_map(|i| {
             let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
             Some((
@@ -349,6 +350,7 @@ fn start_from_sibling(
                 i.kept.packets.clone(),
                 i.kept.structure.clone(),
                 i.kept.overlap.clone(),
+                (i.rays, i.shapes),
             ))
         })
     else {
@@ -364,6 +366,9 @@ fn start_from_sibling(
         ..Kept::default()
     };
     let mut inst = Instance::new(bvh, topology, kept);
+    // Until its first frame is attributed, the sibling's queries are the best guess of its own: planned
+    // for none, its first frame dropped the wide tree the sibling's planner had settled on.
+    (inst.rays, inst.shapes) = load;
     inst.layers = layers.0;
     inst.set_transform(transform.0);
     world.instances.insert(e, inst);
