@@ -350,7 +350,7 @@ fn start_from_sibling(
                 i.kept.packets.clone(),
                 i.kept.structure.clone(),
                 i.kept.overlap.clone(),
-                (i.rays, i.shapes),
+                i.load,
             ))
         })
     else {
@@ -368,7 +368,7 @@ fn start_from_sibling(
     let mut inst = Instance::new(bvh, topology, kept);
     // Until its first frame is attributed, the sibling's queries are the best guess of its own: planned
     // for none, its first frame dropped the wide tree the sibling's planner had settled on.
-    (inst.rays, inst.shapes) = load;
+    inst.load = load;
     inst.layers = layers.0;
     inst.set_transform(transform.0);
     world.instances.insert(e, inst);
@@ -387,7 +387,7 @@ fn plan_wide<'a>(
     e: Entity,
     hold: bool,
 ) -> &'a Choice<bool> {
-    let queries = inst.tree_queries();
+    let queries = inst.load.tree_queries();
     let wide = (inst.kept.wide).get_or_insert_with(Choice::wide);
     let on = if hold {
         wide.hold()
@@ -413,7 +413,7 @@ fn plan_packets(inst: &mut Instance, hold: bool) -> &Choice<bool> {
     if hold {
         packets.hold();
     } else {
-        packets.decide(inst.rays);
+        packets.decide(inst.load.rays());
     }
     packets
 }
@@ -491,7 +491,7 @@ impl Rebuilder<'_> {
         let (mut kept, load) = world
             .instances
             .get_mut(&e)
-            .map(|i| (std::mem::take(&mut i.kept), (i.rays, i.shapes)))
+            .map(|i| (std::mem::take(&mut i.kept), i.load))
             .unwrap_or_default();
         #[cfg(feature = "gpu")]
         if reason == RebuildReason::Topology {
@@ -524,7 +524,7 @@ impl Rebuilder<'_> {
             seconds * 1e3
         );
         let mut inst = Instance::new(bvh, topology_id(&mesh.0), kept);
-        (inst.rays, inst.shapes) = load;
+        inst.load = load;
         if let Some(policy) = inst.kept.adaptive.as_mut() {
             inst.sah = inst.bvh.bvh().sah_cost();
             policy.built(

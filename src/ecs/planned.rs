@@ -154,7 +154,7 @@ pub(crate) fn plan_overlap(inst: &mut Instance, options: &GridOptions, hold: boo
     let overlap_test = if hold {
         overlap.hold()
     } else {
-        overlap.decide(inst.rays)
+        overlap.decide(inst.load.rays())
     };
     GridOptions {
         overlap_test,
@@ -182,8 +182,8 @@ pub(crate) fn plan_structure(
     if let Some(rate) = grid_rate {
         choice.expect_overhead(StructureKind::Grid, rate * triangles);
     }
-    let kind = choice.decide(inst.rays);
-    let predicted = |k| match choice.predict(k, inst.rays) {
+    let kind = choice.decide(inst.load.rays());
+    let predicted = |k| match choice.predict(k, inst.load.rays()) {
         Some((c, true)) => Some(c.cost_s),
         _ => None,
     };

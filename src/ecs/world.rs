@@ -5,6 +5,7 @@ use super::planned::{CostScript, scripted};
 use super::top_level::TopLevelState;
 use super::{PlannedOption, QueryFilter, RayHit, StructureWhy};
 use crate::Mesh;
+use crate::adaptive::Estimate;
 use crate::bvh::{Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
@@ -39,12 +40,19 @@ pub(crate) struct Instance {
     pub kept: Kept,
     /// The tree's SAH cost, kept current only under the adaptive policy (0 otherwise).
     pub sah: f64,
-    /// Rays expected to reach the mesh per frame: last frame's batched requests × the mesh's share of the
-    /// scene's surface area (adaptive policy only).
+    /// Rays that reached the mesh last frame, as attributed: the frame's batched requests × the mesh's
+    /// share of the scene's surface area (adaptive policy only). What its costs are learned per.
     pub rays: f64,
-    /// Shape queries (casts, closest points, overlaps, containment) expected to reach the mesh's tree per
+    /// Shape queries (casts, closest points, overlaps, containment) that reached the mesh's tree last
     /// frame, counted as [`rays`](Self::rays) are (adaptive policy only).
     pub shapes: f64,
+    /// The running means of [`rays`](Self::rays) and [`shapes`](Self::shapes) (an [`Estimate`]: the last
+    /// five frames or so weigh most), what the option planners (wide tree, packets, structure, overlap
+    /// test) decide for: a load that comes and goes — closest points every other frame — is planned for as
+    /// its mean. Planned for last frame's count, the wide tree was dropped on each frame without queries
+    /// and collapsed again on the next. Carried over a rebuild, and taken from the sibling a new
+    /// instance starts from.
+    pub load: QueryLoad,
     /// Which structure answers the mesh's closest-hit and any-hit rays, and why.
     pub structure: StructureKind,
     pub why: StructureWhy,
@@ -81,6 +89,32 @@ pub(crate) struct Kept {
     pub grid: Option<UniformGrid>,
 }
 
+/// The queries a mesh is expected to receive per frame, as the option planners see them (see
+/// [`Instance::load`]).
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct QueryLoad {
+    rays: Estimate,
+    shapes: Estimate,
+}
+
+impl QueryLoad {
+    /// Learns a frame's attributed rays and shape queries.
+    fn add(&mut self, rays: f64, shapes: f64) {
+        self.rays.add(rays);
+        self.shapes.add(shapes);
+    }
+
+    /// Rays expected per frame (0 before any frame was attributed).
+    pub fn rays(&self) -> f64 {
+        self.rays.mean().unwrap_or(0.0)
+    }
+
+    /// Rays and shape queries expected per frame: what the mesh's tree serves.
+    pub fn tree_queries(&self) -> f64 {
+        self.rays() + self.shapes.mean().unwrap_or(0.0)
+    }
+}
+
 /// Refits remembered for motion incoherence.
 pub(crate) const HISTORY: usize = 16;
 
@@ -94,8 +128,8 @@ impl Instance {
         }
     }
 
-    /// Queries expected to reach the mesh's tree per frame: its rays and its shape queries (what its
-    /// rebuild policy and its wide-tree choice serve).
+    /// Queries that reached the mesh's tree last frame: its rays and its shape queries (what its rebuild
+    /// policy and its wide-tree choice serve).
     pub fn tree_queries(&self) -> f64 {
         self.rays + self.shapes
     }
@@ -127,6 +161,7 @@ impl Instance {
             sah: 0.0,
             rays: 0.0,
             shapes: 0.0,
+            load: QueryLoad::default(),
             structure: StructureKind::Bvh,
             why: StructureWhy::Fixed,
         };
@@ -408,6 +443,7 @@ impl TraceWorld {
             let p = share(inst);
             inst.rays = rays as f64 * p;
             inst.shapes = shapes as f64 * p;
+            inst.load.add(inst.rays, inst.shapes);
             if work <= 0.0 || inst.kept.adaptive.is_none() {
                 continue;
             }
