@@ -719,11 +719,10 @@ fn point_query_work_changes_the_planners_wide_tree_choice() {
 /// adaptive policy's own rebuilds, which follow measured timings, made that test fail one run in 50.
 #[test]
 fn a_rebuild_frame_plans_for_the_meshs_queries() {
-    let wide = wide_tree_by_frame(2_000, Event::NewTopology(20));
-    let flips: Vec<usize> = (10..wide.len()).filter(|&f| !wide[f]).collect();
+    let off = frames_without_wide_tree(&wide_tree_by_frame(2_000, Event::NewTopology(20)));
     assert!(
-        flips.is_empty(),
-        "the wide tree was dropped on frames {flips:?}"
+        off.is_empty(),
+        "the wide tree was dropped on frames {off:?}"
     );
 }
 
@@ -734,12 +733,13 @@ fn a_rebuild_frame_plans_for_the_meshs_queries() {
 /// wide tree there, to collapse it again the next frame.
 #[test]
 fn a_new_instance_plans_for_its_siblings_queries() {
-    let wide = wide_tree_by_frame(2_000, Event::Sibling(20));
-    let flips: Vec<usize> = (10..wide.len()).filter(|&f| !wide[f]).collect();
-    assert!(
-        flips.is_empty(),
-        "the wide tree was off on frames {flips:?}"
-    );
+    let off = frames_without_wide_tree(&wide_tree_by_frame(2_000, Event::Sibling(20)));
+    assert!(off.is_empty(), "the wide tree was off on frames {off:?}");
+}
+
+/// The frames from 10 on (once the planner has settled) without the wide tree.
+fn frames_without_wide_tree(wide: &[bool]) -> Vec<usize> {
+    (10..wide.len()).filter(|&f| !wide[f]).collect()
 }
 
 /// Closest points that come and go — asked every other frame, as an AI ticking at half the frame rate

@@ -5,7 +5,7 @@ use common::*;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::grid::{GridOptions, UniformGrid};
-use kinetrace::{Mesh, MeshBvh, Ray};
+use kinetrace::{Hit, Mesh, MeshBvh, Ray};
 use rand::Rng;
 
 /// `n` rays from random points well inside the unit sphere in random directions; returns the misses.
@@ -195,19 +195,22 @@ fn closest_hits_do_not_depend_on_the_tree() {
     let want: Vec<_> = rays.iter().map(brute).collect();
     let hits = want.iter().filter(|w| w.is_some()).count();
     assert!(hits > rays.len() / 3, "{hits} of {} rays hit", rays.len());
+    // A structure's single-ray answers (`single`) and packets of 16 (`packets`) against brute force.
+    let check = |what: &str, single: &dyn Fn(&Ray) -> Option<Hit>, packets: &[Option<Hit>]| {
+        let bits = |h: Option<Hit>| h.map(|h| (h.primitive, h.t.to_bits()));
+        for (i, ray) in rays.iter().enumerate() {
+            assert_eq!(bits(single(ray)), want[i], "{what} ray {i}: single ray");
+            assert_eq!(bits(packets[i]), want[i], "{what} ray {i}: packet");
+        }
+    };
     for b in Builder::ALL {
         for (leaf, wide) in [(1, false), (4, false), (4, true), (8, true)] {
             let options = BuildOptions::new(b).max_leaf_size(leaf).wide(wide);
             let bvh = MeshBvh::build(&m, &options).unwrap();
             let mut packets = vec![None; rays.len()];
             bvh.closest_hits_packets(&rays, 16, &mut packets);
-            for (i, ray) in rays.iter().enumerate() {
-                let single = bvh.closest_hit(ray).map(|h| (h.primitive, h.t.to_bits()));
-                let packet = packets[i].map(|h| (h.primitive, h.t.to_bits()));
-                let what = format!("{b:?} leaf {leaf} wide {wide} ray {i}");
-                assert_eq!(single, want[i], "{what}: single ray");
-                assert_eq!(packet, want[i], "{what}: packet");
-            }
+            let what = format!("{b:?} leaf {leaf} wide {wide}");
+            check(&what, &|r| bvh.closest_hit(r), &packets);
         }
     }
     // The uniform grid, the structure the planner may choose instead, without and with its overlap test.
@@ -222,12 +225,7 @@ fn closest_hits_do_not_depend_on_the_tree() {
         for (r, out) in rays.chunks(16).zip(packets.chunks_mut(16)) {
             grid.closest_hits_packet(r, out, &mut stats);
         }
-        for (i, ray) in rays.iter().enumerate() {
-            let single = grid.closest_hit(ray).map(|h| (h.primitive, h.t.to_bits()));
-            let packet = packets[i].map(|h| (h.primitive, h.t.to_bits()));
-            let what = format!("grid, overlap test {overlap_test}, ray {i}");
-            assert_eq!(single, want[i], "{what}: single ray");
-            assert_eq!(packet, want[i], "{what}: packet");
-        }
+        let what = format!("grid, overlap test {overlap_test}");
+        check(&what, &|r| grid.closest_hit(r), &packets);
     }
 }
