@@ -129,10 +129,11 @@ fn descend(stack: ptr<function, Stack>, c: u32, ta: f32, tb: f32) -> u32 {
 // The next waiting subtree that can still hold something within `tmax` (moved outward as in `slab`), or
 // MISS when none is left.
 fn pop(stack: ptr<function, Stack>, tmax: f32) -> u32 {
+    let limit = robust_far(tmax);
     loop {
         if (*stack).sp == 0u { return MISS; }
         (*stack).sp -= 1u;
-        if (*stack).t[(*stack).sp] <= robust_far(tmax) { return (*stack).node[(*stack).sp]; }
+        if (*stack).t[(*stack).sp] <= limit { return (*stack).node[(*stack).sp]; }
     }
     return MISS;
 }

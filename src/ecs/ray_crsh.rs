@@ -130,7 +130,7 @@ impl Walk<'_> {
             (prims[s as usize], tris[s as usize])
         });
         if let Some(h) = best
-            && nearer(h.t, m.entity, found.map(|(fe, o)| (o.t, fe)))
+            && nearer(h.t, m.entity, found)
         {
             *found = Some((m.entity, h));
         }

@@ -529,7 +529,7 @@ impl TraceWorld {
                 let oray = inst.object_ray(&ray, *tmax);
                 let h = inst.closest_hit(&oray, counting.then_some(&mut bottom));
                 if let Some(h) = h
-                    && nearer(h.t, e, best.map(|(be, b)| (b.t, be)))
+                    && nearer(h.t, e, &best)
                 {
                     *tmax = h.t;
                     best = Some((e, h));
@@ -625,10 +625,10 @@ impl TraceWorld {
     }
 }
 
-/// Whether a hit at distance `t` on entity `e` replaces `best` (its distance and entity): nearer, or as
-/// near on an entity with lower [`Entity::to_bits`]. With ties broken by the entity, not by which entity
+/// Whether a hit at distance `t` on entity `e` replaces the best hit so far: nearer, or as near on an
+/// entity with lower [`Entity::to_bits`]. With ties broken by the entity, not by which entity
 /// the top level visited first, the answer does not depend on the visiting order (the CPU's top-level
 /// tree against the GPU's, single rays against packets); `scene.wgsl` keeps the same rule.
-pub(crate) fn nearer(t: f32, e: Entity, best: Option<(f32, Entity)>) -> bool {
-    best.is_none_or(|(bt, be)| t < bt || (t == bt && e.to_bits() < be.to_bits()))
+pub(crate) fn nearer(t: f32, e: Entity, best: &Option<(Entity, Hit)>) -> bool {
+    best.is_none_or(|(be, b)| t < b.t || (t == b.t && e.to_bits() < be.to_bits()))
 }

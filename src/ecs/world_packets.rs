@@ -63,7 +63,7 @@ impl TraceWorld {
                 inst.closest_hits_packet(object, hits);
                 for (&i, h) in idx.iter().zip(hits.iter()) {
                     if let Some(h) = h
-                        && nearer(h.t, e, best[i].map(|(be, b)| (b.t, be)))
+                        && nearer(h.t, e, &best[i])
                     {
                         best[i] = Some((e, *h));
                         tmax[i] = h.t;
