@@ -5,6 +5,12 @@
 //! the thread's CPU time, see [`best_cpu`]); with an
 //! adapter, the GPU sort with its transfers and the GPU CRSH traversal (s = 8, D = 2) on the batch's first
 //! 16 384 rays, 4 096 with `--quick` (lavapipe on the dev VM: CPU figures, not GPU ones).
+//!
+//! For profiling (callgrind counts instructions, not time), `KINETRACE_RAYSORT_ROWS` keeps only the
+//! strategies named in it (comma-separated labels, e.g. `BVH,sorted runs 64`) and
+//! `KINETRACE_RAYSORT_SETS` only the ray sets whose name contains one of its words (e.g. `reflection`);
+//! each kept row is traced `KINETRACE_RAYSORT_REPS` times (default 1) and printed with its least thread CPU
+//! time, and nothing else runs (no sort-only, shuffled, packet or GPU rows).
 
 use crate::cpu::one_thread;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
@@ -63,9 +69,14 @@ pub fn run(rec: &mut Records) {
     let mesh = crowd.mesh(&pos);
     let scene = RayScene::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("a scene");
     let gpu = GpuContext::new().ok();
+    let profile = Profile::from_env();
     for &side in sides {
         for (set, rays) in secondary_rays(&mesh, &scene, side) {
             let name = format!("crowd {side}x{side} {set}");
+            if let Some(profile) = &profile {
+                profile.run(&scene, &name, &rays);
+                continue;
+            }
             measure(rec, &scene, &name, &rays);
             shuffled(rec, &scene, &name, &rays);
             if let Some(g) = &gpu {
@@ -74,6 +85,91 @@ pub fn run(rec: &mut Records) {
             }
         }
     }
+}
+
+/// The profiling mode's choice of rows and sets (see the module docs).
+struct Profile {
+    rows: Vec<String>,
+    sets: Vec<String>,
+    reps: usize,
+}
+
+impl Profile {
+    fn from_env() -> Option<Profile> {
+        let list = |v: String| v.split(',').map(|s| s.trim().to_string()).collect();
+        let rows = list(std::env::var("KINETRACE_RAYSORT_ROWS").ok()?);
+        let sets = std::env::var("KINETRACE_RAYSORT_SETS").map_or(Vec::new(), list);
+        let reps = std::env::var("KINETRACE_RAYSORT_REPS").map_or(1, |r| r.parse().unwrap_or(1));
+        Some(Profile { rows, sets, reps })
+    }
+
+    /// Traces `rays` with each kept strategy, on one thread, printing its least thread CPU time.
+    fn run(&self, scene: &RayScene, name: &str, rays: &[SecondaryRay]) {
+        if !self.sets.is_empty() && !self.sets.iter().any(|s| name.contains(s.as_str())) {
+            return;
+        }
+        let layout = KeyLayout::default();
+        for (label, s) in strategies() {
+            if !self.rows.contains(&label) {
+                continue;
+            }
+            let (t, traced) = one_thread(|| {
+                best_cpu(self.reps, || scene.trace(rays, s, &layout, false).unwrap())
+            });
+            println!(
+                "  {name}, {label}: {:.3} ms thread CPU, {:.3} Mrays/s, {:.2} tests a ray",
+                t * 1e3,
+                rays.len() as f64 / t / 1e6,
+                traced.stats.total() as f64 / rays.len() as f64
+            );
+        }
+    }
+}
+
+/// The strategies `measure` compares, with their row labels.
+fn strategies() -> Vec<(String, Strategy)> {
+    let mut all = vec![
+        ("BVH".to_string(), Strategy::Bvh),
+        ("sorted BVH".to_string(), Strategy::SortedBvh),
+        (
+            "sorted packets 8".to_string(),
+            Strategy::SortedPackets { size: 8 },
+        ),
+        (
+            "sorted packets 16".to_string(),
+            Strategy::SortedPackets { size: 16 },
+        ),
+        (
+            "sorted packets 64".to_string(),
+            Strategy::SortedPackets { size: 64 },
+        ),
+        (
+            "sorted runs 64".to_string(),
+            Strategy::SortedRuns {
+                size: 64,
+                drop_bits: RUN_LOW_BITS,
+            },
+        ),
+        (
+            "RAH s8 D2".to_string(),
+            Strategy::Rah {
+                branching: 8,
+                depth: 2,
+            },
+        ),
+    ];
+    for s in [8, 16] {
+        for d in [2, 3, 4] {
+            all.push((
+                format!("CRSH s{s} D{d}"),
+                Strategy::Crsh {
+                    branching: s,
+                    depth: d,
+                },
+            ));
+        }
+    }
+    all
 }
 
 /// The sort alone, and the BVH with and without sorting on the rays in random request order: what
@@ -266,47 +362,10 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
     println!("\n{name}: {} rays", rays.len());
     let layout = KeyLayout::default();
     let n = rays.len() as f64;
-    let mut strategies = vec![
-        ("BVH", Strategy::Bvh),
-        ("sorted BVH", Strategy::SortedBvh),
-        ("sorted packets 8", Strategy::SortedPackets { size: 8 }),
-        ("sorted packets 16", Strategy::SortedPackets { size: 16 }),
-        ("sorted packets 64", Strategy::SortedPackets { size: 64 }),
-        (
-            "sorted runs 64",
-            Strategy::SortedRuns {
-                size: 64,
-                drop_bits: RUN_LOW_BITS,
-            },
-        ),
-        (
-            "RAH s8 D2",
-            Strategy::Rah {
-                branching: 8,
-                depth: 2,
-            },
-        ),
-    ];
-    let labels: Vec<String> = [8, 16]
-        .iter()
-        .flat_map(|s| [2, 3, 4].map(move |d| (*s, d)))
-        .map(|(s, d)| format!("CRSH s{s} D{d}"))
-        .collect();
-    for (label, (s, d)) in labels
-        .iter()
-        .zip([(8, 2), (8, 3), (8, 4), (16, 2), (16, 3), (16, 4)])
-    {
-        strategies.push((
-            label,
-            Strategy::Crsh {
-                branching: s,
-                depth: d,
-            },
-        ));
-    }
     let mut tests = Vec::new();
     let mut speed = Vec::new();
-    for (label, s) in strategies {
+    for (label, s) in strategies() {
+        let label = label.as_str();
         // The hierarchies are slow on the CPU: one timed run in quick mode.
         let reps = if matches!(
             s,
@@ -331,11 +390,11 @@ fn measure(rec: &mut Records, scene: &RayScene, name: &str, rays: &[SecondaryRay
             n / t / 1e6,
             "Mrays/s",
         );
-        tests.push((label, per_ray));
-        speed.push((label, n / t / 1e6));
+        tests.push((label.to_string(), per_ray));
+        speed.push((label.to_string(), n / t / 1e6));
     }
     let get =
-        |v: &[(&str, f64)], l: &str| v.iter().find(|(k, _)| *k == l).map_or(f64::NAN, |x| x.1);
+        |v: &[(String, f64)], l: &str| v.iter().find(|(k, _)| k == l).map_or(f64::NAN, |x| x.1);
     rec.add(
         SUITE,
         name,
