@@ -11,7 +11,8 @@
 //! entered with the *active range*: the first and the last ray of the packet whose own slab test (the exact
 //! test single rays use, against that ray's current closest hit) accepts the box — rays outside the range
 //! skip the whole subtree. Leaves test the rays in the range against the leaf box four at a time (SSE on
-//! x86-64, the bits of the single-ray test), then its triangles. Children
+//! x86-64, the bits of the single-ray test), then its triangles, four rays against each triangle at a time
+//! (SSE on x86-64, the scalar watertight test's operations lane by lane: see `geometry/triangle4.rs`). Children
 //! are visited nearer-first by their interval lower bound; a pushed sibling is re-scanned when popped, so
 //! hits found meanwhile shrink its range.
 //!
@@ -26,16 +27,19 @@
 //! rays toward one point light. A packet with no axis on which all directions share a sign cannot be culled
 //! as a whole and is traced ray by ray ([`MeshBvh::closest_hit`]) — the fallback rule; a merely wide packet
 //! still gives exact answers, but its active ranges stay wide and it approaches the single-ray cost plus the
-//! range scans. Costs: no allocation; the stack is [`MAX_DEPTH`] entries of 8 bytes and the packet's state
-//! about 6 KB on the stack (of which 1.8 KB the rays by component for the four-ray leaf box test).
+//! range scans. Costs: no allocation; the stack is [`MAX_DEPTH`] entries of 8 bytes, and the packet's per-ray
+//! state (about 16 KB for 64 rays) is kept per thread from packet to packet, a packet setting only its own
+//! rays' lanes ([`PacketLanes`]).
 
 use super::stack::Stack;
 use super::traverse::TraversalStats;
+use super::wide::simd::RayLanes;
 use super::{MAX_DEPTH, MeshBvh, Node};
 use crate::bvh::Hit;
-use crate::geometry::{Aabb, Ray, TriangleRay, robust_far};
+use crate::geometry::{Aabb, Ray, TriangleHit, TriangleRay, TriangleRays, robust_far};
 use crate::parallel;
 use glam::{BVec3, Vec3};
+use std::cell::RefCell;
 use std::ops::Range;
 
 /// Most rays in one packet (a 64-bit active mask); longer slices given to the packet queries are cut into
@@ -135,22 +139,70 @@ pub(super) fn range_mask(first: usize, last: usize) -> u64 {
     (u64::MAX >> (63 - last)) & (u64::MAX << first)
 }
 
-/// The state of one packet: its rays, their best hits and which are still looking.
+/// The state of one packet: its rays, their best hits and which are still looking. The per-ray arrays live
+/// in the thread's [`PacketLanes`], of which a packet sets only its own rays' lanes.
 pub(super) struct Packet<'a> {
     pub(super) rays: &'a [Ray],
-    tris: [Option<TriangleRay>; MAX_PACKET],
-    /// Current `tmax` of each ray (its closest hit so far).
+    /// Rays still traversing (any-hit queries drop a ray at its first hit).
+    pub(super) active: u64,
+    pub(super) lanes: &'a mut PacketLanes,
+}
+
+/// Per-ray state of a packet of up to [`MAX_PACKET`] rays (about 16 KB), kept per thread from packet to packet:
+/// a packet of `n` rays writes lanes `0..n` only. Made afresh for each packet, the arrays' 64 lanes cost
+/// more to clear than a short packet's rays cost to set up (sorted runs of reflection rays at 512² hold
+/// about 16 rays). Lanes past the packet's rays hold an earlier packet's values: they are only ever read
+/// by the four-ray tests, whose results for them are masked off.
+pub(super) struct PacketLanes {
+    /// Each ray's watertight-test constants (lanes of invalid rays are not set: they are never active),
+    /// and the same by component for the four-ray test.
+    tris: [TriangleRay; MAX_PACKET],
+    shear: TriangleRays<MAX_PACKET>,
+    /// Current `tmax` of each ray (its closest hit so far); −∞ for an invalid ray.
     pub(super) tmax: [f32; MAX_PACKET],
     /// `(primitive, slot, u, v)` of each ray's best hit.
     best: [Option<(u32, usize, f32, f32)>; MAX_PACKET],
-    /// Rays still traversing (any-hit queries drop a ray at its first hit).
-    pub(super) active: u64,
     /// The rays' slab-test constants by component, for the leaf box test four rays at a time.
-    lanes: RayColumns,
+    columns: RayColumns,
+    /// Each ray's four-box constants for the wide tree, set by its walk.
+    pub(super) wide: [RayLanes; MAX_PACKET],
+}
+
+impl PacketLanes {
+    const EMPTY: PacketLanes = PacketLanes {
+        tris: [TriangleRay::EMPTY; MAX_PACKET],
+        shear: TriangleRays::EMPTY,
+        tmax: [f32::NEG_INFINITY; MAX_PACKET],
+        best: [None; MAX_PACKET],
+        columns: RayColumns {
+            origin: [[0.0; MAX_PACKET]; 3],
+            inv_dir: [[0.0; MAX_PACKET]; 3],
+            neg: [[0; MAX_PACKET]; 3],
+            tmin: [0.0; MAX_PACKET],
+        },
+        wide: [RayLanes::EMPTY; MAX_PACKET],
+    };
+}
+
+thread_local! {
+    /// The thread's packet lanes (see [`PacketLanes`]); static storage, no allocation.
+    static LANES: RefCell<PacketLanes> = const { RefCell::new(PacketLanes::EMPTY) };
+}
+
+/// Runs `f` with the thread's [`PacketLanes`] (a fresh set on the call stack if a packet on this thread
+/// is already using them).
+fn with_lanes<R>(f: impl FnOnce(&mut PacketLanes) -> R) -> R {
+    LANES.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut lanes) => f(&mut lanes),
+        Err(_) => {
+            let mut fresh = PacketLanes::EMPTY;
+            f(&mut fresh)
+        }
+    })
 }
 
 /// A packet's rays by component (structure of arrays): origins, reciprocal directions, each axis's sign
-/// as an all-ones or all-zeros word, `tmin`. Lanes past the packet's rays hold zeros and are never asked.
+/// as an all-ones or all-zeros word, `tmin`.
 struct RayColumns {
     origin: [[f32; MAX_PACKET]; 3],
     inv_dir: [[f32; MAX_PACKET]; 3],
@@ -159,23 +211,16 @@ struct RayColumns {
 }
 
 impl RayColumns {
-    fn new(rays: &[Ray]) -> Self {
-        let mut c = RayColumns {
-            origin: [[0.0; MAX_PACKET]; 3],
-            inv_dir: [[0.0; MAX_PACKET]; 3],
-            neg: [[0; MAX_PACKET]; 3],
-            tmin: [0.0; MAX_PACKET],
-        };
-        for (i, r) in rays.iter().enumerate() {
-            let neg = r.dir_neg();
-            for (a, neg) in [neg.x, neg.y, neg.z].into_iter().enumerate() {
-                c.origin[a][i] = r.origin[a];
-                c.inv_dir[a][i] = r.inv_dir()[a];
-                c.neg[a][i] = if neg { u32::MAX } else { 0 };
-            }
-            c.tmin[i] = r.tmin;
+    /// Sets lane `i` to ray `r`.
+    #[inline]
+    fn set(&mut self, i: usize, r: &Ray) {
+        let neg = r.dir_neg();
+        for (a, neg) in [neg.x, neg.y, neg.z].into_iter().enumerate() {
+            self.origin[a][i] = r.origin[a];
+            self.inv_dir[a][i] = r.inv_dir()[a];
+            self.neg[a][i] = if neg { u32::MAX } else { 0 };
         }
-        c
+        self.tmin[i] = r.tmin;
     }
 }
 
@@ -191,37 +236,42 @@ impl MeshBvh {
         stats: &mut TraversalStats,
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            let mut p = Packet::new(rays);
-            if self.trace_packet(&mut p, false, stats) {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = p.best[i]
-                        .map(|(prim, slot, u, v)| self.packet_hit(p.tmax[i], prim, slot, u, v));
-                }
-            } else {
-                for (o, r) in out.iter_mut().zip(rays) {
-                    *o = self.closest_hit_counted(r, stats);
+        with_lanes(|lanes| {
+            for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+                let mut p = Packet::new(rays, lanes);
+                if self.trace_packet(&mut p, false, stats) {
+                    let l = &p.lanes;
+                    for (i, o) in out.iter_mut().enumerate() {
+                        *o = l.best[i]
+                            .map(|(prim, slot, u, v)| self.packet_hit(l.tmax[i], prim, slot, u, v));
+                    }
+                } else {
+                    for (o, r) in out.iter_mut().zip(rays) {
+                        *o = self.closest_hit_counted(r, stats);
+                    }
                 }
             }
-        }
+        });
     }
 
     /// [`any_hit`](Self::any_hit) for every ray, as packets; like
     /// [`closest_hits_packet`](Self::closest_hits_packet).
     pub fn any_hits_packet(&self, rays: &[Ray], out: &mut [bool], stats: &mut TraversalStats) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-            let mut p = Packet::new(rays);
-            if self.trace_packet(&mut p, true, stats) {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = p.best[i].is_some();
-                }
-            } else {
-                for (o, r) in out.iter_mut().zip(rays) {
-                    *o = self.any_hit_counted(r, stats);
+        with_lanes(|lanes| {
+            for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
+                let mut p = Packet::new(rays, lanes);
+                if self.trace_packet(&mut p, true, stats) {
+                    for (i, o) in out.iter_mut().enumerate() {
+                        *o = p.lanes.best[i].is_some();
+                    }
+                } else {
+                    for (o, r) in out.iter_mut().zip(rays) {
+                        *o = self.any_hit_counted(r, stats);
+                    }
                 }
             }
-        }
+        });
     }
 
     /// Batched closest-hit queries: `rays` holds consecutive packets of `packet` rays each (camera tiles in
@@ -250,8 +300,8 @@ impl MeshBvh {
         }
     }
 
-    /// Traces the packet `p` (up to [`MAX_PACKET`] rays, made by [`Packet::new`] in the caller's frame, so
-    /// that its 4 KB are never moved); false when it must be traced ray by ray.
+    /// Traces the packet `p` (up to [`MAX_PACKET`] rays, made by [`Packet::new`]); false when it must be
+    /// traced ray by ray.
     fn trace_packet(&self, p: &mut Packet, any: bool, stats: &mut TraversalStats) -> bool {
         let rays = p.rays;
         let nodes = self.bvh().nodes();
@@ -314,25 +364,27 @@ impl MeshBvh {
 }
 
 impl<'a> Packet<'a> {
-    /// The packet of `rays` (at most [`MAX_PACKET`]), its valid rays active.
-    fn new(rays: &'a [Ray]) -> Self {
+    /// The packet of `rays` (at most [`MAX_PACKET`]), its valid rays active, in `lanes` (see
+    /// [`PacketLanes`]).
+    fn new(rays: &'a [Ray], lanes: &'a mut PacketLanes) -> Self {
         debug_assert!(rays.len() <= MAX_PACKET);
-        let mut p = Packet {
-            rays,
-            tris: [None; MAX_PACKET],
-            tmax: [f32::NEG_INFINITY; MAX_PACKET],
-            best: [None; MAX_PACKET],
-            active: 0,
-            lanes: RayColumns::new(rays),
-        };
+        let mut active = 0;
         for (i, r) in rays.iter().enumerate() {
+            lanes.columns.set(i, r);
+            lanes.best[i] = None;
+            lanes.tmax[i] = f32::NEG_INFINITY;
             if r.is_valid() {
-                p.tris[i] = Some(TriangleRay::new(r));
-                p.tmax[i] = r.tmax;
-                p.active |= 1 << i;
+                lanes.tris[i] = TriangleRay::new(r);
+                lanes.shear.set(i, &lanes.tris[i]);
+                lanes.tmax[i] = r.tmax;
+                active |= 1 << i;
             }
         }
-        p
+        Packet {
+            rays,
+            active,
+            lanes,
+        }
     }
 
     /// The rays of `mask` whose slab test ([`Ray::intersect_aabb`], the same bits) accepts `b` within their
@@ -358,7 +410,7 @@ impl<'a> Packet<'a> {
     #[inline]
     fn reach_sse(&self, b: &Aabb, mask: u64) -> u64 {
         use std::arch::x86_64::*;
-        let c = &self.lanes;
+        let c = &self.lanes.columns;
         let mut out = 0;
         let mut left = mask;
         while left != 0 {
@@ -381,7 +433,7 @@ impl<'a> Packet<'a> {
                     far = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(fp, o), inv), far);
                 }
                 // Each ray's far distance or its `tmax`, whichever is nearer, moved outward by the slack.
-                let tmax = _mm_loadu_ps(self.tmax[g..].as_ptr());
+                let tmax = _mm_loadu_ps(self.lanes.tmax[g..].as_ptr());
                 let limit = super::wide::simd::robust_far_sse(_mm_min_ps(far, tmax));
                 _mm_movemask_ps(_mm_cmple_ps(near, limit)) as u64
             };
@@ -396,7 +448,7 @@ impl<'a> Packet<'a> {
     #[inline]
     fn reaches(&self, i: usize, b: &Aabb) -> bool {
         self.rays[i]
-            .intersect_aabb(b, robust_far(self.tmax[i]))
+            .intersect_aabb(b, robust_far(self.lanes.tmax[i]))
             .is_some()
     }
 
@@ -407,7 +459,7 @@ impl<'a> Packet<'a> {
     pub(super) fn limit_all(&self) -> f32 {
         robust_far(
             lanes(self.active)
-                .map(|i| self.tmax[i])
+                .map(|i| self.lanes.tmax[i])
                 .fold(f32::NEG_INFINITY, f32::max),
         )
     }
@@ -451,28 +503,82 @@ impl<'a> Packet<'a> {
             0
         };
         let reach = self.reach(b, range & !known) | known;
-        for i in lanes(reach) {
-            let r = &self.rays[i];
-            let tr = self.tris[i].as_ref().expect("active rays are valid");
-            for s in slots.clone() {
-                stats.prim_tests += 1;
-                let [a, b, c] = tris[s];
-                if let Some(h) = tr.intersect(a, b, c, r.tmin, self.tmax[i]) {
-                    let p = prims[s];
-                    let t = self.tmax[i];
-                    if self.best[i].is_none_or(|(bp, ..)| h.t < t || p < bp) {
-                        self.best[i] = Some((p, s, h.u, h.v));
-                        self.tmax[i] = h.t;
-                        changed = true;
-                        if any {
-                            self.active &= !(1 << i);
-                            break;
+        #[cfg(target_arch = "x86_64")]
+        {
+            // Four rays against each triangle at a time; each ray still meets the leaf's triangles in
+            // slot order, with its `tmax` as lowered by the ones before.
+            let mut left = reach;
+            while left != 0 {
+                let g = (left.trailing_zeros() / 4 * 4) as usize;
+                let mut group = (left >> g) & 0xf;
+                left &= !(0xf << g);
+                for s in slots.clone() {
+                    if group == 0 {
+                        break;
+                    }
+                    stats.prim_tests += u64::from(group.count_ones());
+                    let l = &*self.lanes;
+                    let four = l.shear.intersect4(g, tris[s], &l.columns.tmin, &l.tmax);
+                    for k in lanes(u64::from(four.hit | four.exact) & group) {
+                        let i = g + k;
+                        let h = if four.exact >> k & 1 == 0 {
+                            TriangleHit {
+                                t: four.t[k],
+                                u: four.u[k],
+                                v: four.v[k],
+                            }
+                        } else {
+                            let Some(h) = self.test(i, tris[s]) else {
+                                continue;
+                            };
+                            h
+                        };
+                        changed |= self.take(i, prims[s], s, h, any);
+                        if any && self.active >> i & 1 == 0 {
+                            group &= !(1 << k);
                         }
                     }
                 }
             }
         }
+        #[cfg(not(target_arch = "x86_64"))]
+        for i in lanes(reach) {
+            for s in slots.clone() {
+                stats.prim_tests += 1;
+                if let Some(h) = self.test(i, tris[s]) {
+                    changed |= self.take(i, prims[s], s, h, any);
+                    if any && self.active >> i & 1 == 0 {
+                        break;
+                    }
+                }
+            }
+        }
         changed
+    }
+
+    /// Ray `i` alone against `triangle` within its current range.
+    #[inline]
+    fn test(&self, i: usize, [a, b, c]: [Vec3; 3]) -> Option<TriangleHit> {
+        let r = &self.rays[i];
+        self.lanes.tris[i].intersect(a, b, c, r.tmin, self.lanes.tmax[i])
+    }
+
+    /// Keeps `h`, ray `i`'s hit on primitive `prim` (in `slot`), when it is nearer than the ray's best, or
+    /// as near and of a lower primitive; an any-hit packet's ray ends there (see the `any` of
+    /// [`leaf`](Self::leaf)). True when kept.
+    #[inline]
+    fn take(&mut self, i: usize, prim: u32, slot: usize, h: TriangleHit, any: bool) -> bool {
+        let l = &mut *self.lanes;
+        let t = l.tmax[i];
+        if !l.best[i].is_none_or(|(bp, ..)| h.t < t || prim < bp) {
+            return false;
+        }
+        l.best[i] = Some((prim, slot, h.u, h.v));
+        l.tmax[i] = h.t;
+        if any {
+            self.active &= !(1 << i);
+        }
+        true
     }
 }
 
@@ -505,12 +611,13 @@ mod tests {
                     Ray::with_range(o, d, rng.range(0.0, 0.5), rng.range(0.0, 4.0))
                 })
                 .collect();
-            let mut p = Packet::new(&rays);
+            let mut state = PacketLanes::EMPTY;
+            let p = Packet::new(&rays, &mut state);
             // Some rays as if they had found hits; some lanes unlimited.
             for i in 0..n {
                 match rng.next_u64() % 4 {
-                    0 => p.tmax[i] = f32::INFINITY,
-                    1 => p.tmax[i] = rng.range(0.0, 1.0),
+                    0 => p.lanes.tmax[i] = f32::INFINITY,
+                    1 => p.lanes.tmax[i] = rng.range(0.0, 1.0),
                     _ => {}
                 }
             }
@@ -523,7 +630,11 @@ mod tests {
             };
             let mask = p.active & rng.next_u64();
             let alone = lanes(mask)
-                .filter(|&i| rays[i].intersect_aabb(&b, robust_far(p.tmax[i])).is_some())
+                .filter(|&i| {
+                    rays[i]
+                        .intersect_aabb(&b, robust_far(p.lanes.tmax[i]))
+                        .is_some()
+                })
                 .fold(0, |m, i| m | 1 << i);
             assert_eq!(p.reach(&b, mask), alone, "round {round}");
         }

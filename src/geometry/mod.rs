@@ -7,6 +7,7 @@ mod predicates;
 mod ray;
 mod transform;
 mod triangle;
+mod triangle4;
 
 pub(crate) use aabb::sa_ratio_of_extents;
 pub use aabb::{Aabb, MAX_SA_RATIO, sa_ratio};
@@ -18,3 +19,4 @@ pub use ray::{ROBUST_FAR_SLACK, Ray, robust_far};
 pub(crate) use ray::{max_keep, min_keep};
 pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};
+pub(crate) use triangle4::TriangleRays;

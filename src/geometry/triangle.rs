@@ -41,6 +41,14 @@ pub struct TriangleHit {
 }
 
 impl TriangleRay {
+    /// Constants of no ray, for storage that a ray's own constants overwrite before use.
+    pub(crate) const EMPTY: TriangleRay = TriangleRay {
+        origin: Vec3::ZERO,
+        row_x: Vec3::ZERO,
+        row_y: Vec3::ZERO,
+        row_z: Vec3::ZERO,
+    };
+
     /// Precomputes the transform for `ray` (which must be valid, see [`Ray::is_valid`]).
     #[inline]
     pub fn new(ray: &Ray) -> Self {
@@ -74,6 +82,11 @@ impl TriangleRay {
             row_y,
             row_z,
         }
+    }
+
+    /// The origin and the shear's three rows, for the four-ray test's columns.
+    pub(crate) fn parts(&self) -> [Vec3; 4] {
+        [self.origin, self.row_x, self.row_y, self.row_z]
     }
 
     /// The shear as three rows (x, y, z of the ray's frame), for the GPU kernels.

@@ -24,8 +24,8 @@
 //! a box such a ray enters (see the binary scheme). So each ray finds the same closest `t`, and ties are
 //! kept by the rule of the binary packets.
 //!
-//! **Cost.** No allocation: a stack of [`WIDE_STACK`] 16-byte entries and each ray's four-box constants
-//! (5 KB for 64 rays) on the call stack.
+//! **Cost.** No allocation: a stack of [`WIDE_STACK`] 16-byte entries on the call stack, and each ray's
+//! four-box constants in the packet's per-thread lanes.
 
 use super::simd::{RayLanes, hit4};
 use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots};
@@ -65,11 +65,12 @@ impl WideBvh {
         // Each ray's four-box constants, made once per packet: made inside the scans, where a node's test
         // waited on them, the sorted runs of reflection rays traced 15–20% slower (thread CPU time, crowd
         // at 1024², loaded 2-core VM), and camera tiles were not faster either.
-        let mut pre = [RayLanes::new(&p.rays[0]); crate::bvh::MAX_PACKET];
-        for (l, r) in pre.iter_mut().zip(p.rays) {
+        for (l, r) in p.lanes.wide.iter_mut().zip(p.rays) {
             *l = RayLanes::new(r);
         }
-        let test = |p: &Packet, node, i: usize| hit4(node, &pre[i], robust_far(p.tmax[i])).0;
+        let test = |p: &Packet, node, i: usize| {
+            hit4(node, &p.lanes.wide[i], robust_far(p.lanes.tmax[i])).0
+        };
         let lanes4 = LaneBounds::new(bounds);
         let mut limit_all = p.limit_all();
         let mut stack = Stack::<Entry, WIDE_STACK>::new();

@@ -27,6 +27,15 @@ pub struct RayLanes {
 }
 
 impl RayLanes {
+    /// Constants of no ray, for storage that a ray's own constants overwrite before use.
+    pub(crate) const EMPTY: RayLanes = RayLanes {
+        near: [0, 1, 2],
+        far: [3, 4, 5],
+        origin: [0.0; 3],
+        inv_dir: [0.0; 3],
+        tmin: 0.0,
+    };
+
     /// The constants for `ray` (any ray; invalid ones simply produce meaningless masks).
     #[inline]
     pub fn new(ray: &Ray) -> Self {
