@@ -6,16 +6,18 @@
 //! - [`Strategy::SortedPackets`]: the rays in key order, each kind apart, as packets of consecutive rays
 //!   ([`MeshBvh::closest_hits_packet`], [`MeshBvh::any_hits_packet`]): neighbours in key order start near
 //!   each other and point the same way, so a packet shares its node visits where the rays allow: on the
-//!   crowd, 1.16–1.44× the BVH's speed on shadow rays toward one light, 0.79–0.83× on reflection rays (idle `bench
-//!   raysort --quick`, packets of 64). Costs the sort and the packets' range scans; node tests count once
-//!   per packet.
+//!   crowd (`bench raysort`, idle 2-core AMD EPYC VM, packets of 64), 1.70× / 1.92× the BVH's speed on
+//!   shadow rays toward one light at 512² / 1024², 1.10× / 1.46× on reflection rays. Costs the sort and the
+//!   packets' range scans; node tests count once per packet.
 //! - [`Strategy::SortedRuns`]: the same packets, cut where the key changes above its low bits, so that a
 //!   packet never mixes origin cells or direction blocks; sorted on those high bits only
-//!   ([`SortedRays::sort_above`]: 30 ns a ray against the full sort's 36, ties left in pixel order, which
-//!   traverses 4–6% faster than full key order). Reflection rays on the crowd (`bench raysort`'s, 23,040
-//!   triangles; one thread, thread CPU time on a loaded 2-core VM), sort counted: 1.25–1.27× the BVH in
-//!   pixel order (single rays through the 4-wide tree; the packets walk the same tree, leaves tested four
-//!   rays at a time) at 1024², 1.05–1.07× at 512² (traversal alone about 1.5× and 1.2×). On a crowd of
+//!   ([`SortedRays::sort_above`]: cheaper than the full sort, ties left in pixel order, which traverses 4–6%
+//!   faster than full key order). Reflection rays on the crowd (`bench raysort`'s, 23,040 triangles; one
+//!   thread, thread CPU time, idle 2-core AMD EPYC VM), sort counted: **1.49× the BVH in pixel order at
+//!   512², 1.88× at 1024²** (single rays through the 4-wide tree; the packets walk the same tree, leaves
+//!   tested four rays at a time against each triangle); shadow rays toward one light 1.88× / 2.27×, toward
+//!   four 1.34× / 1.64×. Short runs (about 16 rays a packet at 512²) pay a packet's set-up per ray: the
+//!   packets' per-ray state is kept per thread and set only for the packet's own rays. On a crowd of
 //!   192,000 triangles (an earlier tree), 0.99× before the sort: pixel order is already coherent.
 //! - [`Strategy::Crsh`]: the coherent ray-space hierarchy over the sorted rays. Each top node is tested
 //!   against the mesh's bounding sphere, then against every triangle's sphere; survivors go down to the
