@@ -37,7 +37,7 @@
 //! penumbra mask), and rays for the marked pixels only (1.5–7% of them on the crowd). On the CPU the map and the
 //! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
 //! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows take only about 1.2× less CPU than a ray per
+//! shadow ray's cost, so on the crowd selective hard shadows take only about 1.4× less CPU than a ray per
 //! pixel traced as packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench
 //! suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
