@@ -120,16 +120,25 @@ impl Binner {
     /// The bin on all three axes at once.
     #[inline]
     fn bins(&self, c: Vec3A) -> UVec3 {
-        // Saturating float→int casts: NaN (0·∞ on a subnormal extent) gives 0, +∞ gives u32::MAX.
-        ((c - self.min) * self.scale)
-            .as_uvec3()
-            .min(UVec3::splat(self.last))
+        let v = (c - self.min) * self.scale;
+        UVec3::new(self.step(v.x), self.step(v.y), self.step(v.z))
     }
 
     /// The bin on one axis.
     #[inline]
     fn bin(&self, c: Vec3A, axis: usize) -> u32 {
-        (((c[axis] - self.min[axis]) * self.scale[axis]) as u32).min(self.last)
+        self.step((c[axis] - self.min[axis]) * self.scale[axis])
+    }
+
+    /// The bin of the scaled offset `v`: its floor, at most the last bin. NaN (0·∞ on a subnormal extent)
+    /// and negative offsets give bin 0 (`f32::max` returns its other operand for NaN), `+∞` the last: the
+    /// bins of saturating casts, without the fix-ups that cost x86-64 about six instructions per axis in
+    /// the binning pass.
+    #[inline]
+    fn step(&self, v: f32) -> u32 {
+        let v = v.max(0.0).min(self.last as f32);
+        // SAFETY: `v` is finite and in `[0, last]` (`last` below `MAX_BINS`), so it truncates to a `u32`.
+        unsafe { v.to_int_unchecked::<u32>() }
     }
 }
 
