@@ -208,4 +208,46 @@ mod tests {
             }
         }
     }
+
+    /// The permutation and shear follow the paper's rule, read off the rows: `z` is the axis of the
+    /// largest `|d|` (the first of equals), `x` and `y` the next two in cyclic order, swapped when `d` is
+    /// negative along `z`; the rows hold 1 there and `−d_x/d_z`, `−d_y/d_z`, `1/d_z` in the `z` column,
+    /// for every axis and sign, ties included.
+    #[test]
+    fn axes_and_shear_follow_the_papers_rule() {
+        let values = [-2.0f32, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0];
+        let mut cases = 0;
+        for &x in &values {
+            for &y in &values {
+                for &z in &values {
+                    let d = [x, y, z];
+                    if d == [0.0; 3] {
+                        continue;
+                    }
+                    let big = d.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                    let kz = d.iter().position(|v| v.abs() == big).unwrap();
+                    let (mut kx, mut ky) = ((kz + 1) % 3, (kz + 2) % 3);
+                    if d[kz] < 0.0 {
+                        std::mem::swap(&mut kx, &mut ky);
+                    }
+                    let r = TriangleRay::new(&Ray::new(Vec3::ZERO, Vec3::from_array(d)));
+                    let expect = |one: Option<usize>, at_kz: f32| {
+                        let mut e = [0.0f32; 3];
+                        if let Some(i) = one {
+                            e[i] = 1.0;
+                        }
+                        e[kz] = at_kz;
+                        e.map(f32::to_bits)
+                    };
+                    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+                    let what = format!("d = {d:?}");
+                    assert_eq!(bits(r.row_x), expect(Some(kx), -(d[kx] / d[kz])), "{what}");
+                    assert_eq!(bits(r.row_y), expect(Some(ky), -(d[ky] / d[kz])), "{what}");
+                    assert_eq!(bits(r.row_z), expect(None, 1.0 / d[kz]), "{what}");
+                    cases += 1;
+                }
+            }
+        }
+        assert_eq!(cases, 7 * 7 * 7 - 1);
+    }
 }
