@@ -19,7 +19,7 @@
 
 use super::{QueryFilter, TraceWorld, world::Instance};
 use crate::bvh::traverse_by;
-use crate::queries::{CastHit, Feature, Frame, PointHit, Shape, Sweep, box_dist2};
+use crate::queries::{CastHit, Feature, Frame, PointHit, Shape, Sweep, box_dist2, sort_ascending};
 use bevy_ecs::entity::Entity;
 use glam::{Affine3A, Mat3, Quat, Vec2, Vec3};
 
@@ -80,7 +80,7 @@ fn sort_triangles(run: &mut [(Entity, u32)]) {
     // invalid bit patterns or drop.
     let tris =
         unsafe { std::slice::from_raw_parts_mut(buffer.as_mut_ptr().cast::<u32>(), run.len()) };
-    tris.sort_unstable();
+    sort_ascending(tris);
     for (pair, &t) in run.iter_mut().zip(tris.iter()) {
         pair.1 = t;
     }

@@ -34,6 +34,7 @@
 #[cfg(doc)]
 use crate::MeshBvh;
 
+mod ascending;
 mod cast;
 mod closest;
 mod contains;
@@ -42,6 +43,7 @@ mod overlap;
 mod point_bound;
 mod shapes;
 
+pub(crate) use ascending::sort_ascending;
 pub(crate) use cast::Sweep;
 pub(crate) use closest::box_dist2;
 #[cfg(test)]

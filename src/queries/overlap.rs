@@ -1,5 +1,6 @@
 //! Which triangles of a mesh a shape overlaps.
 
+use super::ascending::sort_ascending;
 use super::frame::Frame;
 use super::shapes::{OverlapTest, Shape};
 use crate::MeshBvh;
@@ -37,7 +38,7 @@ impl MeshBvh {
     pub fn overlapping(&self, shape: &Shape, out: &mut Vec<u32>) {
         out.clear();
         self.overlapping_each(shape, Frame::Mesh, |p| out.push(p));
-        out.sort_unstable();
+        sort_ascending(out);
     }
 
     /// Calls `found` with each triangle that `shape` (given in `frame`) overlaps, in tree order.
