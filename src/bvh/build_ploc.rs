@@ -30,10 +30,12 @@
 //! over the whole round is each member's choice. So every round merges at least one pair and the loop
 //! ends after at most `n - 1` rounds (about `log n` in practice).
 
+#[cfg(feature = "gpu")]
+use super::Node;
 use super::build_lbvh::sorted_codes;
 use super::layout::Slot;
 use super::topdown::{self, BALANCED_DEPTH, ObjectMedian, PARALLEL_SUBTREE};
-use super::{BuildInput, MortonBits, Node};
+use super::{BuildInput, MortonBits};
 use crate::geometry::Aabb;
 use crate::parallel;
 

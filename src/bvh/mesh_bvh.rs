@@ -130,6 +130,7 @@ impl MeshBvh {
     /// Pairs `bvh`, a valid tree over `mesh`'s triangle boxes (as a GPU build reads back), with the mesh,
     /// and derives the wide query tree. O(n), allocates the per-slot arrays; the tree gets a new
     /// [`topology_id`](Self::topology_id).
+    #[cfg(feature = "gpu")]
     pub(crate) fn from_tree(mesh: &Mesh, bvh: Bvh) -> MeshBvh {
         Self::pair(mesh, bvh, true)
     }

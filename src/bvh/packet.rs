@@ -36,7 +36,9 @@ use super::traverse::TraversalStats;
 use super::wide::simd::RayLanes;
 use super::{MAX_DEPTH, MeshBvh, Node};
 use crate::bvh::Hit;
-use crate::geometry::{Aabb, Ray, TriangleHit, TriangleRay, TriangleRays, robust_far};
+#[cfg(target_arch = "x86_64")]
+use crate::geometry::TriangleRays;
+use crate::geometry::{Aabb, Ray, TriangleHit, TriangleRay, robust_far};
 use crate::parallel;
 use glam::{BVec3, Vec3};
 use std::cell::RefCell;
@@ -155,8 +157,9 @@ pub(super) struct Packet<'a> {
 /// by the four-ray tests, whose results for them are masked off.
 pub(super) struct PacketLanes {
     /// Each ray's watertight-test constants (lanes of invalid rays are not set: they are never active),
-    /// and the same by component for the four-ray test.
+    /// and the same by component for the four-ray test (x86-64).
     tris: [TriangleRay; MAX_PACKET],
+    #[cfg(target_arch = "x86_64")]
     shear: TriangleRays<MAX_PACKET>,
     /// Current `tmax` of each ray (its closest hit so far); −∞ for an invalid ray.
     pub(super) tmax: [f32; MAX_PACKET],
@@ -171,6 +174,7 @@ pub(super) struct PacketLanes {
 impl PacketLanes {
     const EMPTY: PacketLanes = PacketLanes {
         tris: [TriangleRay::EMPTY; MAX_PACKET],
+        #[cfg(target_arch = "x86_64")]
         shear: TriangleRays::EMPTY,
         tmax: [f32::NEG_INFINITY; MAX_PACKET],
         best: [None; MAX_PACKET],
@@ -375,6 +379,7 @@ impl<'a> Packet<'a> {
             lanes.tmax[i] = f32::NEG_INFINITY;
             if r.is_valid() {
                 lanes.tris[i] = TriangleRay::new(r);
+                #[cfg(target_arch = "x86_64")]
                 lanes.shear.set(i, &lanes.tris[i]);
                 lanes.tmax[i] = r.tmax;
                 active |= 1 << i;

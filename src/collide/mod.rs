@@ -41,8 +41,10 @@ pub mod tri_tri;
 pub use bvtt::PairStats;
 pub use front::PairFront;
 
+#[cfg(feature = "gpu")]
+use crate::Error;
 use crate::geometry::{check_finite, checked_inverse};
-use crate::{Error, MeshBvh, Result, parallel};
+use crate::{MeshBvh, Result, parallel};
 use bvtt::{Bvtt, Pair};
 use glam::{Affine3A, Mat3A, Vec3};
 use narrow::{Collect, Discrete, NarrowPhase, Side};

@@ -7,6 +7,7 @@ mod predicates;
 mod ray;
 mod transform;
 mod triangle;
+#[cfg(target_arch = "x86_64")]
 mod triangle4;
 
 pub(crate) use aabb::sa_ratio_of_extents;
@@ -19,4 +20,5 @@ pub use ray::{ROBUST_FAR_SLACK, Ray, robust_far};
 pub(crate) use ray::{max_keep, min_keep};
 pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};
+#[cfg(target_arch = "x86_64")]
 pub(crate) use triangle4::TriangleRays;

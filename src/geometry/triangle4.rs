@@ -6,7 +6,8 @@
 //! lane's `t`, `u` and `v` are the scalar test's bits; a lane whose edge function rounds to exactly zero —
 //! where the scalar test recomputes the three in `f64` — is left to the scalar test ([`Hits4::exact`]).
 //!
-//! Cost: about a quarter of four scalar tests (one pass of packed operations for the four rays).
+//! Cost: about a quarter of four scalar tests (one pass of packed operations for the four rays). x86-64
+//! only (SSE is its baseline); elsewhere a packet's leaf tests its rays one at a time.
 
 use super::TriangleRay;
 use glam::Vec3;
@@ -48,7 +49,6 @@ impl<const N: usize> TriangleRays<N> {
     /// Lanes `g..g + 4` (`g + 4 ≤ N`) against the triangle `(v0, v1, v2)`, each within its own
     /// `tmin[i]..=tmax[i]`: as [`TriangleRay::intersect`] lane by lane, except for the lanes in
     /// [`Hits4::exact`].
-    #[cfg(target_arch = "x86_64")]
     #[inline]
     pub(crate) fn intersect4(
         &self,
@@ -130,7 +130,7 @@ impl<const N: usize> TriangleRays<N> {
     }
 }
 
-#[cfg(all(test, target_arch = "x86_64"))]
+#[cfg(test)]
 mod tests {
     use super::*;
     use crate::Ray;

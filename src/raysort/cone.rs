@@ -76,6 +76,7 @@ impl RayNode {
     }
 
     /// The cone's cosine and sine of [`spread`](Self::spread), as the sphere test reads them.
+    #[cfg(feature = "gpu")]
     pub(crate) fn spread_cos_sin(&self) -> (f32, f32) {
         (self.cos_spread, self.sin_spread)
     }

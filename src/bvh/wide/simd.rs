@@ -11,7 +11,9 @@
 //! guarantees them, and the loads and stores take pointers to the node's `[f32; 4]` rows.
 
 use super::WideNode;
-use crate::geometry::{ROBUST_FAR_SLACK, Ray, max_keep, min_keep, robust_far};
+#[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+use crate::geometry::ROBUST_FAR_SLACK;
+use crate::geometry::{Ray, max_keep, min_keep, robust_far};
 
 /// Per-ray constants of the four-box test, computed once per query.
 #[derive(Clone, Copy, Debug)]
