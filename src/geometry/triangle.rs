@@ -84,6 +84,17 @@ impl TriangleRay {
         }
     }
 
+    /// Constants from their parts, any bits at all, for testing the four-ray test where no ray leads.
+    #[cfg(all(test, target_arch = "x86_64"))]
+    pub(crate) fn from_parts([origin, row_x, row_y, row_z]: [Vec3; 4]) -> Self {
+        Self {
+            origin,
+            row_x,
+            row_y,
+            row_z,
+        }
+    }
+
     /// The origin and the shear's three rows, for the four-ray test's columns.
     #[cfg(target_arch = "x86_64")]
     pub(crate) fn parts(&self) -> [Vec3; 4] {
@@ -250,74 +261,5 @@ mod tests {
             }
         }
         assert_eq!(cases, 7 * 7 * 7 - 1);
-    }
-
-    /// The four-ray test against this one on arbitrary bits: rows, origins, corners and ranges drawn from
-    /// NaN, ±∞, ±0, subnormals, huge and tiny values and small dyadic numbers (many exact zeros), no ray
-    /// needed to derive them. Every lane it decides is this test's answer bit for bit (`t`, `u`, `v`, or no
-    /// hit); the others it leaves to this test.
-    #[cfg(target_arch = "x86_64")]
-    #[test]
-    fn four_ray_test_equals_this_one_on_any_bits() {
-        use crate::geometry::TriangleRays;
-        use crate::scenes::SceneRng;
-        fn any(rng: &mut SceneRng) -> f32 {
-            match rng.next_u64() % 8 {
-                0 => f32::from_bits(rng.next_u64() as u32),
-                1 => [
-                    0.0,
-                    -0.0,
-                    1.0,
-                    -1.0,
-                    f32::INFINITY,
-                    f32::NEG_INFINITY,
-                    f32::NAN,
-                    f32::MIN_POSITIVE / 4.0,
-                ][(rng.next_u64() % 8) as usize],
-                2 => rng.range(-1e30, 1e30),
-                3 => rng.range(-1e-30, 1e-30),
-                _ => (rng.range(-4.0, 4.0) * 8.0).round() / 8.0,
-            }
-        }
-        let vec = |rng: &mut SceneRng| Vec3::new(any(rng), any(rng), any(rng));
-        let mut rng = SceneRng::new(7);
-        let mut hits = 0;
-        for round in 0..100_000 {
-            let rays: [TriangleRay; 8] = std::array::from_fn(|_| TriangleRay {
-                origin: vec(&mut rng),
-                row_x: vec(&mut rng),
-                row_y: vec(&mut rng),
-                row_z: vec(&mut rng),
-            });
-            let tri = [vec(&mut rng), vec(&mut rng), vec(&mut rng)];
-            let tmin: [f32; 8] =
-                std::array::from_fn(|_| [0.0, any(&mut rng)][(rng.next_u64() % 2) as usize]);
-            let tmax: [f32; 8] = std::array::from_fn(|_| {
-                [f32::INFINITY, any(&mut rng)][(rng.next_u64() % 2) as usize]
-            });
-            let mut lanes = TriangleRays::<8>::EMPTY;
-            for (i, r) in rays.iter().enumerate() {
-                lanes.set(i, r);
-            }
-            let g = 4 * (round % 2);
-            let four = lanes.intersect4(g, tri, &tmin, &tmax);
-            for k in (0..4).filter(|k| four.exact >> k & 1 == 0) {
-                let i = g + k;
-                let alone = rays[i].intersect(tri[0], tri[1], tri[2], tmin[i], tmax[i]);
-                let bits = |t: f32, u: f32, v: f32| [t, u, v].map(f32::to_bits);
-                let got = (four.hit >> k & 1 == 1).then(|| bits(four.t[k], four.u[k], four.v[k]));
-                assert_eq!(
-                    got,
-                    alone.map(|h| bits(h.t, h.u, h.v)),
-                    "round {round} lane {i}: {tri:?} {:?} {} {}",
-                    rays[i],
-                    tmin[i],
-                    tmax[i]
-                );
-                hits += usize::from(alone.is_some());
-            }
-        }
-        // 771 of about 400,000 lanes hit: the rest miss, or meet NaN ranges or corners.
-        assert!(hits > 500, "{hits}");
     }
 }
