@@ -362,7 +362,9 @@ pub fn adaptive_policy(strategy: Strategy, costs: &CostTable, mesh: &Mesh) -> Ad
         Strategy::Adaptive { gpu: true, .. } => vec![cpu[0], Build::GPU_LBVH, cpu[1], cpu[2]],
         _ => cpu.to_vec(),
     };
-    AdaptivePolicy::shared(&builds, costs, Asset::of_indices(mesh.indices()))
+    let mut policy = AdaptivePolicy::shared(&builds, costs, Asset::of_indices(mesh.indices()));
+    policy.calibrates = true;
+    policy
 }
 
 /// Runs `strategies` on `scene` (GPU ones on `gpu`); returns a record list per strategy, in their order.
@@ -496,6 +498,12 @@ pub fn run_strategy(
                         bvh = builder.build(mesh, b);
                         let cost = TreeCost::of(bvh.bvh());
                         adaptive.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
+                        while let Some(c) = adaptive.calibration() {
+                            let t = Instant::now();
+                            let tree = builder.build(mesh, c);
+                            let s = t.elapsed().as_secs_f64();
+                            adaptive.calibrated(c, mesh.triangle_count(), s, tree.bvh().sah_cost());
+                        }
                         true
                     } else {
                         false

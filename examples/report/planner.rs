@@ -115,6 +115,8 @@ pub struct InstanceCrowd {
     pub builds: Vec<(Build, usize)>,
     /// Instances that started from a copy of the first one's tree instead of a build.
     pub siblings: usize,
+    /// Builds run only to measure them ([`AdaptivePolicy::calibration`]).
+    pub calibrations: usize,
 }
 
 /// Runs `instances` instances of one ~500-triangle character for `settings.frames` frames (at least 8),
@@ -132,7 +134,9 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
     let mut policies: Vec<AdaptivePolicy> = (0..instances)
         .map(|_| {
             let own = CostTable::new();
-            AdaptivePolicy::shared(&builds, if shared { &table } else { &own }, key)
+            let mut p = AdaptivePolicy::shared(&builds, if shared { &table } else { &own }, key);
+            p.calibrates = true;
+            p
         })
         .collect();
     let mut trees: Vec<Option<MeshBvh>> = (0..instances).map(|_| None).collect();
@@ -148,6 +152,7 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
         explorations: 0,
         builds: Vec::new(),
         siblings: 0,
+        calibrations: 0,
     };
     let mut frame_ms = Vec::new();
     for f in 0..settings.frames.max(8) {
@@ -191,6 +196,13 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
                 let bvh = MeshBvh::build(mesh, &BuildOptions::new(b.builder)).expect("valid");
                 let cost = TreeCost::of(bvh.bvh());
                 policy.built(b, mesh.triangle_count(), t.elapsed().as_secs_f64(), cost);
+                while let Some(c) = policy.calibration() {
+                    let t = Instant::now();
+                    let other = MeshBvh::build(mesh, &BuildOptions::new(c.builder)).expect("valid");
+                    let s = t.elapsed().as_secs_f64();
+                    policy.calibrated(c, mesh.triangle_count(), s, other.bvh().sah_cost());
+                    crowd.calibrations += 1;
+                }
                 *tree = Some(bvh);
             }
             let bvh = tree.as_ref().expect("built");
@@ -221,21 +233,24 @@ pub fn instance_crowd_table(rows: &[InstanceCrowd]) -> String {
          first frame the first instance builds its tree and, with a shared table, every other one starts \
          from a copy of it refitted to its own pose (`AdaptivePolicy::sibling`; per instance, each \
          builds its own); a steady frame is the median of the later half. Goal: the first frame costs at \
-         most twice a steady frame, and with a shared table no instance but the first explores.\n\n\
+         most twice a steady frame, and with a shared table no instance but the first explores. The \
+         planners calibrate (`AdaptivePolicy::calibration`): an asset's builds are measured at its first \
+         rebuild, not tried on frames of their own.\n\n\
          | instances | cost table | first frame ms | steady frame ms | first / steady | explorations | \
-         sibling starts | builds |\n|---|---|---|---|---|---|---|---|\n",
+         calibrations | sibling starts | builds |\n|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let builds: Vec<String> = r.builds.iter().map(|(b, n)| format!("{b} {n}")).collect();
         let _ = writeln!(
             s,
-            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} | {} |",
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} | {} | {} |",
             r.instances,
             if r.shared { "shared" } else { "per instance" },
             r.first_ms,
             r.steady_ms,
             r.first_ms / r.steady_ms,
             r.explorations,
+            r.calibrations,
             r.siblings,
             builds.join(", ")
         );

@@ -142,6 +142,8 @@ pub struct AdaptivePolicy {
     anchor_error: AnchorError,
     /// The last binned-SAH tree built on this mesh: see [`Exact`].
     exact: Option<Exact>,
+    /// The index in `builds` past the last build [`calibrated`](Self::calibrated).
+    calibrating: usize,
     current: Option<Build>,
     /// The rent's work since the last rebuild: see [`RentWork`].
     work: RentWork,
@@ -154,6 +156,10 @@ pub struct AdaptivePolicy {
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
     /// [`sibling`](Self::sibling) never (what the first measures reaches it through the table).
     explores: bool,
+    /// Whether unmeasured builds are measured by [`calibration`](Self::calibration) (the caller asks for
+    /// it after each rebuild) rather than tried on frames of their own: rebuilds then use measured
+    /// builds only, binned SAH until the calibration (false by default).
+    pub calibrates: bool,
     /// The bound on the SAH ratio against a fresh binned-SAH tree ([`DEFAULT_SAH_BOUND`]).
     pub sah_bound: f64,
     /// Standard deviations of margin for every "act now?" decision and every change of build
@@ -198,6 +204,7 @@ impl AdaptivePolicy {
             guard_factor: 1.0,
             anchor_error: AnchorError::default(),
             exact: None,
+            calibrating: 0,
             current: None,
             work: RentWork::default(),
             frames: 0,
@@ -206,6 +213,7 @@ impl AdaptivePolicy {
             last: Prediction::default(),
             partial_rate: Estimate::default(),
             explores: true,
+            calibrates: false,
             sah_bound: DEFAULT_SAH_BOUND,
             z: DEFAULT_Z,
         }
@@ -328,6 +336,61 @@ impl AdaptivePolicy {
         self.guard_factor = 1.0;
         self.work = RentWork::default();
         self.frames = 0;
+    }
+
+    /// A build to measure now, on the pose of the binned-SAH tree just built, where
+    /// [`calibrates`](Self::calibrates) is set: at the mesh's first rebuild that came due (not its first
+    /// build), the first build offered that no mesh of this asset has measured. Build it from the same
+    /// positions, report it with [`calibrated`](Self::calibrated) (the tree in use stays the binned-SAH
+    /// one) and ask again until `None`.
+    ///
+    /// A build's quality is its tree's cost over the fresh binned-SAH tree's on the same pose: measured
+    /// here it is exact, where a build tried on a frame of its own is measured against the last
+    /// binned-SAH tree carried forward as the guard carries it, which in a fast scene is far off (over
+    /// the report's explosion LBVH's trees were learned as 1.69 × binned SAH against 1.16, which left
+    /// binned SAH rebuilding every frame at three times LBVH's time). No worse tree is put in use to
+    /// learn it, and a scene that never rebuilds never pays for it. Cost: one build of each build
+    /// offered, once per asset, in the frame of its first rebuild (a sibling, and any mesh of an asset
+    /// measured already, calibrates nothing).
+    pub fn calibration(&self) -> Option<Build> {
+        let fresh = self.calibrates && self.explores && self.age > 0 && self.frames == 0;
+        let e = self.exact.filter(|e| fresh && e.frames == 0)?;
+        let t = self.costs.lock();
+        (self.builds.iter().skip(self.calibrating))
+            .find(|&&b| b != e.build && t.quality(&self.asset, b).is_none())
+            .copied()
+    }
+
+    /// Records a build asked for by [`calibration`](Self::calibration): its triangle count, measured
+    /// seconds and its tree's SAH cost. Learns its time and its quality against the binned-SAH tree of the
+    /// same pose; the planner's state is otherwise unchanged (the tree in use is still that one). A
+    /// non-finite time or cost is not learned (report a build that could not run so), and the next
+    /// `calibration` moves past `build` either way.
+    pub fn calibrated(
+        &mut self,
+        build: impl Into<Build>,
+        triangles: usize,
+        seconds: f64,
+        cost: f64,
+    ) {
+        let build = build.into();
+        if let Some(i) = self.builds.iter().position(|&b| b == build) {
+            self.calibrating = self.calibrating.max(i + 1);
+        }
+        if seconds.is_finite() && seconds >= 0.0 {
+            self.costs.learn_time(build, triangles, seconds);
+        }
+        let Some(e) = self.exact.filter(|e| e.frames == 0 && e.sah > 0.0) else {
+            return;
+        };
+        let unit = (self.costs.lock().quality(&self.asset, e.build)).and_then(Estimate::mean);
+        if let Some(unit) = unit
+            && cost.is_finite()
+            && cost > 0.0
+        {
+            self.costs
+                .learn_quality(self.asset, build, unit * cost / e.sah);
+        }
     }
 
     /// Re-anchors the reference to a fresh tree of `build` at `sah_cost` and learns the build's quality
@@ -935,7 +998,10 @@ impl View<'_> {
                 None => (self.first_build(), false),
             };
         };
+        // A planner that calibrates tries nothing on frames of its own once a binned-SAH tree anchors
+        // the calibration.
         if self.p.explores
+            && !(self.p.calibrates && self.p.exact.is_some())
             && let Some(b) = self.worth_trying(chosen, rebuilding)
         {
             return (b, true);
@@ -1189,6 +1255,72 @@ mod tests {
             assert_eq!(p.next_build().device, expect);
             assert_eq!(p.predicted_rebuild(Build::GPU_LBVH), gpu_s);
         }
+    }
+
+    /// The relative quality the table holds for `b` on `p`'s asset.
+    fn quality(p: &AdaptivePolicy, b: Builder) -> Option<f64> {
+        p.costs.lock().quality(&p.asset, Build::cpu(b))?.mean()
+    }
+
+    /// A planner that calibrates builds binned SAH at load and calibrates nothing then (a scene that
+    /// never rebuilds pays for nothing more); its first due rebuild is binned SAH (the only build
+    /// measured), after which it asks for LBVH and hybrid on that pose: each learned as its tree's cost
+    /// over that binned-SAH tree's exactly (15 / 12 and 13 / 12, the binned-SAH unit 1), its time as
+    /// measured; a build reported as not run (NaN) is skipped, not asked again. It never tries a build on
+    /// a frame of its own.
+    #[test]
+    fn calibration_measures_each_build_on_the_pose_of_the_first_rebuild() {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
+        p.calibrates = true;
+        assert_eq!(p.next_build(), Build::cpu(Builder::SAH));
+        p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        assert_eq!(p.calibration(), None, "nothing at load");
+        let mut k = 0.0;
+        while !p.after_refit(10.0 + k, 1000.0) {
+            assert_ne!(p.prediction().verdict, Verdict::Explore);
+            p.queried(1000.0, 10.0 + k, 1e-5 * (10.0 + k));
+            k += 1.0;
+        }
+        assert_eq!(p.prediction().build, Build::cpu(Builder::SAH));
+        p.built(Builder::SAH, 1000, 1e-2, 12.0);
+        assert_eq!(p.calibration(), Some(Build::cpu(Builder::LBVH)));
+        p.calibrated(Builder::LBVH, 1000, 1e-3, 15.0);
+        assert_eq!(p.calibration(), Some(Build::cpu(Builder::HYBRID)));
+        p.calibrated(Builder::HYBRID, 1000, f64::NAN, f64::NAN);
+        assert_eq!(p.calibration(), None);
+        assert_eq!(quality(&p, Builder::SAH), Some(1.0));
+        assert!((quality(&p, Builder::LBVH).unwrap() - 15.0 / 12.0).abs() < 1e-12);
+        assert_eq!(quality(&p, Builder::HYBRID), None);
+        assert!((p.predicted_rebuild(Builder::LBVH) - 1e-3).abs() < 1e-15);
+        // Hybrid, reported as not run, stays unmeasured: the calibration is over.
+        p.after_refit(12.0, 1000.0);
+        assert_eq!(p.calibration(), None, "only right after a binned-SAH build");
+    }
+
+    /// A sibling, and a mesh of an asset whose builds were all measured, calibrate nothing; neither does
+    /// a planner not asked to.
+    #[test]
+    fn calibration_is_asked_once_per_asset() {
+        let rebuild = |p: &mut AdaptivePolicy| {
+            p.built(Builder::SAH, 1000, 1e-2, 10.0);
+            p.after_refit(100.0, 1000.0);
+            p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        };
+        let mut off = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        rebuild(&mut off);
+        assert_eq!(off.calibration(), None);
+        let mut first = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        first.calibrates = true;
+        let mut sibling = first.sibling();
+        rebuild(&mut sibling);
+        assert_eq!(sibling.calibration(), None);
+        rebuild(&mut first);
+        assert_eq!(first.calibration(), Some(Build::cpu(Builder::LBVH)));
+        first.calibrated(Builder::LBVH, 1000, 1e-3, 11.0);
+        let mut later = AdaptivePolicy::shared(first.builds.as_slice(), first.costs(), first.asset);
+        later.calibrates = true;
+        rebuild(&mut later);
+        assert_eq!(later.calibration(), None);
     }
 
     /// Given only CPU builds, no history of measurements makes the policy choose a GPU build.

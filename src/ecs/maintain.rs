@@ -96,6 +96,7 @@ pub(crate) fn maintain_system(
         gpu: gpu.as_deref(),
         fallbacks: &mut fallbacks,
         costs: &costs,
+        calibrations: 0,
     };
     for data in changed
         .iter()
@@ -289,6 +290,7 @@ pub(crate) fn maintain_system(
             prediction,
         });
     }
+    stats.calibrations = rebuilder.calibrations;
     forget_orphans(&world, &costs, gone);
     stats.maintain_time = start.elapsed();
 }
@@ -462,6 +464,8 @@ struct Rebuilder<'a> {
     fallbacks: &'a mut Fallbacks,
     /// The costs every mesh's adaptive policy learns into and from.
     costs: &'a CostTable,
+    /// Builds run this frame only to measure them (see [`Rebuilder::calibrate`]).
+    calibrations: usize,
 }
 
 impl Rebuilder<'_> {
@@ -537,12 +541,32 @@ impl Rebuilder<'_> {
                 },
             );
         }
+        self.calibrate(&current, clustered, &mut inst.kept)?;
         inst.layers = layers.0;
         inst.set_transform(transform.0);
         if world.instances.insert(e, inst).is_none() {
             world.membership_changed = true;
         }
         Ok(build)
+    }
+
+    /// Builds on `current` each build the adaptive policy in `kept` asks to calibrate
+    /// ([`AdaptivePolicy::calibration`]: at an asset's first rebuild, its unmeasured builds) and reports
+    /// them; the trees are dropped. A build that ran as another (a GPU build fallen back to the CPU) is
+    /// reported unmeasured.
+    fn calibrate(&mut self, current: &Mesh, clustered: bool, kept: &mut Kept) -> Result<(), Error> {
+        while let Some(asked) = kept.adaptive.as_ref().and_then(AdaptivePolicy::calibration) {
+            let (tree, ran, seconds) = self.build_tree(current, asked, clustered, kept)?;
+            let (seconds, cost) = match ran == asked {
+                true => (seconds, tree.bvh().sah_cost()),
+                false => (f64::NAN, f64::NAN),
+            };
+            if let Some(policy) = kept.adaptive.as_mut() {
+                policy.calibrated(asked, current.triangle_count(), seconds, cost);
+            }
+            self.calibrations += 1;
+        }
+        Ok(())
     }
 
     /// Builds the tree of `current` with `build`: on the GPU when asked for and possible, else on the CPU.
@@ -684,7 +708,11 @@ fn adaptive_policy(
                 }),
         );
     }
-    AdaptivePolicy::shared(&builds, costs, asset)
+    // Unmeasured builds are measured on the pose of the first rebuild's binned-SAH tree
+    // (`Rebuilder::calibrate`), not tried on frames of their own.
+    let mut policy = AdaptivePolicy::shared(&builds, costs, asset);
+    policy.calibrates = true;
+    policy
 }
 
 /// A mesh's asset for the shared costs: its topology, which every entity spawned from the same [`Mesh`]

@@ -179,6 +179,10 @@ pub struct TraceStats {
     pub refits: usize,
     /// Rebuilds.
     pub rebuilds: usize,
+    /// Builds run only to measure them ([`AdaptivePolicy::calibration`](crate::adaptive::AdaptivePolicy::calibration):
+    /// at an asset's first rebuild under [`RebuildPolicy::Adaptive`](super::RebuildPolicy), each build
+    /// offered that no mesh of it measured); their time is in their mesh's [`MeshStats::time`].
+    pub calibrations: usize,
     /// Partial rebuilds this frame (counted in `refits` too: each starts with a refit); the triangles of
     /// each are in its [`MeshAction::PartialRebuild`].
     pub partial_rebuilds: usize,
