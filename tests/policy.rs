@@ -488,6 +488,7 @@ impl Script {
                     Verdict::Rent => 2,
                     Verdict::Keep => unreachable!("a rebuild is not kept"),
                     Verdict::Partial => unreachable!("no partial rebuild is offered"),
+                    Verdict::Outpaced => unreachable!("asked only before a refit"),
                 };
                 counted.verdicts[slot] += 1;
                 if p.costs().measured(&asset, build) {
@@ -791,6 +792,47 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
         assert_eq!(world.resource::<TraceStats>().calibrations, 0);
     }
     assert!(builds_of_b >= 1, "at least its first build");
+}
+
+/// Through the ECS: a soup exploding from a tenth of its size (each triangle flies off at its own speed,
+/// so a tree refitted one frame after its build passes the SAH bound) is rebuilt without a refit
+/// (`Verdict::Outpaced` in its `MeshStats`) on most frames once two refits measured the pace, with
+/// answers equal to brute force's on every frame.
+#[test]
+fn an_exploding_mesh_is_rebuilt_without_refits() {
+    let _serial = measured_time();
+    let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE, TraceMode::Cpu);
+    let mut walk = Walk::spawn(&mut world, 2000, 41, 0.0);
+    let rest: Vec<Vec3> = (world.get::<VertexPositions>(walk.entity).unwrap().0.iter())
+        .map(|&p| (p - 0.5) * 0.1)
+        .collect();
+    let velocity: Vec<Vec3> = (0..rest.len() / 3)
+        .flat_map(|_| {
+            let v = rand_vec(&mut walk.rng, -1.0, 1.0).normalize_or(Vec3::X);
+            [v * walk.rng.random_range(0.02..0.3); 3]
+        })
+        .collect();
+    let mut r = rng(42);
+    let (mut outpaced, mut refitted) = (0, 0);
+    for f in 0..40 {
+        let mut vp = world.get_mut::<VertexPositions>(walk.entity).unwrap();
+        for ((p, &x), &v) in vp.0.iter_mut().zip(&rest).zip(&velocity) {
+            *p = x + v * f as f32;
+        }
+        let m = frame(&mut world, &mut schedule, &walk, &mut r, 500, 8);
+        match m.prediction.map(|p| p.verdict) {
+            Some(Verdict::Outpaced) => {
+                assert!(matches!(m.action, MeshAction::Rebuild { .. }), "{m:?}");
+                outpaced += 1;
+            }
+            Some(_) => refitted += 1,
+            None => {}
+        }
+    }
+    assert!(
+        outpaced >= 2 * refitted,
+        "{outpaced} frames rebuilt without a refit, {refitted} refitted"
+    );
 }
 
 /// The SAH bound holds on every frame of every report scene: the adaptive strategy of the report's

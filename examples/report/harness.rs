@@ -473,8 +473,13 @@ pub fn run_strategy(
                 Strategy::Structure(_) => unreachable!("run by grid_rows"),
                 Strategy::Options(_) => unreachable!("run by option_rows"),
                 Strategy::Adaptive { partial, .. } => {
-                    bvh.refit(mesh.positions()).expect("same topology");
-                    let due = adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64);
+                    // As the plugin: a motion that outpaces refitting is rebuilt without a refit.
+                    let outpaced = adaptive.outpaced();
+                    if !outpaced {
+                        bvh.refit(mesh.positions()).expect("same topology");
+                    }
+                    let due = outpaced
+                        || adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64);
                     let p = adaptive.prediction();
                     if p.fresh_sah > 0.0 {
                         guard_ratio = p.sah / p.fresh_sah;

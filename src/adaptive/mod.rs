@@ -122,6 +122,12 @@
 //!   in use, so the partial one must be cheaper beyond the margin); its time is learned per mesh, its
 //!   prior is the binned-SAH rate at the rebuilt size ([`Verdict::Partial`]). The guard always rebuilds
 //!   the whole tree.
+//! - **Outpaced (no refit)**: where the guard rebuilt the last trees one frame after their build, the
+//!   caller asks [`AdaptivePolicy::outpaced`] before refitting; while the one-frame ratio, as measured
+//!   and as its fall per frame extrapolates over twice the frames skipped, stays above the bound, the
+//!   mesh is rebuilt without a refit ([`Verdict::Outpaced`]), measuring again one frame in
+//!   [`PACE_MEASURE`] (the report's explosion: a refit is a third of an LBVH build, thrown away every
+//!   frame). A skip the motion did not need costs a rebuild, never the bound.
 //!
 //! # Adding an option
 //!
@@ -181,5 +187,7 @@ pub use build::{Build, Device};
 pub use choice::Choice;
 pub use costs::{Asset, CostTable};
 pub use estimate::Estimate;
-pub use policy::{AdaptivePolicy, DEFAULT_SAH_BOUND, DEFAULT_Z, Prediction, TreeCost, Verdict};
+pub use policy::{
+    AdaptivePolicy, DEFAULT_SAH_BOUND, DEFAULT_Z, PACE_MEASURE, Prediction, TreeCost, Verdict,
+};
 pub use rank::Candidate;

@@ -64,6 +64,11 @@ pub enum Verdict {
     /// [`AdaptivePolicy::prefer_partial`] found the partial rebuild cheaper than the full one by the
     /// margin. Report it with [`AdaptivePolicy::partially_rebuilt`].
     Partial,
+    /// Rebuild without refitting first ([`AdaptivePolicy::outpaced`]): the guard rebuilt the trees of
+    /// the last frames one frame after their build, and the one-frame ratio, as measured and as it
+    /// trends, stays above the bound, so a refit would only be thrown away. The prediction's `sah` is
+    /// then NaN (no refitted tree was measured).
+    Outpaced,
 }
 
 /// The update a due rebuild takes: the whole tree or its degraded subtrees.
@@ -151,6 +156,8 @@ pub struct AdaptivePolicy {
     age: u32,
     last_ratio: f64,
     last: Prediction,
+    /// The guard's one-frame ratios, for [`outpaced`](Self::outpaced): see [`Pace`].
+    pace: Pace,
     /// Seconds per [`size_unit`](super::costs::size_unit) of the triangles a partial rebuild redid.
     partial_rate: Estimate,
     /// Whether this mesh tries builds its asset has not measured: the asset's first mesh does, a
@@ -211,6 +218,7 @@ impl AdaptivePolicy {
             age: 0,
             last_ratio: 1.0,
             last: Prediction::default(),
+            pace: Pace::default(),
             partial_rate: Estimate::default(),
             explores: true,
             calibrates: false,
@@ -235,6 +243,7 @@ impl AdaptivePolicy {
             // No rise is read from a ratio measured on another mesh.
             last_ratio: f64::NAN,
             last: Prediction::default(),
+            pace: Pace::default(),
             ..self.clone()
         }
     }
@@ -564,6 +573,10 @@ impl AdaptivePolicy {
             };
         }
         drop(t);
+        self.pace.refitted(
+            (p.verdict == Verdict::Guard && self.frames == 1).then_some(ratio),
+            self.sah_bound,
+        );
         if let Some(e) = &mut self.exact {
             e.carried = exact_carried;
         }
@@ -572,6 +585,37 @@ impl AdaptivePolicy {
         self.last_ratio = ratio;
         self.last = p;
         p.verdict != Verdict::Keep
+    }
+
+    /// Ask before refitting: true to rebuild this frame without refitting (with
+    /// [`prediction`](Self::prediction)'s build, reported with [`built`](Self::built) as any rebuild;
+    /// the verdict is [`Verdict::Outpaced`]), false to refit and ask [`after_refit`](Self::after_refit).
+    ///
+    /// True while the guard's last refits each came one frame after a rebuild and passed the bound, and
+    /// the trend of that one-frame ratio over those frames stays above the bound for twice the frames
+    /// skipped: an explosion whose trees do not survive a frame pays for its refits only now and then
+    /// (at most one frame in [`PACE_MEASURE`]), to see whether the motion has slowed. A wrong skip costs a
+    /// rebuild where a refit would have been kept, never the bound (a fresh tree is its own best). O(1).
+    pub fn outpaced(&mut self) -> bool {
+        if !self.pace.skip() {
+            return false;
+        }
+        self.frames += 1;
+        self.age = self.age.saturating_add(1);
+        if let Some(e) = &mut self.exact {
+            e.frames += 1;
+        }
+        let t = self.costs.lock();
+        let v = self.view(&t);
+        let (build, _) = v.plan(true);
+        self.last = Prediction {
+            verdict: Verdict::Outpaced,
+            build,
+            rebuild_s: v.time(build).map_or(0.0, |t| t.0),
+            sah: f64::NAN,
+            ..Prediction::default()
+        };
+        true
     }
 
     /// After an [`after_refit`](Self::after_refit) whose verdict is [`Verdict::Rent`], weighs rebuilding
@@ -680,6 +724,64 @@ struct Exact {
     frames: u32,
     /// The factor the guard last carried its cost forward by (trend, walk and spread).
     carried: f64,
+}
+
+/// At most one frame in this many refits while the motion outpaces refitting
+/// ([`AdaptivePolicy::outpaced`]): a refit measured every 8 rebuilds adds an eighth of a refit to each
+/// rebuild frame (a refit is about a third of an LBVH build: 4% of a frame's update), and a motion that
+/// slows is seen within 8 frames.
+pub const PACE_MEASURE: u32 = 8;
+
+/// The one-frame ratios the guard rebuilt at ([`AdaptivePolicy::outpaced`]): the last two measured and
+/// the frames between them, and the frames left to rebuild without refitting.
+#[derive(Clone, Copy, Debug, Default)]
+struct Pace {
+    /// The last one-frame ratio, the one before it and the frames from that one to the last (0 while
+    /// fewer than two were measured in a row).
+    last: f64,
+    before: f64,
+    gap: u32,
+    /// Frames since the last measurement.
+    since: u32,
+    /// Frames still to rebuild without refitting.
+    left: u32,
+}
+
+impl Pace {
+    /// A refit's verdict: `Some(ratio)` where the guard rebuilt a tree one frame old at that ratio, else
+    /// `None` (the run of such frames is over). Plans the frames to skip: with two ratios measured, the
+    /// frames until their trend (a geometric fall per frame; none if they rose) reaches `bound`, halved,
+    /// at most [`PACE_MEASURE`] − 1.
+    fn refitted(&mut self, guarded: Option<f64>, bound: f64) {
+        let Some(r) = guarded.filter(|r| r.is_finite() && *r > bound) else {
+            *self = Pace::default();
+            return;
+        };
+        if self.last > 0.0 {
+            (self.before, self.gap) = (self.last, self.since + 1);
+        }
+        (self.last, self.since, self.left) = (r, 0, 0);
+        if self.gap == 0 {
+            return;
+        }
+        let fall = (self.last / self.before).ln() / f64::from(self.gap);
+        let frames = if fall < 0.0 {
+            (self.last / bound).ln() / -fall / 2.0
+        } else {
+            f64::INFINITY
+        };
+        self.left = frames.min(f64::from(PACE_MEASURE - 1)) as u32;
+    }
+
+    /// Whether to skip this frame's refit (and count it).
+    fn skip(&mut self) -> bool {
+        if self.left == 0 {
+            return false;
+        }
+        self.left -= 1;
+        self.since += 1;
+        true
+    }
 }
 
 /// What the rent has summed since the last rebuild (or partial rebuild), in ray × SAH units, priced in
@@ -1321,6 +1423,65 @@ mod tests {
         later.calibrates = true;
         rebuild(&mut later);
         assert_eq!(later.calibration(), None);
+    }
+
+    /// Binned-SAH trees at 10 whose refits a frame later cost `refit(frame)`: the frames rebuilt without
+    /// a refit, each verdict checked (every refit's a guard rebuild).
+    fn outpaced_frames(frames: u32, refit: impl Fn(u32) -> f64) -> Vec<u32> {
+        let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+        p.built(Builder::SAH, 1000, 1e-3, 10.0);
+        let mut skipped = vec![];
+        for frame in 0..frames {
+            if p.outpaced() {
+                let why = p.prediction();
+                assert_eq!(why.verdict, Verdict::Outpaced);
+                assert_eq!(why.build, Build::cpu(Builder::SAH));
+                assert!(why.sah.is_nan());
+                skipped.push(frame);
+            } else {
+                assert!(p.after_refit(refit(frame), 1000.0));
+                assert_eq!(p.prediction().verdict, Verdict::Guard);
+            }
+            p.built(Builder::SAH, 1000, 1e-3, 10.0);
+        }
+        skipped
+    }
+
+    /// Refits at 5 × the fresh cost, frame after frame: once two in a row measured no fall, 7 frames
+    /// ([`PACE_MEASURE`] − 1) rebuild without refitting, then one refit measures again. Refits whose
+    /// ratio halves every frame (8, 4, 2) would reach the bound within two frames: none is skipped.
+    #[test]
+    fn a_motion_that_outpaces_refitting_is_rebuilt_without_refits() {
+        let steady = outpaced_frames(20, |_| 50.0);
+        assert_eq!(
+            steady,
+            (2..9).chain(10..17).chain(18..20).collect::<Vec<_>>()
+        );
+        let slowing = outpaced_frames(3, |f| 80.0 / 2f64.powi(f as i32));
+        assert_eq!(slowing, Vec::<u32>::new());
+    }
+
+    /// A refit the guard keeps ends the run: after the skipped frames, the refit that measures again
+    /// keeps its tree (10.5 against 10), and the frame after it refits too.
+    #[test]
+    fn a_kept_refit_ends_the_outpaced_run() {
+        let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+        p.built(Builder::SAH, 1000, 1e-3, 10.0);
+        let mut skipped = 0;
+        for refits in 0..3 {
+            while p.outpaced() {
+                skipped += 1;
+                p.built(Builder::SAH, 1000, 1e-3, 10.0);
+            }
+            if refits < 2 {
+                assert!(p.after_refit(50.0, 0.0));
+                p.built(Builder::SAH, 1000, 1e-3, 10.0);
+            }
+        }
+        assert_eq!(skipped, PACE_MEASURE - 1);
+        assert!(!p.after_refit(10.5, 0.0));
+        assert!(!p.outpaced());
+        assert!(!p.after_refit(11.0, 0.0));
     }
 
     /// Given only CPU builds, no history of measurements makes the policy choose a GPU build.

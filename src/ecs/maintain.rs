@@ -133,33 +133,42 @@ pub(crate) fn maintain_system(
             .get_mut(&e)
             .filter(|i| i.topology == topology_id(&mesh.0))
         {
-            match inst.bvh.refit(positions) {
-                Ok(d) => {
-                    degradation = d;
-                    inst.frames_since_rebuild += 1;
-                    inst.remember(d);
-                    // A grid answers the rays: its BVH is only refitted, for what the grid does not answer.
-                    let asked = (structure == StructureKind::Bvh).then_some(Asked {
-                        policy: config.policy,
-                        hint: hint.copied().unwrap_or_default(),
-                        triangles: mesh.0.triangle_count(),
-                        degradation: d,
-                        rays_last_frame: stats.rays_last_frame,
-                        gpu: rebuilder.gpu.is_some(),
-                        costs: &costs,
-                        asset: asset_of(&mesh.0),
-                    });
-                    (decision, prediction) = match asked {
-                        Some(asked) => {
-                            let (d, p) = asked.decide(inst, &mut stats.partial_checks);
-                            (Some(d), p)
-                        }
-                        None => (Some(Decision::Keep), None),
-                    };
-                }
-                Err(err) => {
-                    fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
-                    continue;
+            // A motion that outpaces refitting is rebuilt without a refit.
+            let outpaced = structure == StructureKind::Bvh
+                && matches!(config.policy, RebuildPolicy::Adaptive { .. })
+                && (inst.kept.adaptive.as_mut()).is_some_and(AdaptivePolicy::outpaced);
+            if outpaced {
+                prediction = inst.kept.adaptive.as_ref().map(AdaptivePolicy::prediction);
+                decision = prediction.map(|p| Decision::Rebuild(p.build));
+            } else {
+                match inst.bvh.refit(positions) {
+                    Ok(d) => {
+                        degradation = d;
+                        inst.frames_since_rebuild += 1;
+                        inst.remember(d);
+                        // A grid answers the rays: its BVH is only refitted, for what the grid does not answer.
+                        let asked = (structure == StructureKind::Bvh).then_some(Asked {
+                            policy: config.policy,
+                            hint: hint.copied().unwrap_or_default(),
+                            triangles: mesh.0.triangle_count(),
+                            degradation: d,
+                            rays_last_frame: stats.rays_last_frame,
+                            gpu: rebuilder.gpu.is_some(),
+                            costs: &costs,
+                            asset: asset_of(&mesh.0),
+                        });
+                        (decision, prediction) = match asked {
+                            Some(asked) => {
+                                let (d, p) = asked.decide(inst, &mut stats.partial_checks);
+                                (Some(d), p)
+                            }
+                            None => (Some(Decision::Keep), None),
+                        };
+                    }
+                    Err(err) => {
+                        fail(e, err, &mut world, &mut commands, &mut errors, &mut stats);
+                        continue;
+                    }
                 }
             }
         }
