@@ -484,11 +484,7 @@ impl AdaptivePolicy {
                 _ => 1.0,
             }
         };
-        self.frames += 1;
-        self.age = self.age.saturating_add(1);
-        if let Some(e) = &mut self.exact {
-            e.frames += 1;
-        }
+        self.next_frame();
         let t = self.costs.lock();
         let v = self.view(&t);
         let (build, _) = v.plan(true);
@@ -587,6 +583,15 @@ impl AdaptivePolicy {
         p.verdict != Verdict::Keep
     }
 
+    /// Counts a frame since the last rebuild and the last binned-SAH tree.
+    fn next_frame(&mut self) {
+        self.frames += 1;
+        self.age = self.age.saturating_add(1);
+        if let Some(e) = &mut self.exact {
+            e.frames += 1;
+        }
+    }
+
     /// Ask before refitting: true to rebuild this frame without refitting (with
     /// [`prediction`](Self::prediction)'s build, reported with [`built`](Self::built) as any rebuild;
     /// the verdict is [`Verdict::Outpaced`]), false to refit and ask [`after_refit`](Self::after_refit).
@@ -600,11 +605,7 @@ impl AdaptivePolicy {
         if !self.pace.skip() {
             return false;
         }
-        self.frames += 1;
-        self.age = self.age.saturating_add(1);
-        if let Some(e) = &mut self.exact {
-            e.frames += 1;
-        }
+        self.next_frame();
         let t = self.costs.lock();
         let v = self.view(&t);
         let (build, _) = v.plan(true);
