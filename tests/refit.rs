@@ -7,12 +7,39 @@ use kinetrace::bvh::{BuildOptions, Builder, Bvh};
 use kinetrace::geometry::MAX_SA_RATIO;
 use kinetrace::{Aabb, Error, Mesh, MeshBvh, Ray};
 
-fn moved(m: &Mesh, f: impl Fn(usize, Vec3) -> Vec3) -> Vec<Vec3> {
+fn moved(m: &Mesh, mut f: impl FnMut(usize, Vec3) -> Vec3) -> Vec<Vec3> {
     m.positions()
         .iter()
         .enumerate()
         .map(|(i, &p)| f(i, p))
         .collect()
+}
+
+/// The SAH cost a refit measured in its pass equals a separate pass's ([`Bvh::sah_cost`]) up to the
+/// order of its sum (about `log2 n` roundings of `2⁻⁵³` apart; 1e-12 relative allows a million nodes).
+fn same_sah(measured: f64, bvh: &MeshBvh) {
+    let expect = bvh.bvh().sah_cost();
+    assert!(
+        (measured - expect).abs() <= 1e-12 * expect,
+        "{measured} against {expect}"
+    );
+}
+
+/// The degradation of `refit_with_sah` is `refit`'s bit for bit, its SAH cost the tree's.
+#[test]
+fn refit_with_sah_measures_the_refitted_tree() {
+    let m = soup(5, 3000);
+    let mut a = MeshBvh::build(&m, &BuildOptions::new(Builder::SAH)).unwrap();
+    let mut b = a.clone();
+    let mut r = rng(6);
+    for step in [0.001, 0.05, 0.5] {
+        let pos = moved(&m, |_, p| p + rand_vec(&mut r, -step, step));
+        let d = a.refit(&pos).unwrap();
+        let (d2, sah) = b.refit_with_sah(&pos).unwrap();
+        assert_eq!(d.to_bits(), d2.to_bits());
+        assert_eq!(a.bvh(), b.bvh());
+        same_sah(sah, &b);
+    }
 }
 
 #[test]
@@ -151,8 +178,9 @@ fn degenerate_motion_keeps_ratios_finite() {
         Box::new(|p: Vec3| p * 1e-30),
     ] {
         let pos = moved(&m, |_, p| f(p));
-        let d = bvh.refit(&pos).unwrap();
+        let (d, sah) = bvh.refit_with_sah(&pos).unwrap();
         assert!(d.is_finite(), "{d}");
+        same_sah(sah, &bvh);
         let m2 = m.with_positions(pos).unwrap();
         bvh.bvh().validate(Some(&m2.triangle_bounds())).unwrap();
     }
@@ -205,8 +233,9 @@ fn refit_of_a_mesh_past_the_gather_threshold_is_exact_too() {
         .map(|_| rand_dir(&mut r) * 0.03)
         .collect();
     let pos = moved(&m, |i, p| p + dirs[i / 3]);
-    let d = bvh.refit(&pos).unwrap();
+    let (d, sah) = bvh.refit_with_sah(&pos).unwrap();
     assert_eq!(d, bvh.bvh().degradation());
+    same_sah(sah, &bvh);
     let m2 = m.with_positions(pos).unwrap();
     bvh.bvh().validate(Some(&m2.triangle_bounds())).unwrap();
     for i in 0..40 {

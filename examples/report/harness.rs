@@ -474,12 +474,12 @@ pub fn run_strategy(
                 Strategy::Options(_) => unreachable!("run by option_rows"),
                 Strategy::Adaptive { partial, .. } => {
                     // As the plugin: a motion that outpaces refitting is rebuilt without a refit.
-                    let outpaced = adaptive.outpaced();
-                    if !outpaced {
-                        bvh.refit(mesh.positions()).expect("same topology");
-                    }
-                    let due = outpaced
-                        || adaptive.after_refit(TreeCost::of(bvh.bvh()), settings.rays as f64);
+                    let due = adaptive.outpaced() || {
+                        let (_, sah) =
+                            (bvh.refit_with_sah(mesh.positions())).expect("same topology");
+                        let cost = TreeCost::measured(bvh.bvh(), sah);
+                        adaptive.after_refit(cost, settings.rays as f64)
+                    };
                     let p = adaptive.prediction();
                     if p.fresh_sah > 0.0 {
                         guard_ratio = p.sah / p.fresh_sah;

@@ -29,8 +29,14 @@ pub struct TreeCost {
 impl TreeCost {
     /// The cost of `bvh`: one pass over its nodes.
     pub fn of(bvh: &Bvh) -> TreeCost {
+        TreeCost::measured(bvh, bvh.sah_cost())
+    }
+
+    /// The cost of `bvh` whose SAH cost `sah` was measured already (by
+    /// [`MeshBvh::refit_with_sah`](crate::MeshBvh::refit_with_sah), in the refit's own pass). O(1).
+    pub fn measured(bvh: &Bvh, sah: f64) -> TreeCost {
         TreeCost {
-            sah: bvh.sah_cost(),
+            sah,
             root_area: Some(bvh.bounds().half_area_f64()),
         }
     }

@@ -9,6 +9,7 @@
 //! built. It is 0 for an unchanged tree, scale-free, and grows as siblings drift apart inside their parents;
 //! the thesis rebuilds above 0.40. Differences are signed, as in the thesis (a node can also get tighter).
 
+use super::quality::{C_ISECT, C_TRAV};
 use super::{Bvh, Node};
 use crate::geometry::{Aabb, sa_ratio, sa_ratio_of_extents};
 use crate::{Error, Result};
@@ -64,9 +65,22 @@ impl Bvh {
 /// the boxes and the metric are those of the scalar pass, bit for bit.
 pub(crate) fn refit_nodes(
     nodes: &mut [Node],
-    mut slot_bounds: impl FnMut(usize) -> (Vec3A, Vec3A),
+    slot_bounds: impl FnMut(usize) -> (Vec3A, Vec3A),
 ) -> f32 {
+    refit_pass::<false>(nodes, slot_bounds).0
+}
+
+/// [`refit_nodes`]; with `SAH`, also the refitted tree's SAH cost ([`Bvh::sah_cost`], up to the order
+/// its terms are summed in) from the same pass, a few operations a node instead of a second pass: from `Σ A(n)·w(n)` and `Σ w(n)` (`w`: [`C_TRAV`] for an inner node, the
+/// count times [`C_ISECT`] for a leaf), the SAH cost being their quotient by the root's area (the second
+/// sum where the root has none, as [`Bvh::sah_cost`] counts every node with probability 1 then).
+#[inline(always)]
+pub(crate) fn refit_pass<const SAH: bool>(
+    nodes: &mut [Node],
+    mut slot_bounds: impl FnMut(usize) -> (Vec3A, Vec3A),
+) -> (f32, f64) {
     let mut sum = 0f64;
+    let (mut area_sum, mut weight_sum) = (0f64, 0f64);
     for i in (0..nodes.len()).rev() {
         let n = nodes[i];
         let (min, max) = if n.is_leaf() {
@@ -85,10 +99,36 @@ pub(crate) fn refit_nodes(
             sum += f64::from(sa_ratio_of_extents(max - min, lmax - lmin, rmax - rmin) - n.sa_ratio);
             (min, max)
         };
+        if SAH {
+            let w = if n.is_leaf() {
+                n.count() as f64 * C_ISECT
+            } else {
+                C_TRAV
+            };
+            area_sum += half_area(max - min) * w;
+            weight_sum += w;
+        }
         nodes[i].min = min.to_array();
         nodes[i].max = max.to_array();
     }
-    normalise(sum, nodes)
+    let sah = match nodes.first() {
+        Some(root) if SAH => {
+            match half_area(Vec3A::from_array(root.max) - Vec3A::from_array(root.min)) {
+                ra if ra > 0.0 => area_sum / ra,
+                _ => weight_sum,
+            }
+        }
+        _ => 0.0,
+    };
+    (normalise(sum, nodes), sah)
+}
+
+/// Half the surface area of a box of extent `e` (computed in `f32`, as [`Aabb::extent`]), in `f64` as
+/// [`Aabb::half_area_f64`] computes it.
+#[inline(always)]
+fn half_area(e: Vec3A) -> f64 {
+    let e = e.as_dvec3();
+    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 /// Divides the summed ratio differences by the number of inner nodes (0 for trees without any).

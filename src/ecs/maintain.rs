@@ -133,16 +133,25 @@ pub(crate) fn maintain_system(
             .get_mut(&e)
             .filter(|i| i.topology == topology_id(&mesh.0))
         {
-            // A motion that outpaces refitting is rebuilt without a refit.
-            let outpaced = structure == StructureKind::Bvh
-                && matches!(config.policy, RebuildPolicy::Adaptive { .. })
-                && (inst.kept.adaptive.as_mut()).is_some_and(AdaptivePolicy::outpaced);
+            // The planner weighs the refitted tree (its SAH cost measured in the refit's pass); a
+            // motion that outpaces refitting is rebuilt without a refit.
+            let planned = structure == StructureKind::Bvh
+                && matches!(config.policy, RebuildPolicy::Adaptive { .. });
+            let outpaced =
+                planned && (inst.kept.adaptive.as_mut()).is_some_and(AdaptivePolicy::outpaced);
             if outpaced {
                 prediction = inst.kept.adaptive.as_ref().map(AdaptivePolicy::prediction);
                 decision = prediction.map(|p| Decision::Rebuild(p.build));
             } else {
-                match inst.bvh.refit(positions) {
-                    Ok(d) => {
+                let refit = match planned {
+                    true => inst
+                        .bvh
+                        .refit_with_sah(positions)
+                        .map(|(d, s)| (d, Some(s))),
+                    false => inst.bvh.refit(positions).map(|d| (d, None)),
+                };
+                match refit {
+                    Ok((d, sah)) => {
                         degradation = d;
                         inst.frames_since_rebuild += 1;
                         inst.remember(d);
@@ -156,6 +165,7 @@ pub(crate) fn maintain_system(
                             gpu: rebuilder.gpu.is_some(),
                             costs: &costs,
                             asset: asset_of(&mesh.0),
+                            sah,
                         });
                         (decision, prediction) = match asked {
                             Some(asked) => {
@@ -743,6 +753,8 @@ struct Asked<'a> {
     gpu: bool,
     costs: &'a CostTable,
     asset: Asset,
+    /// The refitted tree's SAH cost, where the refit measured it.
+    sah: Option<f64>,
 }
 
 impl Asked<'_> {
@@ -779,7 +791,10 @@ impl Asked<'_> {
                 if let Some(profile) = inst.profile.as_deref() {
                     policy.set_profile(profile);
                 }
-                let cost = TreeCost::of(inst.bvh.bvh());
+                let cost = match self.sah {
+                    Some(sah) => TreeCost::measured(inst.bvh.bvh(), sah),
+                    None => TreeCost::of(inst.bvh.bvh()),
+                };
                 inst.sah = cost.sah;
                 let rebuild = policy.after_refit(cost, queries);
                 // Only a rebuild due by the rent weighs the partial one: a mesh that is kept pays no
