@@ -71,9 +71,10 @@ pub(crate) fn refit_nodes(
 }
 
 /// [`refit_nodes`]; with `SAH`, also the refitted tree's SAH cost ([`Bvh::sah_cost`], up to the order
-/// its terms are summed in) from the same pass, a few operations a node instead of a second pass: from `Σ A(n)·w(n)` and `Σ w(n)` (`w`: [`C_TRAV`] for an inner node, the
-/// count times [`C_ISECT`] for a leaf), the SAH cost being their quotient by the root's area (the second
-/// sum where the root has none, as [`Bvh::sah_cost`] counts every node with probability 1 then).
+/// its terms are summed in) from the same pass, a few operations a node instead of a second pass: from
+/// `Σ A(n)·w(n)` and `Σ w(n)` (`w`: [`C_TRAV`] for an inner node, the count times [`C_ISECT`] for a
+/// leaf), the SAH cost being their quotient by the root's area (the second sum where the root has none,
+/// as [`Bvh::sah_cost`] counts every node with probability 1 then).
 #[inline(always)]
 pub(crate) fn refit_pass<const SAH: bool>(
     nodes: &mut [Node],
@@ -105,30 +106,20 @@ pub(crate) fn refit_pass<const SAH: bool>(
             } else {
                 C_TRAV
             };
-            area_sum += half_area(max - min) * w;
+            area_sum += Aabb::new(min.into(), max.into()).half_area_f64() * w;
             weight_sum += w;
         }
         nodes[i].min = min.to_array();
         nodes[i].max = max.to_array();
     }
     let sah = match nodes.first() {
-        Some(root) if SAH => {
-            match half_area(Vec3A::from_array(root.max) - Vec3A::from_array(root.min)) {
-                ra if ra > 0.0 => area_sum / ra,
-                _ => weight_sum,
-            }
-        }
+        Some(root) if SAH => match root.aabb().half_area_f64() {
+            ra if ra > 0.0 => area_sum / ra,
+            _ => weight_sum,
+        },
         _ => 0.0,
     };
     (normalise(sum, nodes), sah)
-}
-
-/// Half the surface area of a box of extent `e` (computed in `f32`, as [`Aabb::extent`]), in `f64` as
-/// [`Aabb::half_area_f64`] computes it.
-#[inline(always)]
-fn half_area(e: Vec3A) -> f64 {
-    let e = e.as_dvec3();
-    e.x * e.y + e.y * e.z + e.z * e.x
 }
 
 /// Divides the summed ratio differences by the number of inner nodes (0 for trees without any).
