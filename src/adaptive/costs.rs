@@ -54,6 +54,10 @@ pub(super) struct Tables {
     /// Per asset: the variance per frame of the random walk of `ln` of a fresh tree's cost around its
     /// trend, learned only from intervals between two exact (binned-SAH) anchors, whose own error is 0.
     pub walk: HashMap<Asset, Estimate>,
+    /// Per asset: an upper bound of [`walk`](Self::walk), learned from every interval between rebuilds
+    /// (whose anchors' own errors add to the walk's): it caps a walk learned in a phase the scene has
+    /// left, where no two binned-SAH trees come to revise it.
+    pub walk_bound: HashMap<Asset, Estimate>,
 }
 
 impl Tables {
@@ -123,6 +127,15 @@ impl CostTable {
         self.lock().walk.entry(asset).or_default().add(per_frame);
     }
 
+    /// Learns one per-frame upper bound of that variance (see [`Tables::walk_bound`]).
+    pub(super) fn learn_walk_bound(&self, asset: Asset, per_frame: f64) {
+        self.lock()
+            .walk_bound
+            .entry(asset)
+            .or_default()
+            .add(per_frame);
+    }
+
     /// Forgets what was learned per asset (relative tree costs, drift and its walk) for every asset `keep` rejects:
     /// call it when an asset's last mesh is gone, so that a long-running world that streams meshes in
     /// and out does not grow the table without bound. Per-build times and the query rate are kept: they
@@ -132,6 +145,7 @@ impl CostTable {
         t.quality.retain(|a, _| keep(a));
         t.drift.retain(|a, _| keep(a));
         t.walk.retain(|a, _| keep(a));
+        t.walk_bound.retain(|a, _| keep(a));
     }
 
     /// Whether `build` was measured on `asset` by any mesh sharing the table.

@@ -422,14 +422,17 @@ impl AdaptivePolicy {
                 if old > 0.0 && self.frames > 0 && !assumed {
                     let k = self.frames as f64;
                     let x = (self.reference / old).ln();
-                    let trend = (self.costs.lock().drift.get(&self.asset))
-                        .and_then(Estimate::mean)
-                        .unwrap_or(0.0);
+                    let trend = (self.costs.lock().drift.get(&self.asset)).and_then(Estimate::mean);
                     self.costs.learn_drift(self.asset, x / k);
-                    // Between two binned-SAH trees nothing but the walk moved the anchor.
-                    if self.current.is_some_and(|b| is_sah(&b)) && is_sah(&build) {
-                        self.costs
-                            .learn_walk(self.asset, (x - trend * k).powi(2) / k);
+                    // The deviation from the trend known before (without one, the sample would be the
+                    // whole drift): between two binned-SAH trees the walk's alone; across an inexact
+                    // anchor, the walk's and that anchor's error, a bound of the walk.
+                    if let Some(trend) = trend {
+                        let sample = (x - trend * k).powi(2) / k;
+                        if self.current.is_some_and(|b| is_sah(&b)) && is_sah(&build) {
+                            self.costs.learn_walk(self.asset, sample);
+                        }
+                        self.costs.learn_walk_bound(self.asset, sample);
                     }
                 }
             }
@@ -990,13 +993,21 @@ impl View<'_> {
         (-(trend.abs() * k + self.p.z * (k * self.walk_var()).sqrt())).exp()
     }
 
-    /// The variance per frame of the random walk of `ln` of the fresh cost around its trend, learned
-    /// between binned-SAH trees, at least [`MIN_DRIFT_SPREAD`]².
+    /// The variance per frame of the random walk of `ln` of the fresh cost around its trend: learned
+    /// between binned-SAH trees, capped by its bound learned from every interval, at least
+    /// [`MIN_DRIFT_SPREAD`]². Both forget old samples, but only the bound is fed by the rebuilds a fast
+    /// scene keeps making with a cheaper builder: a walk of 0.073 a frame learned while the report's
+    /// explosion slowed from falling 48% a frame to 1% kept the guard's one-frame factor at 0.58, and
+    /// it rebuilt all 300 frames (issue 19). The bound is not a walk where none was learned: it holds
+    /// the anchors' errors too, and LBVH trees 5% off their build's mean, taken for walk, made the
+    /// guard rebuild 7 times in 300 frames where the tree stayed below the bound.
     fn walk_var(&self) -> f64 {
-        (self.t.walk.get(&self.p.asset))
-            .and_then(Estimate::mean)
-            .unwrap_or(0.0)
-            .max(MIN_DRIFT_SPREAD.powi(2))
+        let learned = |m: &std::collections::HashMap<Asset, Estimate>| {
+            m.get(&self.p.asset).and_then(Estimate::mean)
+        };
+        let walk =
+            learned(&self.t.walk).map(|w| learned(&self.t.walk_bound).map_or(w, |b| w.min(b)));
+        walk.unwrap_or(0.0).max(MIN_DRIFT_SPREAD.powi(2))
     }
 
     /// The factor by which the fresh cost anchored at the last rebuild may be too high because that tree
@@ -1329,6 +1340,47 @@ mod tests {
         p.after_refit(10.0, 0.0);
         let why = p.prediction();
         assert!((why.fresh_sah - 10.0 * fall).abs() < 1e-9, "{why:?}");
+    }
+
+    /// The walk, scripted: binned-SAH trees at 10 and then 5 one frame apart teach a trend of `−ln 2`
+    /// and no walk (before a trend is known the whole fall would pass for walk); a third at
+    /// `5 · e^(−ln 2 + 0.1)` one frame later deviates from that trend by 0.1: a walk of 0.01 a frame,
+    /// learned from the exact anchors alone (and a first sample of its bound). LBVH trees then follow
+    /// the learned trend exactly, one frame apart (the first measured against the last binned-SAH tree
+    /// and learning no drift): three intervals that bound the walk at 0, so the guard's walk falls to
+    /// the bound's mean of 0.01 and three zeros, 0.0025, instead of keeping the early 0.01, which no
+    /// later pair of binned-SAH trees revises.
+    #[test]
+    fn the_walk_waits_for_a_trend_and_later_intervals_bound_it() {
+        let mut p = AdaptivePolicy::new(&[Builder::SAH, Builder::LBVH]);
+        p.sah_bound = f64::INFINITY;
+        let walk = |p: &AdaptivePolicy| p.view(&p.costs.lock()).walk_var();
+        let trend = |p: &AdaptivePolicy| {
+            let t = p.costs.lock();
+            t.drift.get(&p.asset).and_then(Estimate::mean).unwrap()
+        };
+        p.built(Builder::SAH, 1000, 1e-2, 10.0);
+        p.after_refit(10.0, 0.0);
+        p.built(Builder::SAH, 1000, 1e-2, 5.0);
+        assert!((trend(&p) + 2f64.ln()).abs() < 1e-12);
+        {
+            let t = p.costs.lock();
+            assert!(t.walk.is_empty() && t.walk_bound.is_empty());
+        }
+        assert_eq!(walk(&p), MIN_DRIFT_SPREAD.powi(2));
+        p.after_refit(5.0, 0.0);
+        p.built(Builder::SAH, 1000, 1e-2, 5.0 * (0.1 - 2f64.ln()).exp());
+        assert!((walk(&p) - 0.01).abs() < 1e-12, "{}", walk(&p));
+        // LBVH, first measured against the last binned-SAH tree, then anchored on its own trees.
+        let mut cost = 20.0;
+        for _ in 0..4 {
+            p.after_refit(cost, 0.0);
+            cost *= trend(&p).exp();
+            p.built(Builder::LBVH, 1000, 1e-3, cost);
+        }
+        let exact = p.costs.lock().walk.get(&p.asset).and_then(Estimate::mean);
+        assert!((exact.unwrap() - 0.01).abs() < 1e-12);
+        assert!((walk(&p) - 0.0025).abs() < 1e-12, "{}", walk(&p));
     }
 
     /// LBVH builds in 1 ms to twice the SAH tree's cost; SAH builds in 100 ms. With a rebuild every frame,
