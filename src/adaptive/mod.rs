@@ -104,7 +104,10 @@
 //!   and after a rebuild that is not binned SAH the guard lowers the fresh cost by `z` RMS log errors of
 //!   those predictions (after a binned-SAH rebuild the anchor is exact); the bound then also assumes that
 //!   a tree deviates from its build's mean by less than `z` such errors. An error between two inexact
-//!   anchors counts half to each.
+//!   anchors counts half to each. Only trees better than predicted count (twice, as the lower half of
+//!   a symmetric error): they make the guard late, while a tree worse than predicted makes it early;
+//!   a decelerating explosion's lagging trend put all its trees above their predictions, and counted
+//!   as anchor error that lag left LBVH no room under the bound (issue 19).
 //!   The anchor error starts from a prior (a log spread of 0.08, the widest a tree's quality showed
 //!   around its build's mean over the report's scenes) worth two samples and moves to the measured
 //!   RMS as rebuilds test it (the posterior mean of a variance under a scaled inverse-χ² prior), so
