@@ -160,7 +160,9 @@ pub struct AdaptivePolicy {
     work: RentWork,
     frames: u32,
     age: u32,
-    last_ratio: f64,
+    /// The tree's SAH cost at the last refit or rebuild, which the guard reads this frame's rise from
+    /// (NaN where no rise is read: a sibling's first frame).
+    last_sah: f64,
     last: Prediction,
     /// The guard's one-frame ratios, for [`outpaced`](Self::outpaced): see [`Pace`].
     pace: Pace,
@@ -222,7 +224,7 @@ impl AdaptivePolicy {
             work: RentWork::default(),
             frames: 0,
             age: 0,
-            last_ratio: 1.0,
+            last_sah: f64::NAN,
             last: Prediction::default(),
             pace: Pace::default(),
             partial_rate: Estimate::default(),
@@ -246,8 +248,8 @@ impl AdaptivePolicy {
         AdaptivePolicy {
             work: RentWork::default(),
             explores: false,
-            // No rise is read from a ratio measured on another mesh.
-            last_ratio: f64::NAN,
+            // No rise is read from a cost measured on another mesh.
+            last_sah: f64::NAN,
             last: Prediction::default(),
             pace: Pace::default(),
             ..self.clone()
@@ -259,8 +261,6 @@ impl AdaptivePolicy {
     pub fn set_profile(&mut self, profile: &SceneProfile) {
         if self.clustered == profile.uniform {
             self.clustered = !profile.uniform;
-            // The guard's estimate changed basis: no rise is read from the change.
-            self.last_ratio = f64::NAN;
         }
     }
 
@@ -340,13 +340,7 @@ impl AdaptivePolicy {
         if self.frames > 0 && self.last.verdict != Verdict::Explore {
             self.interval.add(self.frames as f64);
         }
-        let t = self.costs.lock();
-        let v = self.view(&t);
-        self.last_ratio = match (v.relative(build), v.fresh_sah_relative()) {
-            (Some((rel, ..)), Some(sah)) => rel / sah / v.anchor_factor(Some(build)),
-            _ => 1.0,
-        };
-        drop(t);
+        self.last_sah = sah_cost;
         self.current = Some(build);
         self.guard_factor = 1.0;
         self.work = RentWork::default();
@@ -508,7 +502,7 @@ impl AdaptivePolicy {
             fresh_sah: 0.0,
         };
         let mut work = self.work;
-        let mut ratio = self.last_ratio;
+        let mut ratio = f64::NAN;
         let mut guard_factor = 1.0;
         // The fresh cost were the last rebuild's tree exactly of its build's mean quality.
         let mut unerring = 0.0;
@@ -551,12 +545,21 @@ impl AdaptivePolicy {
                 * rebuild_spread
                     .hypot(rate_relative * p.rent_s)
                     .hypot(rate * anchor * work.fresh);
-            // The ratio extrapolated one frame at this frame's rise.
-            let rise = (ratio - self.last_ratio).max(0.0);
-            p.verdict = if p.fresh_sah > 0.0 && ratio + rise > v.guard_at() {
+            // The ratio extrapolated one frame: the tree's cost at this frame's rise, the fresh cost
+            // carried one frame further. (Not the ratio at its own rise: after a rebuild that holds
+            // the guard's whole one-frame margin, which grows by far less in the frames after, and
+            // the soup of the report was rebuilt four frames running on it, issue 19.)
+            let rise = (sah_cost - self.last_sah).max(0.0);
+            let ahead = if rise.is_finite() && sah_cost > 0.0 {
+                1.0 + rise / sah_cost
+            } else {
+                1.0
+            } * v.guard_drift(self.frames)
+                / v.guard_drift(self.frames + 1);
+            p.verdict = if p.fresh_sah > 0.0 && ratio * ahead > v.guard_at() {
                 // Due only for the anchor's error (not were the last tree of its build's mean
                 // quality): a binned-SAH tree, exact, ends that error where one is offered.
-                if sah_cost / unerring + rise <= v.guard_at()
+                if sah_cost / unerring * ahead <= v.guard_at()
                     && let Some(&b) = self.builds.iter().find(|b| is_sah(b))
                 {
                     p.build = b;
@@ -587,7 +590,7 @@ impl AdaptivePolicy {
         }
         self.guard_factor = guard_factor;
         self.work = work;
-        self.last_ratio = ratio;
+        self.last_sah = sah_cost;
         self.last = p;
         p.verdict != Verdict::Keep
     }
@@ -680,6 +683,7 @@ impl AdaptivePolicy {
         }
         if sah_cost.is_finite() && sah_cost > 0.0 {
             self.sah_built = sah_cost;
+            self.last_sah = sah_cost;
         }
         self.work = RentWork::default();
     }
@@ -1230,8 +1234,8 @@ mod tests {
     }
 
     /// Against a measured binned-SAH tree of cost 10, the guard rebuilds when the ratio extrapolated one
-    /// frame at its last rise passes 1.5: 1.2 (+0.2), 1.34 (+0.14), 1.4 (+0.06), then 1.46 (+0.06 = 1.52:
-    /// rebuilt, one frame before the tree itself would cross). A first interval with the fresh cost
+    /// frame at the tree's last rise passes 1.5: 1.2 (+0.2), 1.34 (+0.14), 1.4 (+0.06), then 1.46 (+0.06
+    /// = 1.52: rebuilt, one frame before the tree itself would cross). A first interval with the fresh cost
     /// unchanged teaches the asset a drift of 0 (before it, the guard assumes a prior drift).
     #[test]
     fn the_guard_acts_before_the_bound() {
