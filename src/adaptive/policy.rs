@@ -149,6 +149,9 @@ pub struct AdaptivePolicy {
     sah_built: f64,
     /// The factor the guard last carried the fresh cost forward by (learned drift or spread).
     guard_factor: f64,
+    /// The factor by which the last refit's scene had drawn in since the rebuild (see
+    /// [`drawn_in`]): the fresh cost is expected that much higher, and drift is learned around it.
+    drawn_in: f64,
     /// How far this mesh's rebuilt trees landed from their predicted cost: see [`AnchorError`].
     anchor_error: AnchorError,
     /// The last binned-SAH tree built on this mesh: see [`Exact`].
@@ -217,6 +220,7 @@ impl AdaptivePolicy {
             area_built: None,
             sah_built: 0.0,
             guard_factor: 1.0,
+            drawn_in: 1.0,
             anchor_error: AnchorError::default(),
             exact: None,
             calibrating: 0,
@@ -312,7 +316,8 @@ impl AdaptivePolicy {
                     })
                     .map(|r| {
                         let walk = self.frames as f64 * v.walk_var();
-                        (self.reference * r.0 * v.mean_drift(self.frames), walk)
+                        let expected = v.mean_drift(self.frames) * self.drawn_in;
+                        (self.reference * r.0 * expected, walk)
                     })
             };
             // The error holds the deviation of each inexact anchor (the previous one and this one); an
@@ -343,6 +348,7 @@ impl AdaptivePolicy {
         self.last_sah = sah_cost;
         self.current = Some(build);
         self.guard_factor = 1.0;
+        self.drawn_in = 1.0;
         self.work = RentWork::default();
         self.frames = 0;
     }
@@ -415,7 +421,7 @@ impl AdaptivePolicy {
                 let assumed = std::mem::replace(&mut self.assumed, false);
                 if old > 0.0 && self.frames > 0 && !assumed {
                     let k = self.frames as f64;
-                    let x = (self.reference / old).ln();
+                    let x = (self.reference / (old * self.drawn_in)).ln();
                     let trend = (self.costs.lock().drift.get(&self.asset)).and_then(Estimate::mean);
                     self.costs.learn_drift(self.asset, x / k);
                     // The deviation from the trend known before (without one, the sample would be the
@@ -504,14 +510,15 @@ impl AdaptivePolicy {
         let mut work = self.work;
         let mut ratio = f64::NAN;
         let mut guard_factor = 1.0;
+        let drawn = drawn_in(self.area_built, root_area, self.sah_built, sah_cost);
         // The fresh cost were the last rebuild's tree exactly of its build's mean quality.
         let mut unerring = 0.0;
         let mut exact_carried = 1.0;
         if self.reference > 0.0 {
             if let Some(sah) = v.fresh_sah_relative() {
-                let carried = v
-                    .guard_drift(self.frames)
-                    .min(spread_out(self.area_built, self.sah_built));
+                let carried = drawn
+                    * v.guard_drift(self.frames)
+                        .min(spread_out(self.area_built, self.sah_built));
                 guard_factor = carried * v.anchor_factor(self.current);
                 p.fresh_sah = self.reference * sah * guard_factor;
                 unerring = self.reference * sah * carried;
@@ -533,9 +540,9 @@ impl AdaptivePolicy {
             }
             let rate = v.rate();
             let rate_relative = v.rate_relative_spread();
-            let fresh = v
-                .relative(build)
-                .map_or(0.0, |r| self.reference * r.0 * v.mean_drift(self.frames));
+            let fresh = v.relative(build).map_or(0.0, |r| {
+                self.reference * r.0 * v.mean_drift(self.frames) * drawn
+            });
             work.add(rays.max(0.0), sah_cost, fresh);
             p.rent_s = rate * work.excess;
             // The rent's spread: the rate's error as measured (relative, so that it scales the rent)
@@ -589,6 +596,7 @@ impl AdaptivePolicy {
             e.carried = exact_carried;
         }
         self.guard_factor = guard_factor;
+        self.drawn_in = drawn;
         self.work = work;
         self.last_sah = sah_cost;
         self.last = p;
@@ -738,6 +746,25 @@ struct Exact {
     frames: u32,
     /// The factor the guard last carried its cost forward by (trend, walk and spread).
     carried: f64,
+}
+
+/// The factor by which a fresh tree's cost is expected to have risen because the scene drew in since
+/// the rebuild: the root's half area then over now, no more than the refitted tree's cost rose
+/// (`sah_now / sah_then`), and 1 where the scene did not draw in or that cost did not rise. As the
+/// extent shrinks by a factor, a tree's boxes keep their areas while the root's shrinks: two bodies
+/// closing in (the report's rigid scene) raise every tree's cost, the fresh one's too (by 1.35 where
+/// the root's area fell by 1.39), and a guard that held the fresh cost where it was rebuilt at a
+/// ratio of 1.48 against a true 1.08. A uniform scaling keeps every cost, and the refitted cost's
+/// rise caps the factor at 1 there. What the fresh tree's own boxes did besides (the bodies' boxes
+/// closing in shrink the top nodes) is drift, learned around this factor
+/// ([`AdaptivePolicy::anchor`]) and allowed for by the guard as any drift. O(1).
+fn drawn_in(area_then: Option<f64>, area_now: Option<f64>, sah_then: f64, sah_now: f64) -> f64 {
+    match (area_then, area_now) {
+        (Some(then), Some(now)) if now > 0.0 && sah_then > 0.0 => {
+            (then / now).min(sah_now / sah_then).max(1.0)
+        }
+        _ => 1.0,
+    }
 }
 
 /// At most one frame in this many refits while the motion outpaces refitting
@@ -1255,6 +1282,35 @@ mod tests {
             (why.fresh_sah - 10.0 * (-0.004f64).exp()).abs() < 1e-9,
             "{why:?}"
         );
+    }
+
+    /// A scene that draws in raises the fresh cost the guard holds the tree against by the root's
+    /// fall in area, no more than the tree's cost rose: the tree 5% above a fresh one while the root's
+    /// area falls from 100 to 60 is kept (held against the cost it was built at, it would be at 1.75),
+    /// a uniform shrinking (the tree's cost unchanged) raises nothing, and a tree whose cost rose by
+    /// less than the area fell raises the fresh cost by as much as the tree's.
+    #[test]
+    fn a_scene_drawing_in_raises_the_fresh_cost_no_more_than_the_tree() {
+        let cost = |sah, area| TreeCost {
+            sah,
+            root_area: Some(area),
+        };
+        let drift = |k: f64| (-2.0 * 0.001 * k.sqrt()).exp();
+        let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+        p.built(Builder::SAH, 1000, 1.0, cost(10.0, 100.0));
+        for (k, area) in [90.0, 80.0, 70.0, 60.0].into_iter().enumerate() {
+            let fresh = 10.0 * 100.0 / area;
+            assert!(!p.after_refit(cost(1.05 * fresh, area), 0.0), "{:?}", p.prediction());
+            let why = p.prediction().fresh_sah;
+            assert!((why - fresh * drift(k as f64 + 1.0)).abs() < 1e-9, "{why}");
+        }
+        for (sah, fresh) in [(10.0, 10.0), (12.0, 12.0)] {
+            let mut p = AdaptivePolicy::new(&[Builder::SAH]);
+            p.built(Builder::SAH, 1000, 1.0, cost(10.0, 100.0));
+            p.after_refit(cost(sah, 50.0), 0.0);
+            let why = p.prediction().fresh_sah;
+            assert!((why - fresh * drift(1.0)).abs() < 1e-9, "{why}");
+        }
     }
 
     /// The anchor error is the posterior RMS of `ln(actual / predicted)` under the prior (0.08 worth
