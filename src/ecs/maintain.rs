@@ -570,9 +570,9 @@ impl Rebuilder<'_> {
     }
 
     /// Builds on `current` each build the adaptive policy in `kept` asks to calibrate
-    /// ([`AdaptivePolicy::calibration`]: at an asset's first rebuild, its unmeasured builds) and reports
-    /// them; the trees are dropped. A build that ran as another (a GPU build fallen back to the CPU) is
-    /// reported unmeasured.
+    /// ([`AdaptivePolicy::calibration`]: at an asset's rebuilds, its unmeasured builds that may pay) and
+    /// reports them; the trees are dropped. A build that ran as another (a GPU build fallen back to the
+    /// CPU) is reported unmeasured.
     fn calibrate(&mut self, current: &Mesh, clustered: bool, kept: &mut Kept) -> Result<(), Error> {
         while let Some(asked) = kept.adaptive.as_ref().and_then(AdaptivePolicy::calibration) {
             let (tree, ran, seconds) = self.build_tree(current, asked, clustered, kept)?;

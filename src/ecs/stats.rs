@@ -180,8 +180,9 @@ pub struct TraceStats {
     /// Rebuilds.
     pub rebuilds: usize,
     /// Builds run only to measure them ([`AdaptivePolicy::calibration`](crate::adaptive::AdaptivePolicy::calibration):
-    /// at an asset's first rebuild under [`RebuildPolicy::Adaptive`](super::RebuildPolicy), each build
-    /// offered that no mesh of it measured); their time is in their mesh's [`MeshStats::time`].
+    /// at an asset's rebuilds under [`RebuildPolicy::Adaptive`](super::RebuildPolicy), each build
+    /// offered that no mesh of it measured and that may pay for its time); their time is in their mesh's
+    /// [`MeshStats::time`].
     pub calibrations: usize,
     /// Partial rebuilds this frame (counted in `refits` too: each starts with a refit); the triangles of
     /// each are in its [`MeshAction::PartialRebuild`].
