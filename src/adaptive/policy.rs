@@ -365,8 +365,8 @@ impl AdaptivePolicy {
     /// the report's explosion LBVH's trees were learned as 1.69 × binned SAH against 1.16, which left
     /// binned SAH rebuilding every frame at three times LBVH's time). No worse tree is put in use to
     /// learn it, and a scene that never rebuilds never pays for it. A build is measured only where it
-    /// may pay for its time within the horizon, by the rule an exploration is priced by
-    /// ([`View::pays_to_try`], against the build the planner would choose now, all of its time counted):
+    /// may pay for its time within the horizon, by the rule that prices an exploration (against the
+    /// build the planner would choose now, all of its time counted):
     /// the quick report's explosion calibrated hybrid on its first frame at binned SAH's time, where LBVH,
     /// calibrated just before, left hybrid nothing to save. One passed over is asked again after a later
     /// binned-SAH rebuild. Cost: one build of each build worth it, once per asset, in the frame of a
