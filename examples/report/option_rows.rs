@@ -303,8 +303,12 @@ const ALTERNATIVES: [&str; 5] = [
     "bvh-packets",
 ];
 
-/// The planned-options section of the summary, around the scenes' [`picks_row`]s.
+/// The planned-options section of the summary, around the scenes' [`picks_row`]s; empty where no
+/// scene ran `planned-options` (a `--strategies` filter that leaves it out).
 pub fn picks_table(lines: &[String]) -> String {
+    if lines.is_empty() {
+        return String::new();
+    }
     let mut s = String::from(
         "\n## Planned options\n\nThe ECS planner's per-mesh options (`planned-options`: structure, wide \
          tree, packets, each a `Choice` learning measured seconds) against each fixed alternative, all on \
