@@ -89,7 +89,9 @@
 //!   is kept as a second, exact anchor through rebuilds with other builds, carried forward the same way
 //!   (by the root area alone: its tree is not the one refitted now), and the guard takes the higher of
 //!   the two fresh costs. A guard rebuild that would not be due were the last tree exactly of its
-//!   build's mean quality (due to the anchor error alone) builds binned SAH, which ends that error. The ratio is extrapolated one
+//!   build's mean quality (due to the anchor error alone) builds binned SAH, which ends that error, where
+//!   that pays: each build priced over the frames its kind of anchor (exact after binned SAH, inexact
+//!   after the others) has lasted on the mesh. The ratio is extrapolated one
 //!   frame (the tree's cost at this frame's rise, the fresh cost carried a frame further), and the mesh is rebuilt *before* the next frame would pass the bound
 //!   (while the fresh binned-SAH cost rests on the priors, before it would pass the bound over one prior
 //!   spread, 1.2, and that rebuild measures a binned-SAH tree, where one is offered; where none is, the

@@ -136,6 +136,10 @@ pub struct AdaptivePolicy {
     query_model: QueryModel,
     /// Frames between rebuilds.
     interval: Estimate,
+    /// Frames from a binned-SAH rebuild to the next rebuild, and from any other: how long an exact
+    /// and an inexact anchor last on this mesh (see [`View::exact_anchor_pays`]).
+    after_exact: Estimate,
+    after_inexact: Estimate,
     /// The fresh cost, in SAH units, of a tree of relative quality 1 at the last rebuild.
     reference: f64,
     /// Whether [`reference`](Self::reference) was assumed (carried forward by the guard's factor when a
@@ -214,6 +218,8 @@ impl AdaptivePolicy {
             rays: Estimate::default(),
             query_model: QueryModel::default(),
             interval: Estimate::default(),
+            after_exact: Estimate::default(),
+            after_inexact: Estimate::default(),
             reference: 0.0,
             assumed: false,
             triangles: asset.triangles,
@@ -344,6 +350,11 @@ impl AdaptivePolicy {
         // A build tried on a frame that would have refitted says nothing of when rebuilds are due.
         if self.frames > 0 && self.last.verdict != Verdict::Explore {
             self.interval.add(self.frames as f64);
+            match self.current {
+                Some(b) if is_sah(&b) => self.after_exact.add(self.frames as f64),
+                Some(_) => self.after_inexact.add(self.frames as f64),
+                None => {}
+            }
         }
         self.last_sah = sah_cost;
         self.current = Some(build);
@@ -573,9 +584,10 @@ impl AdaptivePolicy {
                 / v.guard_drift(self.frames + 1);
             p.verdict = if p.fresh_sah > 0.0 && ratio * ahead > v.guard_at() {
                 // Due only for the anchor's error (not were the last tree of its build's mean
-                // quality): a binned-SAH tree, exact, ends that error where one is offered.
+                // quality): a binned-SAH tree, exact, ends that error where one is offered and pays.
                 if sah_cost / unerring * ahead <= v.guard_at()
                     && let Some(&b) = self.builds.iter().find(|b| is_sah(b))
+                    && v.exact_anchor_pays(b, build)
                 {
                     p.build = b;
                     p.rebuild_s = v.time(b).map_or(0.0, |t| t.0);
@@ -1130,6 +1142,28 @@ impl View<'_> {
         ))
     }
 
+    /// Whether a rebuild due only for the anchor's error should end that error with the binned-SAH
+    /// build `sah` rather than rebuild with `planned`: each priced as a [`candidate`](Self::candidate)
+    /// over the frames that followed its kind of anchor on this mesh, an exact anchor lasting longer
+    /// (the guard has no anchor error to allow for). Where an inexact anchor brings the guard back
+    /// within a frame or two, binned SAH pays (the report's soup: its guard rebuilt every 1.3 frames
+    /// with LBVH, binned-SAH trees lasted 12–57); where the motion brings it back as soon (the quick
+    /// explosion: binned SAH lasted 3–6 frames at three times LBVH's time), the planned build does.
+    /// Binned SAH until both kinds of interval were seen. O(1).
+    fn exact_anchor_pays(&self, sah: Build, planned: Build) -> bool {
+        let (Some(exact), Some(inexact)) = (self.p.after_exact.mean(), self.p.after_inexact.mean())
+        else {
+            return true;
+        };
+        match (
+            self.candidate_over(sah, exact),
+            self.candidate_over(planned, inexact),
+        ) {
+            (Some((s, _)), Some((p, _))) => s.cost_s <= p.cost_s,
+            _ => true,
+        }
+    }
+
     /// Whether a fresh tree of `b` leaves room under the bound: its ratio to a fresh SAH tree, as the
     /// guard will see it after a rebuild with `b` (its anchor error included), at most 90% of the way
     /// from 1 to the bound (else the guard would rebuild it at once, every frame, and a tree worse than
@@ -1480,6 +1514,36 @@ mod tests {
         p.built(Builder::SAH, 1000, 0.1, 10.0);
         p.queried(rays, 10.0, 1e-8 * rays);
         p.next_build()
+    }
+
+    /// Whether an anchor-error rebuild ends with binned SAH where binned-SAH trees lasted `exact`
+    /// frames and LBVH trees `inexact`: LBVH builds in 1 ms to 1.1 × the SAH tree's cost, SAH in 3 ms,
+    /// and the queries of a frame on a fresh SAH tree take 1 ms. Per frame, SAH costs 3/`exact` + 1 ms
+    /// and LBVH 1/`inexact` + 1.1 ms.
+    fn ends_with_sah(intervals: Option<(f64, f64)>) -> bool {
+        let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::SAH]);
+        p.built(Builder::LBVH, 1000, 1e-3, 11.0);
+        p.built(Builder::SAH, 1000, 3e-3, 10.0);
+        p.queried(1e6, 10.0, 1e-3);
+        if let Some((exact, inexact)) = intervals {
+            p.after_exact.add(exact);
+            p.after_inexact.add(inexact);
+        }
+        let t = p.costs.lock();
+        (p.view(&t)).exact_anchor_pays(Build::cpu(Builder::SAH), Build::cpu(Builder::LBVH))
+    }
+
+    #[test]
+    fn an_exact_anchor_is_bought_where_it_lasts() {
+        // Nothing seen yet: binned SAH, as before intervals were learned.
+        assert!(ends_with_sah(None));
+        // SAH trees last 20 frames, LBVH trees 1.3: 1.15 against 1.87 ms a frame.
+        assert!(ends_with_sah(Some((20.0, 1.3))));
+        // Both last a frame (an explosion): 4 against 2.1 ms.
+        assert!(!ends_with_sah(Some((1.0, 1.0))));
+        // SAH trees last 3 frames, LBVH 1: 2 against 2.1 ms; 2 frames: 2.5 against 2.1.
+        assert!(ends_with_sah(Some((3.0, 1.0))));
+        assert!(!ends_with_sah(Some((2.0, 1.0))));
     }
 
     #[test]
