@@ -268,14 +268,12 @@ pub fn run(strategy: OptionStrategy, frames: &[Frame], settings: &Settings) -> V
 }
 
 /// One scene's line of the planned-options section: the picks, and the planner's mean ms per frame
-/// against each fixed alternative's, from the scene's `rows` (strategy name, mean total ms).
-pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
-    let ms = |name: &str| {
-        (rows.iter())
-            .find(|(n, _)| n == name)
-            .map_or(f64::NAN, |r| r.1)
-    };
-    let planned = ms("planned-options");
+/// against each fixed alternative's, from the scene's `rows` (strategy name, mean total ms); `None`
+/// where the scene did not run `planned-options` (a `--strategies` filter that leaves it out).
+pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> Option<String> {
+    let find = |name: &str| rows.iter().find(|(n, _)| n == name).map(|r| r.1);
+    let planned = find(OptionStrategy::Planned.name())?;
+    let ms = |name: &str| find(name).unwrap_or(f64::NAN);
     let mut s = format!(
         "| {scene} | grid {}/{}, {} re-tries | wide off {}/{} | packets {}/{} | overlap {}/{} | {planned:.3} |",
         picks.grid,
@@ -291,7 +289,7 @@ pub fn picks_row(scene: &str, picks: &Picks, rows: &[(String, f64)]) -> String {
     for alt in ALTERNATIVES {
         let _ = write!(s, " {:.3} ({:.2}) |", ms(alt), planned / ms(alt));
     }
-    s
+    Some(s)
 }
 
 /// The fixed alternatives of the planned options, in the section's columns.
@@ -304,7 +302,7 @@ const ALTERNATIVES: [&str; 5] = [
 ];
 
 /// The planned-options section of the summary, around the scenes' [`picks_row`]s; empty where no
-/// scene ran `planned-options` (a `--strategies` filter that leaves it out).
+/// scene has one.
 pub fn picks_table(lines: &[String]) -> String {
     if lines.is_empty() {
         return String::new();

@@ -155,9 +155,7 @@ pub fn write_report(
             .map(|r: &Row| (r.strategy.clone(), r.total_ms))
             .collect();
         let taken = option_rows::take_picks();
-        if totals.iter().any(|(n, _)| n == "planned-options") {
-            picks.push(option_rows::picks_row(scene.name, &taken, &totals));
-        }
+        picks.extend(option_rows::picks_row(scene.name, &taken, &totals));
         let png = out.join(format!("{}.png", scene.name));
         plots::error_vs_time(&png, scene.name, &rows[first..], &looks, settings.frames)?;
         files.push(png);
