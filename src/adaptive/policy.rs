@@ -385,14 +385,38 @@ impl AdaptivePolicy {
     pub fn calibration(&self) -> Option<Build> {
         let fresh = self.calibrates && self.explores && self.age > 0 && self.frames == 0;
         let e = self.exact.filter(|e| fresh && e.frames == 0)?;
+        self.worth_calibrating(e.build, 1).pop()
+    }
+
+    /// The builds to measure on the pose of a rebuild with `due` about to be made, for a caller that
+    /// records builds before it learns what they cost (the GPU-resident frame, whose readings come back
+    /// a frame or more later): where `due` is binned SAH and [`calibration`](Self::calibration) would
+    /// ask after it, every build it may ask for, in order, each judged against what is known now (not
+    /// against the builds measured before it in the list, as `calibration` asks them one by one). Make
+    /// them on that pose before the rebuild, then, once their costs are known, report the rebuild with
+    /// [`built`](Self::built) and each of these with [`calibrated`](Self::calibrated). Empty (no
+    /// allocation) where nothing is to be measured, which is every rebuild but an asset's first ones.
+    pub fn calibrations_before(&self, due: Build) -> Vec<Build> {
+        if !(self.calibrates && self.explores && self.age > 0 && is_sah(&due)) {
+            return Vec::new();
+        }
+        self.worth_calibrating(due, usize::MAX)
+    }
+
+    /// Up to `most` builds after those calibrated, other than `anchor`, that no mesh of the asset has
+    /// measured and that may pay for their time within the horizon against the build the planner would
+    /// choose now (see [`calibration`](Self::calibration)).
+    fn worth_calibrating(&self, anchor: Build, most: usize) -> Vec<Build> {
         let t = self.costs.lock();
         let v = self.view(&t);
         let chosen = v.plan(false).0;
         (self.builds.iter().skip(self.calibrating))
-            .find(|&&b| {
-                b != e.build && t.quality(&self.asset, b).is_none() && v.pays_to_try(chosen, b, 0.0)
+            .filter(|&&b| {
+                b != anchor && t.quality(&self.asset, b).is_none() && v.pays_to_try(chosen, b, 0.0)
             })
+            .take(most)
             .copied()
+            .collect()
     }
 
     /// Records a build asked for by [`calibration`](Self::calibration): its triangle count, measured
@@ -1586,6 +1610,11 @@ mod tests {
         let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
         p.calibrates = true;
         assert_eq!(p.next_build(), Build::cpu(Builder::SAH));
+        assert_eq!(
+            p.calibrations_before(Build::cpu(Builder::SAH)),
+            [],
+            "not at load"
+        );
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
         assert_eq!(p.calibration(), None, "nothing at load");
         let mut k = 0.0;
@@ -1595,6 +1624,9 @@ mod tests {
             k += 1.0;
         }
         assert_eq!(p.prediction().build, Build::cpu(Builder::SAH));
+        let (lbvh, hybrid) = (Build::cpu(Builder::LBVH), Build::cpu(Builder::HYBRID));
+        assert_eq!(p.calibrations_before(lbvh), [], "only on a binned-SAH pose");
+        assert_eq!(p.calibrations_before(p.prediction().build), [lbvh, hybrid]);
         p.built(Builder::SAH, 1000, 1e-2, 12.0);
         assert_eq!(p.calibration(), Some(Build::cpu(Builder::LBVH)));
         p.calibrated(Builder::LBVH, 1000, 1e-3, 15.0);
@@ -1612,13 +1644,19 @@ mod tests {
 
     /// A rebuild due on the first frame calibrates only what may pay within that horizon: LBVH (at a
     /// fifth of binned SAH's time by the prior, 8 ms saved a rebuild) is measured; hybrid, at 2.5 × the
-    /// measured LBVH's time and with no queries to save on, is not.
+    /// measured LBVH's time and with no queries to save on, is not. Asked before either is measured
+    /// ([`AdaptivePolicy::calibrations_before`]), both are: hybrid's prior time (half binned SAH's)
+    /// saves on binned SAH, the build chosen while LBVH is unknown.
     #[test]
     fn calibration_measures_only_what_may_pay_within_the_horizon() {
         let mut p = AdaptivePolicy::new(&[Builder::LBVH, Builder::HYBRID, Builder::SAH]);
         p.calibrates = true;
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
         assert!(p.after_refit(100.0, 0.0), "{:?}", p.prediction());
+        assert_eq!(
+            p.calibrations_before(Build::cpu(Builder::SAH)),
+            [Build::cpu(Builder::LBVH), Build::cpu(Builder::HYBRID)]
+        );
         p.built(Builder::SAH, 1000, 1e-2, 10.0);
         assert_eq!(p.calibration(), Some(Build::cpu(Builder::LBVH)));
         p.calibrated(Builder::LBVH, 1000, 2e-3, 11.0);
@@ -1643,6 +1681,7 @@ mod tests {
         let mut sibling = first.sibling();
         rebuild(&mut sibling);
         assert_eq!(sibling.calibration(), None);
+        assert_eq!(sibling.calibrations_before(Build::cpu(Builder::SAH)), []);
         rebuild(&mut first);
         assert_eq!(first.calibration(), Some(Build::cpu(Builder::LBVH)));
         first.calibrated(Builder::LBVH, 1000, 1e-3, 11.0);
