@@ -116,7 +116,8 @@ fn resident_crowd(g: &GpuContext) {
             let mut enc = g.encoder();
             for mesh in &mut crowd {
                 let update = MeshUpdate::Positions(m.positions());
-                mesh.record(g, &mut enc, update, |_| Some(builder)).unwrap();
+                mesh.record(g, &mut enc, update, |_, _| Some(builder))
+                    .unwrap();
             }
             g.submit(enc);
         }
@@ -148,7 +149,8 @@ fn resident_tree_bytes(g: &GpuContext, name: &str, m: &kinetrace::Mesh) {
         let (bytes, ()) = allocated(g, || {
             let mut enc = g.encoder();
             let update = MeshUpdate::Positions(m.positions());
-            mesh.record(g, &mut enc, update, |_| Some(builder)).unwrap();
+            mesh.record(g, &mut enc, update, |_, _| Some(builder))
+                .unwrap();
             g.submit(enc);
             g.wait().unwrap();
         });

@@ -420,7 +420,7 @@ fn meshes_of_different_sizes_built_in_one_submission_equal_their_references() {
             };
             let update = MeshUpdate::Positions(m.positions());
             let done = mesh
-                .record(&g, &mut enc, update, |_| Some(builder))
+                .record(&g, &mut enc, update, |_, _| Some(builder))
                 .unwrap();
             assert_eq!(done, Maintained::Rebuilt(builder));
         }

@@ -7,7 +7,8 @@
 //! whose world boxes overlap, culled on the CPU: O(n²) box tests, rows `pairs traversed / frame`). The
 //! resident frame also runs under `RebuildPolicy::ADAPTIVE` (row `rebuilds / frame` for each resident
 //! run, and `SAH/hybrid rebuilds / frame`: those of them with the builds the planner chose over GPU
-//! LBVH). Each crowd also runs resident with every character keeping its CPU mirror (no `GpuOnly`, the
+//! LBVH, and `builds measured (run)`: trees built only to measure a build nobody measured, on the pose of
+//! an asset's first rebuild that came due). Each crowd also runs resident with every character keeping its CPU mirror (no `GpuOnly`, the
 //! default): what immediate queries cost a resident crowd, the CPU's skinning and maintenance beside the
 //! GPU's (row `CPU skin + maintain / frame`). Every resident run reports `GPU bytes / triangle`
 //! (`ResidentStats::bytes_per_triangle` of its last frame: trees, builders, the device's shared slots;
@@ -159,6 +160,8 @@ fn crowd(
     let (mut phases, mut timed) = ([0.0; 4], 0);
     // Pairs traversed and trees rebuilt by the resident frame.
     let (mut traversed, mut rebuilds, mut sah_rebuilds) = (0, 0, 0);
+    // Trees the adaptive planner built only to measure them (the first frame's too).
+    let mut calibrations = 0;
     // The CPU's skinning and maintenance (the CPU mirror's cost in a resident run), seconds.
     let mut mirror_s = 0.0;
     // The resident trees' and builders' GPU bytes per triangle, as of the last frame (issue 15).
@@ -173,6 +176,7 @@ fn crowd(
         schedule.run(&mut world);
         let elapsed = t.elapsed().as_secs_f64();
         world.clear_trackers();
+        calibrations += world.resource::<TraceStats>().resident.calibrations;
         // The first frame uploads the meshes and builds every tree: left out of the means.
         if frame > 0 {
             let c = world.resource::<TraceStats>().gpu;
@@ -281,6 +285,8 @@ fn crowd(
                 sah,
                 "",
             );
+            let measured = calibrations as f64;
+            rec.add(SUITE, scene, subject, "builds measured (run)", measured, "");
         }
         if colliders {
             let pairs = traversed as f64 / per;

@@ -65,7 +65,9 @@
 //!   on a frame of its own is measured against a carried anchor, and in a fast scene that is far off:
 //!   over the report's explosion LBVH was learned at 1.69 × binned SAH against 1.16, stayed outside the
 //!   bound for good, and binned SAH rebuilt every frame at three times LBVH's time. A scene that never
-//!   rebuilds calibrates nothing, and no worse tree is put in use to be measured.
+//!   rebuilds calibrates nothing, and no worse tree is put in use to be measured. The GPU-resident
+//!   frame, whose tree costs come back a frame late, asks before the rebuild instead
+//!   ([`AdaptivePolicy::calibrations_before`]) and builds them in the rebuild's submission.
 //! - **Guard (the SAH bound)**: the bound ([`AdaptivePolicy::sah_bound`], 1.5) is on the quantity the
 //!   report measures: the tree's SAH cost over a fresh *binned-SAH* tree's of the same frame. The fresh
 //!   cost is predicted from the last rebuild (its build's measured relative cost and the asset's measured

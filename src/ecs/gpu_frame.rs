@@ -87,6 +87,10 @@ pub struct ResidentStats {
     /// Of those, the builds with binned SAH or a hybrid (the others are LBVH); which mesh was built with
     /// what is in [`TraceStats::resident_meshes`].
     pub sah_rebuilds: usize,
+    /// Trees built on the GPU only to measure their cost, each on the pose of a rebuild and overwritten by
+    /// it: under the adaptive policy, an asset's first rebuilds that come due measure the builds nobody
+    /// measured on it (module `gpu_policy`; [`TraceStats::calibrations`] counts the CPU's).
+    pub calibrations: usize,
     /// Candidate collider pairs: colliders on interacting layers, and each self-colliding one with itself.
     pub pair_candidates: usize,
     /// Of those, the pairs traversed on the GPU; the others' world boxes were apart (module
@@ -227,12 +231,16 @@ pub(crate) fn resident_frame_system(
                     gpu: true,
                 };
                 let mut judged = None;
-                let rule = |refit: &crate::gpu::RefitState| match config.policy {
+                let mut calibrations = 0;
+                let rule = |refit: &crate::gpu::RefitState, calibrate: &mut Vec<_>| match config
+                    .policy
+                {
                     RebuildPolicy::Adaptive { .. } => {
                         let asset = super::maintain::asset_of(&mesh.0);
                         let (build, why) =
-                            policies.rebuild(e, asset, &offered, refit, rays_last_frame);
+                            policies.rebuild(e, asset, &offered, refit, rays_last_frame, calibrate);
                         judged = why;
+                        calibrations = calibrate.len();
                         build.map(frame_builder)
                     }
                     _ if refit.first_build => Some(configured),
@@ -255,6 +263,7 @@ pub(crate) fn resident_frame_system(
                     }
                     Maintained::Rebuilt(builder) => {
                         done_here.rebuilds += 1;
+                        done_here.calibrations += calibrations;
                         done_here.sah_rebuilds += usize::from(builder != FrameBuilder::Lbvh);
                         let reason = if first {
                             RebuildReason::New

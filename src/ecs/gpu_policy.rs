@@ -25,16 +25,24 @@
 //! (16-bin SAH, 16-bin hybrids over 30-bit codes; not PLOC, which reads back per round, nor the task
 //! pool's median). Each mesh's planner picks among them as on the CPU: the build of least predicted
 //! work per frame (its rebuild's work over the interval between rebuilds plus a frame's query work on
-//! its fresh tree, whose SAH cost every rebuild reads back), kept unless another beats it by the margin,
-//! and a build no mesh of the asset measured tried when its expected saving repays it. So a mesh that
-//! many rays meet gets the better tree (hybrid or SAH), one that few meet the cheaper build (LBVH) (a
-//! scripted test below; on `tests/gpu_frame.rs`'s walking crowd the guard rebuilds every second frame
-//! and the planner settles on binned SAH whatever the rays, and in `bench ecs-gpu --quick` 1,000 rays over the
-//! crowd repay no better tree: every rebuild there is LBVH). The first
-//! build of an asset is binned SAH where offered (the guard's bound is stated against it). Cost: a few
-//! dozen arithmetic operations per changed mesh per frame, two dispatches over the nodes and 40 bytes
-//! read back per measured update, and a SAH builder's scratch (about 42 bytes per triangle) on each mesh
-//! that builds with one.
+//! its fresh tree, whose SAH cost every rebuild reads back), kept unless another beats it by the margin.
+//! Builds no mesh of the asset measured are *calibrated*, as on the CPU ([`AdaptivePolicy::calibrates`]),
+//! never put in use to be measured: the first build of an asset is binned SAH where offered (the guard's
+//! bound is stated against it), and the asset's first rebuild that comes due is binned SAH too, before
+//! which the frame builds, on the same pose and in the same submission, each unmeasured build that may
+//! pay ([`AdaptivePolicy::calibrations_before`]) and reads back its tree's cost beside the rebuild's
+//! ([`ResidentMesh::record`](crate::gpu::ResidentMesh::record)): its quality is then the exact ratio of
+//! the two trees' costs. The GPU records them before any of their costs is known, so it measures every
+//! build that may pay against what is known then, where the CPU, measuring one by one, may skip a build
+//! the one before it made pointless. So a mesh that many rays meet gets the better tree (hybrid or SAH),
+//! one that few meet the cheaper build (LBVH) (a scripted test below). On `tests/gpu_frame.rs`'s crowd
+//! at nine times real time under 2,000 rays, LBVH and the hybrid are measured in the frame of the first
+//! rebuild that came due and every rebuild stays binned SAH; at real time, and in `bench ecs-gpu
+//! --quick` (1,000 rays over the crowd), the refitted trees stay about as good as fresh ones and no
+//! rebuild pays (none happens, nothing is measured). Cost: a few dozen arithmetic operations per changed
+//! mesh per frame, two dispatches over the nodes and 40 bytes read back per measured update, a SAH
+//! builder's scratch (about 42 bytes per triangle) on each mesh that builds with one, and once per asset
+//! one build and one cost reading of each build measured.
 
 use crate::adaptive::{
     AdaptivePolicy, Asset, Build, CostTable, Prediction, TreeCost, costs::size_unit,
@@ -53,6 +61,9 @@ pub(crate) struct ResidentPolicies {
 
 struct Plan {
     policy: AdaptivePolicy,
+    asset: Asset,
+    /// The builds recorded to be measured before the last rebuild, their costs not yet read back.
+    calibrating: Vec<Build>,
     /// A rebuild the policy asked for, not yet recorded, with its build.
     due: Option<Build>,
     /// The build of the last rebuild recorded: a rebuilt tree's cost read back is of that build's tree
@@ -102,6 +113,13 @@ impl ResidentPolicies {
     /// one came back) and says with which build to rebuild now, if at all: always for a first build
     /// (the planner's [`next_build`](AdaptivePolicy::next_build)); `rays` is the last frame's batched ray
     /// count. With it, the planner's grounds when a refitted tree's reading was judged this call.
+    ///
+    /// Builds no mesh of the asset has measured are calibrated, not tried on frames of their own (the
+    /// planner's [`calibrates`](AdaptivePolicy::calibrates)): with an asset's first rebuild that comes
+    /// due (binned SAH), the frame builds on that pose, before it, each unmeasured build that may pay
+    /// ([`AdaptivePolicy::calibrations_before`]), pushed onto `calibrate`, and measures its tree;
+    /// what they cost comes back with the rebuild's own reading and is learned after it. A build another
+    /// mesh of the asset is calibrating already is not asked for twice.
     pub fn rebuild(
         &mut self,
         e: Entity,
@@ -109,13 +127,20 @@ impl ResidentPolicies {
         builds: &[Build],
         state: &RefitState,
         rays: usize,
+        calibrate: &mut Vec<FrameBuilder>,
     ) -> (Option<Build>, Option<Prediction>) {
         let table = &self.table;
-        let plan = self.meshes.entry(e).or_insert_with(|| Plan {
-            policy: AdaptivePolicy::shared(builds, table, asset),
-            due: None,
-            built_with: Build::GPU_LBVH,
-            share: 1.0,
+        let plan = self.meshes.entry(e).or_insert_with(|| {
+            let mut policy = AdaptivePolicy::shared(builds, table, asset);
+            policy.calibrates = true;
+            Plan {
+                policy,
+                asset,
+                calibrating: Vec::new(),
+                due: None,
+                built_with: Build::GPU_LBVH,
+                share: 1.0,
+            }
         });
         let mut judged = None;
         if let Some(c) = state.cost {
@@ -132,6 +157,12 @@ impl ResidentPolicies {
                     rebuild_work(build, asset.triangles),
                     cost,
                 );
+                for m in state.calibrated {
+                    let b = build_of(m.builder);
+                    let work = rebuild_work(b, asset.triangles);
+                    (plan.policy).calibrated(b, asset.triangles, work, m.reading.sah);
+                }
+                plan.calibrating.clear();
             } else {
                 plan.policy.queried(rays, cost.sah, rays * cost.sah);
                 if plan.policy.after_refit(cost, rays) {
@@ -146,9 +177,19 @@ impl ResidentPolicies {
             plan.due
         };
         plan.due = None;
-        if let Some(b) = due {
-            plan.built_with = b;
-        }
+        let Some(b) = due else {
+            return (None, judged);
+        };
+        plan.built_with = b;
+        // What this rebuild measures (readings of calibrations on an earlier pose still on their way
+        // are dropped with it).
+        let mut wanted = plan.policy.calibrations_before(b);
+        wanted.retain(|w| {
+            !(self.meshes.iter())
+                .any(|(o, p)| *o != e && p.asset == asset && p.calibrating.contains(w))
+        });
+        calibrate.extend(wanted.iter().map(|&w| frame_builder(w)));
+        self.meshes.get_mut(&e).expect("planned above").calibrating = wanted;
         (due, judged)
     }
 
@@ -178,7 +219,7 @@ impl ResidentPolicies {
 mod tests {
     use super::*;
     use crate::Aabb;
-    use crate::gpu::{CostReading, SahReading};
+    use crate::gpu::{Calibrated, CostReading, SahReading};
     use glam::Vec3;
 
     /// The scripted SAH cost of a fresh tree of `b`: binned SAH 10, the hybrid 10.3, LBVH 11.5.
@@ -190,24 +231,29 @@ mod tests {
         }
     }
 
-    /// One mesh's tree as the script keeps it: its cost, whether last frame rebuilt it, and with what.
+    /// One mesh's tree as the script keeps it: its cost, whether last frame rebuilt it, and with what;
+    /// the builds used and those only measured so far.
     struct Tree {
         e: Entity,
         cost: f64,
         rebuilt: bool,
         last: Option<Build>,
         since: u32,
+        calibrated: Vec<Calibrated>,
+        used: Vec<Build>,
+        measured: Vec<Build>,
     }
 
     impl Tree {
-        /// One frame: the planner is given last frame's reading; a rebuild resets the cost to the fresh
-        /// tree's, a refit lets it rise by 3%.
+        /// One frame: the planner is given last frame's reading, with the fresh costs of the builds it
+        /// asked to measure; a rebuild resets the cost to the fresh tree's, a refit lets it rise by 3%.
         fn frame(&mut self, p: &mut ResidentPolicies, builds: &[Build], asset: Asset, rays: usize) {
+            let reading = |sah| SahReading {
+                sah,
+                root_half_area: 1.0,
+            };
             let cost = self.last.map(|_| CostReading {
-                reading: SahReading {
-                    sah: self.cost,
-                    root_half_area: 1.0,
-                },
+                reading: reading(self.cost),
                 rebuilt: self.rebuilt,
             });
             let state = RefitState {
@@ -215,12 +261,24 @@ mod tests {
                 frames_since_rebuild: self.since,
                 cost,
                 first_build: self.last.is_none(),
+                calibrated: &self.calibrated,
             };
-            let (build, _) = p.rebuild(self.e, asset, builds, &state, rays);
+            let mut calibrate = vec![];
+            let (build, _) = p.rebuild(self.e, asset, builds, &state, rays, &mut calibrate);
             self.rebuilt = build.is_some();
+            self.calibrated = (calibrate.iter())
+                .map(|&builder| Calibrated {
+                    builder,
+                    reading: reading(fresh(build_of(builder))),
+                })
+                .collect();
+            self.measured.extend(calibrate.iter().map(|&b| build_of(b)));
             match build {
                 Some(b) => {
                     (self.cost, self.last, self.since) = (fresh(b), Some(b), 0);
+                    if !self.used.contains(&b) {
+                        self.used.push(b);
+                    }
                 }
                 None => (self.cost, self.since) = (self.cost * 1.03, self.since + 1),
             }
@@ -228,11 +286,12 @@ mod tests {
     }
 
     /// Two meshes of one asset whose trees cost the same, scripted: one the whole batch of rays meets,
-    /// the other a hundredth of it (its box's share of the scene's area). Both try the builds (the first
-    /// build is binned SAH, the guard's reference); then the mesh with 10⁴ rays a frame rebuilds with a
-    /// better tree than LBVH's, whose saved query work (rays × SAH cost) repays its 2.5–5 times LBVH's
-    /// build work, and the mesh with 100 rays with LBVH, whose build work is least. Counted work only: no
-    /// timing.
+    /// the other a hundredth of it (its box's share of the scene's area). Both start with binned SAH (the
+    /// guard's reference); the asset's first rebuild that comes due measures LBVH and the hybrid on its
+    /// pose, each once for the asset, and no build is put in use before it was measured. Then the mesh
+    /// with 10⁴ rays a frame rebuilds with a better tree than LBVH's, whose saved query work (rays × SAH
+    /// cost) repays its 2.5–5 times LBVH's build work, and the mesh with 100 rays with LBVH, whose build
+    /// work is least. Counted work only: no timing.
     #[test]
     fn each_mesh_gets_the_builder_its_counted_query_work_favours() {
         let builds = offered(&[Builder::LBVH, Builder::HYBRID, Builder::SAH, Builder::PLOC]);
@@ -252,6 +311,9 @@ mod tests {
             rebuilt: false,
             last: None,
             since: 0,
+            calibrated: vec![],
+            used: vec![],
+            measured: vec![],
         };
         let (mut busy, mut quiet) = (tree(1), tree(2));
         let boxes = [
@@ -265,8 +327,18 @@ mod tests {
                     assert_eq!(t.last, Some(Build::GPU_SAH));
                 }
             }
+            let measured = [busy.measured.as_slice(), &quiet.measured].concat();
+            for t in [&busy, &quiet] {
+                for b in &t.used {
+                    let ok = *b == Build::GPU_SAH || measured.contains(b);
+                    assert!(ok, "frame {frame}: {b} used before it was measured");
+                }
+            }
             p.set_shares(&boxes);
         }
+        let mut measured = [busy.measured.as_slice(), &quiet.measured].concat();
+        measured.sort_by_key(|b| b.prior_time().to_bits());
+        assert_eq!(measured, [Build::GPU_LBVH, Build::gpu_hybrid(6)]);
         let busy_build = busy.last.unwrap();
         assert!(fresh(busy_build) < fresh(Build::GPU_LBVH), "{busy_build}");
         assert_eq!(quiet.last, Some(Build::GPU_LBVH));

@@ -13,7 +13,8 @@
 //! - under [`RebuildPolicy::Adaptive`], the top level's own [`AdaptivePolicy`] (one build, CPU binned
 //!   SAH) says so: when the extra query time the refitted tree costs, every batched ray being charged for
 //!   its top-level work, exceeds a rebuild's measured time by its noise margin, or when its SAH cost,
-//!   extrapolated one frame, would pass [`AdaptivePolicy::sah_bound`] (1.5) × a fresh tree's.
+//!   extrapolated one frame, would pass [`AdaptivePolicy::sah_bound`] (1.5) × a fresh tree's. With one
+//!   build offered it has no build to try or calibrate: its only choice is when to rebuild.
 //!
 //! Cost per frame in which any entity moved: a pass over the entities for their boxes, a refit (O(n), no
 //! allocation), under the adaptive policy an SAH-cost pass over the nodes; a rebuild is O(n log n) and

@@ -56,8 +56,8 @@ pub use context::{
     ALLOW_SOFTWARE_ENV, GpuContext, GpuCounters, GpuOptions, adapter_accepted, software_allowed,
 };
 pub use frame::{
-    CostReading, FrameBuilder, GpuPhases, Maintained, MeshUpdate, RefitState, ResidentMesh,
-    SahReading,
+    Calibrated, CostReading, FrameBuilder, GpuPhases, Maintained, MeshUpdate, RefitState,
+    ResidentMesh, SahReading,
 };
 pub(crate) use frame::{
     FrameCollider, FrameContacts, FrameInstance, FrameReadback, FrameTimer, PhasesReadback,

@@ -67,7 +67,7 @@ impl FrameBuilder {
 /// What a resident mesh knows of its tree when it decides whether to rebuild: the metric of an earlier
 /// refit, read back without blocking (one frame late, or more when the GPU is behind).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RefitState {
+pub struct RefitState<'a> {
     /// The most recent degradation metric read back (0 after a rebuild, before its first refit's).
     pub degradation: f32,
     /// Refits recorded since the tree was last built.
@@ -77,6 +77,18 @@ pub struct RefitState {
     pub cost: Option<CostReading>,
     /// Whether the tree was never built: the rule must name a builder (`None` then builds with LBVH).
     pub first_build: bool,
+    /// With a rebuilt tree's [`cost`](Self::cost), the costs of the trees built before it on the same
+    /// pose only to be measured (see [`ResidentMesh::record`]), in the order they were asked for.
+    pub calibrated: &'a [Calibrated],
+}
+
+/// The SAH cost of a tree built only to be measured, on the pose of the rebuild that followed it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Calibrated {
+    /// The builder measured.
+    pub builder: FrameBuilder,
+    /// Its tree's cost and root area.
+    pub reading: SahReading,
 }
 
 /// A tree's SAH cost as read back for [`RefitState::cost`].
@@ -88,7 +100,7 @@ pub struct CostReading {
     pub rebuilt: bool,
 }
 
-impl RefitState {
+impl RefitState<'_> {
     /// Mean rise of the degradation per refit since the last build.
     pub fn incoherence(&self) -> f32 {
         self.degradation / self.frames_since_rebuild.max(1) as f32
@@ -119,6 +131,12 @@ pub struct ResidentMesh {
     pending_cost: Option<(SahReadback, bool)>,
     /// A cost read back and not yet given to the rule.
     unread: Option<CostReading>,
+    /// The trees built only to be measured before the rebuild whose cost is `pending_cost`.
+    pending_calibrations: Vec<(FrameBuilder, SahReadback)>,
+    /// Their costs read back with `unread`.
+    calibrated: Vec<Calibrated>,
+    /// The builders the rule asks to measure this frame (kept to reuse its allocation).
+    calibrate: Vec<FrameBuilder>,
     /// The skin's bound from joint matrices (`None` without a skin or for weights it cannot bound).
     skin_bound: Option<SkinBound>,
     /// A box of this frame's vertices ([`bound`](Self::bound)).
@@ -160,6 +178,9 @@ impl ResidentMesh {
             costs: None,
             pending_cost: None,
             unread: None,
+            pending_calibrations: Vec::new(),
+            calibrated: Vec::new(),
+            calibrate: Vec::new(),
             skin_bound,
             bound: bound::of_points(mesh.positions()),
         })
@@ -222,12 +243,19 @@ impl ResidentMesh {
     /// ([`RefitState::first_build`]: a tree is built whatever it says). Never blocks; a SAH or hybrid
     /// builder used for the first time allocates its scratch. Errors: those of the skin, the upload and
     /// the builder's allocation ([`Error::Gpu`](crate::Error::Gpu) past the device's limits).
+    ///
+    /// With a rebuild, and costs [measured](Self::measure_costs), the builders `rebuild` pushes onto its
+    /// second argument (empty when called) are built first, in order, on the same pose, each tree's cost
+    /// reduced and read back before the next build overwrites it: builds measured without being put in
+    /// use (the adaptive policy's calibration), given back in [`RefitState::calibrated`] with the
+    /// rebuild's own cost (none where a later rebuild replaced that reading on its way). Each costs its
+    /// build and a cost reading; nothing is allocated once the list has held as many.
     pub fn record(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         update: MeshUpdate<'_>,
-        rebuild: impl FnOnce(&RefitState) -> Option<FrameBuilder>,
+        rebuild: impl FnOnce(&RefitState, &mut Vec<FrameBuilder>) -> Option<FrameBuilder>,
     ) -> Result<Maintained> {
         if let Some(r) = &self.pending
             && let Some(metric) = r.try_take(ctx)
@@ -235,7 +263,9 @@ impl ResidentMesh {
             self.degradation = metric?;
             self.pending = None;
         }
+        // The calibrations were recorded before the rebuild's reading: taken with it, all at once.
         if let Some((r, rebuilt)) = &self.pending_cost
+            && self.pending_calibrations.iter().all(|c| c.1.ready(ctx))
             && let Some(reading) = r.try_take(ctx)
         {
             self.unread = Some(CostReading {
@@ -243,6 +273,12 @@ impl ResidentMesh {
                 rebuilt: *rebuilt,
             });
             self.pending_cost = None;
+            for (builder, r) in self.pending_calibrations.drain(..) {
+                if let Some(reading) = r.try_take(ctx) {
+                    let reading = reading?;
+                    self.calibrated.push(Calibrated { builder, reading });
+                }
+            }
         }
         match (update, &self.skin) {
             (MeshUpdate::Unchanged, _) if self.built => return Ok(Maintained::Kept),
@@ -275,12 +311,27 @@ impl ResidentMesh {
             frames_since_rebuild: self.refits,
             cost: self.unread.take(),
             first_build: !self.built,
+            calibrated: &self.calibrated,
         };
-        let chosen = match rebuild(&state) {
+        self.calibrate.clear();
+        let chosen = match rebuild(&state, &mut self.calibrate) {
             None if self.built => None,
             chosen => Some(chosen.unwrap_or(FrameBuilder::Lbvh)),
         };
+        self.calibrated.clear();
         if let Some(builder) = chosen {
+            // Readings of the trees before this rebuild say nothing of this pose.
+            self.pending_calibrations.clear();
+            if self.costs.is_some() {
+                let calibrate = std::mem::take(&mut self.calibrate);
+                for &measured in &calibrate {
+                    self.record_build(ctx, encoder, measured)?;
+                    let costs = self.costs.as_ref().expect("checked above");
+                    let r = costs.record(ctx, encoder, &self.bvh);
+                    self.pending_calibrations.push((measured, r));
+                }
+                self.calibrate = calibrate;
+            }
             self.record_build(ctx, encoder, builder)?;
             self.built = true;
             self.degradation = 0.0;

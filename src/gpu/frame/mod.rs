@@ -17,7 +17,9 @@ mod sah;
 mod timer;
 
 pub(crate) use bound::world as world_bound;
-pub use mesh::{CostReading, FrameBuilder, Maintained, MeshUpdate, RefitState, ResidentMesh};
+pub use mesh::{
+    Calibrated, CostReading, FrameBuilder, Maintained, MeshUpdate, RefitState, ResidentMesh,
+};
 pub(crate) use pairs::{FrameCollider, FrameContacts, ReadTrees, ResidentPairs};
 pub use sah::SahReading;
 pub use timer::GpuPhases;

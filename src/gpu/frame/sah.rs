@@ -84,6 +84,11 @@ impl SahReduction {
 }
 
 impl SahReadback {
+    /// Whether the GPU has finished the reading.
+    pub fn ready(&self, ctx: &GpuContext) -> bool {
+        self.0.ready(ctx)
+    }
+
     /// The reading if the GPU has finished it, without blocking.
     pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<SahReading>> {
         self.0.try_take(ctx).map(|r| {
