@@ -869,6 +869,7 @@ fn the_sah_bound_holds_on_every_frame_of_every_report_scene() {
             rays: 512,
             checked_rays: 4,
             runs: 1,
+            software_gpu: false,
         };
         let (scenes, skipped) = scenes::Scene::all(settings.triangles, &shared_assets_dir());
         for s in &skipped {

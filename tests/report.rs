@@ -30,8 +30,13 @@ use std::path::{Path, PathBuf};
 #[test]
 fn quick_report_writes_every_file_with_zero_mismatches() {
     let out = std::env::temp_dir().join(format!("kinetrace-report-{}", std::process::id()));
+    // The GPU rows too where only lavapipe runs them (CI).
+    let settings = harness::Settings {
+        software_gpu: true,
+        ..harness::Settings::QUICK
+    };
     let report = output::write_report(
-        &harness::Settings::QUICK,
+        &settings,
         &common::shared_assets_dir(),
         &out,
         &output::Only::default(),

@@ -19,12 +19,21 @@ pub use kinetrace::gpu::GpuContext as Gpu;
 #[cfg(not(feature = "gpu"))]
 pub enum Gpu {}
 
-/// The device for the GPU strategies, or why there is none.
-pub fn find_gpu() -> Result<Gpu, String> {
+/// The device for the GPU strategies, or why there is none: a software adapter (lavapipe, llvmpipe,
+/// WARP) only with `software` — it runs the kernels on the CPU's cores, its times say nothing of a GPU,
+/// and the full report's GPU rows take it hours where the CPU rows take minutes.
+pub fn find_gpu(software: bool) -> Result<Gpu, String> {
     #[cfg(feature = "gpu")]
-    return Gpu::new().map_err(|e| e.to_string());
+    return Gpu::with_options(&kinetrace::gpu::GpuOptions {
+        hardware_only: !software,
+        ..Default::default()
+    })
+    .map_err(|e| e.to_string());
     #[cfg(not(feature = "gpu"))]
-    Err("built without the gpu feature".into())
+    {
+        let _ = software;
+        Err("built without the gpu feature".into())
+    }
 }
 
 /// How a strategy maintains the tree.
@@ -153,6 +162,8 @@ pub struct Settings {
     pub checked_rays: usize,
     /// Runs of every scene; the report takes each strategy's median run (by total time).
     pub runs: u32,
+    /// Whether the GPU strategies may run on a software adapter ([`find_gpu`]).
+    pub software_gpu: bool,
 }
 
 impl Settings {
@@ -173,6 +184,7 @@ impl Settings {
         rays: 512,
         checked_rays: 8,
         runs: 1,
+        software_gpu: false,
     };
 }
 

@@ -1,8 +1,8 @@
 //! Error-versus-run-time report: every animated scene under every refit/rebuild strategy, into
 //! `target/report/` (frames.csv, summary.md with the figures embedded, overview.png across all scenes
 //! and two PNGs per scene). The GPU strategies (LBVH rebuilt on the GPU every frame, and the adaptive
-//! policy that may choose it) run when an adapter exists; otherwise the summary and the console say they
-//! were skipped, and why.
+//! policy that may choose it) run when a hardware adapter exists, or a software one (lavapipe) with
+//! `KINETRACE_ALLOW_SOFTWARE_GPU=1`; otherwise the summary and the console say they were skipped, and why.
 //!
 //! ```text
 //! cargo run --release --example report            # 300 frames, ~20k triangles per scene
@@ -29,12 +29,23 @@ use harness::Settings;
 use std::path::PathBuf;
 
 fn main() {
+    // `KINETRACE_ALLOW_SOFTWARE_GPU=1` allows a software adapter, as for `TraceMode::GpuWhenAvailable`.
+    #[cfg(feature = "gpu")]
+    let software_gpu = kinetrace::gpu::software_allowed(
+        false,
+        std::env::var(kinetrace::gpu::ALLOW_SOFTWARE_ENV)
+            .ok()
+            .as_deref(),
+    );
+    #[cfg(not(feature = "gpu"))]
+    let software_gpu = false;
     let mut settings = Settings {
         triangles: 20_000,
         frames: 300,
         rays: 4096,
         checked_rays: 16,
         runs: 1,
+        software_gpu,
     };
     let mut out = PathBuf::from("target/report");
     let mut assets = PathBuf::from("../shared/assets");
@@ -55,6 +66,7 @@ fn main() {
             "--quick" => {
                 settings = Settings {
                     runs: settings.runs,
+                    software_gpu: settings.software_gpu,
                     ..Settings::QUICK
                 }
             }

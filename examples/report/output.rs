@@ -104,7 +104,7 @@ pub fn write_report(
     std::fs::create_dir_all(out)?;
     let (mut scenes, mut skipped) = Scene::all(settings.triangles, assets);
     scenes.retain(|s| Only::keeps(&only.scenes, s.name));
-    let gpu = find_gpu()
+    let gpu = find_gpu(settings.software_gpu)
         .inspect_err(|e| skipped.push(format!("GPU strategies SKIPPED: {e}")))
         .ok();
     let mut strategies = Strategy::all(gpu.is_some());
