@@ -162,6 +162,9 @@ pub struct AdaptivePolicy {
     exact: Option<Exact>,
     /// The index in `builds` past the last build [`calibrated`](Self::calibrated).
     calibrating: usize,
+    /// Whether a build was calibrated since the last rebuild: the next choice of build is made afresh,
+    /// without the hysteresis that keeps the build in use (see [`View::plan`]).
+    rechoose: bool,
     current: Option<Build>,
     /// The rent's work since the last rebuild: see [`RentWork`].
     work: RentWork,
@@ -230,6 +233,7 @@ impl AdaptivePolicy {
             anchor_error: AnchorError::default(),
             exact: None,
             calibrating: 0,
+            rechoose: false,
             current: None,
             work: RentWork::default(),
             frames: 0,
@@ -358,6 +362,7 @@ impl AdaptivePolicy {
         }
         self.last_sah = sah_cost;
         self.current = Some(build);
+        self.rechoose = false;
         self.guard_factor = 1.0;
         self.drawn_in = 1.0;
         self.work = RentWork::default();
@@ -421,9 +426,10 @@ impl AdaptivePolicy {
 
     /// Records a build asked for by [`calibration`](Self::calibration): its triangle count, measured
     /// seconds and its tree's SAH cost. Learns its time and its quality against the binned-SAH tree of the
-    /// same pose; the planner's state is otherwise unchanged (the tree in use is still that one). A
-    /// non-finite time or cost is not learned (report a build that could not run so), and the next
-    /// `calibration` moves past `build` either way.
+    /// same pose; the planner's state is otherwise unchanged (the tree in use is still that one) but for
+    /// its next choice of build, made afresh: the build in use was not chosen against the one measured
+    /// now, so hysteresis does not keep it. A non-finite time or cost is not learned (report a build
+    /// that could not run so), and the next `calibration` moves past `build` either way.
     pub fn calibrated(
         &mut self,
         build: impl Into<Build>,
@@ -448,6 +454,7 @@ impl AdaptivePolicy {
         {
             self.costs
                 .learn_quality(self.asset, build, unit * cost / e.sah);
+            self.rechoose = true;
         }
     }
 
@@ -1210,7 +1217,12 @@ impl View<'_> {
             .filter_map(|&b| self.candidate(b))
             .filter(|(c, m)| *m && self.within_bound(c.option))
             .map(|(c, _)| c);
-        let Some(chosen) = choose(measured, self.p.current, self.p.z) else {
+        // Hysteresis keeps a build chosen by cost against the noise of later measurements; the build in
+        // use when a calibration measured others was no such choice (binned SAH, the only build measured
+        // before), and keeping it by a margin set by the new builds' single timings cost the quick
+        // report's explosion a second binned-SAH rebuild at twice LBVH's time in 8 of 11 runs.
+        let current = self.p.current.filter(|_| !self.p.rechoose);
+        let Some(chosen) = choose(measured, current, self.p.z) else {
             // Nothing measured on this asset within the bound: the best tree measured, else the
             // cheapest by the priors.
             let best_tree = builds
