@@ -283,6 +283,11 @@ impl AdaptivePolicy {
         &self.costs
     }
 
+    /// The asset whose measurements this policy shares through its table.
+    pub fn asset(&self) -> Asset {
+        self.asset
+    }
+
     /// The build to use for the next rebuild: before anything is known the build of least prior time
     /// (the first offered among equals); then the cheapest predicted over a rebuild interval, kept
     /// unless another is cheaper beyond the noise; or a build not measured yet when trying it pays.

@@ -61,7 +61,6 @@ pub(crate) struct ResidentPolicies {
 
 struct Plan {
     policy: AdaptivePolicy,
-    asset: Asset,
     /// The builds recorded to be measured before the last rebuild, their costs not yet read back.
     calibrating: Vec<Build>,
     /// A rebuild the policy asked for, not yet recorded, with its build.
@@ -135,7 +134,6 @@ impl ResidentPolicies {
             policy.calibrates = true;
             Plan {
                 policy,
-                asset,
                 calibrating: Vec::new(),
                 due: None,
                 built_with: Build::GPU_LBVH,
@@ -186,7 +184,7 @@ impl ResidentPolicies {
         let mut wanted = plan.policy.calibrations_before(b);
         wanted.retain(|w| {
             !(self.meshes.iter())
-                .any(|(o, p)| *o != e && p.asset == asset && p.calibrating.contains(w))
+                .any(|(o, p)| *o != e && p.policy.asset() == asset && p.calibrating.contains(w))
         });
         calibrate.extend(wanted.iter().map(|&w| frame_builder(w)));
         self.meshes.get_mut(&e).expect("planned above").calibrating = wanted;
