@@ -117,6 +117,13 @@ pub fn write_report(
     let (mut rows, mut files) = (Vec::new(), Vec::new());
     let mut cold = Vec::new();
     let mut picks = Vec::new();
+    // The 256-instance crowd runs before the scenes, so that its first frame does not depend on what
+    // they left on the heap.
+    let crowds: Vec<_> = Only::keeps(&only.scenes, "crowd")
+        .then(|| [true, false].map(|shared| planner::instance_crowd(settings, 256, shared)))
+        .into_iter()
+        .flatten()
+        .collect();
     let mut secondary = Vec::new();
     for scene in &scenes {
         if Only::keeps(&only.strategies, "secondary") {
@@ -163,11 +170,6 @@ pub fn write_report(
         plots::per_frame(&png, scene.name, &names, &looks, &per_strategy)?;
         files.push(png);
     }
-    let crowds: Vec<_> = Only::keeps(&only.scenes, "crowd")
-        .then(|| [true, false].map(|shared| planner::instance_crowd(settings, 256, shared)))
-        .into_iter()
-        .flatten()
-        .collect();
     let crowd_table = if crowds.is_empty() {
         String::new()
     } else {

@@ -117,6 +117,39 @@ pub struct InstanceCrowd {
     pub siblings: usize,
     /// Builds run only to measure them ([`AdaptivePolicy::calibration`]).
     pub calibrations: usize,
+    /// Minor page faults of the first frame and of the steady frame (the one whose time is
+    /// `steady_ms`), where the system counts them ([`minor_faults`]).
+    pub first_faults: Option<u64>,
+    pub steady_faults: Option<u64>,
+}
+
+/// The minor page faults this thread has taken so far (Linux: `getrusage(RUSAGE_THREAD)`), `None`
+/// elsewhere. A fault is the kernel giving the process a fresh page on first touch: memory the heap had
+/// not handed out before.
+#[cfg(target_os = "linux")]
+fn minor_faults() -> Option<u64> {
+    #[repr(C)]
+    struct Rusage {
+        /// `ru_utime` and `ru_stime` (two `timeval`s).
+        times: [i64; 4],
+        /// `ru_maxrss` … `ru_nivcsw`; `ru_minflt` is the fifth.
+        counts: [i64; 14],
+    }
+    unsafe extern "C" {
+        fn getrusage(who: i32, usage: *mut Rusage) -> i32;
+    }
+    let mut r = Rusage {
+        times: [0; 4],
+        counts: [0; 14],
+    };
+    // SAFETY: `r` is a writable `struct rusage` (as laid out on 64-bit Linux); 1 is RUSAGE_THREAD.
+    let ok = unsafe { getrusage(1, &mut r) } == 0;
+    ok.then(|| r.counts[4] as u64)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn minor_faults() -> Option<u64> {
+    None
 }
 
 /// Runs `instances` instances of one ~500-triangle character for `settings.frames` frames (at least 8),
@@ -153,8 +186,11 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
         builds: Vec::new(),
         siblings: 0,
         calibrations: 0,
+        first_faults: None,
+        steady_faults: None,
     };
     let mut frame_ms = Vec::new();
+    let mut frame_faults = Vec::new();
     for f in 0..settings.frames.max(8) {
         let t = f as f32 / 60.0;
         let meshes: Vec<Mesh> = (0..instances)
@@ -166,6 +202,7 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
                 Mesh::new(skinned, indices.clone()).expect("finite")
             })
             .collect();
+        let faults = minor_faults();
         let start = Instant::now();
         for i in 0..instances {
             // With a shared table, an instance after the first starts from a copy of the first one's
@@ -218,11 +255,15 @@ pub fn instance_crowd(settings: &Settings, instances: usize, shared: bool) -> In
             policy.queried(rays_each as f64, sah, q.elapsed().as_secs_f64());
         }
         frame_ms.push(1e3 * start.elapsed().as_secs_f64());
+        frame_faults.push(faults.zip(minor_faults()).map(|(a, b)| b - a));
     }
     crowd.first_ms = frame_ms[0];
-    let mut later = frame_ms[frame_ms.len() / 2..].to_vec();
-    later.sort_by(f64::total_cmp);
-    crowd.steady_ms = later[later.len() / 2];
+    crowd.first_faults = frame_faults[0];
+    let mut later: Vec<usize> = (frame_ms.len() / 2..frame_ms.len()).collect();
+    later.sort_by(|&a, &b| frame_ms[a].total_cmp(&frame_ms[b]));
+    let steady = later[later.len() / 2];
+    crowd.steady_ms = frame_ms[steady];
+    crowd.steady_faults = frame_faults[steady];
     crowd
 }
 
@@ -236,14 +277,22 @@ pub fn instance_crowd_table(rows: &[InstanceCrowd]) -> String {
          most twice a steady frame, and with a shared table no instance but the first explores. The \
          planners calibrate (`AdaptivePolicy::calibration`): an asset's builds are measured at its first \
          rebuild, not tried on frames of their own.\n\n\
-         | instances | cost table | first frame ms | steady frame ms | first / steady | explorations | \
-         calibrations | sibling starts | builds |\n|---|---|---|---|---|---|---|---|---|\n",
+         The crowd runs before the scenes, on a heap nothing has grown yet, so its first frame also \
+         pays the kernel for every fresh page its trees take (the page faults: a steady frame takes \
+         none). A process whose heap has held as much before (the scenes' meshes, freed) pays fewer.\n\n\
+         | instances | cost table | first frame ms | steady frame ms | first / steady | page faults, \
+         first / steady | explorations | calibrations | sibling starts | builds |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let builds: Vec<String> = r.builds.iter().map(|(b, n)| format!("{b} {n}")).collect();
+        let faults = match (r.first_faults, r.steady_faults) {
+            (Some(a), Some(b)) => format!("{a} / {b}"),
+            _ => "not counted".into(),
+        };
         let _ = writeln!(
             s,
-            "| {} | {} | {:.3} | {:.3} | {:.2} | {} | {} | {} | {} |",
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {faults} | {} | {} | {} | {} |",
             r.instances,
             if r.shared { "shared" } else { "per instance" },
             r.first_ms,
