@@ -737,9 +737,10 @@ fn the_guard_rebuilds_rarely_below_the_bound_and_always_before_it() {
 }
 
 /// Through the ECS: two entities of one mesh share the plugin's cost table. The first is run alone until
-/// it measured every builder offered (its first build, binned SAH, and the two others calibrated at its
-/// first rebuild on that rebuild's pose, `TraceStats::calibrations`); the second, spawned then, never
-/// explores nor calibrates, and its every build — the first included — is one the first entity measured.
+/// its first rebuild came due: its first build is binned SAH, and at that rebuild it calibrates, on the
+/// rebuild's pose, the other builds that may pay for their time (`TraceStats::calibrations`: one or both,
+/// depending on what the builds measured); the second, spawned then, starts from a copy of its tree and
+/// never explores nor calibrates while its planner decides frame after frame.
 #[test]
 fn a_second_entity_of_one_mesh_explores_nothing() {
     let _serial = measured_time();
@@ -757,16 +758,19 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
             used.push(build);
         }
         calibrated += world.resource::<TraceStats>().calibrations;
-        if used.len() + calibrated >= OFFERED.len() {
+        if calibrated > 0 {
             break;
         }
     }
     assert_eq!(
-        (used.len(), calibrated),
-        (1, 2),
-        "the first entity built binned SAH and calibrated the others: {used:?}"
+        used,
+        [Build::cpu(Builder::SAH)],
+        "the first entity's builds"
     );
-    used.extend(OFFERED);
+    assert!(
+        (1..OFFERED.len()).contains(&calibrated),
+        "{calibrated} builds calibrated at its first rebuild"
+    );
     // The second entity: the same mesh (the same index buffer), its own motion.
     let mesh = world.get::<TraceMesh>(a.entity).unwrap().0.clone();
     let entity = world
@@ -780,19 +784,17 @@ fn a_second_entity_of_one_mesh_explores_nothing() {
         rng: rng(23),
         step: 0.01,
     };
-    let mut builds_of_b = 0;
+    // The first entity stands still from now on (nothing of it to rebuild or calibrate), so that the
+    // frames' calibrations are the second's.
+    let mut decided = 0;
     for _ in 0..40 {
-        a.advance(&mut world);
         b.advance(&mut world);
         let m = frame(&mut world, &mut schedule, &b, &mut r, 4000, 2);
-        if let MeshAction::Rebuild { build, .. } = m.action {
-            assert!(used.contains(&build), "{build:?} was measured: {used:?}");
-            builds_of_b += 1;
-        }
+        decided += m.prediction.is_some() as usize;
         assert_ne!(m.prediction.map(|p| p.verdict), Some(Verdict::Explore));
         assert_eq!(world.resource::<TraceStats>().calibrations, 0);
     }
-    assert!(builds_of_b >= 1, "at least its first build");
+    assert!(decided >= 30, "its planner decided {decided} of 40 frames");
 }
 
 /// Through the ECS: a soup whose triangles jump to new random places every frame (each keeps its shape,
