@@ -18,6 +18,8 @@ const MISS: u32 = 0xffffffffu;
 
 const ROBUST_FAR_SLACK: f32 = 2.384185791015625e-7; // 2 ulp(1), as src/geometry/ray.rs robust_far
 
+const HIT_SLACK: f32 = 1.9073486328125e-6; // 16 ulp(1), as src/geometry/ray.rs HIT_SLACK
+
 const BIG: f32 = 3.0e38;
 
 // `slab`'s answer for a box the ray misses: the most negative finite float, below `-BIG`.
@@ -32,10 +34,11 @@ fn bits3(b: u32) -> vec3<bool> {
 // CPU). WGSL lets implementations assume no NaN or infinity, so instead of the CPU's 0·∞ = NaN that
 // drops out of max/min, an axis along which the ray does not move (its inv_dir is uploaded as 0) is
 // decided by whether the origin lies within the slab: unbounded if it does, empty if not. Same answers.
-// The far distance or `tmax`, whichever is nearer, is moved outward by the slack (`robust_far`): `tmax`
-// too, as on the CPU (src/bvh/traverse.rs says why), so that the hit kept does not depend on the order in
-// which this tree, built here, is visited.
-fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
+// The far distance is moved outward by the slack (`robust_far`), and so is `tmax`, plus the ray's
+// `slack` for the tree (`hit_slack`): the nearer of the two bounds the entry, as on the CPU
+// (src/bvh/traverse.rs says why), so that the hit kept does not depend on the order in which this tree,
+// built here, is visited.
+fn slab(ray: GpuRay, n: Node, tmax: f32, slack: f32) -> f32 {
     let t0 = (n.min - ray.origin) * ray.inv_dir;
     let t1 = (n.max - ray.origin) * ray.inv_dir;
     let neg = bits3(ray.dir_bits);
@@ -45,8 +48,18 @@ fn slab(ray: GpuRay, n: Node, tmax: f32) -> f32 {
     let far = select(select(t1, t0, neg), select(vec3<f32>(-BIG), vec3<f32>(BIG), inside), zero);
     let tnear = max(near.x, max(near.y, max(near.z, ray.tmin)));
     let tfar = min(far.x, min(far.y, far.z));
-    if tnear <= robust_far(min(tfar, tmax)) { return tnear; }
+    if tnear <= min(robust_far(tfar), robust_far(tmax) + slack) { return tnear; }
     return NO_ENTRY;
+}
+
+// src/geometry/ray.rs Ray::hit_slack: HIT_SLACK times the largest `t` at which the ray reaches a corner
+// coordinate of the box `n` (the tree's root). `inv_dir` is uploaded as 0 along an axis the ray does not
+// move on, where the CPU's is infinite: skipped alike.
+fn hit_slack(ray: GpuRay, n: Node) -> f32 {
+    let reach = max(abs(n.min - ray.origin), abs(n.max - ray.origin));
+    let inv = abs(ray.inv_dir);
+    let m = select(inv, vec3<f32>(BIG), inv == vec3<f32>(0.0));
+    return HIT_SLACK * max(reach.x, max(reach.y, reach.z)) * min(m.x, min(m.y, m.z));
 }
 
 // src/geometry/ray.rs robust_far: `far` moved outward (away from 0) by 2 ulp of its size.
@@ -128,8 +141,8 @@ fn descend(stack: ptr<function, Stack>, c: u32, ta: f32, tb: f32) -> u32 {
 
 // The next waiting subtree that can still hold something within `tmax` (moved outward as in `slab`), or
 // MISS when none is left.
-fn pop(stack: ptr<function, Stack>, tmax: f32) -> u32 {
-    let limit = robust_far(tmax);
+fn pop(stack: ptr<function, Stack>, tmax: f32, slack: f32) -> u32 {
+    let limit = robust_far(tmax) + slack;
     loop {
         if (*stack).sp == 0u { return MISS; }
         (*stack).sp -= 1u;

@@ -95,7 +95,8 @@ struct Best { t: f32, prim: u32, u: f32, v: f32, normal: vec3<f32>, found: bool 
 fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
     var best = Best(ray.tmax, MISS, 0.0, 0.0, vec3<f32>(0.0), false);
     let root = blas[inst.node_offset];
-    if !entered(slab(ray, root, best.t)) { return best; }
+    let slack = hit_slack(ray, root);
+    if !entered(slab(ray, root, best.t, slack)) { return best; }
     var stack: Stack;
     stack.sp = 0u;
     var cur = 0u;
@@ -120,10 +121,10 @@ fn trace_blas(inst: Instance, ray: GpuRay, any: bool) -> Best {
         } else {
             let c = n.index;
             let o = inst.node_offset;
-            next = descend(&stack, c, slab(ray, blas[o + c], best.t), slab(ray, blas[o + c + 1u], best.t));
+            next = descend(&stack, c, slab(ray, blas[o + c], best.t, slack), slab(ray, blas[o + c + 1u], best.t, slack));
         }
         if next == MISS {
-            next = pop(&stack, best.t);
+            next = pop(&stack, best.t, slack);
             if next == MISS { return best; }
         }
         cur = next;
@@ -147,7 +148,12 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
     // Scene rays are tested against triangles only in object space, so the CPU sends the world direction in
     // row_x (the world-space shear rows would be unused).
     let dir = ray.row_x;
-    if (ray.dir_bits & 0x80000000u) != 0u || arrayLength(&tlas) == 0u || !entered(slab(ray, tlas[0], ray.tmax)) {
+    if (ray.dir_bits & 0x80000000u) != 0u || arrayLength(&tlas) == 0u {
+        hits[i] = out;
+        return;
+    }
+    let slack = hit_slack(ray, tlas[0]);
+    if !entered(slab(ray, tlas[0], ray.tmax, slack)) {
         hits[i] = out;
         return;
     }
@@ -176,10 +182,10 @@ fn scene_trace(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workg
             if any && out.prim != MISS { break; }
         } else {
             let c = n.index;
-            next = descend(&stack, c, slab(ray, tlas[c], out.t), slab(ray, tlas[c + 1u], out.t));
+            next = descend(&stack, c, slab(ray, tlas[c], out.t, slack), slab(ray, tlas[c + 1u], out.t, slack));
         }
         if next == MISS {
-            next = pop(&stack, out.t);
+            next = pop(&stack, out.t, slack);
             if next == MISS { break; }
         }
         cur = next;

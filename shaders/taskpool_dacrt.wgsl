@@ -66,8 +66,8 @@ fn ray_sides(t: u32, r: u32, axis: u32, mid: f32) -> u32 {
     lo_hi[axis] = mid;
     var hi_lo = lo;
     hi_lo[axis] = mid;
-    let l = entered(slab(ray, Node(lo, 0u, lo_hi, 0.0), ray.tmax));
-    let u = entered(slab(ray, Node(hi_lo, 0u, hi, 0.0), ray.tmax));
+    let l = entered(slab(ray, Node(lo, 0u, lo_hi, 0.0), ray.tmax, 0.0));
+    let u = entered(slab(ray, Node(hi_lo, 0u, hi, 0.0), ray.tmax, 0.0));
     return select(0u, 1u, l) | select(0u, 2u, u);
 }
 

@@ -26,7 +26,9 @@ fn vertex(i: u32) -> vec3<f32> {
 fn trace(ray: GpuRay, any: bool) -> GpuHit {
     var best = GpuHit(ray.tmax, MISS, 0.0, 0.0);
     if (ray.dir_bits & 0x80000000u) != 0u { return best; } // invalid ray
-    if arrayLength(&nodes) == 0u || !entered(slab(ray, nodes[0], ray.tmax)) { return best; }
+    if arrayLength(&nodes) == 0u { return best; }
+    let slack = hit_slack(ray, nodes[0]);
+    if !entered(slab(ray, nodes[0], ray.tmax, slack)) { return best; }
     var stack: Stack;
     stack.sp = 0u;
     var cur = 0u;
@@ -46,10 +48,10 @@ fn trace(ray: GpuRay, any: bool) -> GpuHit {
             }
         } else {
             let c = n.index;
-            next = descend(&stack, c, slab(ray, nodes[c], best.t), slab(ray, nodes[c + 1u], best.t));
+            next = descend(&stack, c, slab(ray, nodes[c], best.t, slack), slab(ray, nodes[c + 1u], best.t, slack));
         }
         if next == MISS {
-            next = pop(&stack, best.t);
+            next = pop(&stack, best.t, slack);
             if next == MISS { return best; }
         }
         cur = next;

@@ -38,7 +38,7 @@ use super::{MAX_DEPTH, MeshBvh, Node};
 use crate::bvh::Hit;
 #[cfg(target_arch = "x86_64")]
 use crate::geometry::TriangleRays;
-use crate::geometry::{Aabb, Ray, TriangleHit, TriangleRay, robust_far};
+use crate::geometry::{Aabb, Ray, TriangleHit, TriangleRay, hit_limit, robust_far};
 use crate::parallel;
 use glam::{BVec3, Vec3};
 use std::cell::RefCell;
@@ -148,6 +148,9 @@ pub(super) struct Packet<'a> {
     /// Rays still traversing (any-hit queries drop a ray at its first hit).
     pub(super) active: u64,
     pub(super) lanes: &'a mut PacketLanes,
+    /// The largest [`Ray::hit_slack`] of the rays for the tree's box: every box test's limit adds it, as
+    /// single rays add their own (see `traverse`).
+    pub(super) slack: f32,
 }
 
 /// Per-ray state of a packet of up to [`MAX_PACKET`] rays (about 16 KB), kept per thread from packet to packet:
@@ -242,7 +245,7 @@ impl MeshBvh {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         with_lanes(|lanes| {
             for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-                let mut p = Packet::new(rays, lanes);
+                let mut p = Packet::new(rays, lanes, &self.bvh().bounds());
                 if self.trace_packet(&mut p, false, stats) {
                     let l = &p.lanes;
                     for (i, o) in out.iter_mut().enumerate() {
@@ -264,7 +267,7 @@ impl MeshBvh {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         with_lanes(|lanes| {
             for (rays, out) in rays.chunks(MAX_PACKET).zip(out.chunks_mut(MAX_PACKET)) {
-                let mut p = Packet::new(rays, lanes);
+                let mut p = Packet::new(rays, lanes, &self.bvh().bounds());
                 if self.trace_packet(&mut p, true, stats) {
                     for (i, o) in out.iter_mut().enumerate() {
                         *o = p.lanes.best[i].is_some();
@@ -369,10 +372,10 @@ impl MeshBvh {
 
 impl<'a> Packet<'a> {
     /// The packet of `rays` (at most [`MAX_PACKET`]), its valid rays active, in `lanes` (see
-    /// [`PacketLanes`]).
-    fn new(rays: &'a [Ray], lanes: &'a mut PacketLanes) -> Self {
+    /// [`PacketLanes`]), for a tree whose root box is `root`.
+    fn new(rays: &'a [Ray], lanes: &'a mut PacketLanes, root: &Aabb) -> Self {
         debug_assert!(rays.len() <= MAX_PACKET);
-        let mut active = 0;
+        let (mut active, mut slack) = (0, 0.0f32);
         for (i, r) in rays.iter().enumerate() {
             lanes.columns.set(i, r);
             lanes.best[i] = None;
@@ -383,12 +386,14 @@ impl<'a> Packet<'a> {
                 lanes.shear.set(i, &lanes.tris[i]);
                 lanes.tmax[i] = r.tmax;
                 active |= 1 << i;
+                slack = slack.max(r.hit_slack(root));
             }
         }
         Packet {
             rays,
             active,
             lanes,
+            slack,
         }
     }
 
@@ -437,9 +442,16 @@ impl<'a> Packet<'a> {
                     near = _mm_max_ps(_mm_mul_ps(_mm_sub_ps(np, o), inv), near);
                     far = _mm_min_ps(_mm_mul_ps(_mm_sub_ps(fp, o), inv), far);
                 }
-                // Each ray's far distance or its `tmax`, whichever is nearer, moved outward by the slack.
+                // Each ray's far distance moved outward by the slack, or its `tmax` so moved plus the
+                // packet's slack, whichever is nearer.
                 let tmax = _mm_loadu_ps(self.lanes.tmax[g..].as_ptr());
-                let limit = super::wide::simd::robust_far_sse(_mm_min_ps(far, tmax));
+                let limit = _mm_min_ps(
+                    super::wide::simd::robust_far_sse(far),
+                    _mm_add_ps(
+                        super::wide::simd::robust_far_sse(tmax),
+                        _mm_set1_ps(self.slack),
+                    ),
+                );
                 _mm_movemask_ps(_mm_cmple_ps(near, limit)) as u64
             };
             out |= hit << g;
@@ -449,23 +461,23 @@ impl<'a> Packet<'a> {
     }
 
     /// Whether ray `i`'s own slab test ([`Ray::intersect_aabb`]) accepts `b` within its current `tmax`
-    /// moved outward by [`robust_far`]'s slack, as single rays test boxes (see `traverse`).
+    /// moved outward as single rays move it ([`hit_limit`], with the packet's slack; see `traverse`).
     #[inline]
     fn reaches(&self, i: usize, b: &Aabb) -> bool {
         self.rays[i]
-            .intersect_aabb(b, robust_far(self.lanes.tmax[i]))
+            .intersect_aabb(b, hit_limit(self.lanes.tmax[i], self.slack))
             .is_some()
     }
 
-    /// The largest current `tmax` of the active rays moved outward by [`robust_far`]'s slack: no box whose
-    /// entry lies beyond it can matter to the packet (every ray's boxes are tested against its `tmax` so
-    /// moved, as single rays do; see `traverse`).
+    /// The largest current `tmax` of the active rays moved outward as each ray's is ([`hit_limit`]): no
+    /// box whose entry lies beyond it can matter to the packet.
     #[inline]
     pub(super) fn limit_all(&self) -> f32 {
-        robust_far(
+        hit_limit(
             lanes(self.active)
                 .map(|i| self.lanes.tmax[i])
                 .fold(f32::NEG_INFINITY, f32::max),
+            self.slack,
         )
     }
 
@@ -617,7 +629,8 @@ mod tests {
                 })
                 .collect();
             let mut state = PacketLanes::EMPTY;
-            let p = Packet::new(&rays, &mut state);
+            let root = Aabb::new(v(&mut rng), v(&mut rng) + Vec3::splat(3.0));
+            let p = Packet::new(&rays, &mut state, &root);
             // Some rays as if they had found hits; some lanes unlimited.
             for i in 0..n {
                 match rng.next_u64() % 4 {
@@ -637,7 +650,7 @@ mod tests {
             let alone = lanes(mask)
                 .filter(|&i| {
                     rays[i]
-                        .intersect_aabb(&b, robust_far(p.lanes.tmax[i]))
+                        .intersect_aabb(&b, hit_limit(p.lanes.tmax[i], p.slack))
                         .is_some()
                 })
                 .fold(0, |m, i| m | 1 << i);

@@ -7,7 +7,7 @@
 
 use super::stack::Stack;
 use super::{MAX_DEPTH, Node};
-use crate::geometry::{Ray, robust_far};
+use crate::geometry::{Ray, hit_limit};
 use std::ops::Range;
 
 /// Work done by queries: the "measured traversal steps" used to compare tree quality.
@@ -60,17 +60,18 @@ impl Counter for TraversalStats {
 /// `leaf(slots, tmax)` tests a leaf's primitives, may lower `*tmax` (closest hit), and returns true to stop
 /// the whole traversal (any hit). The ray must be valid.
 ///
-/// Boxes are tested, and pushed ones kept, against `tmax` moved outward by [`robust_far`]'s slack (2 to 4
-/// ulps), not `tmax` itself: a triangle lying in a box's face plane (an axis-aligned face) can compute its
-/// `t` an ulp or two below the box's rounded entry distance, so a box culled at `tmax` exactly could hold
-/// a closer hit than the one found — and which hit was kept then depended on the order of the visits
-/// (one tree's against another's, the CPU's against the GPU's: 19 of 14,400 rays on the colliding crowd
-/// of `tests/gpu_frame.rs`, none with the slack). Not a bound for every triangle: a grazing one's `t` can
-/// round further, and so can a short hit on a large triangle, whose `t` errs by ulps of its vertices'
-/// distances from the origin rather than of `t` (`tests/gpu_frame.rs`'s crowd at 12 times real time: two
-/// characters' coplanar faces 0.0077 from a ray's origin, its two hits 6 ulps apart; the CPU mode's trees
-/// answered the nearer, the resident frame's GPU binned-SAH trees the farther). Every ray traversal of a BVH keeps this rule: single rays, packets, binary and wide
-/// trees, the top level's, the GPU kernels. One multiplication per leaf.
+/// Boxes are tested, and pushed ones kept, against `tmax` moved outward by
+/// [`robust_far`](crate::geometry::robust_far)'s slack (2 to 4 ulps) and by the ray's
+/// [`hit_slack`](Ray::hit_slack) for the root's box ([`hit_limit`]), not `tmax` itself: a triangle's `t` can round below its box's entry distance — by an ulp or two for a triangle
+/// lying in the box's face plane (an axis-aligned face), by ulps of its vertices' depths rather than of `t`
+/// for a short hit on a large triangle — so a box culled at `tmax` exactly could hold a closer hit than the
+/// one found, and which hit was kept then depended on the order of the visits (one tree's against
+/// another's, the CPU's against the GPU's: 19 of 14,400 rays on the colliding crowd of
+/// `tests/gpu_frame.rs` before the relative slack; two characters' coplanar faces 0.0077 from a ray's
+/// origin, hits 6 ulps apart, at 12 times real time before the absolute one; `tests/ray_order.rs` builds
+/// such faces by the thousand). Not a bound for a triangle met at a grazing angle. Every ray traversal of a
+/// BVH keeps this rule: single rays, packets, binary and wide trees, the top level's, the GPU kernels. One
+/// multiplication and one addition per leaf.
 #[inline]
 pub(crate) fn traverse<C: Counter>(
     nodes: &[Node],
@@ -79,14 +80,17 @@ pub(crate) fn traverse<C: Counter>(
     mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
 ) {
     let mut tmax = ray.tmax;
+    let slack = nodes
+        .first()
+        .map_or(0.0, |root| ray.hit_slack(&root.aabb()));
     traverse_by(
         nodes,
-        robust_far(tmax),
+        hit_limit(tmax, slack),
         counter,
         |n, limit| ray.intersect_aabb(&n.aabb(), limit),
         |slots, limit| {
             let stop = leaf(slots, &mut tmax);
-            *limit = robust_far(tmax);
+            *limit = hit_limit(tmax, slack);
             stop
         },
     );

@@ -13,7 +13,7 @@
 use super::world::{Instance, nearer};
 use super::{QueryFilter, RayHit, TraceWorld};
 use crate::bvh::{Hit, MAX_PACKET, traverse};
-use crate::geometry::{Ray, robust_far};
+use crate::geometry::{Ray, hit_limit};
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
 use std::cell::RefCell;
@@ -121,12 +121,19 @@ impl TraceWorld {
         REACHED.with_borrow_mut(|scratch| {
             // Top level, ray by ray: each reached entity with the nearest entry of any ray into its box.
             scratch.clear();
-            for r in rays.iter().filter(|r| r.is_valid()) {
+            // Each ray's slack for the whole scene (see `traverse`): the entities' boxes are tested
+            // against its bound moved outward by it, as every traversal tests boxes.
+            let world = self.tlas.bounds();
+            let mut slack = [0.0f32; MAX_PACKET];
+            for (s, r) in slack.iter_mut().zip(rays) {
+                *s = r.hit_slack(&world);
+            }
+            for (r, &slack) in rays.iter().zip(&slack).filter(|(r, _)| r.is_valid()) {
                 traverse(self.tlas.nodes(), r, &mut (), |slots, _| {
                     for s in slots {
                         let p = self.tlas.prim_indices()[s];
                         let t = r
-                            .intersect_aabb(&self.tlas_bounds[p as usize], robust_far(r.tmax))
+                            .intersect_aabb(&self.tlas_bounds[p as usize], hit_limit(r.tmax, slack))
                             .unwrap_or(f32::INFINITY);
                         scratch.push((t, p));
                     }
@@ -152,8 +159,7 @@ impl TraceWorld {
                 }
                 let mut n = 0;
                 for (i, r) in rays.iter().enumerate() {
-                    // The box against the ray's bound moved outward, as every traversal tests boxes.
-                    let limit = robust_far(tmax[i]);
+                    let limit = hit_limit(tmax[i], slack[i]);
                     if tmax[i] >= r.tmin && r.intersect_aabb(&inst.world_bounds, limit).is_some() {
                         object[n] = inst.object_ray(r, tmax[i]);
                         idx[n] = i;

@@ -16,8 +16,8 @@ pub(crate) use morton::spread10;
 pub use morton::{morton30, morton30_cube, morton63};
 pub use predicates::orient3d;
 pub(crate) use predicates::{Plane, normal_est, orient2d_est};
-pub use ray::{ROBUST_FAR_SLACK, Ray, robust_far};
-pub(crate) use ray::{max_keep, min_keep};
+pub use ray::{HIT_SLACK, ROBUST_FAR_SLACK, Ray, robust_far};
+pub(crate) use ray::{hit_limit, max_keep, min_keep};
 pub(crate) use transform::{check_finite, checked_inverse};
 pub use triangle::{TriangleHit, TriangleRay};
 #[cfg(target_arch = "x86_64")]

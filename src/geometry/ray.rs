@@ -99,6 +99,41 @@ impl Ray {
         self.inv_dir
     }
 
+    /// How far, in units of `t`, a triangle inside `bounds` may compute its hit nearer than the box it lies
+    /// in admits: [`HIT_SLACK`] times the largest `t` at which the ray reaches one of the box's corner
+    /// coordinates (the largest distance to a corner along an axis over the largest direction component).
+    ///
+    /// Why: the watertight test's `t` errs by ulps of the vertices' depths along the ray, not of `t`. A
+    /// short hit on a large triangle — a face 0.005 from the origin whose corners lie a unit away, met at
+    /// an angle — can come out a hundred ulps of `t` below the entry distance of its own box. A traversal
+    /// that culled boxes at its best `t` moved out by [`robust_far`]'s few ulps then skipped such a
+    /// triangle or not depending on the order it visited the tree in: different trees of one mesh (and the
+    /// CPU's against the GPU's) kept different hits. Every ray traversal of a tree adds this slack for its
+    /// root's box to its limit ([`robust_far`]`(tmax) + slack`); it costs the boxes it lets through, a hair
+    /// beyond the best hit. Not a bound for a triangle met at a grazing angle, whose edge functions carry
+    /// the rounding of its width across the ray. Zero for an empty box (nothing to hit), `+∞` when the
+    /// distances overflow (nothing is culled).
+    ///
+    /// ```
+    /// use kinetrace::{Aabb, Ray};
+    /// use glam::Vec3;
+    /// let ray = Ray::new(Vec3::ZERO, Vec3::new(0.0, 0.0, 2.0));
+    /// let slack = ray.hit_slack(&Aabb::new(Vec3::splat(-1.0), Vec3::splat(4.0)));
+    /// assert_eq!(slack, kinetrace::geometry::HIT_SLACK * 4.0 / 2.0);
+    /// ```
+    #[inline]
+    pub fn hit_slack(&self, bounds: &Aabb) -> f32 {
+        if bounds.is_empty() {
+            return 0.0;
+        }
+        let reach = (bounds.min - self.origin)
+            .abs()
+            .max((bounds.max - self.origin).abs())
+            .max_element();
+        // `|1/d|` is `∞` along an axis the ray does not move on: the smallest is the largest component's.
+        HIT_SLACK * reach * self.inv_dir.abs().min_element()
+    }
+
     /// Which components of [`Ray::dir`] have their sign bit set (`-0.0` included).
     #[inline]
     pub fn dir_neg(&self) -> BVec3 {
@@ -163,6 +198,13 @@ pub(crate) fn min_keep(x: f32, acc: f32) -> f32 {
 /// Ize's rounding bound for the far slab distance, `2 ulp(1)` of its size (see [`robust_far`]).
 pub const ROBUST_FAR_SLACK: f32 = 2.0 * f32::EPSILON;
 
+/// The absolute part of a traversal's limit ([`Ray::hit_slack`]), in `ulp(1)` of the largest `t` at which
+/// the ray reaches a corner coordinate of the tree's box: 16, about twice the leading terms of the
+/// watertight test's rounding bound on `t` (Pharr, Jakob and Humphreys, *Physically Based Rendering*, 3rd
+/// ed., §3.9.6: `6·γ₃` of the vertices' largest depth along the ray, for a hit whose edge functions agree in
+/// sign).
+pub const HIT_SLACK: f32 = 16.0 * f32::EPSILON;
+
 /// The far slab distance `far` moved outward by [`ROBUST_FAR_SLACK`] of its size, so that rounding never
 /// culls a box the ray touches: `far · (1 + 2ε)` for a far plane ahead of the origin, `far · (1 − 2ε)` for
 /// one behind it (a range with a negative `tmin`: scaling by `1 + 2ε` there would pull it inward and cull
@@ -170,6 +212,13 @@ pub const ROBUST_FAR_SLACK: f32 = 2.0 * f32::EPSILON;
 #[inline(always)]
 pub fn robust_far(far: f32) -> f32 {
     far * (1.0 + ROBUST_FAR_SLACK.copysign(far))
+}
+
+/// The bound a nearest-first traversal tests boxes against when its best hit so far is at `tmax`:
+/// [`robust_far`]`(tmax)` plus the ray's [`hit_slack`](Ray::hit_slack) for the tree (`slack`).
+#[inline(always)]
+pub(crate) fn hit_limit(tmax: f32, slack: f32) -> f32 {
+    robust_far(tmax) + slack
 }
 
 #[cfg(test)]

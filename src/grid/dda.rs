@@ -9,7 +9,7 @@
 
 use super::{Mailbox, UniformGrid};
 use crate::bvh::{Hit, TraversalStats};
-use crate::geometry::{Ray, TriangleRay};
+use crate::geometry::{Ray, TriangleRay, hit_limit};
 use glam::Vec3;
 
 /// Entries of a single ray's mailbox.
@@ -28,6 +28,7 @@ impl UniformGrid {
             return None;
         }
         let tr = TriangleRay::new(ray);
+        let slack = ray.hit_slack(&self.bounds);
         let mut best: Option<(f32, u32, f32, f32)> = None;
         let mut tmax = ray.tmax;
         let mut mail = Mailbox::<RAY_MAILBOX>::new();
@@ -45,7 +46,9 @@ impl UniformGrid {
                     tmax = h.t;
                 }
             }
-            best.is_some_and(|(t, ..)| t <= t_exit)
+            // Done when the next cell lies beyond the best hit's limit, as a BVH culls boxes (see
+            // `traverse`: a triangle further on can compute its `t` a little before the cell's entry).
+            best.is_some_and(|(t, ..)| hit_limit(t, slack) < t_exit)
         });
         best.map(|(t, p, u, v)| self.hit(t, p, u, v))
     }

@@ -18,7 +18,7 @@
 
 use super::{Mailbox, UniformGrid};
 use crate::bvh::{Hit, TraversalStats, for_each_packet};
-use crate::geometry::{Ray, TriangleRay};
+use crate::geometry::{Ray, TriangleRay, hit_limit};
 use glam::{UVec3, Vec3, Vec4};
 
 pub use crate::bvh::MAX_PACKET;
@@ -369,7 +369,9 @@ impl UniformGrid {
                 if let Some((_, _, t_out)) = *lane {
                     let r = &rays[i];
                     let t_exit = (x_out - r.origin[k]) * r.inv_dir()[k];
-                    if t_exit >= t_out || best[i].is_some_and(|(t, ..)| t <= t_exit) {
+                    // Done when the next slice lies beyond its best hit's limit (see `traverse`).
+                    let beyond = |t: f32| hit_limit(t, r.hit_slack(&self.bounds)) < t_exit;
+                    if t_exit >= t_out || best[i].is_some_and(|(t, ..)| beyond(t)) {
                         *lane = None;
                         kill(&mut soa, i);
                     } else {

@@ -38,7 +38,7 @@ use super::node::{COUNT_SHIFT, FIRST_MASK};
 use super::stack::Stack;
 use super::traverse::Counter;
 use super::{LEAF_BIT, MAX_DEPTH, Node};
-use crate::geometry::{Aabb, Ray, robust_far};
+use crate::geometry::{Aabb, Ray, hit_limit};
 pub(crate) use discs::{DiscCache, LaneDiscs};
 use simd::{RayLanes, hit4};
 use std::ops::Range;
@@ -93,6 +93,11 @@ impl WideNode {
             [b[0][i], b[1][i], b[2][i]].into(),
             [b[3][i], b[4][i], b[5][i]].into(),
         )
+    }
+
+    /// The union of the lanes' boxes (unused lanes hold the empty box).
+    pub fn bounds(&self) -> Aabb {
+        (1..WIDTH).fold(self.lane_box(0), |b, i| b.union(&self.lane_box(i)))
     }
 
     fn set_lane_box(&mut self, i: usize, n: &Node) {
@@ -244,10 +249,21 @@ impl WideBvh {
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        walk(&self.nodes, ray, counter, leaf, |node, lanes, tmax| {
-            let (mask, near) = hit4(node, lanes, tmax);
-            (mask, near, node.child)
-        });
+        let slack = self
+            .nodes
+            .first()
+            .map_or(0.0, |r| ray.hit_slack(&r.bounds()));
+        walk(
+            &self.nodes,
+            ray,
+            slack,
+            counter,
+            leaf,
+            |node, lanes, tmax| {
+                let (mask, near) = hit4(node, lanes, tmax);
+                (mask, near, node.child)
+            },
+        );
     }
 }
 
@@ -259,6 +275,7 @@ impl WideBvh {
 fn walk<N, C: Counter>(
     nodes: &[N],
     ray: &Ray,
+    slack: f32,
     counter: &mut C,
     mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     visit: impl Fn(&N, &RayLanes, f32) -> (u32, [f32; WIDTH], [u32; WIDTH]),
@@ -267,9 +284,10 @@ fn walk<N, C: Counter>(
         return;
     }
     let lanes = RayLanes::new(ray);
-    // Boxes against `tmax` moved outward by the far slack, as in the binary `traverse` (which says why).
+    // Boxes against `tmax` moved outward by the far slack and the ray's `slack` for the tree, as in the
+    // binary `traverse` (which says why).
     let mut tmax = ray.tmax;
-    let mut limit = robust_far(tmax);
+    let mut limit = hit_limit(tmax, slack);
     let mut stack = NearStack::new();
     let mut cur = 0u32;
     loop {
@@ -279,7 +297,7 @@ fn walk<N, C: Counter>(
             if leaf(slots, &mut tmax) {
                 return;
             }
-            limit = robust_far(tmax);
+            limit = hit_limit(tmax, slack);
         } else {
             counter.inner();
             let (mask, near, child) = visit(&nodes[cur as usize], &lanes, limit);

@@ -32,7 +32,7 @@ use super::{EMPTY_LANE, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slot
 use crate::bvh::packet::{Bounds, Packet, lanes, range_mask};
 use crate::bvh::stack::Stack;
 use crate::bvh::{MeshBvh, TraversalStats};
-use crate::geometry::robust_far;
+use crate::geometry::hit_limit;
 
 /// A child waiting on the stack: its payload, where its box lives (`parent` node, `lane`), its range of
 /// rays and its interval lower bound.
@@ -69,7 +69,7 @@ impl WideBvh {
             *l = RayLanes::new(r);
         }
         let test = |p: &Packet, node, i: usize| {
-            hit4(node, &p.lanes.wide[i], robust_far(p.lanes.tmax[i])).0
+            hit4(node, &p.lanes.wide[i], hit_limit(p.lanes.tmax[i], p.slack)).0
         };
         let lanes4 = LaneBounds::new(bounds);
         let mut limit_all = p.limit_all();
