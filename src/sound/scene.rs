@@ -5,7 +5,7 @@
 use super::frustum::{Cull, box_distance};
 use super::material::AcousticMaterial;
 use crate::bvh::{Bvh, traverse, traverse_by};
-use crate::geometry::{TriangleHit, TriangleRay, checked_inverse};
+use crate::geometry::{TriangleHit, TriangleRay, checked_inverse, hit_limit};
 use crate::{Aabb, Error, MeshBvh, Ray, Result};
 use glam::{Affine3A, Mat3A, Vec3};
 use std::collections::HashMap;
@@ -373,9 +373,12 @@ impl<'a> SoundScene<'a> {
         }
         let tr = TriangleRay::new(ray);
         let mut best: Option<SceneHit> = None;
+        // Instances' boxes against the best `t` moved outward as every ray traversal moves it (see
+        // `traverse`), so that the hit kept does not depend on the order the top level is visited in.
+        let slack = self.top.map_or(0.0, |top| ray.hit_slack(&top.bounds()));
         self.instances_by(
             ray.tmax,
-            |b, t| ray.intersect_aabb(b, t),
+            |b, t| ray.intersect_aabb(b, hit_limit(t, slack)),
             |p, tmax| {
                 let local = match p.xf {
                     None => *ray,
