@@ -235,9 +235,12 @@ impl MeshBvh {
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
+        // The wide and quantised trees span the binary tree's root box: the slack is the same for all
+        // three (the binary walk takes it from its root itself).
+        let slack = || ray.hit_slack(&self.bvh.bounds());
         match (&self.compact, &self.wide) {
-            (Some(c), _) => c.traverse(ray, counter, leaf),
-            (None, Some(w)) => w.traverse(ray, counter, leaf),
+            (Some(c), _) => c.traverse(ray, slack(), counter, leaf),
+            (None, Some(w)) => w.traverse(ray, slack(), counter, leaf),
             (None, None) => traverse(&self.bvh.nodes, ray, counter, leaf),
         }
     }

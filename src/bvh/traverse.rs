@@ -62,10 +62,10 @@ impl Counter for TraversalStats {
 ///
 /// Boxes are tested, and pushed ones kept, against `tmax` moved outward by
 /// [`robust_far`](crate::geometry::robust_far)'s slack (2 to 4 ulps) and by the ray's
-/// [`hit_slack`](Ray::hit_slack) for the root's box ([`hit_limit`]), not `tmax` itself: a triangle's `t` can round below its box's entry distance — by an ulp or two for a triangle
-/// lying in the box's face plane (an axis-aligned face), by ulps of its vertices' depths rather than of `t`
-/// for a short hit on a large triangle — so a box culled at `tmax` exactly could hold a closer hit than the
-/// one found, and which hit was kept then depended on the order of the visits (one tree's against
+/// [`hit_slack`](Ray::hit_slack) for the root's box ([`hit_limit`]), not `tmax` itself: a triangle's `t`
+/// can round below its box's entry distance — by an ulp or two for a triangle lying in the box's face
+/// plane (an axis-aligned face), by ulps of its vertices' depths rather than of `t` for a short hit on a
+/// large triangle — so a box culled at `tmax` exactly could hold a closer hit than the one found, and which hit was kept then depended on the order of the visits (one tree's against
 /// another's, the CPU's against the GPU's: 19 of 14,400 rays on the colliding crowd of
 /// `tests/gpu_frame.rs` before the relative slack; two characters' coplanar faces 0.0077 from a ray's
 /// origin, hits 6 ulps apart, at 12 times real time before the absolute one; `tests/ray_order.rs` builds

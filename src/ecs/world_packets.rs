@@ -128,12 +128,15 @@ impl TraceWorld {
             for (s, r) in slack.iter_mut().zip(rays) {
                 *s = r.hit_slack(&world);
             }
-            for (r, &slack) in rays.iter().zip(&slack).filter(|(r, _)| r.is_valid()) {
+            for (r, &ray_slack) in rays.iter().zip(&slack).filter(|(r, _)| r.is_valid()) {
                 traverse(self.tlas.nodes(), r, &mut (), |slots, _| {
                     for s in slots {
                         let p = self.tlas.prim_indices()[s];
                         let t = r
-                            .intersect_aabb(&self.tlas_bounds[p as usize], hit_limit(r.tmax, slack))
+                            .intersect_aabb(
+                                &self.tlas_bounds[p as usize],
+                                hit_limit(r.tmax, ray_slack),
+                            )
                             .unwrap_or(f32::INFINITY);
                         scratch.push((t, p));
                     }

@@ -107,6 +107,9 @@ impl UniformGrid {
         stats: &mut TraversalStats,
     ) -> bool {
         let mut lanes = [None::<(TriangleRay, f32, f32)>; MAX_PACKET];
+        // Each ray's slack for the grid's box: a slice beyond its best hit's limit ends it (see
+        // `traverse`).
+        let mut slack = [0.0f32; MAX_PACKET];
         let mut mean = Vec3::ZERO;
         for (i, r) in rays.iter().enumerate() {
             if !r.is_valid() {
@@ -117,6 +120,7 @@ impl UniformGrid {
                     return false;
                 }
                 lanes[i] = Some((TriangleRay::new(r), t_in, t_out));
+                slack[i] = r.hit_slack(&self.bounds);
                 mean += r.dir().normalize();
             }
         }
@@ -369,8 +373,7 @@ impl UniformGrid {
                 if let Some((_, _, t_out)) = *lane {
                     let r = &rays[i];
                     let t_exit = (x_out - r.origin[k]) * r.inv_dir()[k];
-                    // Done when the next slice lies beyond its best hit's limit (see `traverse`).
-                    let beyond = |t: f32| hit_limit(t, r.hit_slack(&self.bounds)) < t_exit;
+                    let beyond = |t: f32| hit_limit(t, slack[i]) < t_exit;
                     if t_exit >= t_out || best[i].is_some_and(|(t, ..)| beyond(t)) {
                         *lane = None;
                         kill(&mut soa, i);

@@ -21,7 +21,7 @@
 use super::simd::hit4;
 use super::{EMPTY_LANE, WIDTH, WideBvh, WideNode, walk};
 use crate::bvh::traverse::Counter;
-use crate::geometry::{Aabb, Ray};
+use crate::geometry::Ray;
 use glam::Vec4;
 use std::ops::Range;
 
@@ -136,15 +136,12 @@ impl CompactNode {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CompactWideBvh {
     nodes: Vec<CompactNode>,
-    /// The float tree's root box, for a ray's [`hit_slack`](crate::Ray::hit_slack).
-    bounds: Aabb,
 }
 
 impl CompactWideBvh {
     /// Quantises every node of `wide` (same node order and payloads). O(wide nodes).
     pub fn quantise(wide: &WideBvh) -> CompactWideBvh {
         CompactWideBvh {
-            bounds: wide.nodes().first().map_or(Aabb::EMPTY, WideNode::bounds),
             nodes: wide.nodes().iter().map(CompactNode::quantise).collect(),
         }
     }
@@ -169,10 +166,10 @@ impl CompactWideBvh {
     pub(crate) fn traverse<C: Counter>(
         &self,
         ray: &Ray,
+        slack: f32,
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        let slack = ray.hit_slack(&self.bounds);
         walk(&self.nodes, ray, slack, counter, leaf, |c, lanes, tmax| {
             let node = c.dequantise();
             let (mask, near) = hit4(&node, lanes, tmax);

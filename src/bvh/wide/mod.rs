@@ -95,11 +95,6 @@ impl WideNode {
         )
     }
 
-    /// The union of the lanes' boxes (unused lanes hold the empty box).
-    pub fn bounds(&self) -> Aabb {
-        (1..WIDTH).fold(self.lane_box(0), |b, i| b.union(&self.lane_box(i)))
-    }
-
     fn set_lane_box(&mut self, i: usize, n: &Node) {
         for a in 0..3 {
             self.bounds[a][i] = n.min[a];
@@ -241,18 +236,16 @@ impl WideBvh {
 
     /// Walks the leaves whose boxes the ray reaches within the current `tmax`, nearest box first, with the
     /// contract of the binary `traverse`: `leaf(slots, tmax)` may lower `*tmax` and returns true to stop.
-    /// The ray must be valid.
+    /// `slack` is the ray's [`hit_slack`](Ray::hit_slack) for the tree's box, added to every limit as the
+    /// binary `traverse` adds it. The ray must be valid.
     #[inline]
     pub(crate) fn traverse<C: Counter>(
         &self,
         ray: &Ray,
+        slack: f32,
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        let slack = self
-            .nodes
-            .first()
-            .map_or(0.0, |r| ray.hit_slack(&r.bounds()));
         walk(
             &self.nodes,
             ray,
