@@ -225,6 +225,25 @@ pub(crate) fn hit_limit(tmax: f32, slack: f32) -> f32 {
 mod tests {
     use super::*;
 
+    /// The slack's edge cases, against its definition worked by hand: axes the ray does not move on are
+    /// skipped, an empty box has none, distances that overflow give `+∞` (nothing culled), never NaN.
+    #[test]
+    fn hit_slack_at_its_edges() {
+        let b = Aabb::new(Vec3::new(-1.0, 2.0, -8.0), Vec3::new(3.0, 5.0, 1.0));
+        // Reach 8 (z), largest direction component 4 (y; x and z do not move): 16 ε · 8 / 4.
+        let r = Ray::new(Vec3::ZERO, Vec3::new(0.0, -4.0, 0.0));
+        assert_eq!(r.hit_slack(&b), 32.0 * f32::EPSILON);
+        // From (1, 1, 1) along (1, 2, −0.5): reach max(2, 4, 9) = 9 (z), over 2.
+        let r = Ray::new(Vec3::ONE, Vec3::new(1.0, 2.0, -0.5));
+        assert_eq!(r.hit_slack(&b), HIT_SLACK * 9.0 * 0.5);
+        assert_eq!(r.hit_slack(&Aabb::EMPTY), 0.0);
+        let far = Ray::new(Vec3::splat(-3e38), Vec3::new(1e-30, 0.0, 0.0));
+        assert_eq!(
+            far.hit_slack(&Aabb::new(Vec3::ZERO, Vec3::splat(3e38))),
+            f32::INFINITY
+        );
+    }
+
     #[test]
     fn zero_direction_components_do_not_cull_touching_boxes() {
         let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
