@@ -13,6 +13,9 @@
 //!  --scenes / --strategies: only those, by the names the summary prints; all by default; the
 //!  secondary-ray section runs unless --strategies leaves out `secondary`)
 //! ```
+//!
+//! The crowd's row on a huge-page heap comes from this executable started again with `--crowd-child`
+//! (see `planner::huge_page_crowd`), which runs that crowd alone and prints its row.
 
 mod camera;
 mod grid_rows;
@@ -50,6 +53,7 @@ fn main() {
     let mut out = PathBuf::from("target/report");
     let mut assets = PathBuf::from("../shared/assets");
     let mut only = output::Only::default();
+    let mut crowd_child = false;
     let list = |v: String| v.split(',').map(str::to_owned).collect();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -78,12 +82,21 @@ fn main() {
             "--assets" => assets = PathBuf::from(value("a directory")),
             "--scenes" => only.scenes = list(value("scene names")),
             "--strategies" => only.strategies = list(value("strategy names")),
+            planner::CROWD_CHILD => crowd_child = true,
             _ => fail(&format!("unknown option {a}")),
         }
     }
     if let Some(problem) = settings.problem() {
         fail(problem);
     }
+    if crowd_child {
+        let mut crowd = planner::instance_crowd(&settings, planner::CROWD, true);
+        let (var, value) = planner::HUGE_PAGE_HEAP;
+        crowd.huge_pages = std::env::var(var).is_ok_and(|v| v == value);
+        println!("{}", planner::instance_crowd_row(&crowd));
+        return;
+    }
+    only.crowd_child = std::env::current_exe().ok();
     match output::write_report(&settings, &assets, &out, &only) {
         Ok(report) => {
             for s in &report.skipped {

@@ -79,6 +79,10 @@ pub struct Report {
 pub struct Only {
     pub scenes: Vec<String>,
     pub strategies: Vec<String>,
+    /// The report's own executable, started again for the crowd on a huge-page heap
+    /// ([`planner::huge_page_crowd`]); `None` (a caller that is not the report, such as the smoke test)
+    /// leaves that row out and says so.
+    pub crowd_child: Option<PathBuf>,
 }
 
 impl Only {
@@ -119,11 +123,23 @@ pub fn write_report(
     let mut picks = Vec::new();
     // The 256-instance crowd runs before the scenes, so that its first frame does not depend on what
     // they left on the heap.
-    let crowds: Vec<_> = Only::keeps(&only.scenes, "crowd")
-        .then(|| [true, false].map(|shared| planner::instance_crowd(settings, 256, shared)))
-        .into_iter()
-        .flatten()
-        .collect();
+    let (mut crowds, mut missing) = (Vec::new(), None);
+    if Only::keeps(&only.scenes, "crowd") {
+        crowds = [true, false]
+            .map(|shared| {
+                planner::instance_crowd_row(&planner::instance_crowd(
+                    settings,
+                    planner::CROWD,
+                    shared,
+                ))
+            })
+            .to_vec();
+        match (only.crowd_child.as_deref()).map(|exe| planner::huge_page_crowd(exe, settings)) {
+            Some(Ok(row)) => crowds.insert(1, row),
+            Some(Err(why)) => missing = Some(why),
+            None => missing = Some("not run (the caller is not the report's executable)".into()),
+        }
+    }
     let mut secondary = Vec::new();
     for scene in &scenes {
         if Only::keeps(&only.strategies, "secondary") {
@@ -173,7 +189,7 @@ pub fn write_report(
     let crowd_table = if crowds.is_empty() {
         String::new()
     } else {
-        planner::instance_crowd_table(&crowds)
+        planner::instance_crowd_table(&crowds, missing.as_deref())
     };
     let planner_sections = planner::cold_start_table(&cold)
         + &crowd_table
