@@ -7,7 +7,7 @@
 
 mod common;
 use bevy_ecs::prelude::*;
-use common::ecs::{agree, app_with, brute};
+use common::ecs::{agree, app_with, brute, scripted_cost};
 use common::*;
 use glam::{Affine3A, Vec3};
 use kinetrace::adaptive::Choice;
@@ -164,20 +164,7 @@ fn scripted_costs_pick_the_cheaper_option_and_answers_stay_exact() {
         .resource_mut::<TraceWorld>()
         .script_costs(Some(Arc::new(move |e, option| {
             let (_, cheap) = table.iter().find(|(c, _)| *c == e)?;
-            let cheap = cheap.contains(&option);
-            // The cheaper structure or packet mode costs half per ray; the cheaper wide mode a hundredth
-            // of the overhead (a wide tree's collapse and refit): costs within reach of each option's
-            // prior, so that the other option is tried.
-            Some(match option {
-                PlannedOption::Wide(_) => ScriptedCost {
-                    overhead_s: if cheap { 1e-6 } else { 1e-4 },
-                    per_ray_s: 1e-6,
-                },
-                _ => ScriptedCost {
-                    overhead_s: 1e-6,
-                    per_ray_s: if cheap { 0.5e-6 } else { 1e-6 },
-                },
-            })
+            Some(scripted_cost(option, cheap.contains(&option)))
         })));
     let mut used = [[false; 2]; 4];
     let mut last = HashMap::new();

@@ -103,3 +103,20 @@ pub fn agree(got: Option<&RayHit>, expect: Option<(Entity, u32, f32)>, what: &st
         _ => panic!("{what}: {got:?} vs {expect:?}"),
     }
 }
+
+/// The scripted cost (`TraceWorld::script_costs`) of a planned option that is the `cheap` one of its kind
+/// or not: the cheaper wide mode costs a hundredth of the other's upkeep (a wide tree's collapse and
+/// refit), the cheaper structure or packet mode half per ray. Both stay within reach of each option's
+/// prior, so that the planner tries the other option whatever the machine's load.
+pub fn scripted_cost(option: PlannedOption, cheap: bool) -> ScriptedCost {
+    match option {
+        PlannedOption::Wide(_) => ScriptedCost {
+            overhead_s: if cheap { 1e-6 } else { 1e-4 },
+            per_ray_s: 1e-6,
+        },
+        _ => ScriptedCost {
+            overhead_s: 1e-6,
+            per_ray_s: if cheap { 0.5e-6 } else { 1e-6 },
+        },
+    }
+}
