@@ -185,6 +185,42 @@ fn a_partly_exploding_soup_rebuilds_the_exploded_part_only() {
     check_partial(&m, &pos, &options, "half explosion");
 }
 
+/// Clones of a tree share its topology (slot order and slot triangles) — what lets a crowd's copies of
+/// one character's tree pay for their boxes only — until one is partially rebuilt, which gives that one
+/// its own: the original keeps its slots, valid and exact on its own mesh.
+#[test]
+fn clones_share_topology_until_a_partial_rebuild() {
+    let m = soup(11, 8000);
+    let built = MeshBvh::build(&m, &BuildOptions::new(Builder::SAH)).unwrap();
+    let slots = built.bvh().prim_indices().to_vec();
+    let mut copy = built.clone();
+    let shared = |a: &MeshBvh, b: &MeshBvh| {
+        (
+            std::ptr::eq(a.bvh().prim_indices(), b.bvh().prim_indices()),
+            std::ptr::eq(a.slot_indices(), b.slot_indices()),
+        )
+    };
+    assert_eq!(shared(&built, &copy), (true, true));
+    let (pos, _) = explode(&m, 0.25, 0.5, 3);
+    let (_, done) = copy
+        .refit_partial(&pos, &PartialOptions::default())
+        .unwrap();
+    assert!(done.subtrees > 0, "the explosion rebuilds something");
+    assert_eq!(shared(&built, &copy), (false, false));
+    assert_ne!(
+        copy.bvh().prim_indices(),
+        &slots[..],
+        "the copy's own order"
+    );
+    assert_eq!(built.bvh().prim_indices(), &slots[..]);
+    built.bvh().validate(Some(&m.triangle_bounds())).unwrap();
+    for (i, ray) in scene_rays(&m, 5, 200).iter().enumerate() {
+        let oracle = RayOracle::of_mesh(&m, ray);
+        let got = built.closest_hit(ray).map(|h| (h.primitive, h.t));
+        oracle.check_closest(got, &format!("original ray {i}"));
+    }
+}
+
 #[test]
 fn a_torn_cloth_rebuilds_the_torn_corner_and_a_waving_one_stays_valid() {
     let m = folded_sheet(48, 0.0);

@@ -57,13 +57,14 @@ pub struct MeshBvh {
     bvh: Bvh,
     /// Corners of each slot's triangle; zero-area triangles are collapsed to one point, which no ray hits.
     tris: Vec<[Vec3; 3]>,
-    /// Vertex indices of each slot's triangle.
-    slot_indices: Vec<[u32; 3]>,
+    /// Vertex indices of each slot's triangle. This and `slot_of` are topology, shared by clones until a
+    /// partial rebuild changes them: a copy per deforming instance owns only its boxes and corners.
+    slot_indices: Arc<[[u32; 3]]>,
     vertex_count: usize,
     /// The mesh's index buffer (shared with it) and each triangle's slot: refit walks triangles in mesh
     /// order and scatters to slots, so the vertex reads stream through memory.
     indices: Arc<[u32]>,
-    slot_of: Vec<u32>,
+    slot_of: Arc<[u32]>,
     /// Refit scratch: each slot's triangle box, kept between calls; only meshes past
     /// [`GATHER_BELOW_BYTES`] of vertices use it, the others keep it empty.
     slot_bounds: Vec<Aabb>,
@@ -149,10 +150,10 @@ impl MeshBvh {
         }
         MeshBvh {
             tris,
-            slot_indices,
+            slot_indices: slot_indices.into(),
             vertex_count: pos.len(),
             indices: mesh.indices_arc(),
-            slot_of,
+            slot_of: slot_of.into(),
             slot_bounds: if std::mem::size_of_val(pos) > GATHER_BELOW_BYTES {
                 vec![Aabb::EMPTY; n]
             } else {
@@ -373,12 +374,15 @@ impl MeshBvh {
             return Ok(done);
         }
         let prims = self.bvh.prim_indices();
+        // Shared with clones until now: this tree gets its own.
+        let slot_of = Arc::make_mut(&mut self.slot_of);
+        let slot_indices = Arc::make_mut(&mut self.slot_indices);
         for range in &done.slots {
             for s in range.clone() {
                 let p = prims[s];
                 let t = tri(p);
-                self.slot_of[p as usize] = s as u32;
-                self.slot_indices[s] = t;
+                slot_of[p as usize] = s as u32;
+                slot_indices[s] = t;
                 self.tris[s] = query_corners(t.map(|i| positions[i as usize]));
             }
         }

@@ -57,6 +57,7 @@ pub(crate) use traverse::{traverse, traverse_by};
 use crate::geometry::Aabb;
 use crate::{Error, Result};
 use glam::Vec3;
+use std::sync::Arc;
 
 /// Bits of the Morton codes that the LBVH and hybrid builders sort by.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -258,10 +259,13 @@ pub(crate) struct BuildInput<'a> {
 /// maps each slot to the primitive id the builder was given (its position in the input slice).
 ///
 /// [`prim_indices`]: Bvh::prim_indices
+///
+/// A clone shares the slot order with the original until either changes it (it is topology: refits keep
+/// it), so copies of one tree for many deforming instances pay for their boxes only.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Bvh {
     nodes: Vec<Node>,
-    prims: Vec<u32>,
+    prims: Arc<[u32]>,
 }
 
 impl Bvh {
@@ -324,13 +328,19 @@ impl Bvh {
             Builder::Ploc { radius } => build_ploc::build(&input, slot, radius),
         };
         layout::compact(&mut nodes, used);
-        Ok(Bvh { nodes, prims })
+        Ok(Bvh {
+            nodes,
+            prims: prims.into(),
+        })
     }
 
     /// A tree from its parts, as read back from the GPU builder.
     #[cfg(feature = "gpu")]
     pub(crate) fn from_parts(nodes: Vec<Node>, prims: Vec<u32>) -> Bvh {
-        Bvh { nodes, prims }
+        Bvh {
+            nodes,
+            prims: prims.into(),
+        }
     }
 
     /// The nodes, root first. These are the bytes uploaded to the GPU.

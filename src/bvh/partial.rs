@@ -34,6 +34,7 @@ use super::{BuildInput, Bvh, MAX_BINS, Node, topdown};
 use crate::geometry::{Aabb, sa_ratio};
 use crate::{Error, Result};
 use std::ops::Range;
+use std::sync::Arc;
 
 /// When [`Bvh::rebuild_degraded`] rebuilds a subtree.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -300,7 +301,8 @@ impl Bvh {
             self.nodes[at(j)] = n;
         }
         let new_ids: Vec<u32> = local.iter().map(|&l| ids[l as usize]).collect();
-        self.prims[lo..hi].copy_from_slice(&new_ids);
+        // Shared with clones until now (`Bvh`'s docs): this tree gets its own.
+        Arc::make_mut(&mut self.prims)[lo..hi].copy_from_slice(&new_ids);
         true
     }
 }

@@ -42,6 +42,7 @@ use crate::geometry::{Aabb, Ray, hit_limit};
 pub(crate) use discs::{DiscCache, LaneDiscs};
 use simd::{RayLanes, hit4};
 use std::ops::Range;
+use std::sync::Arc;
 
 /// Children per wide node.
 pub const WIDTH: usize = 4;
@@ -169,7 +170,8 @@ fn nearest_first(
 pub struct WideBvh {
     nodes: Vec<WideNode>,
     /// For each node and lane, the binary node whose box the lane copies on a refit (`u32::MAX`: unused).
-    src: Vec<[u32; WIDTH]>,
+    /// Topology: clones share it.
+    src: Arc<[[u32; WIDTH]]>,
 }
 
 impl WideBvh {
@@ -181,12 +183,10 @@ impl WideBvh {
         let plan = LeafPlan::new(bin);
         // About 0.4 wide nodes per triangle with the usual small leaves: reserve that (a binary tree has
         // about two nodes per triangle) so the arrays do not move while they grow.
-        let mut w = WideBvh {
-            nodes: Vec::with_capacity(bin.len() / 4 + 1),
-            src: Vec::with_capacity(bin.len() / 4 + 1),
-        };
-        w.nodes.push(WideNode::EMPTY);
-        w.src.push([EMPTY_LANE; WIDTH]);
+        let mut nodes = Vec::with_capacity(bin.len() / 4 + 1);
+        let mut src = Vec::with_capacity(bin.len() / 4 + 1);
+        nodes.push(WideNode::EMPTY);
+        src.push([EMPTY_LANE; WIDTH]);
         let mut work = vec![(0usize, 0usize)];
         while let Some((wi, b)) = work.pop() {
             // Only the root can be a planned leaf here: inner wide children are never planned leaves.
@@ -196,20 +196,23 @@ impl WideBvh {
                 open(bin, &plan, b)
             };
             for (lane, &c) in kids[..len].iter().enumerate() {
-                w.nodes[wi].set_lane_box(lane, &bin[c]);
-                w.src[wi][lane] = c as u32;
-                w.nodes[wi].child[lane] = if plan.is_leaf(c) {
+                nodes[wi].set_lane_box(lane, &bin[c]);
+                src[wi][lane] = c as u32;
+                nodes[wi].child[lane] = if plan.is_leaf(c) {
                     let Planned { count, first, .. } = plan.0[c];
                     LEAF_BIT | (count << COUNT_SHIFT) | first
                 } else {
-                    w.nodes.push(WideNode::EMPTY);
-                    w.src.push([EMPTY_LANE; WIDTH]);
-                    work.push((w.nodes.len() - 1, c));
-                    (w.nodes.len() - 1) as u32
+                    nodes.push(WideNode::EMPTY);
+                    src.push([EMPTY_LANE; WIDTH]);
+                    work.push((nodes.len() - 1, c));
+                    (nodes.len() - 1) as u32
                 };
             }
         }
-        w
+        WideBvh {
+            nodes,
+            src: src.into(),
+        }
     }
 
     /// The nodes, root first.
@@ -217,7 +220,7 @@ impl WideBvh {
         &self.nodes
     }
 
-    /// Bytes held: nodes plus refit sources.
+    /// Bytes held: nodes plus refit sources (the sources shared with clones counted in full).
     pub fn memory_bytes(&self) -> usize {
         self.nodes.len() * std::mem::size_of::<WideNode>() + self.src.len() * 4 * WIDTH
     }
@@ -225,7 +228,7 @@ impl WideBvh {
     /// Copies the (refitted) boxes of `bin`, the binary tree this was collapsed from, into the lanes.
     /// O(wide nodes), no allocation.
     pub(crate) fn refit(&mut self, bin: &[Node]) {
-        for (node, src) in self.nodes.iter_mut().zip(&self.src) {
+        for (node, src) in self.nodes.iter_mut().zip(self.src.iter()) {
             for (lane, &s) in src.iter().enumerate() {
                 if s != EMPTY_LANE {
                     node.set_lane_box(lane, &bin[s as usize]);
