@@ -85,6 +85,26 @@ pub(crate) fn for_each_mut<T: Send>(
     }
 }
 
+/// Calls `f` on every item of `items`, in parallel when the feature is on and `parallel` is true (the
+/// items handed out one by one from the iterator: for work per item that dwarfs that hand-over, such as
+/// a mesh's refit). No allocation of its own.
+pub(crate) fn for_each_entry<I: Iterator + Send>(
+    parallel: bool,
+    items: I,
+    f: impl Fn(I::Item) + Sync + Send,
+) where
+    I::Item: Send,
+{
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        items.par_bridge().for_each(f);
+        return;
+    }
+    let _ = parallel;
+    items.for_each(f);
+}
+
 /// Worker threads parallel work may use (1 without the feature).
 pub(crate) fn threads() -> usize {
     #[cfg(feature = "parallel")]

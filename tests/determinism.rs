@@ -128,3 +128,126 @@ fn trees_and_answers_are_byte_equal_on_every_thread_count() {
         }
     }
 }
+
+/// A batched closest hit as bits: (mesh's spawn index, triangle, distance).
+type HitBits = Option<(usize, u32, u32)>;
+
+/// What an ECS run produces per frame, as bits: the maintenance counts, each mesh's action and
+/// degradation (by spawn index), and the batched closest hits.
+#[derive(PartialEq, Debug)]
+struct Frame {
+    refits_ahead: usize,
+    refits: usize,
+    rebuilds: usize,
+    meshes: Vec<(usize, String, u32)>,
+    hits: Vec<(u64, HitBits)>,
+}
+
+/// Six deforming meshes under Lauterbach's rule at 0.05 (rebuilds now and then, decided by the
+/// degradation alone, no timing), twelve frames of 400 batched rays.
+fn ecs_run() -> Vec<Frame> {
+    use bevy_ecs::prelude::*;
+    use kinetrace::ecs::*;
+    use kinetrace::scenes::{bumpy_torus, icosphere};
+    let (mut world, mut schedule) = common::ecs::app_with(TraceConfig {
+        policy: RebuildPolicy::Lauterbach { threshold: 0.05 },
+        ..Default::default()
+    });
+    let meshes: Vec<Mesh> = (0..6)
+        .map(|i| match i % 2 {
+            0 => icosphere(3 + i as u32 / 4),
+            _ => bumpy_torus(2000 + 700 * i),
+        })
+        .collect();
+    let entities: Vec<Entity> = (meshes.iter().enumerate())
+        .map(|(i, m)| {
+            let at = glam::Affine3A::from_translation(Vec3::new(3.0 * i as f32, 0.0, 0.0));
+            world.spawn((TraceMesh(m.clone()), TraceTransform(at))).id()
+        })
+        .collect();
+    let index = |e: Entity| entities.iter().position(|&x| x == e).unwrap();
+    let mut r = rng(23);
+    let mut frames = Vec::new();
+    for f in 0..12 {
+        for (i, (&e, m)) in entities.iter().zip(&meshes).enumerate() {
+            let phase = 0.4 * f as f32 + i as f32;
+            let moved: Vec<Vec3> = (m.positions().iter())
+                .map(|p| {
+                    *p + Vec3::new((p.y * 4.0 + phase).sin(), 0.0, (p.x * 3.0).cos())
+                        * 0.03
+                        * f as f32
+                })
+                .collect();
+            world.entity_mut(e).insert(VertexPositions(moved));
+        }
+        for tag in 0..400 {
+            let from = rand_vec(&mut r, -2.0, 17.0) * Vec3::new(1.0, 0.0, 0.2) + Vec3::Y * 5.0;
+            let ray = Ray::new(from, rand_vec(&mut r, -1.0, 1.0) - Vec3::Y * 2.0);
+            (world.resource_mut::<RayQueue>()).cast(tag, ray, QueryFilter::default());
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        let stats = world.resource::<TraceStats>();
+        let mut meshes: Vec<(usize, String, u32)> = (stats.meshes.iter())
+            .map(|m| {
+                (
+                    index(m.entity),
+                    format!("{:?}", m.action),
+                    m.degradation.to_bits(),
+                )
+            })
+            .collect();
+        meshes.sort_by_key(|m| m.0);
+        let hits = (world.resource::<RayResults>().hits.iter())
+            .map(|(tag, h)| {
+                (
+                    *tag,
+                    h.as_ref()
+                        .map(|h| (index(h.entity), h.triangle, h.distance.to_bits())),
+                )
+            })
+            .collect();
+        frames.push(Frame {
+            refits_ahead: stats.refits_ahead,
+            refits: stats.refits,
+            rebuilds: stats.rebuilds,
+            meshes,
+            hits,
+        });
+    }
+    frames
+}
+
+/// Through the ECS: the refits run ahead of the maintenance loop in parallel across meshes
+/// (`TraceStats::refits_ahead`) leave every frame's actions, degradations and batched answers bit for
+/// bit those of a one-thread pool, on 2 and 7 threads; and every kept mesh is refitted ahead.
+#[test]
+fn ecs_frames_are_bit_equal_on_every_thread_count() {
+    let on = |n: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .unwrap();
+        pool.install(ecs_run)
+    };
+    let reference = on(1);
+    assert_eq!(
+        reference[0].rebuilds, 6,
+        "the first frame builds every mesh"
+    );
+    for f in &reference[1..] {
+        // Refitted ahead, then kept or rebuilt by the rule on the refit's degradation.
+        assert_eq!(f.refits_ahead, 6, "every mesh refitted ahead: {f:?}");
+        assert_eq!(f.refits + f.rebuilds, 6);
+    }
+    let rebuilt: usize = reference[1..].iter().map(|f| f.rebuilds).sum();
+    assert!(rebuilt > 0, "the rule rebuilds some refitted meshes");
+    let hits = reference.iter().flat_map(|f| &f.hits);
+    assert!(hits.clone().any(|h| h.1.is_some()) && hits.clone().any(|h| h.1.is_none()));
+    for n in [2, 7] {
+        let got = on(n);
+        for (f, (a, b)) in reference.iter().zip(&got).enumerate() {
+            assert!(a == b, "frame {f} on {n} threads: {b:?} against {a:?}");
+        }
+    }
+}

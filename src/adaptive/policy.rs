@@ -695,6 +695,12 @@ impl AdaptivePolicy {
         true
     }
 
+    /// What [`outpaced`](Self::outpaced) will answer when asked next, without asking (no frame is
+    /// counted): for running refits ahead of the question. O(1).
+    pub(crate) fn skips_next_refit(&self) -> bool {
+        self.pace.left > 0
+    }
+
     /// After an [`after_refit`](Self::after_refit) whose verdict is [`Verdict::Rent`], weighs rebuilding
     /// only the degraded subtrees instead: a partial rebuild of `triangles` triangles
     /// ([`Bvh::degraded_primitives`]) is ranked against the full rebuild with [`choose`], the full one as
@@ -870,7 +876,8 @@ impl Pace {
         self.left = frames.min(f64::from(PACE_MEASURE - 1)) as u32;
     }
 
-    /// Whether to skip this frame's refit (and count it).
+    /// Whether to skip this frame's refit (and count it): exactly while `left` is above 0, which
+    /// [`AdaptivePolicy::skips_next_refit`] reads.
     fn skip(&mut self) -> bool {
         if self.left == 0 {
             return false;

@@ -1,10 +1,12 @@
 //! [`TraceSystems::Maintain`]: per changed mesh, refit and ask the policy, or rebuild — with the chosen builder
-//! on the chosen device — and feed the adaptive policy what it measured.
+//! on the chosen device — and feed the adaptive policy what it measured. The refits of meshes that keep
+//! their topology run first, in parallel across meshes ([`refit_ahead`]); everything else goes mesh by
+//! mesh.
 
 use super::config::lauterbach;
 use super::planned::{CostScript, plan_overlap, plan_structure, scripted, structure_for};
 use super::systems::{checked_transform, fail};
-use super::world::{Instance, Kept, topology_id};
+use super::world::{Instance, Kept, Prefit, topology_id};
 use super::*;
 use crate::adaptive::{
     AdaptivePolicy, Asset, Build, Choice, CostTable, Device, Prediction, TreeCost, Verdict,
@@ -90,6 +92,7 @@ pub(crate) fn maintain_system(
         world.remove(e);
     }
     let script = world.script.clone();
+    stats.refits_ahead = refit_ahead(&mut world, &changed, &config);
     let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
     let mut rebuilder = Rebuilder {
         config: &config,
@@ -103,11 +106,8 @@ pub(crate) fn maintain_system(
         .chain(retry.iter().filter_map(|&e| all.get(e).ok()))
     {
         let (e, mesh, vp, hint, ..) = data;
-        let t = Instant::now();
-        let positions = match vp {
-            Some(v) if !v.0.is_empty() => &v.0[..],
-            _ => mesh.0.positions(),
-        };
+        let mut t = Instant::now();
+        let positions = positions_of(mesh, vp);
         let mut degradation = 0.0;
         let mut prediction = None;
         let mut decision = None;
@@ -143,12 +143,13 @@ pub(crate) fn maintain_system(
                 prediction = inst.kept.adaptive.as_ref().map(AdaptivePolicy::prediction);
                 decision = prediction.map(|p| Decision::Rebuild(p.build));
             } else {
-                let refit = match planned {
-                    true => inst
-                        .bvh
-                        .refit_with_sah(positions)
-                        .map(|(d, s)| (d, Some(s))),
-                    false => inst.bvh.refit(positions).map(|d| (d, None)),
+                let refit = match std::mem::take(&mut inst.prefit) {
+                    // Refitted ahead: its time counts as this mesh's, as if refitted here.
+                    Prefit::Done { result, took } => {
+                        t = t.checked_sub(took).unwrap_or(t);
+                        result.map(|(d, s)| (d, s.filter(|_| planned)))
+                    }
+                    _ => refit_tree(inst, positions, planned),
                 };
                 match refit {
                     Ok((d, sah)) => {
@@ -333,6 +334,75 @@ fn partial_rebuild(inst: &mut Instance, positions: &[glam::Vec3]) -> Result<usiz
         policy.partially_rebuilt(done.primitives, seconds, inst.sah);
     }
     Ok(done.primitives)
+}
+
+/// The positions a mesh is maintained at: its `VertexPositions` where it has some, else its own.
+fn positions_of<'a>(mesh: &'a TraceMesh, vp: Option<&'a VertexPositions>) -> &'a [glam::Vec3] {
+    match vp {
+        Some(v) if !v.0.is_empty() => &v.0[..],
+        _ => mesh.0.positions(),
+    }
+}
+
+/// Refits `inst` to `positions`, measuring its SAH cost in the same pass when `with_sah`: the
+/// degradation and that cost.
+fn refit_tree(
+    inst: &mut Instance,
+    positions: &[glam::Vec3],
+    with_sah: bool,
+) -> Result<(f32, Option<f64>), Error> {
+    match with_sah {
+        true => (inst.bvh)
+            .refit_with_sah(positions)
+            .map(|(d, s)| (d, Some(s))),
+        false => inst.bvh.refit(positions).map(|d| (d, None)),
+    }
+}
+
+/// Runs this frame's refits ahead of the maintenance loop, in parallel across meshes (the `parallel`
+/// feature): the O(n) step of every kept mesh, independent of every other mesh, which the loop would
+/// run one mesh after another. A mesh is refitted ahead when it changed, keeps its topology and the
+/// adaptive policy does not skip its refit this frame ([`AdaptivePolicy::skips_next_refit`]); the loop
+/// takes the result ([`Prefit::Done`]) at the mesh's turn and charges the mesh its time, so decisions,
+/// answers and the planner's measurements are the loop's own. Others (new meshes, which may start from
+/// a sibling refitted here; a topology change; a retried mesh) are refitted in the loop as before. The
+/// SAH cost is measured in the pass for a mesh the adaptive policy answers with its BVH last frame; a
+/// mesh that switches structure this frame has it measured by the loop where needed. Returns the meshes
+/// refitted. Allocates nothing.
+fn refit_ahead(
+    world: &mut TraceWorld,
+    changed: &Query<MeshData, GeometryChanged>,
+    config: &TraceConfig,
+) -> usize {
+    let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
+    let mut due = 0;
+    for (e, mesh, ..) in changed.iter() {
+        let Some(inst) = world.instances.get_mut(&e) else {
+            continue;
+        };
+        let outpaced = (inst.kept.adaptive.as_ref()).is_some_and(AdaptivePolicy::skips_next_refit);
+        if inst.topology == topology_id(&mesh.0) && !outpaced {
+            let with_sah = adaptive && inst.structure == StructureKind::Bvh;
+            inst.prefit = Prefit::Due { with_sah };
+            due += 1;
+        }
+    }
+    // One mesh gains nothing from other threads (a large one's refit is not split).
+    let parallel = due > 1;
+    crate::parallel::for_each_entry(parallel, world.instances.iter_mut(), |(&e, inst)| {
+        let Prefit::Due { with_sah } = inst.prefit else {
+            return;
+        };
+        let Ok((_, mesh, vp, ..)) = changed.get(e) else {
+            inst.prefit = Prefit::None;
+            return;
+        };
+        let t = Instant::now();
+        let result = refit_tree(inst, positions_of(mesh, vp), with_sah);
+        let took = t.elapsed();
+        inst.prefit = Prefit::Done { result, took };
+    });
+    due
 }
 
 /// Prunes the shared cost table of the assets among `gone` that no mesh has any more. O(gone · meshes),

@@ -193,6 +193,10 @@ pub struct TraceStats {
     /// ([`Bvh::degraded_primitives`](crate::bvh::Bvh::degraded_primitives)), paid only where the rent
     /// made a rebuild due.
     pub partial_checks: usize,
+    /// Refits run ahead of the meshes' turns, in parallel across meshes with the `parallel` feature
+    /// (counted in `refits` too): every changed mesh that keeps its topology and is not rebuilt without a
+    /// refit; new meshes and topology changes are refitted or built in turn.
+    pub refits_ahead: usize,
     /// Meshes whose only change was their transform.
     pub moved: usize,
     /// New meshes that started from a copy of a sibling's tree (another entity of the same mesh),
