@@ -381,11 +381,15 @@ fn refit_ahead(
             continue;
         };
         let outpaced = (inst.kept.adaptive.as_ref()).is_some_and(AdaptivePolicy::skips_next_refit);
-        if inst.topology == topology_id(&mesh.0) && !outpaced {
-            let with_sah = adaptive && inst.structure == StructureKind::Bvh;
-            inst.prefit = Prefit::Due { with_sah };
+        // Set for every changed mesh, so that no refit of an earlier frame is ever taken for this one's.
+        inst.prefit = if inst.topology == topology_id(&mesh.0) && !outpaced {
             due += 1;
-        }
+            Prefit::Due {
+                with_sah: adaptive && inst.structure == StructureKind::Bvh,
+            }
+        } else {
+            Prefit::None
+        };
     }
     // One mesh gains nothing from other threads (a large one's refit is not split).
     let parallel = due > 1;
