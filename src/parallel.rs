@@ -73,36 +73,39 @@ pub(crate) fn for_each_mut<T: Send>(
     items: &mut [T],
     f: impl Fn(usize, &mut T) + Sync + Send,
 ) {
+    for_each_mut_split(parallel, items, usize::MAX, f);
+}
+
+/// [`for_each_mut`] with a task per item: for a few heavy items of uneven cost (meshes to refit), which the
+/// pool's split into halves can leave mostly to one thread.
+pub(crate) fn for_each_mut_one_by_one<T: Send>(
+    parallel: bool,
+    items: &mut [T],
+    f: impl Fn(usize, &mut T) + Sync + Send,
+) {
+    for_each_mut_split(parallel, items, 1, f);
+}
+
+/// `f(i, &mut items[i])` for every item, at most `per_task` items to a task (`usize::MAX`: as the pool
+/// splits). No allocation of its own.
+fn for_each_mut_split<T: Send>(
+    parallel: bool,
+    items: &mut [T],
+    per_task: usize,
+    f: impl Fn(usize, &mut T) + Sync + Send,
+) {
     #[cfg(feature = "parallel")]
     if parallel {
         use rayon::prelude::*;
-        items.par_iter_mut().enumerate().for_each(|(i, x)| f(i, x));
+        (items.par_iter_mut().with_max_len(per_task))
+            .enumerate()
+            .for_each(|(i, x)| f(i, x));
         return;
     }
-    let _ = parallel;
+    let _ = (parallel, per_task);
     for (i, x) in items.iter_mut().enumerate() {
         f(i, x);
     }
-}
-
-/// Calls `f` on every item of `items`, in parallel when the feature is on and `parallel` is true (the
-/// items handed out one by one from the iterator: for work per item that dwarfs that hand-over, such as
-/// a mesh's refit). No allocation of its own.
-pub(crate) fn for_each_entry<I: Iterator + Send>(
-    parallel: bool,
-    items: I,
-    f: impl Fn(I::Item) + Sync + Send,
-) where
-    I::Item: Send,
-{
-    #[cfg(feature = "parallel")]
-    if parallel {
-        use rayon::prelude::*;
-        items.par_bridge().for_each(f);
-        return;
-    }
-    let _ = parallel;
-    items.for_each(f);
 }
 
 /// Worker threads parallel work may use (1 without the feature).

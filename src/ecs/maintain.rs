@@ -81,6 +81,7 @@ pub(crate) fn maintain_system(
     mut fallbacks: Local<Fallbacks>,
     structures: Query<&TraceStructure>,
     costs: Local<CostTable>,
+    mut ahead: Local<Vec<(Entity, Instance)>>,
 ) {
     let start = Instant::now();
     // Topologies whose mesh went away this frame: the planner forgets them once no mesh has them.
@@ -92,7 +93,7 @@ pub(crate) fn maintain_system(
         world.remove(e);
     }
     let script = world.script.clone();
-    stats.refits_ahead = refit_ahead(&mut world, &changed, &config);
+    stats.refits_ahead = refit_ahead(&mut world, &changed, &config, &mut ahead);
     let retry: Vec<Entity> = recovered.read().filter(|e| !changed.contains(*e)).collect();
     let mut rebuilder = Rebuilder {
         config: &config,
@@ -367,37 +368,40 @@ fn refit_tree(
 /// answers and the planner's measurements are the loop's own. Others (new meshes, which may start from
 /// a sibling refitted here; a topology change; a retried mesh) are refitted in the loop as before. The
 /// SAH cost is measured in the pass for a mesh the adaptive policy answers with its BVH last frame; a
-/// mesh that switches structure this frame has it measured by the loop where needed. Returns the meshes
-/// refitted. Allocates nothing.
+/// mesh that switches structure this frame has it measured by the loop where needed.
+///
+/// The meshes refitted ahead leave the world's map for the pass (into `ahead`, whose capacity is kept
+/// from frame to frame) and go back after it: a slice splits over threads without allocating, the
+/// map's entries would not. Returns the meshes refitted. Allocates nothing once warm.
 fn refit_ahead(
     world: &mut TraceWorld,
     changed: &Query<MeshData, GeometryChanged>,
     config: &TraceConfig,
+    ahead: &mut Vec<(Entity, Instance)>,
 ) -> usize {
     let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
-    let mut due = 0;
+    ahead.clear();
     for (e, mesh, ..) in changed.iter() {
         let Some(inst) = world.instances.get_mut(&e) else {
             continue;
         };
         let outpaced = (inst.kept.adaptive.as_ref()).is_some_and(AdaptivePolicy::skips_next_refit);
         // Set for every changed mesh, so that no refit of an earlier frame is ever taken for this one's.
-        inst.prefit = if inst.topology == topology_id(&mesh.0) && !outpaced {
-            due += 1;
-            Prefit::Due {
-                with_sah: adaptive && inst.structure == StructureKind::Bvh,
-            }
-        } else {
-            Prefit::None
-        };
+        inst.prefit = Prefit::None;
+        if inst.topology == topology_id(&mesh.0) && !outpaced {
+            let with_sah = adaptive && inst.structure == StructureKind::Bvh;
+            let mut inst = world.instances.remove(&e).expect("looked up above");
+            inst.prefit = Prefit::Due { with_sah };
+            ahead.push((e, inst));
+        }
     }
     // One mesh gains nothing from other threads (a large one's refit is not split).
-    let parallel = due > 1;
-    crate::parallel::for_each_entry(parallel, world.instances.iter_mut(), |(&e, inst)| {
+    let parallel = ahead.len() > 1;
+    crate::parallel::for_each_mut_one_by_one(parallel, ahead, |_, (e, inst)| {
         let Prefit::Due { with_sah } = inst.prefit else {
             return;
         };
-        let Ok((_, mesh, vp, ..)) = changed.get(e) else {
+        let Ok((_, mesh, vp, ..)) = changed.get(*e) else {
             inst.prefit = Prefit::None;
             return;
         };
@@ -406,6 +410,10 @@ fn refit_ahead(
         let took = t.elapsed();
         inst.prefit = Prefit::Done { result, took };
     });
+    let due = ahead.len();
+    for (e, inst) in ahead.drain(..) {
+        world.instances.insert(e, inst);
+    }
     due
 }
 
