@@ -81,7 +81,7 @@ pub(crate) fn maintain_system(
     mut fallbacks: Local<Fallbacks>,
     structures: Query<&TraceStructure>,
     costs: Local<CostTable>,
-    mut ahead: Local<Vec<(Entity, Instance)>>,
+    mut ahead: Local<Vec<(Entity, bool, Instance)>>,
 ) {
     let start = Instant::now();
     // Topologies whose mesh went away this frame: the planner forgets them once no mesh has them.
@@ -144,13 +144,13 @@ pub(crate) fn maintain_system(
                 prediction = inst.kept.adaptive.as_ref().map(AdaptivePolicy::prediction);
                 decision = prediction.map(|p| Decision::Rebuild(p.build));
             } else {
-                let refit = match std::mem::take(&mut inst.prefit) {
+                let refit = match inst.prefit.take() {
                     // Refitted ahead: its time counts as this mesh's, as if refitted here.
-                    Prefit::Done { result, took } => {
+                    Some(Prefit { result, took }) => {
                         t = t.checked_sub(took).unwrap_or(t);
                         result.map(|(d, s)| (d, s.filter(|_| planned)))
                     }
-                    _ => refit_tree(inst, positions, planned),
+                    None => refit_tree(inst, positions, planned),
                 };
                 match refit {
                     Ok((d, sah)) => {
@@ -364,20 +364,20 @@ fn refit_tree(
 /// feature): the O(n) step of every kept mesh, independent of every other mesh, which the loop would
 /// run one mesh after another. A mesh is refitted ahead when it changed, keeps its topology and the
 /// adaptive policy does not skip its refit this frame ([`AdaptivePolicy::skips_next_refit`]); the loop
-/// takes the result ([`Prefit::Done`]) at the mesh's turn and charges the mesh its time, so decisions,
+/// takes the result ([`Prefit`]) at the mesh's turn and charges the mesh its time, so decisions,
 /// answers and the planner's measurements are the loop's own. Others (new meshes, which may start from
 /// a sibling refitted here; a topology change; a retried mesh) are refitted in the loop as before. The
 /// SAH cost is measured in the pass for a mesh the adaptive policy answers with its BVH last frame; a
 /// mesh that switches structure this frame has it measured by the loop where needed.
 ///
-/// The meshes refitted ahead leave the world's map for the pass (into `ahead`, whose capacity is kept
-/// from frame to frame) and go back after it: a slice splits over threads without allocating, the
+/// The meshes refitted ahead leave the world's map for the pass (into `ahead`, with whether to measure
+/// the SAH cost; its capacity is kept from frame to frame) and go back after it: a slice splits over threads without allocating, the
 /// map's entries would not. Returns the meshes refitted. Allocates nothing once warm.
 fn refit_ahead(
     world: &mut TraceWorld,
     changed: &Query<MeshData, GeometryChanged>,
     config: &TraceConfig,
-    ahead: &mut Vec<(Entity, Instance)>,
+    ahead: &mut Vec<(Entity, bool, Instance)>,
 ) -> usize {
     let adaptive = matches!(config.policy, RebuildPolicy::Adaptive { .. });
     ahead.clear();
@@ -386,32 +386,27 @@ fn refit_ahead(
             continue;
         };
         let outpaced = (inst.kept.adaptive.as_ref()).is_some_and(AdaptivePolicy::skips_next_refit);
-        // Set for every changed mesh, so that no refit of an earlier frame is ever taken for this one's.
-        inst.prefit = Prefit::None;
+        // Cleared for every changed mesh: no earlier frame's refit is ever taken for this one's.
+        inst.prefit = None;
         if inst.topology == topology_id(&mesh.0) && !outpaced {
             let with_sah = adaptive && inst.structure == StructureKind::Bvh;
-            let mut inst = world.instances.remove(&e).expect("looked up above");
-            inst.prefit = Prefit::Due { with_sah };
-            ahead.push((e, inst));
+            let inst = world.instances.remove(&e).expect("looked up above");
+            ahead.push((e, with_sah, inst));
         }
     }
     // One mesh gains nothing from other threads (a large one's refit is not split).
     let parallel = ahead.len() > 1;
-    crate::parallel::for_each_mut_one_by_one(parallel, ahead, |_, (e, inst)| {
-        let Prefit::Due { with_sah } = inst.prefit else {
-            return;
-        };
-        let Ok((_, mesh, vp, ..)) = changed.get(*e) else {
-            inst.prefit = Prefit::None;
-            return;
-        };
-        let t = Instant::now();
-        let result = refit_tree(inst, positions_of(mesh, vp), with_sah);
-        let took = t.elapsed();
-        inst.prefit = Prefit::Done { result, took };
+    crate::parallel::for_each_mut_one_by_one(parallel, ahead, |_, (e, with_sah, inst)| {
+        // Every entity here came from `changed` this run; one it no longer yields is refitted in turn.
+        if let Ok((_, mesh, vp, ..)) = changed.get(*e) {
+            let t = Instant::now();
+            let result = refit_tree(inst, positions_of(mesh, vp), *with_sah);
+            let took = t.elapsed();
+            inst.prefit = Some(Prefit { result, took });
+        }
     });
     let due = ahead.len();
-    for (e, inst) in ahead.drain(..) {
+    for (e, _, inst) in ahead.drain(..) {
         world.instances.insert(e, inst);
     }
     due

@@ -57,23 +57,17 @@ pub(crate) struct Instance {
     pub structure: StructureKind,
     pub why: StructureWhy,
     /// This frame's refit when it ran ahead of the mesh's turn in maintenance, in parallel with the
-    /// other meshes' (see `maintain::refit_ahead`).
-    pub prefit: Prefit,
+    /// other meshes' (see `maintain::refit_ahead`); `None`: the mesh's turn refits it, if it is to be.
+    pub prefit: Option<Prefit>,
 }
 
 /// A refit run ahead of the mesh's turn in maintenance.
-#[derive(Debug, Default)]
-pub(crate) enum Prefit {
-    /// None this frame: the mesh's turn refits it, if it is to be refitted.
-    #[default]
-    None,
-    /// To be refitted ahead, measuring the SAH cost in the same pass or not.
-    Due { with_sah: bool },
-    /// Refitted ahead: the degradation and SAH cost (if measured), or the error, and the time it took.
-    Done {
-        result: crate::Result<(f32, Option<f64>)>,
-        took: std::time::Duration,
-    },
+#[derive(Debug)]
+pub(crate) struct Prefit {
+    /// The degradation and the SAH cost (if measured in the pass), or the error.
+    pub result: crate::Result<(f32, Option<f64>)>,
+    /// The time it took.
+    pub took: std::time::Duration,
 }
 
 /// The state of an entity that a rebuild carries over to the new tree.
@@ -182,7 +176,7 @@ impl Instance {
             load: QueryLoad::default(),
             structure: StructureKind::Bvh,
             why: StructureWhy::Fixed,
-            prefit: Prefit::None,
+            prefit: None,
         };
         inst.update_world_bounds();
         inst
