@@ -604,3 +604,63 @@ fn profiles_are_refreshed_only_when_the_mesh_changed_enough() {
     assert!(tw.motion_incoherence(scatter).unwrap() >= 0.0);
     assert_eq!(tw.motion_incoherence(rigid), Some(0.0));
 }
+
+/// Bad vertices given to meshes already traced — refitted ahead of their turns, in parallel — fail those
+/// meshes with the refit's error (a NaN vertex, a wrong count), out of the world, while a healthy mesh
+/// beside them is refitted and answers as brute force does.
+#[test]
+fn bad_vertices_of_meshes_refitted_ahead_are_errors() {
+    let (mut world, mut schedule) = app();
+    let m = icosphere(2);
+    let at = |x: f32| TraceTransform(Affine3A::from_translation(Vec3::X * x));
+    let spawn = |world: &mut World, x: f32| {
+        let positions = VertexPositions(m.positions().to_vec());
+        world.spawn((TraceMesh(m.clone()), positions, at(x))).id()
+    };
+    let [nan, short, ok] = [0.0, 4.0, 8.0].map(|x| spawn(&mut world, x));
+    frame(&mut world, &mut schedule);
+    let grown: Vec<Vec3> = m.positions().iter().map(|p| *p * 1.1).collect();
+    for e in [nan, short, ok] {
+        world.entity_mut(e).insert(VertexPositions(grown.clone()));
+    }
+    frame(&mut world, &mut schedule);
+    assert_eq!(world.resource::<TraceStats>().refits_ahead, 3);
+    let mut bad = grown.clone();
+    bad[5].y = f32::NAN;
+    world.entity_mut(nan).insert(VertexPositions(bad));
+    world
+        .entity_mut(short)
+        .insert(VertexPositions(grown[1..].to_vec()));
+    world.entity_mut(ok).insert(VertexPositions(grown.clone()));
+    frame(&mut world, &mut schedule);
+    assert_eq!(world.resource::<TraceStats>().refits_ahead, 3);
+    let error = |e: Entity| world.get::<TraceError>(e).map(|t| t.0.clone());
+    assert!(
+        matches!(
+            error(nan),
+            Some(kinetrace::Error::NonFiniteVertex { vertex: 5, .. })
+        ),
+        "{:?}",
+        error(nan)
+    );
+    assert!(
+        matches!(
+            error(short),
+            Some(kinetrace::Error::VertexCountMismatch { .. })
+        ),
+        "{:?}",
+        error(short)
+    );
+    assert!(error(ok).is_none());
+    let traced = world.resource::<TraceWorld>();
+    assert!(!traced.contains(nan) && !traced.contains(short) && traced.contains(ok));
+    for y in [-0.5f32, 0.0, 0.5] {
+        let ray = Ray::new(Vec3::new(8.0, y, -5.0), Vec3::Z);
+        let got =
+            world
+                .resource::<TraceWorld>()
+                .cast_ray(&ray, f32::INFINITY, &QueryFilter::default());
+        let expect = brute(&mut world, &ray, &QueryFilter::default());
+        agree(got.as_ref(), expect, &format!("ray at y {y}"));
+    }
+}
