@@ -29,8 +29,8 @@ fn kind(o: PlannedOption) -> usize {
         PlannedOption::Wide(_) => 1,
         PlannedOption::Packets(_) => 2,
         PlannedOption::Overlap(_) => 3,
-        PlannedOption::Secondary(..) => {
-            panic!("only primary rays are queued: no secondary batch to plan")
+        PlannedOption::Secondary(..) | PlannedOption::PointOrder(_) => {
+            panic!("only primary rays are queued: no secondary or point batch to plan")
         }
     }
 }

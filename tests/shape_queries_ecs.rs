@@ -534,6 +534,67 @@ fn batched_answers_equal_immediate_ones_on_every_thread_count() {
     assert!(s.world.resource::<ShapeQueue>().is_empty());
 }
 
+/// Batched closest points answered by the schedule equal the immediate ones in every order the batch may
+/// be answered in — as queued, along the Morton curve, and as the planner picks — on 1, 2 and 7 threads:
+/// points around and far outside the scene, repeated points, non-finite points, limits that exclude, all
+/// four filters. The planner's pick is reported once per frame (for the batch, not an entity); a fixed
+/// order is not reported.
+#[test]
+fn closest_point_batches_equal_immediate_answers_in_every_order() {
+    let mut s = scene();
+    s.frame(1);
+    let filters = s.filters();
+    let mut r = rng(41);
+    let mut requests: Vec<(Vec3, f32, usize)> = Vec::new();
+    for i in 0..300usize {
+        let p = match i % 10 {
+            0 => Vec3::new(f32::NAN, 0.0, 1.0),
+            1 => Vec3::new(0.0, f32::INFINITY, 0.0),
+            2 => rand_vec(&mut r, -1.0, 1.0) * 1e4,
+            3 => requests.last().map_or(Vec3::ZERO, |q| q.0),
+            _ => rand_vec(&mut r, -6.0, 6.0),
+        };
+        let limit = if i % 7 == 0 { 0.5 } else { f32::INFINITY };
+        requests.push((p, limit, i % filters.len()));
+    }
+    let (mut answered, mut limited) = (0, 0);
+    for (batches, planned) in [
+        (PointBatches::fixed(PointOrder::Queued), false),
+        (PointBatches::fixed(PointOrder::Spatial), false),
+        (PointBatches::default(), true),
+    ] {
+        s.world.insert_resource(batches);
+        for n in [1, 2, 7] {
+            let mut queue = s.world.resource_mut::<ShapeQueue>();
+            for (i, &(p, limit, f)) in requests.iter().enumerate() {
+                queue.closest_point(i as u64, p, limit, filters[f].clone());
+            }
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap();
+            pool.install(|| s.frame(2));
+            let (tw, results) = (
+                s.world.resource::<TraceWorld>(),
+                s.world.resource::<ShapeResults>(),
+            );
+            assert_eq!(results.closest.len(), requests.len());
+            for (i, &(p, limit, f)) in requests.iter().enumerate() {
+                let want = tw.closest_point(p, limit, &filters[f]);
+                assert_eq!(results.closest[i], (i as u64, want), "{n} threads, {i}");
+                answered += usize::from(want.is_some());
+                limited += usize::from(want.is_none() && p.is_finite() && limit.is_finite());
+            }
+            let picks: Vec<&OptionStats> = (s.world.resource::<TraceStats>().options.iter())
+                .filter(|o| matches!(o.option, PlannedOption::PointOrder(_)))
+                .collect();
+            assert_eq!(picks.len(), usize::from(planned), "{n} threads");
+            assert!(picks.iter().all(|o| o.entity == Entity::PLACEHOLDER));
+        }
+    }
+    assert!(answered > 9 * 150 && limited > 9, "{answered} {limited}");
+}
+
 /// The acceptance test: 100,000 random points against a closed skinned mesh mid-animation, through the
 /// batched containment queries, equal a ray-parity oracle with seven random directions in f64.
 #[test]

@@ -72,6 +72,7 @@ mod maintain;
 mod params;
 mod planned;
 mod plugin;
+mod point_batches;
 mod ray_crsh;
 mod ray_kinds;
 mod shape_batch;
@@ -105,6 +106,7 @@ pub use planned::{CostScript, ScriptedCost};
 #[allow(deprecated)] // the old name, re-exported until it is removed
 pub use plugin::TraceSet;
 pub use plugin::{KinetracePlugin, Plugin, TraceSystems};
+pub use point_batches::{PointBatches, PointOrder};
 pub use shape_batch::{
     ClosestPointRequest, ContainsRequest, OverlapRequest, ShapeCastRequest, ShapeQueue,
     ShapeResults,

@@ -92,6 +92,7 @@ impl KinetracePlugin {
         world.init_resource::<RayQueue>();
         world.init_resource::<RayResults>();
         world.init_resource::<super::SecondaryRays>();
+        world.init_resource::<super::PointBatches>();
         world.init_resource::<super::ShapeQueue>();
         world.init_resource::<super::ShapeResults>();
         world.init_resource::<TraceStats>();

@@ -8,7 +8,7 @@
 //! [`SpatialRays`](super::SpatialRays) bit for bit whatever the thread count. Once warm (the same number of
 //! requests, answers no longer than before) a frame allocates nothing.
 
-use super::{NearestPoint, QueryFilter, ShapeHit, TraceStats, TraceWorld};
+use super::{NearestPoint, PointBatches, QueryFilter, ShapeHit, TraceStats, TraceWorld};
 use crate::parallel;
 use crate::queries::Shape;
 use bevy_ecs::prelude::*;
@@ -144,19 +144,28 @@ impl TraceWorld {
     /// lists keep their memory), in parallel when the `parallel` feature is on. What
     /// [`TraceSystems::Queries`](super::TraceSystems::Queries) runs; call it yourself for a world you
     /// drive by hand. The answers equal the immediate queries' and do not depend on the thread count.
+    ///
+    /// Closest points are answered as queued here; the plugin's system orders them as its
+    /// [`PointBatches`] resource says.
     pub fn answer_shapes(&self, queue: &ShapeQueue, out: &mut ShapeResults) {
+        self.answer_shapes_with(queue, out, None);
+    }
+
+    /// [`answer_shapes`](Self::answer_shapes), closest points in the order `batches` picks (see
+    /// [`answer_closest`](Self::answer_closest)).
+    fn answer_shapes_with(
+        &self,
+        queue: &ShapeQueue,
+        out: &mut ShapeResults,
+        batches: Option<(&mut PointBatches, &mut TraceStats)>,
+    ) {
         out.casts.resize(queue.casts.len(), (0, None));
         parallel::fill(true, &mut out.casts, 16, |i| {
             let r = &queue.casts[i];
             let hit = self.cast_shape(&r.shape, r.dir, r.max_t, &r.filter);
             (r.tag, hit)
         });
-        out.closest.resize(queue.closest.len(), (0, None));
-        parallel::fill(true, &mut out.closest, 16, |i| {
-            let r = &queue.closest[i];
-            let hit = self.closest_point(r.point, r.max_distance, &r.filter);
-            (r.tag, hit)
-        });
+        self.answer_closest(&queue.closest, &mut out.closest, batches);
         out.overlaps
             .resize_with(queue.overlaps.len(), Default::default);
         parallel::for_each_mut(true, &mut out.overlaps, |i, (tag, found)| {
@@ -175,18 +184,19 @@ impl TraceWorld {
 }
 
 /// Part of [`TraceSystems::Queries`](super::TraceSystems::Queries), before the ray queries: answers and
-/// drains the [`ShapeQueue`], and records how many requests took how long
+/// drains the [`ShapeQueue`] (closest points in the order [`PointBatches`] picks), and records how many requests took how long
 /// ([`TraceStats::batched_shapes`], [`TraceStats::shape_query_time`]), which the ray queries' system
 /// hands to the adaptive policy with its own.
 pub(crate) fn shape_queries_system(
     world: Res<TraceWorld>,
     mut queue: ResMut<ShapeQueue>,
     mut results: ResMut<ShapeResults>,
+    mut points: ResMut<PointBatches>,
     mut stats: ResMut<TraceStats>,
 ) {
     let start = std::time::Instant::now();
     results.frame = stats.frame;
-    world.answer_shapes(&queue, &mut results);
+    world.answer_shapes_with(&queue, &mut results, Some((&mut points, &mut stats)));
     stats.batched_shapes = queue.len();
     queue.clear();
     stats.shape_query_time = start.elapsed();

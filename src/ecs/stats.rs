@@ -93,6 +93,10 @@ pub enum PlannedOption {
     /// How this frame's batch of secondary rays was traced ([`SecondaryRays`](super::SecondaryRays)). A
     /// choice per batch, not per mesh: its [`OptionStats::entity`] is `Entity::PLACEHOLDER`.
     Secondary(super::RayBatch, super::SecondaryStrategy),
+    /// The order this frame's batch of closest-point requests was answered in
+    /// ([`PointBatches`](super::PointBatches)). A choice per batch: its [`OptionStats::entity`] is
+    /// `Entity::PLACEHOLDER`.
+    PointOrder(super::PointOrder),
     /// The structure that answers the mesh's rays, for a mesh under [`Structure::Auto`](super::Structure):
     /// the grid costs a rebuild every frame and repays it only where it answers rays faster than the
     /// BVH (why it was picked: [`TraceStats::structures`]).
@@ -171,7 +175,8 @@ pub struct TraceStats {
     /// last frame's).
     pub structures: Vec<StructureStats>,
     /// Per mesh maintained this frame under the adaptive policy, the options the planner picked; and per
-    /// secondary batch answered this frame, how it was traced ([`PlannedOption::Secondary`]).
+    /// secondary batch answered this frame, how it was traced ([`PlannedOption::Secondary`]); and for the
+    /// batch of closest points, its order ([`PlannedOption::PointOrder`]).
     pub options: Vec<OptionStats>,
     /// Time spent characterising.
     pub characterize_time: Duration,
