@@ -17,6 +17,8 @@ mod output;
 mod planner;
 #[path = "../examples/report/plots.rs"]
 mod plots;
+#[path = "../examples/report/point_rows.rs"]
+mod point_rows;
 #[path = "../examples/report/scale.rs"]
 mod scale;
 #[path = "../examples/report/scenes.rs"]
@@ -175,6 +177,23 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             r.batch
         );
         assert!(summary.contains(&format!("| {} | {} | {} |", r.scene, r.batch, r.strategy)));
+    }
+    // Closest-point batches: per scene every fixed order and the planner; every order's answers equal
+    // the as-queued ones; the section is in the summary.
+    assert_eq!(
+        report.points.len(),
+        scenes.len() * (point_rows::FIXED.len() + 1)
+    );
+    assert!(summary.contains("## Closest-point batches"));
+    for r in &report.points {
+        assert_eq!(r.mismatches, 0, "{} / {}", r.scene, r.order);
+        assert!(
+            r.points > 0 && r.us_per_query > 0.0,
+            "{} / {}",
+            r.scene,
+            r.order
+        );
+        assert!(summary.contains(&format!("| {} | {} | {} |", r.scene, r.order, r.points)));
     }
     // Rebuilding with binned SAH every frame is the reference itself.
     for r in report.rows.iter().filter(|r| r.strategy == "rebuild-sah") {

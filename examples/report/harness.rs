@@ -552,3 +552,23 @@ pub fn run_strategy(
     }
     records
 }
+
+/// The middle value (the upper one of an even count): one preempted batch on a busy machine moves a mean
+/// far more than it moves this.
+pub fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// A planner row's name: `planned → ` the option it settled on, then in brackets how many rounds it used
+/// each option in (`options`: name and count; unused ones left out).
+pub fn planned_label<'a>(
+    settled: &str,
+    options: impl IntoIterator<Item = (&'a str, usize)>,
+) -> String {
+    let picked: Vec<String> = (options.into_iter())
+        .filter(|(_, k)| *k > 0)
+        .map(|(name, k)| format!("{name} {k}"))
+        .collect();
+    format!("planned → {settled} ({})", picked.join(", "))
+}

@@ -11,7 +11,8 @@
 //!          --scenes NAME,NAME --strategies NAME,NAME
 //! (--runs N: every scene N times, each strategy's median run reported; 1 by default;
 //!  --scenes / --strategies: only those, by the names the summary prints; all by default; the
-//!  secondary-ray section runs unless --strategies leaves out `secondary`)
+//!  secondary-ray and closest-point batch sections run unless --strategies leaves out `secondary`
+//!  or `points`)
 //! ```
 //!
 //! The crowd's row on a huge-page heap comes from this executable started again with `--crowd-child`
@@ -24,6 +25,7 @@ mod option_rows;
 mod output;
 mod planner;
 mod plots;
+mod point_rows;
 mod scale;
 mod scenes;
 mod secondary_rows;
@@ -104,6 +106,7 @@ fn main() {
             }
             let bad: u32 = (report.rows.iter().map(|r| r.mismatches))
                 .chain(report.secondary.iter().map(|r| r.mismatches))
+                .chain(report.points.iter().map(|r| r.mismatches))
                 .sum();
             println!(
                 "wrote {} files to {} ({} strategies per scene, {} mismatches against brute force)",

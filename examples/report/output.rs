@@ -7,6 +7,7 @@ use super::harness::{FrameRecord, Settings, Strategy, find_gpu, run_scene};
 use super::option_rows;
 use super::planner;
 use super::plots;
+use super::point_rows::{self, PointRow};
 use super::scenes::Scene;
 use super::secondary_rows::{self, SecondaryRow};
 use std::fmt::Write as _;
@@ -69,11 +70,13 @@ pub struct Report {
     pub strategies: Vec<Strategy>,
     /// The secondary-ray section's rows (none when `--strategies` leaves out `secondary`).
     pub secondary: Vec<SecondaryRow>,
+    /// The closest-point batch section's rows (none when `--strategies` leaves out `points`).
+    pub points: Vec<PointRow>,
 }
 
 /// Which scenes and strategies to run, by name; an empty list runs them all. A scene filter also leaves
 /// out the 256-instance crowd unless it names `crowd`; a strategy filter leaves out the secondary-ray
-/// section unless it names `secondary`. For measuring a change on the scenes it concerns
+/// and closest-point batch sections unless it names `secondary` or `points`. For measuring a change on the scenes it concerns
 /// without paying for the others.
 #[derive(Clone, Debug, Default)]
 pub struct Only {
@@ -140,10 +143,13 @@ pub fn write_report(
             None => missing = Some("not run (the caller is not the report's executable)".into()),
         }
     }
-    let mut secondary = Vec::new();
+    let (mut secondary, mut points) = (Vec::new(), Vec::new());
     for scene in &scenes {
         if Only::keeps(&only.strategies, "secondary") {
             secondary.extend(secondary_rows::run(scene, settings));
+        }
+        if Only::keeps(&only.strategies, "points") {
+            points.extend(point_rows::run(scene, settings));
         }
         let runs = (0..settings.runs.max(1))
             .map(|_| run_scene(scene, settings, &strategies, gpu.as_ref()))
@@ -194,7 +200,8 @@ pub fn write_report(
     let planner_sections = planner::cold_start_table(&cold)
         + &crowd_table
         + &option_rows::picks_table(&picks)
-        + &secondary_rows::table(&secondary);
+        + &secondary_rows::table(&secondary)
+        + &point_rows::table(&points);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);
@@ -215,6 +222,7 @@ pub fn write_report(
         skipped,
         strategies,
         secondary,
+        points,
     })
 }
 

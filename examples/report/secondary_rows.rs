@@ -11,7 +11,7 @@
 //! triangle) plus, for the BVH row, sampled rays whose answer differs from brute force.
 
 use super::camera::Orbit;
-use super::harness::{Settings, frame_light, mismatches};
+use super::harness::{Settings, frame_light, median, mismatches, planned_label};
 use super::scenes::Scene;
 use glam::Vec3;
 use kinetrace::adaptive::Choice;
@@ -135,17 +135,12 @@ pub fn run(scene: &Scene, settings: &Settings) -> Vec<SecondaryRow> {
             bad += unlike(&traced, &bvh);
             picks[FIXED.iter().position(|&f| f == s).expect("a fixed option")] += 1;
         }
-        let picked: Vec<String> = (FIXED.iter().zip(picks))
-            .filter(|(_, k)| *k > 0)
-            .map(|(s, k)| format!("{} {k}", name(*s)))
-            .collect();
         rows.push(SecondaryRow {
             scene: scene.name,
             batch,
-            strategy: format!(
-                "planned → {} ({})",
+            strategy: planned_label(
                 name(planner.current()),
-                picked.join(", ")
+                FIXED.iter().map(|&s| name(s)).zip(picks),
             ),
             rays: rays.len(),
             mrays: median(&mut rates),
@@ -154,13 +149,6 @@ pub fn run(scene: &Scene, settings: &Settings) -> Vec<SecondaryRow> {
         });
     }
     rows
-}
-
-/// The middle value (the upper one of an even count): one preempted batch on a busy machine moves a mean
-/// far more than it moves this.
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// Answers of `got` unlike `want`'s: occlusion alike, hits at the same distance on the same triangle.

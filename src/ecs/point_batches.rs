@@ -11,8 +11,8 @@
 use super::shape_batch::ClosestPointRequest;
 use super::{NearestPoint, OptionStats, PlannedOption, TraceStats, TraceWorld};
 use crate::adaptive::Choice;
-use crate::geometry::{Aabb, morton30_cube};
 use crate::parallel;
+use crate::queries::MortonOrder;
 use bevy_ecs::prelude::*;
 use std::time::Instant;
 
@@ -26,12 +26,14 @@ pub enum PointOrder {
 }
 
 impl Choice<PointOrder> {
-    /// The planner of [`PointBatches`]: Morton order first, 0.8 × request order's seconds per query
-    /// (`bench queries`: 0.76–0.77 at 200k triangles, 0.96–1.00 at 20k), no overhead either way.
+    /// The planner of [`PointBatches`]: as queued first (no sort, which costs a few percent where the
+    /// trees stay in cache: the report's 3k-triangle scenes), Morton order tried at once at 0.8 × its
+    /// seconds per query (`bench queries`: 0.76–0.77 at 200k triangles) and kept where it measures
+    /// cheaper by the planner's margin; no overhead either way.
     pub fn point_order() -> Self {
         Choice::new(&[
-            (PointOrder::Spatial, 0.8, 1.0),
             (PointOrder::Queued, 1.0, 1.0),
+            (PointOrder::Spatial, 0.8, 1.0),
         ])
         .expect("two options")
     }
@@ -43,14 +45,15 @@ impl Choice<PointOrder> {
 /// [`PlannedOption::PointOrder`]). Morton order visits neighbouring points one after another, so their
 /// walks share cached nodes: on `bench queries` about a quarter less time at 200k triangles, no
 /// measurable change at 20k; it costs a pass over the points, a code each and a sort (well under a
-/// microsecond per request). The answers are the same in either order. The plugin inserts the default; replace the
-/// resource to change it. No allocation once its buffers have grown to the largest batch.
+/// microsecond per request, [`MortonOrder`]). The answers are the same in either order. The plugin
+/// inserts the default; replace the resource to change it. No allocation once its buffers have grown to
+/// the largest batch.
 #[derive(Resource, Clone, Debug)]
 pub struct PointBatches {
     fixed: Option<PointOrder>,
     planner: Choice<PointOrder>,
-    /// The batch's (Morton code, request index) pairs, sorted.
-    keyed: Vec<(u32, u32)>,
+    /// The batch's Morton order.
+    order: MortonOrder,
     /// Answers in the order they were computed.
     done: Vec<Option<NearestPoint>>,
 }
@@ -61,7 +64,7 @@ impl Default for PointBatches {
         Self {
             fixed: None,
             planner: Choice::point_order(),
-            keyed: Vec::new(),
+            order: MortonOrder::default(),
             done: Vec::new(),
         }
     }
@@ -82,26 +85,6 @@ impl PointBatches {
             Some(order) => (order, false),
             None => (self.planner.decide(units as f64), self.planner.explored()),
         }
-    }
-
-    /// Fills `keyed` with the requests' Morton codes over their points' box (non-finite points, which
-    /// answer nothing, on code 0) and indices, sorted.
-    fn sort(&mut self, requests: &[ClosestPointRequest]) {
-        let finite = || (requests.iter().map(|r| r.point)).filter(|p| p.is_finite());
-        let bounds = finite().fold(Aabb::EMPTY, |mut b, p| {
-            b.grow(p);
-            b
-        });
-        self.keyed.clear();
-        self.keyed.extend(requests.iter().enumerate().map(|(i, r)| {
-            let code = if r.point.is_finite() {
-                morton30_cube(r.point, &bounds)
-            } else {
-                0
-            };
-            (code, i as u32)
-        }));
-        self.keyed.sort_unstable();
     }
 }
 
@@ -125,12 +108,12 @@ impl TraceWorld {
         let start = Instant::now();
         match (order, batches.as_mut()) {
             (PointOrder::Spatial, Some((b, _))) => {
-                b.sort(requests);
-                let PointBatches { keyed, done, .. } = b;
+                let PointBatches { order, done, .. } = b;
+                order.sort(requests.len(), |i| requests[i].point);
                 done.resize(requests.len(), None);
-                parallel::fill(true, done, 16, |k| answer(&requests[keyed[k].1 as usize]));
-                for (&(_, i), &hit) in keyed.iter().zip(done.iter()) {
-                    out[i as usize] = (requests[i as usize].tag, hit);
+                parallel::fill(true, done, 16, |k| answer(&requests[order.index(k)]));
+                for (i, &hit) in order.indices().zip(done.iter()) {
+                    out[i] = (requests[i].tag, hit);
                 }
             }
             _ => parallel::fill(true, out, 16, |i| (requests[i].tag, answer(&requests[i]))),

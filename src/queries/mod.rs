@@ -11,6 +11,9 @@
 //!   shape swept along a line (time of impact, point, normal, triangle, barycentrics), including a start in
 //!   contact (`t = 0` with the way out); [`MeshBvh::cast_shape`] takes any [`Shape`].
 //!
+//! For a batch of points asked in no particular order, [`MortonOrder`] gives the order that keeps
+//! neighbouring queries together (and the tree's nodes in cache).
+//!
 //! Across the entities of a `bevy_ecs` scene, with world transforms and filters, the same queries are on
 //! [`SpatialRays`](crate::ecs::SpatialRays) and, batched, [`ShapeQueue`](crate::ecs::ShapeQueue).
 //!
@@ -39,6 +42,7 @@ mod cast;
 mod closest;
 mod contains;
 mod frame;
+mod morton_order;
 mod overlap;
 mod point_bound;
 mod shapes;
@@ -52,4 +56,5 @@ pub(crate) use frame::Frame;
 
 pub use cast::CastHit;
 pub use closest::{Feature, PointHit};
+pub use morton_order::MortonOrder;
 pub use shapes::Shape;
