@@ -80,8 +80,9 @@ fn refit_only_ecs_frames_do_not_allocate() {
             })
             .collect();
         // Two more deforming spheres, out of the rays' way: three meshes refit ahead, in parallel. Not
-        // under the adaptive policy, whose planner may switch their wide tree on measured times (a
-        // collapse allocates): the refits ahead are the same code under every policy.
+        // under the adaptive policy: there each sphere's planner tries the binary tree at once (its area
+        // share gives it rays), and a try that one noisy frame ends brings the wide tree back by a
+        // collapse, which allocates. The refits ahead are the same code under every policy.
         let adaptive = matches!(policy, RebuildPolicy::Adaptive { .. });
         let others: Vec<Entity> = (0..if adaptive { 0 } else { 2 })
             .map(|i| {

@@ -284,8 +284,8 @@ pub const CROWD_CHILD: &str = "--crowd-child";
 
 /// The shared crowd again, in a child process (`exe`: the report's executable) whose heap glibc backs
 /// with transparent huge pages ([`HUGE_PAGE_HEAP`]): the same work, with a page fault per 2 MiB of fresh
-/// heap instead of per 4 KiB, so the table shows how much of the first frame is the kernel's. Its table row, or why there is
-/// none (not Linux, or the child failed). Costs one more crowd run (about a second).
+/// heap instead of per 4 KiB, so the table shows how much of the first frame is the kernel's. Its table
+/// row, or why there is none (not Linux, or the child failed). Costs one more crowd run (about a second).
 pub fn huge_page_crowd(exe: &Path, settings: &Settings) -> Result<String, String> {
     if !cfg!(target_os = "linux") {
         return Err("only on Linux".into());

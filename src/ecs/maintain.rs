@@ -371,8 +371,9 @@ fn refit_tree(
 /// mesh that switches structure this frame has it measured by the loop where needed.
 ///
 /// The meshes refitted ahead leave the world's map for the pass (into `ahead`, with whether to measure
-/// the SAH cost; its capacity is kept from frame to frame) and go back after it: a slice splits over threads without allocating, the
-/// map's entries would not. Returns the meshes refitted. Allocates nothing once warm.
+/// the SAH cost; its capacity is kept from frame to frame) and go back after it: a slice splits over
+/// threads without allocating, the map's entries would not. Returns the meshes refitted. Allocates
+/// nothing once warm.
 fn refit_ahead(
     world: &mut TraceWorld,
     changed: &Query<MeshData, GeometryChanged>,

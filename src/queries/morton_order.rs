@@ -1,5 +1,6 @@
 //! The order of a batch of query points along a Morton curve through their box ([`MortonOrder`]).
 
+use crate::bvh::radix_sort::{RadixScratch, sort_by_bits_with};
 use crate::geometry::{Aabb, morton30_cube};
 use glam::Vec3;
 
@@ -10,7 +11,8 @@ use glam::Vec3;
 /// When to use: many point queries (closest points, containment) against a mesh too large for the cache,
 /// asked in no particular order. The plugin's batched closest points use it as a planned option
 /// ([`PointBatches`](crate::ecs::PointBatches)). Cost: one pass for the points' box, a 30-bit code per
-/// point and an unstable sort of (code, index) pairs; no allocation once grown to the largest batch.
+/// point and the LBVH builder's radix sort of (code, index) words (three passes); no allocation once grown
+/// to the largest batch.
 ///
 /// ```
 /// use kinetrace::queries::MortonOrder;
@@ -23,8 +25,9 @@ use glam::Vec3;
 /// ```
 #[derive(Clone, Debug, Default)]
 pub struct MortonOrder {
-    /// (Morton code, index) pairs, sorted.
-    keyed: Vec<(u32, u32)>,
+    /// Words `code << 32 | index`, sorted by code.
+    keyed: Vec<u64>,
+    radix: RadixScratch<u64>,
 }
 
 impl MortonOrder {
@@ -47,29 +50,20 @@ impl MortonOrder {
             } else {
                 0
             };
-            (code, i as u32)
+            u64::from(code) << 32 | i as u64
         }));
-        self.keyed.sort_unstable();
+        // Stable: equal codes stay in index order.
+        sort_by_bits_with(&mut self.keyed, &mut self.radix, 30, false, |&w| w >> 32);
     }
 
     /// The points' indices in the order of the last [`sort`](Self::sort).
     pub fn indices(&self) -> impl ExactSizeIterator<Item = usize> + '_ {
-        self.keyed.iter().map(|&(_, i)| i as usize)
+        self.keyed.iter().map(|&w| w as u32 as usize)
     }
 
     /// The index of the `k`-th point in that order.
     #[inline]
     pub fn index(&self, k: usize) -> usize {
-        self.keyed[k].1 as usize
-    }
-
-    /// Points in the last sort.
-    pub fn len(&self) -> usize {
-        self.keyed.len()
-    }
-
-    /// True when the last sort had no points.
-    pub fn is_empty(&self) -> bool {
-        self.keyed.is_empty()
+        self.keyed[k] as u32 as usize
     }
 }
