@@ -19,16 +19,20 @@ const ROWS: usize = 16;
 
 /// The largest depth difference between the middle texel of three consecutive rows' three texels (`a`,
 /// `b`, `c`: the rows above, through and below) and its eight neighbours. A finite middle depth makes an
-/// empty neighbour's difference infinite, never NaN.
+/// empty neighbour's difference infinite; an empty middle's difference from an empty neighbour is NaN,
+/// which counts as none (so a texel with nothing around it is smooth and empty).
 #[inline(always)]
 fn delta(a: &[f32], b: &[f32], c: &[f32]) -> f32 {
     let s = b[1];
-    let diff = |n: f32| (n - s).abs();
-    let (top, bottom) = (
-        diff(a[0]).max(diff(a[1])).max(diff(a[2])),
-        diff(c[0]).max(diff(c[1])).max(diff(c[2])),
-    );
-    top.max(bottom).max(diff(b[0])).max(diff(b[2]))
+    // `if d > m { d } else { m }` from 0, not `f32::max`: a NaN `d` leaves `m`, and it is one SIMD
+    // instruction where `f32::max` takes four.
+    let max = |m: f32, n: f32| {
+        let d = (n - s).abs();
+        if d > m { d } else { m }
+    };
+    [a[0], a[1], a[2], b[0], b[2], c[0], c[1], c[2]]
+        .into_iter()
+        .fold(0.0, max)
 }
 
 /// The nearest and farthest depth of the 3 × 3 texels `a`, `b`, `c` (rows above, through and below).
@@ -61,10 +65,11 @@ impl Deltas {
         parallel::fill_chunks(par, &mut self.smooth, ROWS * res, |band, out| {
             for (r, row) in out.chunks_mut(res).enumerate() {
                 let j = band * ROWS + r;
-                row.fill(f32::NAN);
                 if j == 0 || j + 1 == res {
+                    row.fill(f32::NAN);
                     continue;
                 }
+                (row[0], row[res - 1]) = (f32::NAN, f32::NAN);
                 let rows = [j - 1, j, j + 1].map(|y| &depth[y * res..(y + 1) * res]);
                 let windows = rows[0]
                     .windows(3)
@@ -79,6 +84,11 @@ impl Deltas {
                 }
             }
         });
+    }
+
+    /// Every texel's [`smooth`](Self::smooth) value, row by row.
+    pub(super) fn table(&self) -> &[f32] {
+        &self.smooth
     }
 
     /// Texel `(i, j)`'s depth where it is smooth, else NaN (see [`Deltas`]).

@@ -19,7 +19,8 @@
 //!    one-sided form of the thesis's `[s − Δ, s + Δ]` overlap, which also marks the occluder's own lit
 //!    side at its silhouette; see `classify::selective`). `Δ` is computed for every texel beforehand, in
 //!    one vectorised pass over the map, and pixels are visited in 8 × 8 blocks so that neighbouring pixels
-//!    read neighbouring texels.
+//!    read neighbouring texels, four at a time in SIMD lanes where the map's depth alone decides (bit for
+//!    bit the pixel-by-pixel test, which decides the rest).
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
@@ -35,11 +36,12 @@
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (1.5–7% of them on the crowd). On the CPU the map and the
-//! classification cost about as much as hard shadow rays that mostly escape to the sky (the classification
-//! is bound by its scattered reads of the map), and the marked rays graze silhouettes at ~12× an average
-//! shadow ray's cost, so on the crowd selective hard shadows take only about 1.4× less CPU than a ray per
-//! pixel traced as packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench
-//! suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain about 4×. Use it for soft shadows, where
+//! classification (four pixels at a time, bound by its scattered reads of the map and the G-buffer's 24
+//! bytes a pixel) cost about a third of hard shadow rays that mostly escape to the sky, and the marked rays
+//! graze silhouettes at ~9× an average shadow ray's cost, so on the crowd selective hard shadows take
+//! only about 2× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same query and threads on
+//! both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain
+//! about 4×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
@@ -51,6 +53,7 @@
 
 mod classify;
 mod deltas;
+mod lanes;
 mod penumbra;
 mod rays;
 mod shadow_map;
@@ -380,32 +383,36 @@ impl HardShadows {
         let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
         let px = Pixels {
             g,
-            across: bounds.then_some((map, towards)),
+            towards,
+            across: bounds.then_some(map),
         };
-        // One classification per mode, each its own loop (the test inlined, no dispatch per pixel).
+        // One classification per mode, each its own loop (the test inlined, no dispatch per pixel). The
+        // hard modes settle most pixels four at a time ([`lanes::decide`]); the rest, pixel by pixel.
         match s.mode {
-            ShadowMode::RayTraced => classify_pixels(s.parallel, px, vis, chunks, |_, nrm| {
-                toward(nrm).map_or_else(|c| c, |_| Class::Marked)
+            ShadowMode::RayTraced => classify_pixels(s.parallel, px, vis, chunks, |four| {
+                lanes::mark_facing(four, away)
             }),
-            ShadowMode::ShadowMap => {
-                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+            ShadowMode::ShadowMap => classify_pixels(s.parallel, px, vis, chunks, |four| {
+                let decided = lanes::decide(map, map.depths(), four, away, bias);
+                lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
                     Ok(cos) => classify::shadow_map_only(map, p, cos, bias),
                     Err(c) => c,
                 })
-            }
-            ShadowMode::Selective if soft => {
-                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+            }),
+            ShadowMode::Selective if soft => classify_pixels(s.parallel, px, vis, chunks, |four| {
+                lanes::each(four, |p, nrm| match toward(nrm) {
                     Ok(cos) if cos <= horizon => Class::Marked,
                     Ok(cos) => classify::soft(map, mask, p, cos, bias),
                     Err(c) => c,
                 })
-            }
-            ShadowMode::Selective => {
-                classify_pixels(s.parallel, px, vis, chunks, |p, nrm| match toward(nrm) {
+            }),
+            ShadowMode::Selective => classify_pixels(s.parallel, px, vis, chunks, |four| {
+                let decided = lanes::decide(map, deltas.table(), four, away, bias);
+                lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
                     Ok(cos) => classify::selective(map, deltas, p, cos, bias),
                     Err(c) => c,
                 })
-            }
+            }),
         }
         chunks.iter().fold(NO_BOUNDS, |a, c| union(a, c.bounds))
     }
@@ -440,9 +447,13 @@ impl HardShadows {
         let rows = &self.rows;
         self.bounds.resize(rows.len(), NO_BOUNDS);
         parallel::fill(par, &mut self.bounds, 1, |k| {
-            let at = rows[k] * w..(rows[k] + 1) * w;
-            let row = g.positions[at.clone()].iter().zip(&g.normals[at]);
-            row.fold(NO_BOUNDS, |b, (&p, &nrm)| receiver(b, map, towards, p, nrm))
+            let mut receivers = lanes::Receivers::new();
+            for at in (rows[k] * w..(rows[k] + 1) * w).step_by(4) {
+                let end = (at + 4).min((rows[k] + 1) * w);
+                let four = lanes::Four::new(&g.positions[at..end], &g.normals[at..end], towards);
+                receivers.add(map, towards, &four);
+            }
+            receivers.bounds()
         });
         self.bounds.iter().fold(NO_BOUNDS, |a, &b| union(a, b))
     }
@@ -481,26 +492,27 @@ impl HardShadows {
 }
 
 /// The image's pixels as the classification visits them: the G-buffer's, in bands of [`BAND`] rows,
-/// each band in blocks of [`BAND`] × [`BAND`] pixels; with `across`, their receivers' bounds are found on
-/// the way (across that map, along that light).
+/// each band in blocks of [`BAND`] × [`BAND`] pixels, lit from `towards`; with `across`, their
+/// receivers' bounds are found on the way (across that map).
 #[derive(Clone, Copy)]
 struct Pixels<'a> {
     g: &'a GBuffer,
-    across: Option<(&'a ShadowMap, Vec3)>,
+    towards: Vec3,
+    across: Option<&'a ShadowMap>,
 }
 
-/// Classifies every pixel with `classify(position, normal)` (in parallel over bands of [`BAND`] rows):
-/// writes the map's verdict into `visibility` (0 for a marked pixel, until its rays are in) and lists each
-/// band's marked pixels in its chunk, in the order visited (block by block: neighbouring marked pixels
-/// stay together, so their rays make coherent packets), with its count of pixels facing the light and,
-/// with `px.across`, the bounds of its receivers (else empty bounds). Generic over the test, so each
-/// mode's loop has its test inlined.
+/// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
+/// pixels of one image row (in parallel over bands of [`BAND`] rows): writes the map's verdict into
+/// `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked pixels in its
+/// chunk, in the order visited (block by block: neighbouring marked pixels stay together, so their rays
+/// make coherent packets), with its count of pixels facing the light and, with `px.across`, the bounds of
+/// its receivers (else empty bounds). Generic over the test, so each mode's loop has its test inlined.
 fn classify_pixels(
     par: bool,
     px: Pixels,
     visibility: &mut Vec<f32>,
     chunks: &mut Vec<Chunk>,
-    classify: impl Fn(Vec3, Vec3) -> Class + Sync,
+    classify: impl Fn(&lanes::Four) -> lanes::Verdicts + Sync,
 ) {
     let g = px.g;
     let (w, n) = (g.width, g.width * g.height);
@@ -510,31 +522,31 @@ fn classify_pixels(
     parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
         out.marked.clear();
         out.facing = 0;
-        let mut bounds = NO_BOUNDS;
+        let mut receivers = lanes::Receivers::new();
         let rows = vis.len() / w;
         for x0 in (0..w).step_by(BAND) {
             for y in 0..rows {
-                let start = y * w + x0;
-                let run = &mut vis[start..y * w + (x0 + BAND).min(w)];
-                for (k, v) in run.iter_mut().enumerate() {
-                    let i = c * chunk + start + k;
-                    let (p, nrm) = (g.positions[i], g.normals[i]);
-                    if let Some((map, towards)) = px.across {
-                        bounds = receiver(bounds, map, towards, p, nrm);
+                let row_end = y * w + (x0 + BAND).min(w);
+                for at in (y * w + x0..row_end).step_by(4) {
+                    let end = (at + 4).min(row_end);
+                    let i = c * chunk + at;
+                    let j = c * chunk + end;
+                    let four = lanes::Four::new(&g.positions[i..j], &g.normals[i..j], px.towards);
+                    if let Some(map) = px.across {
+                        receivers.add(map, px.towards, &four);
                     }
-                    let class = classify(p, nrm);
-                    *v = match class {
-                        Class::Empty | Class::Lit => 1.0,
-                        Class::FacingAway | Class::Shadowed | Class::Marked => 0.0,
-                    };
-                    out.facing += !matches!(class, Class::Empty | Class::FacingAway) as usize;
-                    if class == Class::Marked {
-                        out.marked.push(i as u32);
+                    let v = classify(&four);
+                    lanes::write_visibility(v.lit, &mut vis[at..end]);
+                    out.facing += v.facing.count_ones() as usize;
+                    let mut marked = v.marked;
+                    while marked != 0 {
+                        out.marked.push(i as u32 + marked.trailing_zeros());
+                        marked &= marked - 1;
                     }
                 }
             }
         }
-        out.bounds = bounds;
+        out.bounds = receivers.bounds();
     });
 }
 
@@ -542,17 +554,16 @@ fn classify_pixels(
 const NO_BOUNDS: (Vec3, Vec3) = (Vec3::MAX, Vec3::MIN);
 
 /// Bounds `b` grown by the receiver at `p` with normal `nrm` when it faces the light (`n · towards` above
-/// 0): its coordinates across `map` and `p · towards`. Without a branch: a pixel facing away is moved an
-/// infinite way out, where it widens nothing (one select of a scalar, not one per coordinate).
-#[inline(always)]
+/// 0) and has a place across `map`: its coordinates across the map and `p · towards`, when all three are
+/// finite (a non-finite one, from a broken G-buffer, would make every texel of the map NaN). The
+/// classification adds pixels four at a time ([`lanes::Receivers`]) and only the odd ones here.
 fn receiver(b: (Vec3, Vec3), map: &ShadowMap, towards: Vec3, p: Vec3, nrm: Vec3) -> (Vec3, Vec3) {
     let q = map.across(p).extend(p.dot(towards));
-    let out = Vec3::splat(if nrm.dot(towards) > 0.0 {
-        0.0
+    if nrm.dot(towards) > 0.0 && q.is_finite() {
+        (b.0.min(q), b.1.max(q))
     } else {
-        f32::INFINITY
-    });
-    (b.0.min(q + out), b.1.max(q - out))
+        b
+    }
 }
 
 /// The smallest bounds holding `a` and `b`.

@@ -27,6 +27,8 @@ pub struct ShadowMap {
     /// `p · towards` of the scene's point nearest the light (depth 0).
     top: f32,
     texel: f32,
+    /// `1 / texel`: points are projected with a product, not a division.
+    per_texel: f32,
     /// Triangles in map coordinates (x, y in texels, z = depth), each with the first and last band of
     /// rows it may cover ([`bands`]), kept between frames.
     projected: Vec<([Vec3; 3], [u32; 2])>,
@@ -84,12 +86,14 @@ impl ShadowMap {
         if triangles.is_empty() || lo.x > hi.x {
             self.depth.clear();
             self.depth.resize(res * res, f32::INFINITY);
-            (self.corner, self.top, self.texel) = (Vec2::ZERO, 0.0, 1.0);
+            (self.corner, self.top) = (Vec2::ZERO, 0.0);
+            (self.texel, self.per_texel) = (1.0, 1.0);
             return;
         }
         let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
         // One texel of margin on each side.
         self.texel = extent / (res as f32 - 2.0).max(1.0);
+        self.per_texel = self.texel.recip();
         self.corner = lo - Vec2::splat(self.texel);
         self.top = top;
         let mut projected = std::mem::take(&mut self.projected);
@@ -144,8 +148,23 @@ impl ShadowMap {
     /// Map coordinates of a world point: x and y in texels (texel `(i, j)` covers `[i, i+1) × [j, j+1)`),
     /// z its depth from the light.
     pub fn project(&self, p: Vec3) -> Vec3 {
-        let q = (self.across(p) - self.corner) / self.texel;
+        let q = (self.across(p) - self.corner) * self.per_texel;
         q.extend(self.top - p.dot(self.towards))
+    }
+
+    /// What [`project`](Self::project) reads, for computing it several points at a time in the same
+    /// order: the axes across (`u`, `v`) and towards the light, texel (0, 0)'s corner, the inverse of the
+    /// texel size and the depth origin.
+    #[inline(always)]
+    pub(super) fn frame(&self) -> (Vec3, Vec3, Vec3, Vec2, f32, f32) {
+        (
+            self.u,
+            self.v,
+            self.towards,
+            self.corner,
+            self.per_texel,
+            self.top,
+        )
     }
 
     /// Texels per side.
