@@ -11,9 +11,11 @@ const BAND_ROWS: usize = 32;
 /// through the scene's point nearest the light, so 0 is nearest and `f32::INFINITY` marks an empty texel.
 ///
 /// Use it through [`HardShadows`](super::HardShadows); on its own it answers "what does the light see
-/// nearest at this point". Rendering costs a projection and a counting sort of the triangles into bands of
-/// 32 rows, then, in parallel over bands, a few steps per row a triangle spans plus one per covered texel
-/// (O(triangles + texels)); the buffers are kept, so a warm map of the same resolution does not allocate.
+/// nearest at this point". Rendering costs a pass over the triangles for the nearest point, one that
+/// places each across the map and a counting sort of those that cover a texel centre into bands of 32
+/// rows, then, in parallel over bands, their projection and a few steps per row a triangle spans plus one
+/// per covered texel (O(triangles + texels)); the buffers are kept, so a warm map of the same resolution
+/// does not allocate.
 #[derive(Clone, Debug, Default)]
 pub struct ShadowMap {
     res: usize,
@@ -29,10 +31,9 @@ pub struct ShadowMap {
     texel: f32,
     /// `1 / texel`: points are projected with a product, not a division.
     per_texel: f32,
-    /// Triangles in map coordinates (x, y in texels, z = depth), each with the first and last band of
-    /// rows it may cover ([`bands`]), kept between frames.
-    projected: Vec<([Vec3; 3], [u32; 2])>,
-    /// Band `b`'s triangles are `binned[bins[b]..bins[b + 1]]` (indices into `projected`).
+    /// Per triangle, the first and last band of rows it may cover ([`bands`]), kept between frames.
+    reach: Vec<[u32; 2]>,
+    /// Band `b`'s triangles are `binned[bins[b]..bins[b + 1]]` (indices into the triangles).
     bins: Vec<u32>,
     binned: Vec<u32>,
     /// Scratch of the binning's scatter.
@@ -96,35 +97,40 @@ impl ShadowMap {
         self.per_texel = self.texel.recip();
         self.corner = lo - Vec2::splat(self.texel);
         self.top = top;
-        let mut projected = std::mem::take(&mut self.projected);
+        // Most of a detailed scene's triangles are smaller than a texel and cover no texel centre (three in
+        // four on the 696k-triangle crowd): the first pass finds only each one's bands, across the light,
+        // and the bands project the few they rasterise in full — not every triangle into a kept array.
+        let mut reach = std::mem::take(&mut self.reach);
         let this = &*self;
-        projected.resize(triangles.len(), ([Vec3::ZERO; 3], [1, 0]));
-        parallel::fill(parallel, &mut projected, 4096, |i| {
-            let t = triangles[i].map(|p| this.project(p));
-            (t, bands(&t, res))
+        reach.resize(triangles.len(), [1, 0]);
+        parallel::fill(parallel, &mut reach, 4096, |i| {
+            bands(&triangles[i].map(|p| this.texels(p)), res)
         });
-        self.bin(&projected);
-        let (bins, binned) = (&self.bins, &self.binned);
+        self.bin(&reach);
+        self.reach = reach;
         let mut depth = std::mem::take(&mut self.depth);
         depth.resize(res * res, f32::INFINITY);
+        let this = &*self;
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
             out.fill(f32::INFINITY);
+            let (bins, binned) = (&this.bins, &this.binned);
             for &t in &binned[bins[band] as usize..bins[band + 1] as usize] {
-                rasterise(&projected[t as usize].0, band * BAND_ROWS, res, out);
+                let t = triangles[t as usize].map(|p| this.project(p));
+                rasterise(&t, band * BAND_ROWS, res, out);
             }
         });
         self.depth = depth;
-        self.projected = projected;
     }
 
-    /// Sorts the projected triangles into the bands of rows their [`bands`] name (a counting sort: band
-    /// `b` rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its own triangles; triangles
-    /// off the map go nowhere. Serial, but a few steps per triangle: the bands were found in parallel.
-    fn bin(&mut self, projected: &[([Vec3; 3], [u32; 2])]) {
+    /// Sorts the triangles into the bands of rows `reach` names for each (a counting sort: band `b`
+    /// rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its own triangles; triangles
+    /// off the map or between texel centres go nowhere. Serial, but a few steps per triangle: the bands
+    /// were found in parallel.
+    fn bin(&mut self, reach: &[[u32; 2]]) {
         let bands = self.res.div_ceil(BAND_ROWS);
         self.bins.clear();
         self.bins.resize(bands + 1, 0);
-        for &(_, [b0, b1]) in projected {
+        for &[b0, b1] in reach {
             for b in b0..=b1 {
                 self.bins[b as usize + 1] += 1;
             }
@@ -136,7 +142,7 @@ impl ShadowMap {
         let mut next = std::mem::take(&mut self.cursor);
         next.clear();
         next.extend_from_slice(&self.bins[..bands]);
-        for (i, &(_, [b0, b1])) in projected.iter().enumerate() {
+        for (i, &[b0, b1]) in reach.iter().enumerate() {
             for at in &mut next[b0 as usize..=b1 as usize] {
                 self.binned[*at as usize] = i as u32;
                 *at += 1;
@@ -145,11 +151,15 @@ impl ShadowMap {
         self.cursor = next;
     }
 
+    /// [`project`](Self::project)'s x and y alone: where a world point falls on the map, in texels.
+    fn texels(&self, p: Vec3) -> Vec2 {
+        (self.across(p) - self.corner) * self.per_texel
+    }
+
     /// Map coordinates of a world point: x and y in texels (texel `(i, j)` covers `[i, i+1) × [j, j+1)`),
     /// z its depth from the light.
     pub fn project(&self, p: Vec3) -> Vec3 {
-        let q = (self.across(p) - self.corner) * self.per_texel;
-        q.extend(self.top - p.dot(self.towards))
+        self.texels(p).extend(self.top - p.dot(self.towards))
     }
 
     /// What [`project`](Self::project) reads, for computing it several points at a time in the same
@@ -197,12 +207,16 @@ impl ShadowMap {
 }
 
 /// The first and last band of [`BAND_ROWS`] rows of a `res`-texel map whose texel centres the bounds of
-/// triangle `t` (map coordinates) may cover; empty (first past last) when they cover none.
-fn bands(t: &[Vec3; 3], res: usize) -> [u32; 2] {
+/// triangle `t` (its corners' x and y in texels) may cover; empty (first past last) when they cover none.
+fn bands(t: &[Vec2; 3], res: usize) -> [u32; 2] {
     let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    let ((x0, x1), (y0, y1)) = (centres(lo.x, hi.x, res), centres(lo.y, hi.y, res));
+    // As `centres` on both axes, compared as floats: the rows are converted only for a triangle that
+    // covers a centre (one in four of a detailed scene's), and to `u32`, not `usize`.
+    let last = res as f32 - 1.0;
+    let (x0, x1) = (ceil(lo.x - 0.5).max(0.0), floor(hi.x - 0.5).min(last));
+    let (y0, y1) = (ceil(lo.y - 0.5).max(0.0), floor(hi.y - 0.5).min(last));
     if x0 <= x1 && y0 <= y1 {
-        [(y0 / BAND_ROWS) as u32, (y1 / BAND_ROWS) as u32]
+        [y0 as u32 / BAND_ROWS as u32, y1 as u32 / BAND_ROWS as u32]
     } else {
         [1, 0]
     }
