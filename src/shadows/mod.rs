@@ -38,10 +38,11 @@
 //! penumbra mask), and rays for the marked pixels only (1.5–7% of them on the crowd). On the CPU the map and the
 //! classification (four pixels at a time, bound by its scattered reads of the map and the G-buffer's 24
 //! bytes a pixel) cost about a third of hard shadow rays that mostly escape to the sky, and the marked rays
-//! graze silhouettes at ~9× an average shadow ray's cost, so on the crowd selective hard shadows take
-//! only about 2× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same query and threads on
-//! both sides; see the `shadows` bench suite in docs/BENCHMARKS.md); soft shadows, 16 rays a pixel, gain
-//! about 4×. Use it for soft shadows, where
+//! graze silhouettes at ~9× an average shadow ray's cost, so on the crowd of 16 × 2,880 triangles selective
+//! hard shadows take only about 2× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same
+//! query and threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md), and on a crowd of
+//! 700k triangles, smaller than a texel (a map as costly as the rays, 6.5% of pixels marked), about 1.3×;
+//! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
