@@ -10,9 +10,10 @@
 //! selective classification takes about a fifth less time than pixel by pixel; it is bound by the
 //! scattered reads of the table and the G-buffer's 24 bytes a pixel, not by arithmetic.
 
-use super::ShadowMap;
 use super::classify::Class;
+use super::{GBuffer, ShadowMap};
 use glam::{BVec4A, Vec3, Vec4};
+use std::ops::Range;
 
 /// Up to four points (or normals) in lanes, one coordinate per vector; missing ones are zero.
 #[derive(Clone, Copy)]
@@ -85,6 +86,21 @@ impl<'a> Four<'a> {
     pub(super) fn len(&self) -> usize {
         self.positions.len()
     }
+}
+
+/// The pixels `pixels` of `g` (indices into its arrays, row-major), four at a time from the first (the
+/// last group may be shorter), each with the index of its first pixel, lit from `towards`.
+#[inline(always)]
+pub(super) fn fours(
+    g: &GBuffer,
+    pixels: Range<usize>,
+    towards: Vec3,
+) -> impl Iterator<Item = (usize, Four<'_>)> {
+    let end = pixels.end;
+    pixels.step_by(4).map(move |i| {
+        let j = (i + 4).min(end);
+        (i, Four::new(&g.positions[i..j], &g.normals[i..j], towards))
+    })
 }
 
 /// Lane masks as bits (lane `k` is bit `k`).

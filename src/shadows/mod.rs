@@ -449,9 +449,7 @@ impl HardShadows {
         self.bounds.resize(rows.len(), NO_BOUNDS);
         parallel::fill(par, &mut self.bounds, 1, |k| {
             let mut receivers = lanes::Receivers::new();
-            for at in (rows[k] * w..(rows[k] + 1) * w).step_by(4) {
-                let end = (at + 4).min((rows[k] + 1) * w);
-                let four = lanes::Four::new(&g.positions[at..end], &g.normals[at..end], towards);
+            for (_, four) in lanes::fours(g, rows[k] * w..(rows[k] + 1) * w, towards) {
                 receivers.add(map, towards, &four);
             }
             receivers.bounds()
@@ -527,17 +525,14 @@ fn classify_pixels(
         let rows = vis.len() / w;
         for x0 in (0..w).step_by(BAND) {
             for y in 0..rows {
-                let row_end = y * w + (x0 + BAND).min(w);
-                for at in (y * w + x0..row_end).step_by(4) {
-                    let end = (at + 4).min(row_end);
-                    let i = c * chunk + at;
-                    let j = c * chunk + end;
-                    let four = lanes::Four::new(&g.positions[i..j], &g.normals[i..j], px.towards);
+                let run = c * chunk + y * w + x0..c * chunk + y * w + (x0 + BAND).min(w);
+                for (i, four) in lanes::fours(g, run, px.towards) {
+                    let at = i - c * chunk;
                     if let Some(map) = px.across {
                         receivers.add(map, px.towards, &four);
                     }
                     let v = classify(&four);
-                    lanes::write_visibility(v.lit, &mut vis[at..end]);
+                    lanes::write_visibility(v.lit, &mut vis[at..at + four.len()]);
                     out.facing += v.facing.count_ones() as usize;
                     let mut marked = v.marked;
                     while marked != 0 {

@@ -210,11 +210,9 @@ impl ShadowMap {
 /// triangle `t` (its corners' x and y in texels) may cover; empty (first past last) when they cover none.
 fn bands(t: &[Vec2; 3], res: usize) -> [u32; 2] {
     let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    // As `centres` on both axes, compared as floats: the rows are converted only for a triangle that
-    // covers a centre (one in four of a detailed scene's), and to `u32`, not `usize`.
-    let last = res as f32 - 1.0;
-    let (x0, x1) = (ceil(lo.x - 0.5).max(0.0), floor(hi.x - 0.5).min(last));
-    let (y0, y1) = (ceil(lo.y - 0.5).max(0.0), floor(hi.y - 0.5).min(last));
+    // Compared as floats: the rows are converted only for a triangle that covers a centre (one in four
+    // of a detailed scene's), and to `u32`, not `usize`.
+    let ((x0, x1), (y0, y1)) = (span(lo.x, hi.x, res), span(lo.y, hi.y, res));
     if x0 <= x1 && y0 <= y1 {
         [y0 as u32 / BAND_ROWS as u32, y1 as u32 / BAND_ROWS as u32]
     } else {
@@ -236,11 +234,15 @@ fn floor(x: f32) -> f32 {
     if t > x { t - 1.0 } else { t }
 }
 
-/// The first and last texel whose centre (`i + 0.5`) lies in `[lo, hi]`, clamped to `0..n`; empty when
-/// the first is past the last.
+/// The first and last texel whose centre (`i + 0.5`) lies in `[lo, hi]`, clamped to `0..n`, as whole
+/// floats; empty when the first is past the last.
+fn span(lo: f32, hi: f32, n: usize) -> (f32, f32) {
+    (ceil(lo - 0.5).max(0.0), floor(hi - 0.5).min(n as f32 - 1.0))
+}
+
+/// [`span`] as indices; `(1, 0)` when empty.
 fn centres(lo: f32, hi: f32, n: usize) -> (usize, usize) {
-    let first = ceil(lo - 0.5).max(0.0);
-    let last = floor(hi - 0.5).min(n as f32 - 1.0);
+    let (first, last) = span(lo, hi, n);
     if last < first {
         (1, 0)
     } else {
