@@ -53,6 +53,46 @@ fn square_over_ground() -> (Vec<[Vec3; 3]>, MeshBvh, GBuffer) {
     (tris, bvh, g)
 }
 
+/// A G-buffer with broken pixels (infinite and NaN positions under a normal facing the light) gets the
+/// same map and the same image at every other pixel as without them: the broken pixels widen nothing
+/// (an infinite position once made the receivers' bounds, and so every texel of the map, NaN, and every
+/// pixel was marked). The clean image is the analytic one (`square_casts_its_analytic_shadow`).
+#[test]
+fn non_finite_receivers_leave_the_map_and_the_other_pixels_alone() {
+    let (tris, bvh, clean) = square_over_ground();
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let mut broken = clean.clone();
+    let bad = [
+        Vec3::new(f32::INFINITY, 0.0, 0.0),
+        Vec3::new(0.0, 0.0, f32::NEG_INFINITY),
+        Vec3::splat(f32::NAN),
+        Vec3::new(0.0, f32::NAN, 0.0),
+    ];
+    let at = [0, 500, 4000, 9000];
+    for (&k, &p) in at.iter().zip(&bad) {
+        broken.positions[k] = p;
+    }
+    for mode in [ShadowMode::Selective, ShadowMode::ShadowMap] {
+        let mut s = settings(mode, Vec3::new(0.3, 1.0, 0.2));
+        s.map_resolution = 64;
+        let mut pass = HardShadows::new();
+        let want = pass.run(&s, &tris, &clean, occluded).unwrap().to_vec();
+        let (want_rays, want_texel) = (pass.stats().rays, pass.shadow_map().texel_size());
+        let got = pass.run(&s, &tris, &broken, occluded).unwrap().to_vec();
+        assert_eq!(pass.shadow_map().texel_size(), want_texel, "{mode:?}");
+        assert!(
+            pass.stats().rays <= want_rays + at.len(),
+            "{mode:?}: {:?}",
+            pass.stats()
+        );
+        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+            if !at.contains(&k) {
+                assert_eq!(g, w, "{mode:?} at pixel {k}");
+            }
+        }
+    }
+}
+
 /// The square's shadow with the light straight above: the ground is in shadow exactly where `|x| < 0.5`
 /// and `|z| < 0.5`.
 #[test]
