@@ -7,7 +7,7 @@ use common::*;
 use glam::Vec3;
 use kinetrace::bvh::wide::WideBvh;
 use kinetrace::bvh::wide::simd::{self, RayLanes};
-use kinetrace::bvh::{BuildOptions, LEAF_BIT};
+use kinetrace::bvh::{BuildOptions, LEAF_BIT, PartialOptions};
 use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
 use rand::Rng;
 use rand::rngs::SmallRng;
@@ -173,6 +173,55 @@ fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
             }
         }
     }
+}
+
+/// A wide tree taken out of use for a try of the binary tree ([`MeshBvh::suspend_wide`]) comes back
+/// refitted to the positions of the meantime without a new collapse (the same wide topology); after a
+/// partial rebuild changed the binary tree's topology it comes back collapsed anew, never stale.
+#[test]
+fn a_suspended_wide_tree_comes_back_refitted_or_collapsed_anew() {
+    let m = soup(11, 3000);
+    let rays = rays(&m, 6, 300);
+    let mut bvh = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+    let children = wide_topology(&bvh);
+    bvh.suspend_wide();
+    assert!(bvh.wide().is_none());
+    // Two frames of the binary tree alone: each refit leaves the suspended tree as it was.
+    let wave = |f: f32| -> Vec<Vec3> {
+        (m.positions().iter())
+            .map(|&p| p + Vec3::new((p.y * 3.0 * f).sin(), (p.z * 2.0).cos() * f, 0.0) * 0.15)
+            .collect()
+    };
+    for f in [1.0, 2.0] {
+        bvh.refit(&wave(f)).unwrap();
+    }
+    let moved = m.with_positions(wave(2.0)).unwrap();
+    bvh.set_wide(true);
+    assert_eq!(children, wide_topology(&bvh), "re-collapsed, not refitted");
+    check_structure(&moved, &bvh, "back from a try");
+    check_answers(&moved, &bvh, &rays, "back from a try");
+
+    // The corner below x = 0.25 scattered: the partial rebuild changes the binary topology.
+    bvh.suspend_wide();
+    let mut r = rng(12);
+    let mut pos = wave(2.0);
+    for t in 0..m.triangle_count() {
+        let [a, b, c] = m.triangle(t);
+        if ((a + b + c) / 3.0).max_element() < 0.25 {
+            let d = rand_dir(&mut r) * r.random_range(0.0..0.5);
+            for &i in &m.indices()[3 * t..3 * t + 3] {
+                pos[i as usize] += d;
+            }
+        }
+    }
+    let (_, done) = bvh.refit_partial(&pos, &PartialOptions::default()).unwrap();
+    assert!(done.subtrees > 0, "nothing rebuilt");
+    bvh.set_wide(true);
+    let fresh = WideBvh::collapse(bvh.bvh().nodes());
+    assert_eq!(bvh.wide(), Some(&fresh), "a stale wide tree came back");
+    let exploded = m.with_positions(pos).unwrap();
+    check_structure(&exploded, &bvh, "back after a partial rebuild");
+    check_answers(&exploded, &bvh, &rays, "back after a partial rebuild");
 }
 
 #[test]

@@ -202,6 +202,11 @@ impl<T: Copy + PartialEq> Choice<T> {
         self.current
     }
 
+    /// The option chosen on measurements, which a try returns to unless it wins.
+    pub fn settled(&self) -> T {
+        self.settled
+    }
+
     /// Whether the last [`decide`](Self::decide) picked an option that had not been measured (a try).
     pub fn explored(&self) -> bool {
         self.explored

@@ -74,6 +74,9 @@ pub struct MeshBvh {
     wide: Option<WideBvh>,
     /// The quantised form of the wide tree, in its place when asked for ([`MeshBvh::set_compact`]).
     compact: Option<CompactWideBvh>,
+    /// The wide tree while it is out of use for a try ([`MeshBvh::suspend_wide`]): not refitted, and
+    /// dropped when the binary tree's topology changes. Taking it back costs a refit, not a collapse.
+    suspended: Option<WideBvh>,
     /// The wide tree's lane discs for closest points and sphere overlaps, fitted when first asked for.
     discs: DiscCache,
 }
@@ -162,6 +165,7 @@ impl MeshBvh {
             topology: next_topology_id(),
             wide: wide.then(|| WideBvh::collapse(bvh.nodes())),
             compact: None,
+            suspended: None,
             discs: DiscCache::default(),
             bvh,
         }
@@ -169,13 +173,41 @@ impl MeshBvh {
 
     /// Derives the wide query tree (`true`, a collapse pass when there is none yet) or drops it and its
     /// compact form (`false`, queries walk the binary tree again). See [`BuildOptions::wide`].
+    ///
+    /// Taking the tree back after [`suspend_wide`](Self::suspend_wide) refits the suspended one (O(wide
+    /// nodes), no allocation) where the binary tree kept its topology meanwhile.
     pub fn set_wide(&mut self, on: bool) {
         self.discs.clear();
         if !on {
             self.wide = None;
             self.compact = None;
+            self.suspended = None;
         } else if self.wide.is_none() && self.compact.is_none() {
-            self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
+            self.wide = Some(self.take_wide());
+        }
+    }
+
+    /// The wide tree in use, else the suspended one refitted, else a new collapse; none is left in place.
+    fn take_wide(&mut self) -> WideBvh {
+        match (self.wide.take(), self.suspended.take()) {
+            (Some(w), _) => w,
+            (None, Some(mut w)) => {
+                w.refit(self.bvh.nodes());
+                w
+            }
+            (None, None) => WideBvh::collapse(self.bvh.nodes()),
+        }
+    }
+
+    /// Takes the wide query tree out of use as [`set_wide(false)`](Self::set_wide) does, but keeps its
+    /// nodes, so that [`set_wide(true)`](Self::set_wide) brings it back by a refit instead of a collapse
+    /// (which allocates): for a try of the binary tree that may end after a frame — what the planner does.
+    /// Holds the wide tree's memory until then; the compact tree, if any, is dropped.
+    pub fn suspend_wide(&mut self) {
+        self.discs.clear();
+        self.compact = None;
+        if let Some(w) = self.wide.take() {
+            self.suspended = Some(w);
         }
     }
 
@@ -186,10 +218,7 @@ impl MeshBvh {
     pub fn set_compact(&mut self, on: bool) {
         self.discs.clear();
         if on && self.compact.is_none() {
-            let wide = self
-                .wide
-                .take()
-                .unwrap_or_else(|| WideBvh::collapse(self.bvh.nodes()));
+            let wide = self.take_wide();
             self.compact = Some(CompactWideBvh::quantise(&wide));
         } else if !on && self.compact.take().is_some() {
             self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
@@ -218,6 +247,7 @@ impl MeshBvh {
     /// Re-derives the query trees after the binary tree changed its topology.
     fn rederive(&mut self) {
         self.discs.clear();
+        self.suspended = None;
         if self.wide.is_some() {
             self.wide = Some(WideBvh::collapse(self.bvh.nodes()));
         }

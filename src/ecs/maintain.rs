@@ -477,7 +477,7 @@ fn start_from_sibling(
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
 /// first call, [`Choice::wide`]; with `hold`, the settled option, no try): the option is applied (a
-/// collapse when the tree comes back) and charged this frame's maintenance of the mesh since `start`,
+/// collapse when the tree comes back, a refit when it comes back from a try of the binary tree) and charged this frame's maintenance of the mesh since `start`,
 /// its rays and shape queries are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
@@ -493,7 +493,12 @@ fn plan_wide<'a>(
     } else {
         wide.decide(queries)
     };
-    inst.bvh.set_wide(on);
+    if on || !wide.settled() {
+        inst.bvh.set_wide(on);
+    } else {
+        // A try of the binary tree: the wide one is likely back in a frame or three.
+        inst.bvh.suspend_wide();
+    }
     let measured = start.elapsed().as_secs_f64();
     wide.kept(
         on,
