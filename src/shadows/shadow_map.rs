@@ -2,7 +2,7 @@
 //! light into a square depth map that just covers them.
 
 use crate::parallel;
-use glam::{Vec2, Vec3};
+use glam::{Mat3A, Vec2, Vec3, Vec3A};
 
 /// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
@@ -11,11 +11,12 @@ const BAND_ROWS: usize = 32;
 /// through the scene's point nearest the light, so 0 is nearest and `f32::INFINITY` marks an empty texel.
 ///
 /// Use it through [`HardShadows`](super::HardShadows); on its own it answers "what does the light see
-/// nearest at this point". Rendering costs a pass over the triangles for the nearest point, one that
-/// places each across the map and a counting sort of those that cover a texel centre into bands of 32
-/// rows, then, in parallel over bands, their projection and a few steps per row a triangle spans plus one
-/// per covered texel (O(triangles + texels)); the buffers are kept, so a warm map of the same resolution
-/// does not allocate.
+/// nearest at this point". Rendering costs one pass over the triangles, in parallel chunks, that places
+/// each across the map (finding the point nearest the light on the way) and sorts those that cover a
+/// texel centre into bands of 32 rows, chunk by chunk (an area light's map first finds the nearest point
+/// in a pass of its own: how far it widens depends on it); then, in parallel over bands, their
+/// projection and a few steps per row a triangle spans plus one per covered texel (O(triangles +
+/// texels)). The buffers are kept, so a warm map of the same resolution does not allocate.
 #[derive(Clone, Debug, Default)]
 pub struct ShadowMap {
     res: usize,
@@ -31,13 +32,72 @@ pub struct ShadowMap {
     texel: f32,
     /// `1 / texel`: points are projected with a product, not a division.
     per_texel: f32,
-    /// Per triangle, the first and last band of rows it may cover ([`bands`]), kept between frames.
+    /// The triangles placed across the map and sorted into bands, one entry per [`PLACE_CHUNK`] of them;
+    /// kept between frames.
+    placed: Vec<Placed>,
+}
+
+/// Triangles one worker places across the map and sorts into bands at a time.
+const PLACE_CHUNK: usize = 8_192;
+
+/// One chunk of a render's triangles placed across the map ([`Placed::place`]).
+#[derive(Clone, Debug, Default)]
+struct Placed {
+    /// Per triangle of the chunk, the first and last band of rows it may cover ([`bands`]).
     reach: Vec<[u32; 2]>,
-    /// Band `b`'s triangles are `binned[bins[b]..bins[b + 1]]` (indices into the triangles).
+    /// Band `b` rasterises the chunk's triangles `binned[bins[b]..bins[b + 1]]` (indices into all of
+    /// the render's triangles).
     bins: Vec<u32>,
     binned: Vec<u32>,
-    /// Scratch of the binning's scatter.
-    cursor: Vec<u32>,
+    /// The largest `p · towards` of the chunk's corners: the chunk's point nearest the light.
+    top: f32,
+}
+
+impl Placed {
+    /// Finds the bands each triangle of `tris` (the render's triangles from index `first` on) may cover
+    /// on `map` ([`bands`], from the same projection as [`ShadowMap::project`], bit for bit) and the
+    /// chunk's point nearest the light, then sorts the triangles into the bands (a counting sort;
+    /// triangles off the map or between texel centres go nowhere). No allocation once warm.
+    fn place(&mut self, tris: &[[Vec3; 3]], first: usize, map: &ShadowMap) {
+        let count = map.res.div_ceil(BAND_ROWS);
+        // Rows `u`, `v`, `towards`: one product gives `across` and the depth term. glam multiplies a
+        // matrix by a vector column by column, `(u.x·x + u.y·y) + u.z·z` — the order of `Vec3::dot`.
+        let light = Mat3A::from_cols(map.u.into(), map.v.into(), map.towards.into()).transpose();
+        let (corner, per_texel) = (map.corner, map.per_texel);
+        self.bins.clear();
+        self.bins.resize(count + 1, 0);
+        self.reach.clear();
+        let mut top = f32::MIN;
+        for t in tris {
+            let q = t.map(|p| light * Vec3A::from(p));
+            top = top.max(q[0].z.max(q[1].z).max(q[2].z));
+            let reach = bands(&q.map(|q| (q.truncate() - corner) * per_texel), map.res);
+            for b in reach[0]..=reach[1] {
+                self.bins[b as usize + 1] += 1;
+            }
+            self.reach.push(reach);
+        }
+        self.top = top;
+        for b in 0..count {
+            self.bins[b + 1] += self.bins[b];
+        }
+        self.binned.resize(self.bins[count] as usize, 0);
+        // Scatter with `bins[b]` as band b's cursor: it ends at band b + 1's start, so the starts are
+        // the cursors shifted by one band.
+        for (i, &[b0, b1]) in self.reach.iter().enumerate() {
+            for at in &mut self.bins[b0 as usize..=b1 as usize] {
+                self.binned[*at as usize] = (first + i) as u32;
+                *at += 1;
+            }
+        }
+        self.bins.copy_within(..count, 1);
+        self.bins[0] = 0;
+    }
+
+    /// The chunk's triangles band `b` rasterises.
+    fn band(&self, b: usize) -> &[u32] {
+        &self.binned[self.bins[b] as usize..self.bins[b + 1] as usize]
+    }
 }
 
 impl ShadowMap {
@@ -77,8 +137,11 @@ impl ShadowMap {
                 .flat_map(|t| t.map(|p| p.dot(towards)))
                 .fold(f32::MIN, f32::max)
         };
-        let top = parallel::map_reduce(parallel, triangles, 4096, f32::MIN, highest, f32::max);
-        let widen = Vec2::splat((top - receivers.0.z).max(0.0) * spread);
+        // A soft light's map reaches as far as the penumbrae, which depends on the point nearest the
+        // light: a pass of its own. A hard light's map does not, and the placing pass finds it.
+        let early = (spread > 0.0)
+            .then(|| parallel::map_reduce(parallel, triangles, 4096, f32::MIN, highest, f32::max));
+        let widen = Vec2::splat((early.unwrap_or(f32::MIN) - receivers.0.z).max(0.0) * spread);
         let (lo, hi) = (
             receivers.0.truncate() - widen,
             receivers.1.truncate() + widen,
@@ -96,59 +159,30 @@ impl ShadowMap {
         self.texel = extent / (res as f32 - 2.0).max(1.0);
         self.per_texel = self.texel.recip();
         self.corner = lo - Vec2::splat(self.texel);
-        self.top = top;
         // Most of a detailed scene's triangles are smaller than a texel and cover no texel centre (three in
-        // four on the 696k-triangle crowd): the first pass finds only each one's bands, across the light,
+        // four on the 696k-triangle crowd): the placing pass finds only each one's bands, across the light,
         // and the bands project the few they rasterise in full — not every triangle into a kept array.
-        let mut reach = std::mem::take(&mut self.reach);
+        let mut placed = std::mem::take(&mut self.placed);
+        placed.resize_with(triangles.len().div_ceil(PLACE_CHUNK), Placed::default);
         let this = &*self;
-        reach.resize(triangles.len(), [1, 0]);
-        parallel::fill(parallel, &mut reach, 4096, |i| {
-            bands(&triangles[i].map(|p| this.texels(p)), res)
+        parallel::for_each_mut(parallel, &mut placed, |c, chunk| {
+            let first = c * PLACE_CHUNK;
+            let tris = &triangles[first..(first + PLACE_CHUNK).min(triangles.len())];
+            chunk.place(tris, first, this);
         });
-        self.bin(&reach);
-        self.reach = reach;
+        self.top = early.unwrap_or_else(|| placed.iter().map(|p| p.top).fold(f32::MIN, f32::max));
         let mut depth = std::mem::take(&mut self.depth);
         depth.resize(res * res, f32::INFINITY);
         let this = &*self;
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
             out.fill(f32::INFINITY);
-            let (bins, binned) = (&this.bins, &this.binned);
-            for &t in &binned[bins[band] as usize..bins[band + 1] as usize] {
+            for &t in placed.iter().flat_map(|p| p.band(band)) {
                 let t = triangles[t as usize].map(|p| this.project(p));
                 rasterise(&t, band * BAND_ROWS, res, out);
             }
         });
         self.depth = depth;
-    }
-
-    /// Sorts the triangles into the bands of rows `reach` names for each (a counting sort: band `b`
-    /// rasterises `binned[bins[b]..bins[b + 1]]`), so a band visits only its own triangles; triangles
-    /// off the map or between texel centres go nowhere. Serial, but a few steps per triangle: the bands
-    /// were found in parallel.
-    fn bin(&mut self, reach: &[[u32; 2]]) {
-        let bands = self.res.div_ceil(BAND_ROWS);
-        self.bins.clear();
-        self.bins.resize(bands + 1, 0);
-        for &[b0, b1] in reach {
-            for b in b0..=b1 {
-                self.bins[b as usize + 1] += 1;
-            }
-        }
-        for b in 0..bands {
-            self.bins[b + 1] += self.bins[b];
-        }
-        self.binned.resize(self.bins[bands] as usize, 0);
-        let mut next = std::mem::take(&mut self.cursor);
-        next.clear();
-        next.extend_from_slice(&self.bins[..bands]);
-        for (i, &[b0, b1]) in reach.iter().enumerate() {
-            for at in &mut next[b0 as usize..=b1 as usize] {
-                self.binned[*at as usize] = i as u32;
-                *at += 1;
-            }
-        }
-        self.cursor = next;
+        self.placed = placed;
     }
 
     /// [`project`](Self::project)'s x and y alone: where a world point falls on the map, in texels.
@@ -339,6 +373,61 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+    /// The rendered map equals every triangle projected with [`ShadowMap::project`] and rasterised
+    /// into every band, bit for bit: the placing pass bins each triangle into all the bands it covers
+    /// (its own projection agreeing with `project`), over several chunks of triangles, in parallel or
+    /// not, hard (the nearest point found while placing) or soft (found first: the map widens).
+    #[test]
+    fn placed_and_binned_triangles_render_as_all_triangles_in_every_band() {
+        let mut r = SmallRng::seed_from_u64(5);
+        // Small triangles (many between texel centres), some large, a few far off the map.
+        let tris: Vec<[Vec3; 3]> = (0..2 * PLACE_CHUNK + 1000)
+            .map(|k| {
+                let size = if k % 97 == 0 { 30.0 } else { 0.3 };
+                let far = if k % 1001 == 0 { 500.0 } else { 0.0 };
+                let o = Vec3::new(
+                    r.random_range(0.0..100.0) + far,
+                    r.random_range(0.0..20.0),
+                    r.random_range(0.0..100.0),
+                );
+                let mut corner = || {
+                    let d = Vec3::new(r.random(), r.random(), r.random()) * size;
+                    o + d
+                };
+                [corner(), corner(), corner()]
+            })
+            .collect();
+        let towards = Vec3::new(0.3, 1.0, 0.2).normalize();
+        for (spread, parallel) in [(0.0, true), (0.0, false), (0.01, true)] {
+            let mut map = ShadowMap::default();
+            map.aim(towards);
+            let across = |p: Vec3| map.across(p).extend(p.dot(towards));
+            let (lo, hi) = (
+                across(Vec3::new(10.0, 0.0, 10.0)),
+                across(Vec3::new(90.0, 0.0, 90.0)),
+            );
+            let receivers = (lo.min(hi), lo.max(hi));
+            map.render(&tris, receivers, spread, 256, parallel);
+            let nearest = (tris.iter().flatten())
+                .map(|p| map.project(*p).z)
+                .fold(f32::INFINITY, f32::min);
+            assert_eq!(nearest, 0.0, "depth starts at the point nearest the light");
+            let mut want = vec![f32::INFINITY; 256 * 256];
+            for (band, out) in want.chunks_mut(BAND_ROWS * 256).enumerate() {
+                for t in &tris {
+                    rasterise(&t.map(|p| map.project(p)), band * BAND_ROWS, 256, out);
+                }
+            }
+            let covered = want.iter().filter(|d| d.is_finite()).count();
+            assert!(covered > 256 * 256 / 4, "{covered} texels covered");
+            let bits = |d: &[f32]| d.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+            assert!(
+                bits(map.depths()) == bits(&want),
+                "spread {spread}, parallel {parallel}"
+            );
+        }
+    }
 
     /// Triangles covering texel centres as a brute-force test in f64 says: each centre the triangle's
     /// barycentric weights all cover gets the nearest interpolated depth, in bands of rows as the map
