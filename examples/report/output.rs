@@ -266,16 +266,15 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String], sections: &str
         );
     }
     s.push_str(
-        "\n## Goal: adaptive within 5% of the best fixed strategy (15% in a run of the --quick size or \
-         shorter), ≥ 10% faster than lauterbach-0.4 on four scenes, SAH ratio never above 1.5\n\n| scene | \
+        "\n## Goal: adaptive within 5% of the best fixed strategy, ≥ 10% faster than lauterbach-0.4 on four \
+         scenes, SAH ratio never above 1.5; in a run of the --quick size or shorter, within 15% and the SAH \
+         bound (issue 19: a few frames leave too little time for the adaptive policy's savings to show, \
+         so the count of scenes beating lauterbach-0.4 is given but not asked)\n\n| scene | \
          best fixed | adaptive / best | adaptive / lauterbach-0.4 | adaptive SAH max | within |\n\
          |---|---|---|---|---|---|\n",
     );
-    let band = if settings.frames <= Settings::QUICK.frames {
-        1.15
-    } else {
-        1.05
-    };
+    let quick = settings.frames <= Settings::QUICK.frames;
+    let band = if quick { 1.15 } else { 1.05 };
     let mut beats = 0;
     let mut all_within = true;
     let mut error_ok = true;
@@ -303,13 +302,18 @@ fn summary(rows: &[Row], settings: &Settings, skipped: &[String], sections: &str
             if vs_best <= band { "yes" } else { "NO" }
         );
     }
-    let met = all_within && beats >= 4 && error_ok;
+    let met = all_within && (quick || beats >= 4) && error_ok;
     let _ = writeln!(
         s,
         "\nGoal {}: within {:.0}% on every scene: {all_within}; scenes where adaptive beats lauterbach-0.4 \
-         by 10% or more: {beats}; adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.",
+         by 10% or more: {beats} ({}); adaptive SAH ratio ≤ 1.5 throughout: {error_ok}.",
         if met { "MET" } else { "NOT MET" },
         100.0 * (band - 1.0),
+        if quick {
+            "not asked at this size"
+        } else {
+            "4 asked"
+        },
     );
     s.push_str(sections);
     s.push_str(&figures(rows));
