@@ -477,8 +477,9 @@ fn start_from_sibling(
 
 /// Whether the mesh keeps its wide query tree from this frame on, decided by its [`Choice`] (made at its
 /// first call, [`Choice::wide`]; with `hold`, the settled option, no try): the option is applied (a
-/// collapse when the tree comes back, a refit when it comes back from a try of the binary tree) and charged this frame's maintenance of the mesh since `start`,
-/// its rays and shape queries are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse.
+/// collapse when the tree comes back, a refit when it comes back from a try of the binary tree, whose
+/// frames keep it aside) and charged this frame's maintenance of the mesh since `start`, its rays and
+/// shape queries are charged by [`TraceWorld::attribute_queries`]. O(1) beyond the collapse or refit.
 fn plan_wide<'a>(
     inst: &'a mut Instance,
     start: Instant,
