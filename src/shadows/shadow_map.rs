@@ -13,10 +13,11 @@ const BAND_ROWS: usize = 32;
 /// Use it through [`HardShadows`](super::HardShadows); on its own it answers "what does the light see
 /// nearest at this point". Rendering costs one pass over the triangles, in parallel chunks, that places
 /// each across the map (finding the point nearest the light on the way) and sorts those that cover a
-/// texel centre into bands of 32 rows, chunk by chunk (an area light's map first finds the nearest point
-/// in a pass of its own: how far it widens depends on it); then, in parallel over bands, their
-/// projection and a few steps per row a triangle spans plus one per covered texel (O(triangles +
-/// texels)). The buffers are kept, so a warm map of the same resolution does not allocate.
+/// texel centre, projected, into bands of 32 rows, chunk by chunk (an area light's map first finds the
+/// nearest point in a pass of its own: how far it widens depends on it); then, in parallel over bands,
+/// a few steps per row a triangle spans plus one per covered texel (O(triangles + texels)). The buffers
+/// are kept (36 bytes per covering triangle and band), so a warm map of the same resolution does not
+/// allocate.
 #[derive(Clone, Debug, Default)]
 pub struct ShadowMap {
     res: usize,
@@ -45,25 +46,27 @@ const PLACE_CHUNK: usize = 8_192;
 struct Placed {
     /// Per triangle of the chunk, the first and last band of rows it may cover ([`bands`]).
     reach: Vec<[u32; 2]>,
-    /// Band `b` rasterises the chunk's triangles `binned[bins[b]..bins[b + 1]]` (indices into all of
-    /// the render's triangles).
+    /// Band `b` rasterises the chunk's triangles `binned[bins[b]..bins[b + 1]]`, each corner in texels
+    /// across the map and its `p · towards` (the depth once the nearest point is known): projected here,
+    /// so the bands read them in order instead of gathering triangles from all over the scene.
     bins: Vec<u32>,
-    binned: Vec<u32>,
+    binned: Vec<[Vec3; 3]>,
     /// The largest `p · towards` of the chunk's corners: the chunk's point nearest the light.
     top: f32,
 }
 
 impl Placed {
-    /// Finds the bands each triangle of `tris` (the render's triangles from index `first` on) may cover
-    /// on `map` ([`bands`], from the same projection as [`ShadowMap::project`], bit for bit) and the
-    /// chunk's point nearest the light, then sorts the triangles into the bands (a counting sort;
-    /// triangles off the map or between texel centres go nowhere). No allocation once warm.
-    fn place(&mut self, tris: &[[Vec3; 3]], first: usize, map: &ShadowMap) {
+    /// Finds the bands each triangle of `tris` may cover on `map` ([`bands`]) and the chunk's point
+    /// nearest the light, then sorts the projected triangles into the bands (a counting sort; triangles
+    /// off the map or between texel centres go nowhere). The projection is [`ShadowMap::project`]'s, bit
+    /// for bit, but for the depth's origin. No allocation once warm.
+    fn place(&mut self, tris: &[[Vec3; 3]], map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
         // Rows `u`, `v`, `towards`: one product gives `across` and the depth term. glam multiplies a
         // matrix by a vector column by column, `(u.x·x + u.y·y) + u.z·z` — the order of `Vec3::dot`.
         let light = Mat3A::from_cols(map.u.into(), map.v.into(), map.towards.into()).transpose();
         let (corner, per_texel) = (map.corner, map.per_texel);
+        let texels = |q: Vec3A| ((q.truncate() - corner) * per_texel).extend(q.z);
         self.bins.clear();
         self.bins.resize(count + 1, 0);
         self.reach.clear();
@@ -71,7 +74,7 @@ impl Placed {
         for t in tris {
             let q = t.map(|p| light * Vec3A::from(p));
             top = top.max(q[0].z.max(q[1].z).max(q[2].z));
-            let reach = bands(&q.map(|q| (q.truncate() - corner) * per_texel), map.res);
+            let reach = bands(&q.map(|q| texels(q).truncate()), map.res);
             for b in reach[0]..=reach[1] {
                 self.bins[b as usize + 1] += 1;
             }
@@ -81,12 +84,15 @@ impl Placed {
         for b in 0..count {
             self.bins[b + 1] += self.bins[b];
         }
-        self.binned.resize(self.bins[count] as usize, 0);
+        self.binned
+            .resize(self.bins[count] as usize, [Vec3::ZERO; 3]);
         // Scatter with `bins[b]` as band b's cursor: it ends at band b + 1's start, so the starts are
-        // the cursors shifted by one band.
-        for (i, &[b0, b1]) in self.reach.iter().enumerate() {
+        // the cursors shifted by one band. A quarter of a detailed scene's triangles cover a centre: they
+        // are projected again here rather than all of them kept from the first loop.
+        for (t, &[b0, b1]) in tris.iter().zip(&self.reach).filter(|(_, r)| r[0] <= r[1]) {
+            let t = t.map(|p| texels(light * Vec3A::from(p)));
             for at in &mut self.bins[b0 as usize..=b1 as usize] {
-                self.binned[*at as usize] = (first + i) as u32;
+                self.binned[*at as usize] = t;
                 *at += 1;
             }
         }
@@ -94,8 +100,8 @@ impl Placed {
         self.bins[0] = 0;
     }
 
-    /// The chunk's triangles band `b` rasterises.
-    fn band(&self, b: usize) -> &[u32] {
+    /// The chunk's triangles band `b` rasterises (see `binned`).
+    fn band(&self, b: usize) -> &[[Vec3; 3]] {
         &self.binned[self.bins[b] as usize..self.bins[b + 1] as usize]
     }
 }
@@ -160,15 +166,15 @@ impl ShadowMap {
         self.per_texel = self.texel.recip();
         self.corner = lo - Vec2::splat(self.texel);
         // Most of a detailed scene's triangles are smaller than a texel and cover no texel centre (three in
-        // four on the 696k-triangle crowd): the placing pass finds only each one's bands, across the light,
-        // and the bands project the few they rasterise in full — not every triangle into a kept array.
+        // four on the 696k-triangle crowd): the placing pass finds each one's bands, across the light, and
+        // keeps in full only the few that cover one, projected and in band order for the bands to read.
         let mut placed = std::mem::take(&mut self.placed);
         placed.resize_with(triangles.len().div_ceil(PLACE_CHUNK), Placed::default);
         let this = &*self;
         parallel::for_each_mut(parallel, &mut placed, |c, chunk| {
             let first = c * PLACE_CHUNK;
             let tris = &triangles[first..(first + PLACE_CHUNK).min(triangles.len())];
-            chunk.place(tris, first, this);
+            chunk.place(tris, this);
         });
         self.top = early.unwrap_or_else(|| placed.iter().map(|p| p.top).fold(f32::MIN, f32::max));
         let mut depth = std::mem::take(&mut self.depth);
@@ -176,8 +182,8 @@ impl ShadowMap {
         let this = &*self;
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
             out.fill(f32::INFINITY);
-            for &t in placed.iter().flat_map(|p| p.band(band)) {
-                let t = triangles[t as usize].map(|p| this.project(p));
+            for t in placed.iter().flat_map(|p| p.band(band)) {
+                let t = t.map(|q| q.truncate().extend(this.top - q.z));
                 rasterise(&t, band * BAND_ROWS, res, out);
             }
         });
