@@ -42,7 +42,7 @@
 //! hard shadows take only about 2× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same
 //! query and threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md), and on a crowd of
 //! 700k triangles, smaller than a texel (a map about two thirds as costly as the rays, 6.5% of pixels
-//! marked), about 1.3×;
+//! marked), about 1.4×;
 //! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
