@@ -62,11 +62,8 @@ impl Placed {
     /// for bit, but for the depth's origin. No allocation once warm.
     fn place(&mut self, tris: &[[Vec3; 3]], map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
-        // Rows `u`, `v`, `towards`: one product gives `across` and the depth term. glam multiplies a
-        // matrix by a vector column by column, `(u.x·x + u.y·y) + u.z·z` — the order of `Vec3::dot`.
-        let light = Mat3A::from_cols(map.u.into(), map.v.into(), map.towards.into()).transpose();
-        let (corner, per_texel) = (map.corner, map.per_texel);
-        let texels = |q: Vec3A| ((q.truncate() - corner) * per_texel).extend(q.z);
+        let light = map.light();
+        let texels = |q: Vec3A| map.in_texels(q.truncate()).extend(q.z);
         self.bins.clear();
         self.bins.resize(count + 1, 0);
         self.reach.clear();
@@ -191,15 +188,24 @@ impl ShadowMap {
         self.placed = placed;
     }
 
-    /// [`project`](Self::project)'s x and y alone: where a world point falls on the map, in texels.
-    fn texels(&self, p: Vec3) -> Vec2 {
-        (self.across(p) - self.corner) * self.per_texel
+    /// The light-space transform as a matrix with rows `u`, `v` and `towards`: `light() * p` is
+    /// `across(p)` and `p · towards` bit for bit (glam multiplies a matrix by a vector column by column,
+    /// `(u.x·x + u.y·y) + u.z·z`, the order of `Vec3::dot`), the three products at once for passes that
+    /// project many points.
+    fn light(&self) -> Mat3A {
+        Mat3A::from_cols(self.u.into(), self.v.into(), self.towards.into()).transpose()
+    }
+
+    /// Coordinates across the map ([`across`](Self::across)) in texels.
+    fn in_texels(&self, across: Vec2) -> Vec2 {
+        (across - self.corner) * self.per_texel
     }
 
     /// Map coordinates of a world point: x and y in texels (texel `(i, j)` covers `[i, i+1) × [j, j+1)`),
     /// z its depth from the light.
     pub fn project(&self, p: Vec3) -> Vec3 {
-        self.texels(p).extend(self.top - p.dot(self.towards))
+        self.in_texels(self.across(p))
+            .extend(self.top - p.dot(self.towards))
     }
 
     /// What [`project`](Self::project) reads, for computing it several points at a time in the same
