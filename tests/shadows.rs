@@ -53,6 +53,42 @@ fn square_over_ground() -> (Vec<[Vec3; 3]>, MeshBvh, GBuffer) {
     (tris, bvh, g)
 }
 
+/// Broken occluders (triangles with an infinite or NaN corner, as a corrupt mesh gives) are left out of
+/// the map: the same map and image as without them, hard and soft, where one infinite corner once made
+/// the nearest point, and so every depth, infinite. The rays see only the square (the BVH's triangles).
+#[test]
+fn non_finite_triangles_leave_the_map_alone() {
+    let (tris, bvh, g) = square_over_ground();
+    let occluded = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let mut broken = tris.clone();
+    broken.push([Vec3::new(0.0, f32::INFINITY, 0.0), Vec3::X, Vec3::Z]);
+    broken.push([Vec3::ONE, Vec3::splat(f32::NAN), Vec3::Y]);
+    broken.push([
+        Vec3::new(f32::NEG_INFINITY, 2.0, 0.0),
+        Vec3::Y * 2.0,
+        Vec3::ONE * 2.0,
+    ]);
+    for (mode, angle) in [
+        (ShadowMode::Selective, 0.0),
+        (ShadowMode::ShadowMap, 0.0),
+        (ShadowMode::Selective, 0.05),
+    ] {
+        let mut s = settings(mode, Vec3::new(0.3, 1.0, 0.2));
+        (s.map_resolution, s.light_angle) = (64, angle);
+        let mut pass = HardShadows::new();
+        let want = pass.run(&s, &tris, &g, occluded).unwrap().to_vec();
+        let (want_rays, want_texel) = (pass.stats().rays, pass.shadow_map().texel_size());
+        let got = pass.run(&s, &broken, &g, occluded).unwrap().to_vec();
+        assert_eq!(
+            pass.shadow_map().texel_size(),
+            want_texel,
+            "{mode:?} {angle}"
+        );
+        assert_eq!(pass.stats().rays, want_rays, "{mode:?} {angle}");
+        assert_eq!(got, want, "{mode:?} {angle}");
+    }
+}
+
 /// A G-buffer with broken pixels (infinite and NaN positions under a normal facing the light) gets the
 /// same map and the same image at every other pixel as without them: the broken pixels widen nothing
 /// (an infinite position once made the receivers' bounds, and so every texel of the map, NaN, and every

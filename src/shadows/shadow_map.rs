@@ -70,6 +70,12 @@ impl Placed {
         let mut top = f32::MIN;
         for t in tris {
             let q = t.map(|p| light * Vec3A::from(p));
+            // A triangle with a non-finite corner (a broken mesh) covers nothing and moves no depth: a
+            // NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
+            if !(q[0] + q[1] + q[2]).is_finite() {
+                self.reach.push([1, 0]);
+                continue;
+            }
             top = top.max(q[0].z.max(q[1].z).max(q[2].z));
             let reach = bands(&q.map(|q| texels(q).truncate()), map.res);
             for b in reach[0]..=reach[1] {
@@ -125,7 +131,8 @@ impl ShadowMap {
     /// margin of one texel so every receiver has its eight neighbours. A directional light's occluder of a
     /// receiver lies on the receiver's line towards the light, so it projects onto the same spot: fitting
     /// the map to the receivers (the pixels the camera sees) rather than the scene loses no shadow and
-    /// spends every texel where it is looked at. No receivers or no triangles give an empty map.
+    /// spends every texel where it is looked at. No receivers or no triangles give an empty map; a
+    /// triangle with a non-finite corner (or one beyond `f32` once projected) is left out.
     pub(super) fn render(
         &mut self,
         triangles: &[[Vec3; 3]],
@@ -136,7 +143,7 @@ impl ShadowMap {
     ) {
         let towards = self.towards;
         let highest = |tris: &[[Vec3; 3]]| {
-            tris.iter()
+            (tris.iter().filter(|t| t.iter().all(|p| p.is_finite())))
                 .flat_map(|t| t.map(|p| p.dot(towards)))
                 .fold(f32::MIN, f32::max)
         };
