@@ -28,6 +28,9 @@ impl Quad {
     #[inline(always)]
     fn load(v: &[Vec3]) -> Self {
         let [a, b, c, d] = match v.first_chunk::<4>() {
+            #[cfg(target_arch = "x86_64")]
+            Some(four) => return Self::transpose_sse(four),
+            #[cfg(not(target_arch = "x86_64"))]
             Some(&four) => four,
             None => std::array::from_fn(|k| v.get(k).copied().unwrap_or(Vec3::ZERO)),
         };
@@ -35,6 +38,43 @@ impl Quad {
             x: Vec4::new(a.x, b.x, c.x, d.x),
             y: Vec4::new(a.y, b.y, c.y, d.y),
             z: Vec4::new(a.z, b.z, c.z, d.z),
+        }
+    }
+
+    /// [`load`](Self::load) of four points on x86-64: the 48 bytes they are, as three loads of four
+    /// floats (`x0 y0 z0 x1 | y1 z1 x2 y2 | z2 x3 y3 z3`) transposed by six shuffles, the same lanes as
+    /// gathering them coordinate by coordinate (twelve scalar loads and nine shuffles, which the compiler
+    /// does not merge). About 2% of a quick selective pass.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn transpose_sse(four: &[Vec3; 4]) -> Self {
+        use std::arch::x86_64::*;
+        // `_MM_SHUFFLE(d, c, b, a)`: lanes a and b of the first operand, c and d of the second.
+        const fn pick(a: i32, b: i32, c: i32, d: i32) -> i32 {
+            d << 6 | c << 4 | b << 2 | a
+        }
+        let f = four.as_ptr().cast::<f32>();
+        // SAFETY: SSE is part of the x86-64 baseline, and `Vec3` is three `f32`s (`repr(C)`, no padding),
+        // so four of them are twelve floats: each unaligned load reads four of them, at 0, 4 and 8.
+        let [x, y, z] = unsafe {
+            let (m0, m1, m2) = (
+                _mm_loadu_ps(f),
+                _mm_loadu_ps(f.add(4)),
+                _mm_loadu_ps(f.add(8)),
+            );
+            let x2x3 = _mm_shuffle_ps::<{ pick(2, 3, 0, 1) }>(m1, m2); // x2 y2 z2 x3
+            let yz01 = _mm_shuffle_ps::<{ pick(1, 2, 0, 1) }>(m0, m1); // y0 z0 y1 z1
+            let y2y3 = _mm_shuffle_ps::<{ pick(3, 3, 2, 2) }>(m1, m2); // y2 y2 y3 y3
+            [
+                _mm_shuffle_ps::<{ pick(0, 3, 0, 3) }>(m0, x2x3),
+                _mm_shuffle_ps::<{ pick(0, 2, 0, 2) }>(yz01, y2y3),
+                _mm_shuffle_ps::<{ pick(1, 3, 0, 3) }>(yz01, m2),
+            ]
+        };
+        Self {
+            x: Vec4::from(x),
+            y: Vec4::from(y),
+            z: Vec4::from(z),
         }
     }
 
