@@ -240,10 +240,11 @@ fn selective_matches_ray_traced_on_crowd_frames() {
 }
 
 /// The pixels the selective classification (thesis §6.3.3) marks, recomputed from the pass's shadow map
-/// through its public accessors alone: the texel under the receiver, `Δ` and the nearest and farthest depth
-/// from its eight neighbours read one by one, the slope-scaled tolerances and the receiver's span `[d̂, d]`
-/// against them — the oracle for the pass, which reads `Δ` from a table computed for every texel
-/// beforehand and takes short cuts in the verdict.
+/// through its public accessors alone: the texel under the receiver and `Δ` from its eight neighbours read
+/// one by one, the nearest and farthest depth of the four texels whose centres (`i + ½`) surround the
+/// receiver, the slope-scaled tolerances and the receiver's span `[d̂, d]` against them — the oracle for
+/// the pass, which reads `Δ` from a table computed for every texel beforehand and takes short cuts in the
+/// verdict.
 fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> Vec<u32> {
     let map = pass.shadow_map();
     let (res, w) = (map.resolution(), map.texel_size());
@@ -267,13 +268,17 @@ fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> V
             marked.push(k as u32);
             continue;
         }
-        let (mut delta, mut nearest, mut farthest) = (0f32, f32::INFINITY, 0f32);
+        let mut delta = 0f32;
         for y in j - 1..=j + 1 {
             for x in i - 1..=i + 1 {
-                let t = map.depth(x, y);
-                delta = delta.max((t - depth).abs());
-                (nearest, farthest) = (nearest.min(t), farthest.max(t));
+                delta = delta.max((map.depth(x, y) - depth).abs());
             }
+        }
+        let (i0, j0) = ((q.x - 0.5).floor() as usize, (q.y - 0.5).floor() as usize);
+        let (mut nearest, mut farthest) = (f32::INFINITY, 0f32);
+        for (x, y) in [(i0, j0), (i0 + 1, j0), (i0, j0 + 1), (i0 + 1, j0 + 1)] {
+            let t = map.depth(x, y);
+            (nearest, farthest) = (nearest.min(t), farthest.max(t));
         }
         let c = cos.max(1.0 / 64.0);
         let reach = w * std::f32::consts::SQRT_2 * ((1.0 - c * c).max(0.0).sqrt() / c);

@@ -2,7 +2,7 @@
 //! incorrect (a shadow ray decides).
 
 use super::ShadowMap;
-use super::deltas::{self, Deltas};
+use super::deltas::Deltas;
 use glam::Vec3;
 
 /// What the shadow map says about one pixel.
@@ -96,12 +96,16 @@ pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texel
 }
 
 /// The selective classification of the receiver at `p` (`cos = n·L > 0`): where the map's neighbourhood
-/// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the nine texels' depths decide when
-/// they agree: lit when none lies in front of the receiver by more than the constant bias (nothing the
-/// map saw there can shade it: the occluder's own lit side next to its silhouette), shadowed when all lie
-/// in front of its depth span within one texel, `[d̂, d]`, by more than the bias; else the receiver is
-/// marked. (The thesis compares `[d̂, d]` with `[s − Δ, s + Δ]`, which also marks a receiver at the
-/// nearest depth beside a deeper neighbour: on the crowd, 13% more marked pixels for the same image.)
+/// is smooth (`Δ ≤ edge`) the map decides; at a depth discontinuity the depths of the four texels whose
+/// centres surround the receiver ([`ShadowMap::around`]: the map's samples nearest its ray, all it knows
+/// there) decide when they agree: lit when none lies in front of the receiver by more than the constant
+/// bias (nothing the map saw there can shade it: the occluder's own lit side next to its silhouette),
+/// shadowed when all lie in front of its depth span within one texel, `[d̂, d]`, by more than the bias;
+/// else the receiver is marked. (The thesis compares `[d̂, d]` with `[s − Δ, s + Δ]` over all nine
+/// texels, which also marks a receiver at the nearest depth beside a deeper neighbour, and one whose
+/// texel's far side touches the edge: on the quick crowd the nine texels' range marks 1.56% of the
+/// pixels, the four around the receiver 0.99%, with 0.002% and 0.003% of the image unlike the
+/// ray-traced one.)
 /// Off the map or over an empty texel (geometry too thin for the map): marked. `deltas` holds the map's
 /// depth at each smooth texel.
 #[inline]
@@ -127,8 +131,12 @@ pub(super) fn selective(
         return Class::Marked;
     }
     // Not smooth and not empty: an edge texel (`Δ` above `edge`).
-    let [a, b, c] = map.rows3(i, j);
-    let (lo, hi) = deltas::range(a, b, c);
+    let (lo, hi) = map
+        .around(q.x, q.y)
+        .into_iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), t| {
+            (lo.min(t), hi.max(t))
+        });
     let tol = tolerances(map, cos, bias_texels);
     if d <= lo + map.texel_size() * bias_texels {
         Class::Lit

@@ -4,8 +4,8 @@
 //! Computed row by row from three rows of the map, a loop the compiler vectorises, it replaces nine
 //! scattered reads and eight differences per pixel with one read per pixel: the table holds the depth of
 //! each smooth texel (`Δ` at most the edge threshold) and NaN at the others, so most pixels read 4 bytes
-//! of it and nothing else, and the few over an edge texel read their nine texels' depth range from the
-//! map ([`range`]). A table of `[depth, Δ]` pairs read twice the bytes at every pixel. A first attempt
+//! of it and nothing else, and the few over an edge texel read the depths around them from the map
+//! (`ShadowMap::around`). A table of `[depth, Δ]` pairs read twice the bytes at every pixel. A first attempt
 //! skipped the test over 8 × 8-texel tiles whose depth range (with a one-texel border) stayed within the
 //! edge threshold; it skipped nothing on the crowd, because a receiver plane seen at an angle by the light (the
 //! ground under a low sun) changes depth by about a texel per texel, so no tile of it stays within 1.5
@@ -33,15 +33,6 @@ fn delta(a: &[f32], b: &[f32], c: &[f32]) -> f32 {
     [a[0], a[1], a[2], b[0], b[2], c[0], c[1], c[2]]
         .into_iter()
         .fold(0.0, max)
-}
-
-/// The nearest and farthest depth of the 3 × 3 texels `a`, `b`, `c` (rows above, through and below).
-#[inline]
-pub(super) fn range(a: &[f32; 3], b: &[f32; 3], c: &[f32; 3]) -> (f32, f32) {
-    let all = a.iter().chain(b).chain(c);
-    all.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &t| {
-        (lo.min(t), hi.max(t))
-    })
 }
 
 /// Per texel of the last map, row by row, its depth where it is smooth — `Δ` at most the edge threshold —
