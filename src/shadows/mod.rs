@@ -36,14 +36,14 @@
 //! [`ShadowMode`] switches between the shadow map alone (always hard), the selective pipeline and rays for
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
-//! penumbra mask), and rays for the marked pixels only (1.5–7% of them on the crowd). On the CPU the map and the
-//! classification (four pixels at a time, bound by its scattered reads of the map and the G-buffer's 24
-//! bytes a pixel) cost about a third of hard shadow rays that mostly escape to the sky, and the marked rays
-//! graze silhouettes at ~9× an average shadow ray's cost, so on the crowd of 16 × 2,880 triangles selective
-//! hard shadows take only about 2× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same
-//! query and threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md), and on a crowd of
-//! 700k triangles, smaller than a texel (a map about two thirds as costly as the rays, 6.5% of pixels
-//! marked), about 1.4×;
+//! penumbra mask), and rays for the marked pixels only (1–4% of them on the crowd for hard shadows). On
+//! the CPU the map and the classification (four pixels at a time, bound by its scattered reads of the map
+//! and the G-buffer's 24 bytes a pixel) cost about a third of hard shadow rays that mostly escape to the
+//! sky, and the marked rays graze silhouettes at ~10× an average shadow ray's cost, so on the crowd of
+//! 16 × 2,880 triangles selective hard shadows take about 2.6× less CPU than a ray per pixel traced as
+//! packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench suite in
+//! docs/BENCHMARKS.md), and on a crowd of 700k triangles, smaller than a texel (a map about as costly as
+//! the rays, 4% of pixels marked), about 1.6×;
 //! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
