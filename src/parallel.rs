@@ -42,6 +42,25 @@ pub(crate) fn fill<T: Send>(
     }
 }
 
+/// Appends `f(x)` for every `x` of `input` to `out`, in order, in parallel chunks of `chunk` when asked:
+/// straight into `out`'s spare room (no first pass that zeroes it), no allocation when it has room.
+pub(crate) fn extend_mapped<I: Sync, T: Send>(
+    parallel: bool,
+    out: &mut Vec<T>,
+    input: &[I],
+    chunk: usize,
+    f: impl Fn(&I) -> T + Sync + Send,
+) {
+    #[cfg(feature = "parallel")]
+    if parallel {
+        use rayon::prelude::*;
+        out.par_extend(input.par_iter().with_min_len(chunk.max(1)).map(f));
+        return;
+    }
+    let _ = (parallel, chunk);
+    out.extend(input.iter().map(f));
+}
+
 /// Maps every chunk of `input` with `map` and folds the results with `reduce` (in chunk order).
 pub(crate) fn map_reduce<I: Sync, R>(
     parallel: bool,

@@ -939,3 +939,42 @@ fn wide_tree_by_frame(points: usize, event: Event) -> Vec<bool> {
     }
     wide
 }
+
+/// `TraceWorld::world_triangles` gives every accepted entity's triangles placed in the world — the same
+/// multiset, bit for bit, as transforming each mesh's own indexed vertices by its `TraceTransform` — under
+/// every filter, on a scene with a mesh large enough to be transformed in parallel chunks; a second call
+/// into the same buffer does not grow it.
+#[test]
+fn world_triangles_are_every_accepted_mesh_placed() {
+    let mut s = scene();
+    s.world.spawn((
+        TraceMesh(icosphere(5)),
+        MotionHint::Rigid,
+        TraceTransform(Affine3A::from_scale_rotation_translation(
+            Vec3::new(2.0, 0.5, 1.0),
+            Quat::from_rotation_y(2.1),
+            Vec3::new(8.0, -1.0, 2.0),
+        )),
+    ));
+    let bits = |t: &[Vec3; 3]| t.map(|p| p.to_array().map(f32::to_bits));
+    let sorted = |tris: &[[Vec3; 3]]| {
+        let mut v: Vec<_> = tris.iter().map(bits).collect();
+        v.sort_unstable();
+        v
+    };
+    let mut got = Vec::new();
+    for f in 0..2 {
+        s.frame(f);
+        for (k, filter) in s.filters().into_iter().enumerate() {
+            let (_, want) = world_triangles(&mut s.world, &filter);
+            let tw = s.world.resource::<TraceWorld>();
+            tw.world_triangles(&filter, &mut got);
+            // Everything (filter 0) holds the 20,480-triangle sphere.
+            assert!(k > 0 || got.len() > 20_480, "{} triangles", got.len());
+            assert_eq!(sorted(&got), sorted(&want), "frame {f}, {filter:?}");
+            let room = got.capacity();
+            tw.world_triangles(&filter, &mut got);
+            assert_eq!(got.capacity(), room, "frame {f}, {filter:?}");
+        }
+    }
+}

@@ -306,6 +306,9 @@ impl Instance {
     }
 }
 
+/// Triangles one worker transforms at a time in [`TraceWorld::world_triangles`].
+const WORLD_CHUNK: usize = 4096;
+
 /// A stable identity for a mesh's topology, shared by the clones of one [`Mesh`] (never reused, unlike
 /// the index buffer's address, which a later mesh may get once the first is freed).
 pub(crate) fn topology_id(mesh: &Mesh) -> u64 {
@@ -580,29 +583,19 @@ impl TraceWorld {
 
     /// Every triangle of the accepted entities in world space, entity by entity in top-level order, into
     /// `out` (cleared first): what a rasteriser needs, e.g. the shadow map of
-    /// [`HardShadows`](crate::shadows::HardShadows). O(triangles); no allocation once `out` is large enough.
+    /// [`HardShadows`](crate::shadows::HardShadows). O(triangles), each entity's transformed on all
+    /// threads (feature `parallel`), straight into `out`: memory-bound, 700k triangles (25 MB each way)
+    /// take about 3 ms on a 2-core VM, 4 on one thread. No allocation once `out` is large enough.
     pub fn world_triangles(&self, filter: &QueryFilter, out: &mut Vec<[Vec3; 3]>) {
         out.clear();
-        self.for_each_world_mesh(filter, |_, tris| out.extend(tris));
-    }
-
-    /// Calls `f` with each accepted entity and its triangles in world space (leaf order), entity by entity
-    /// in top-level order. O(triangles), no allocation.
-    pub(crate) fn for_each_world_mesh(
-        &self,
-        filter: &QueryFilter,
-        mut f: impl FnMut(Entity, &mut dyn Iterator<Item = [Vec3; 3]>),
-    ) {
         for e in &self.tlas_entities {
             let inst = &self.instances[e];
             if filter.accepts(*e, inst.layers) {
                 let t = inst.transform;
-                let mut tris = inst
-                    .bvh
-                    .slot_triangles()
-                    .iter()
-                    .map(|tri| tri.map(|p| t.transform_point3(p)));
-                f(*e, &mut tris);
+                let tris = inst.bvh.slot_triangles();
+                crate::parallel::extend_mapped(true, out, tris, WORLD_CHUNK, |tri| {
+                    tri.map(|p| t.transform_point3(p))
+                });
             }
         }
     }
