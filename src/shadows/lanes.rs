@@ -92,34 +92,45 @@ impl Quad {
 }
 
 /// Up to four neighbouring pixels of one image row: their surfaces, as slices (for the scalar tests), and
-/// their normals in lanes, with `n · L` per lane. The positions are read into lanes where a test needs
-/// them ([`points`](Self::points)): a pass that only asks which pixels face the light reads half the
-/// G-buffer.
+/// their normals in lanes, with `n · L` per lane; with a map, their positions' coordinates across it and
+/// along the light, computed once for every test that reads them. A pass that only asks which pixels
+/// face the light reads half the G-buffer.
 pub(super) struct Four<'a> {
     positions: &'a [Vec3],
     normals: &'a [Vec3],
     n: Quad,
     /// `n · towards` per lane.
     cos: Vec4,
+    /// [`light`]`(map, positions)` for the map given to [`new`](Self::new).
+    light: Option<[Vec4; 3]>,
 }
 
 impl<'a> Four<'a> {
-    /// Pixels `positions[k]`, `normals[k]` (at most four, as many of each) lit from `towards`.
+    /// Pixels `positions[k]`, `normals[k]` (at most four, as many of each) lit from `towards`, with their
+    /// positions across `map` when given (one aimed along `towards`).
     #[inline(always)]
-    pub(super) fn new(positions: &'a [Vec3], normals: &'a [Vec3], towards: Vec3) -> Self {
+    pub(super) fn new(
+        positions: &'a [Vec3],
+        normals: &'a [Vec3],
+        towards: Vec3,
+        map: Option<&ShadowMap>,
+    ) -> Self {
         let n = Quad::load(normals);
         Self {
             positions,
             normals,
             n,
             cos: n.dot(towards),
+            light: map.map(|m| light(m, Quad::load(positions))),
         }
     }
 
-    /// The positions in lanes.
+    /// The positions in lanes across `map` and along its light: the values [`new`](Self::new) computed
+    /// when given the map (it must be this one), else computed now.
     #[inline(always)]
-    fn points(&self) -> Quad {
-        Quad::load(self.positions)
+    fn light(&self, map: &ShadowMap) -> [Vec4; 3] {
+        self.light
+            .unwrap_or_else(|| light(map, Quad::load(self.positions)))
     }
 
     /// How many pixels.
@@ -128,18 +139,29 @@ impl<'a> Four<'a> {
     }
 }
 
-/// The pixels `pixels` of `g` (indices into its arrays, row-major), four at a time from the first (the
-/// last group may be shorter), each with the index of its first pixel, lit from `towards`.
+/// Points `p`'s coordinates across `map` and along its light: `p · u`, `p · v` and `p · towards` per lane
+/// (in `Vec3::dot`'s order, as [`ShadowMap::project`] and `super::receiver` sum them).
 #[inline(always)]
-pub(super) fn fours(
-    g: &GBuffer,
+fn light(map: &ShadowMap, p: Quad) -> [Vec4; 3] {
+    let (u, v, towards, ..) = map.frame();
+    [p.dot(u), p.dot(v), p.dot(towards)]
+}
+
+/// The pixels `pixels` of `g` (indices into its arrays, row-major), four at a time from the first (the
+/// last group may be shorter), each with the index of its first pixel, lit from `towards`, their
+/// positions across `map` when given ([`Four::new`]).
+#[inline(always)]
+pub(super) fn fours<'a>(
+    g: &'a GBuffer,
     pixels: Range<usize>,
     towards: Vec3,
-) -> impl Iterator<Item = (usize, Four<'_>)> {
+    map: Option<&'a ShadowMap>,
+) -> impl Iterator<Item = (usize, Four<'a>)> {
     let end = pixels.end;
     pixels.step_by(4).map(move |i| {
         let j = (i + 4).min(end);
-        (i, Four::new(&g.positions[i..j], &g.normals[i..j], towards))
+        let four = Four::new(&g.positions[i..j], &g.normals[i..j], towards, map);
+        (i, four)
     })
 }
 
@@ -188,10 +210,10 @@ pub(super) fn decide(
     bias_texels: f32,
 ) -> (Verdicts, Bits) {
     let (mut verdicts, facing) = surfaces(px, away);
-    let (u, v, towards, corner, per_texel, top) = map.frame();
-    let (p, cos) = (px.points(), px.cos);
-    let qx = (p.dot(u) - corner.x) * per_texel;
-    let qy = (p.dot(v) - corner.y) * per_texel;
+    let (.., corner, per_texel, top) = map.frame();
+    let ([pu, pv, pt], cos) = (px.light(map), px.cos);
+    let qx = (pu - corner.x) * per_texel;
+    let qy = (pv - corner.y) * per_texel;
     // The interior is `[1, res − 1)` on both axes (as `classify::texel`; NaN is outside).
     let (one, last) = (Vec4::ONE, Vec4::splat((map.resolution() - 1) as f32));
     let inside = qx.cmpge(one) & qy.cmpge(one) & qx.cmplt(last) & qy.cmplt(last);
@@ -216,7 +238,7 @@ pub(super) fn decide(
         table[j * res + i]
     }));
     let settled = s.is_finite_mask().bitmask() & candidates;
-    let d = Vec4::splat(top) - p.dot(towards);
+    let d = Vec4::splat(top) - pt;
     let texel = map.texel_size();
     let constant = Vec4::splat(texel * bias_texels);
     // `classify::tolerances`: the receiver's reach within one texel, from its slope.
@@ -234,6 +256,27 @@ pub(super) fn decide(
 #[inline(always)]
 fn first(n: usize) -> BVec4A {
     BVec4A::new(n > 0, n > 1, n > 2, n > 3)
+}
+
+/// The lanes of `px` whose surface faces the light (`n · L` above 0) and whose receiver does not lie
+/// within `fitted` across `map` (x and y inside it, z along the light not below it; z above it changes
+/// no map): every pixel that would widen [`Receivers`]' bounds there, and those with a non-finite
+/// coordinate, which widen nothing but fail the compares (so a broken G-buffer costs a second fit, never
+/// a wrong one). Compares alone, no bounds carried from pixel to pixel.
+#[inline(always)]
+pub(super) fn outside(map: &ShadowMap, px: &Four, fitted: (Vec3, Vec3)) -> Bits {
+    let q = px.light(map);
+    let (lo, hi) = (
+        fitted.0.to_array().map(Vec4::splat),
+        fitted.1.to_array().map(Vec4::splat),
+    );
+    let within = q[0].cmpge(lo[0])
+        & q[0].cmple(hi[0])
+        & q[1].cmpge(lo[1])
+        & q[1].cmple(hi[1])
+        & q[2].cmpge(lo[2]);
+    // Missing lanes have a zero normal: they do not face the light.
+    (!within & px.cos.cmpgt(Vec4::ZERO)).bitmask()
 }
 
 /// The bounds of the receivers among the pixels given to [`add`](Self::add): x and y across a map, z
@@ -258,13 +301,12 @@ impl Receivers {
     }
 
     /// Grows the bounds by the pixels of `px` whose surface faces the light (`n · L` above 0), across
-    /// `map`, along `towards`.
+    /// `map`, along its light.
     #[inline(always)]
-    pub(super) fn add(&mut self, map: &ShadowMap, towards: Vec3, px: &Four) {
-        let (u, v, ..) = map.frame();
-        let p = px.points();
-        let q = [p.dot(u), p.dot(v), p.dot(towards)];
+    pub(super) fn add(&mut self, map: &ShadowMap, px: &Four) {
+        let q = px.light(map);
         if px.len() < 4 || !(q[0] + q[1] + q[2]).is_finite() {
+            let towards = map.frame().2;
             for (&p, &nrm) in px.positions.iter().zip(px.normals) {
                 self.odd = super::receiver(self.odd, map, towards, p, nrm);
             }
@@ -432,12 +474,14 @@ mod tests {
     }
 
     /// Four pixels at a time classify each pixel as the scalar tests do on their own, in every hard mode
-    /// and for one to four pixels; and their receivers' bounds are the scalar fold's, bit for bit (the
-    /// map is fitted to them and compared with `==`).
+    /// and for one to four pixels, with their positions across the map computed up front or not; their
+    /// receivers' bounds are the scalar fold's, bit for bit (the map is fitted to them and compared with
+    /// `==`); and the lanes found outside given bounds are the pixels facing the light whose scalar
+    /// coordinates do not all lie within them.
     #[test]
     fn lanes_classify_as_the_scalar_tests() {
         let mut r = SmallRng::seed_from_u64(7);
-        let mut settled = 0;
+        let (mut settled, mut flagged) = (0, [0; 2]);
         for round in 0..40 {
             let towards =
                 Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize();
@@ -446,20 +490,28 @@ mod tests {
             for len in [4, 4, 4, 3, 2, 1] {
                 let px: Vec<(Vec3, Vec3)> = (0..len).map(|_| pixel(&mut r, towards)).collect();
                 let (ps, ns): (Vec<Vec3>, Vec<Vec3>) = px.iter().copied().unzip();
-                let four = Four::new(&ps, &ns, towards);
+                // With the positions across the map computed up front and without.
+                let four = Four::new(&ps, &ns, towards, Some(&map));
+                let bare = Four::new(&ps, &ns, towards, None);
                 let scalar = |p: Vec3, n: Vec3, test: &dyn Fn(Vec3, f32) -> Class| {
                     classify::facing(n, towards, 0.0).map_or_else(|c| c, |cos| test(p, cos))
                 };
                 let selective = |p, cos| classify::selective(&map, &deltas, p, cos, bias);
                 let map_only = |p, cos| classify::shadow_map_only(&map, p, cos, bias);
-                for (table, test) in [
-                    (deltas.table(), &selective as &dyn Fn(Vec3, f32) -> Class),
-                    (map.depths(), &map_only),
+                for (table, test, four) in [
+                    (
+                        deltas.table(),
+                        &selective as &dyn Fn(Vec3, f32) -> Class,
+                        &four,
+                    ),
+                    (map.depths(), &map_only, &four),
+                    (deltas.table(), &selective, &bare),
+                    (map.depths(), &map_only, &bare),
                 ] {
-                    let decided = decide(&map, table, &four, 0.0, bias);
+                    let decided = decide(&map, table, four, 0.0, bias);
                     settled += (first(len).bitmask() & !decided.1).count_ones();
-                    let v = or_each(&four, decided, |p, n| scalar(p, n, test));
-                    let marks = mark_facing(&four, 0.0);
+                    let v = or_each(four, decided, |p, n| scalar(p, n, test));
+                    let marks = mark_facing(four, 0.0);
                     for (k, &(p, n)) in px.iter().enumerate() {
                         let bit = |v: Verdicts| Verdicts {
                             lit: v.lit >> k & 1,
@@ -473,14 +525,45 @@ mod tests {
                     assert_eq!(v.lit >> len | v.facing >> len | v.marked >> len, 0);
                 }
                 let mut lanes = Receivers::new();
-                lanes.add(&map, towards, &four);
+                lanes.add(&map, &four);
                 let one_by_one = px
                     .iter()
                     .fold(NO_BOUNDS, |b, &(p, n)| receiver(b, &map, towards, p, n));
                 assert_eq!(lanes.bounds(), one_by_one, "pixels {px:?}");
+                // Checked against the bounds of a few other receivers: a lane is outside when its
+                // pixel faces the light and is not within them, coordinate by coordinate.
+                let fitted = (0..6)
+                    .map(|_| pixel(&mut r, towards))
+                    .fold(NO_BOUNDS, |b, (p, _)| {
+                        receiver(b, &map, towards, p, towards)
+                    });
+                for four in [&four, &bare] {
+                    let bits = outside(&map, four, fitted);
+                    for (k, &(p, n)) in px.iter().enumerate() {
+                        let q = map.across(p).extend(p.dot(towards));
+                        let within = q.x >= fitted.0.x
+                            && q.x <= fitted.1.x
+                            && q.y >= fitted.0.y
+                            && q.y <= fitted.1.y
+                            && q.z >= fitted.0.z;
+                        let want = n.dot(towards) > 0.0 && !within;
+                        assert_eq!(
+                            bits >> k & 1 == 1,
+                            want,
+                            "pixel {p}, {n} against {fitted:?}"
+                        );
+                        flagged[want as usize] += 1;
+                    }
+                    assert_eq!(bits >> len, 0);
+                }
             }
         }
-        // The lanes themselves decided most of the pixels, not the scalar fallback.
+        // The lanes themselves decided most of the pixels, not the scalar fallback, and the receivers
+        // checked fell on both sides of the bounds.
         assert!(settled > 400, "{settled} pixels settled in lanes");
+        assert!(
+            flagged[0] > 100 && flagged[1] > 100,
+            "{flagged:?} inside, outside"
+        );
     }
 }

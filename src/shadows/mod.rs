@@ -9,9 +9,10 @@
 //! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
 //!    pixels' surfaces ([`ShadowMap`]). The footprint is first taken from a sample of the image's rows
 //!    (every 16th, and those around where the last pass found its extremes); step 2, which reads every
-//!    pixel anyway, finds the exact footprint, and where the sample missed part of it the map is rendered
-//!    and step 2 run again ([`ShadowStats::refitted`]): the same map and image either way, for a pass
-//!    over the G-buffer less in a moving scene whose extremes stay near where they were;
+//!    pixel anyway, checks that each lies within it, and where the sample missed part of it the exact
+//!    footprint is found, the map rendered and step 2 run again ([`ShadowStats::refitted`]): the same
+//!    map and image either way, for a pass over the G-buffer less in a moving scene whose extremes stay
+//!    near where they were;
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
 //!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
 //!    compared with the depths of the four texels whose centres surround it: where some may shade it
@@ -175,7 +176,8 @@ pub struct ShadowStats {
     /// Pixels that got a shadow ray (the marked, potentially incorrect pixels in selective mode).
     pub rays: usize,
     /// Whether the receivers' bounds over the sample of image rows the map was first fitted to missed an
-    /// extreme, so the map was rendered and every pixel classified a second time, over the exact bounds.
+    /// extreme (or could not tell: a receiver facing the light at a non-finite position), so the map was
+    /// rendered and every pixel classified a second time, over the exact bounds.
     pub refitted: bool,
     /// Time rendering the shadow map.
     pub map_time: Duration,
@@ -211,8 +213,8 @@ struct Chunk {
     start: usize,
     /// Its pixels showing a surface that faces the light.
     facing: usize,
-    /// Its receivers' bounds, when the classification finds them.
-    bounds: (Vec3, Vec3),
+    /// Whether one of its receivers lies outside the bounds the classification checks them against.
+    outside: bool,
 }
 
 /// One hard-shadow pass, kept between frames so a warm pass does not allocate (see the module docs).
@@ -230,8 +232,8 @@ pub struct HardShadows {
     /// Soft shadows: per texel, whether a penumbra may reach it.
     mask: Vec<bool>,
     visibility: Vec<f32>,
-    /// The image rows the receivers' bounds are sampled from, and each one's bounds (scratch of
-    /// [`Self::receivers`]).
+    /// The image rows [`Self::receivers`] last read (a sample, or every row when the sample missed an
+    /// extreme), and each one's bounds.
     rows: Vec<usize>,
     bounds: Vec<(Vec3, Vec3)>,
     /// The bands of [`BAND`] rows that held the last pass's extreme receivers (lowest x, y and z across
@@ -267,31 +269,33 @@ impl HardShadows {
         let soft = s.light_angle > 0.0;
         let (mut map_time, mut classify_time) = (Duration::ZERO, Duration::ZERO);
         // The map is fitted to the receivers' bounds over a sample of the image's rows first; the
-        // classification, which reads every pixel anyway, finds the exact bounds, and only where the
-        // sample missed an extreme is the map fitted to them and every pixel classified again: the same
-        // map and image as a fit to the exact bounds, for a twentieth of a pass over the G-buffer.
+        // classification, which reads every pixel anyway, checks that none lies outside them, and only
+        // where one does (the sample missed an extreme) are the exact bounds found, the map fitted to
+        // them and every pixel classified again: the same map and image as a fit to the exact bounds,
+        // for a twentieth of a pass over the G-buffer.
         let sampled = (s.mode != ShadowMode::RayTraced).then(|| {
             let t = Instant::now();
             self.map.aim(towards);
-            let sampled = self.receivers(gbuffer, towards, par);
+            let sampled = self.receivers(gbuffer, towards, par, false);
             self.fit_map(s, triangles, sampled);
             map_time += t.elapsed();
             sampled
         });
         let t = Instant::now();
-        let exact = self.classify(s, gbuffer, towards, sampled.is_some());
+        let refitted = self.classify(s, gbuffer, towards, sampled);
         classify_time += t.elapsed();
-        let refitted = sampled.is_some_and(|b| !same_fit(b, exact, soft));
-        if sampled.is_some() {
-            self.note_extremes(exact);
-        }
+        let mut fit = sampled.unwrap_or(NO_BOUNDS);
         if refitted {
             let t = Instant::now();
-            self.fit_map(s, triangles, exact);
+            fit = self.receivers(gbuffer, towards, par, true);
+            self.fit_map(s, triangles, fit);
             map_time += t.elapsed();
             let t = Instant::now();
-            self.classify(s, gbuffer, towards, false);
+            self.classify(s, gbuffer, towards, None);
             classify_time += t.elapsed();
+        }
+        if sampled.is_some() {
+            self.note_extremes(fit);
         }
         let t = Instant::now();
         self.marked.clear();
@@ -362,15 +366,15 @@ impl HardShadows {
     }
 
     /// Classifies every pixel against the last map as the mode says (visibility and each band's marked
-    /// pixels); with `bounds`, also returns the receivers' exact bounds ([`Self::receivers`] over every
-    /// pixel), else empty bounds.
+    /// pixels); with the receivers' bounds `fitted` the map was fitted to, also returns whether a receiver
+    /// lies outside them (see [`lanes::outside`]): a map fitted to every pixel's bounds would differ.
     fn classify(
         &mut self,
         s: &ShadowSettings,
         g: &GBuffer,
         towards: Vec3,
-        bounds: bool,
-    ) -> (Vec3, Vec3) {
+        fitted: Option<(Vec3, Vec3)>,
+    ) -> bool {
         let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
         let soft = s.light_angle > 0.0;
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
@@ -385,10 +389,15 @@ impl HardShadows {
         let toward = |nrm| classify::facing(nrm, towards, away);
         let bias = s.bias_texels;
         let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
+        // Only a soft map depends on the deepest receiver (`ShadowMap::render`): a hard one is not
+        // checked along the light.
+        let deepest = |b: (Vec3, Vec3)| if soft { b.0.z } else { f32::NEG_INFINITY };
         let px = Pixels {
             g,
             towards,
-            across: bounds.then_some(map),
+            // Every mode but the ray-traced one reads the positions across the map.
+            map: (s.mode != ShadowMode::RayTraced).then_some(map),
+            within: fitted.map(|b| (b.0.truncate().extend(deepest(b)), b.1)),
         };
         // One classification per mode, each its own loop (the test inlined, no dispatch per pixel). The
         // hard modes settle most pixels four at a time ([`lanes::decide`]); the rest, pixel by pixel.
@@ -418,7 +427,7 @@ impl HardShadows {
                 })
             }),
         }
-        chunks.iter().fold(NO_BOUNDS, |a, c| union(a, c.bounds))
+        chunks.iter().any(|c| c.outside)
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
@@ -429,49 +438,61 @@ impl HardShadows {
     }
 
     /// The bounds of the pixels whose surface faces the light (lower corner above the upper where none
-    /// does): x and y across the light the map is aimed at, z along it (`p · towards`), over a sample of
-    /// the image, in parallel over rows: its first and last rows, every [`SAMPLE_ROWS`]th, and the bands
-    /// of [`BAND`] rows around those that held the last pass's extremes (where, in a moving scene, they
-    /// most likely are again). The classification finds the exact bounds of every pixel.
-    fn receivers(&mut self, g: &GBuffer, towards: Vec3, par: bool) -> (Vec3, Vec3) {
+    /// does): x and y across the light the map is aimed at, z along it (`p · towards`), in parallel over
+    /// rows — with `every_row`, over the whole image; else over a sample of it: its first and last rows,
+    /// every [`SAMPLE_ROWS`]th, and the bands of [`BAND`] rows around those that held the last pass's
+    /// extremes (where, in a moving scene, they most likely are again), which the classification checks
+    /// every pixel against. Keeps each row's bounds for [`Self::note_extremes`].
+    fn receivers(
+        &mut self,
+        g: &GBuffer,
+        towards: Vec3,
+        par: bool,
+        every_row: bool,
+    ) -> (Vec3, Vec3) {
         let (w, h) = (g.width, g.height);
         let map = &self.map;
-        // At most every SAMPLE_ROWS-th row, the last, and three bands around each of five extremes: room
-        // for all, so that a warm pass allocates nothing whichever bands held the extremes.
-        let most = h.div_ceil(SAMPLE_ROWS) + 1 + 5 * 3 * BAND;
+        // At most every SAMPLE_ROWS-th row, the last, and three bands around each of five extremes, or
+        // every row: room for all, so that a warm pass allocates nothing whichever rows it reads.
+        let most = (h.div_ceil(SAMPLE_ROWS) + 1 + 5 * 3 * BAND).max(h);
         self.rows.clear();
         self.rows.reserve(most);
         self.bounds.reserve(most.saturating_sub(self.bounds.len()));
-        self.rows
-            .extend((0..h).step_by(SAMPLE_ROWS).chain(h.checked_sub(1)));
-        for &band in &self.extremes {
-            let near = band.saturating_sub(1) * BAND..((band + 2) * BAND).min(h);
-            self.rows.extend(near);
+        if every_row {
+            self.rows.extend(0..h);
+        } else {
+            self.rows
+                .extend((0..h).step_by(SAMPLE_ROWS).chain(h.checked_sub(1)));
+            for &band in &self.extremes {
+                let near = band.saturating_sub(1) * BAND..((band + 2) * BAND).min(h);
+                self.rows.extend(near);
+            }
         }
         let rows = &self.rows;
         self.bounds.resize(rows.len(), NO_BOUNDS);
         parallel::fill(par, &mut self.bounds, 1, |k| {
             let mut receivers = lanes::Receivers::new();
-            for (_, four) in lanes::fours(g, rows[k] * w..(rows[k] + 1) * w, towards) {
-                receivers.add(map, towards, &four);
+            for (_, four) in lanes::fours(g, rows[k] * w..(rows[k] + 1) * w, towards, Some(map)) {
+                receivers.add(map, &four);
             }
             receivers.bounds()
         });
         self.bounds.iter().fold(NO_BOUNDS, |a, &b| union(a, b))
     }
 
-    /// Remembers the bands of the last classification that hold the extremes of its exact receivers'
-    /// bounds `exact` (see [`Self::extremes`]).
-    fn note_extremes(&mut self, exact: (Vec3, Vec3)) {
+    /// Remembers the bands of [`BAND`] rows that hold the extremes of the receivers' bounds `fit` the map
+    /// was last fitted to (see [`Self::extremes`]): those of the first rows [`Self::receivers`] last read
+    /// that reach them.
+    fn note_extremes(&mut self, fit: (Vec3, Vec3)) {
         self.extremes.clear();
         self.extremes.reserve(5);
-        let lowest = [(0, exact.0.x), (0, exact.0.y), (0, exact.0.z)];
-        let highest = [(1, exact.1.x), (1, exact.1.y)];
+        let lowest = [(0, fit.0.x), (0, fit.0.y), (0, fit.0.z)];
+        let highest = [(1, fit.1.x), (1, fit.1.y)];
         for (k, (side, at)) in lowest.into_iter().chain(highest).enumerate() {
             let axis = k % 3;
-            let holds = |c: &Chunk| [c.bounds.0, c.bounds.1][side][axis] == at;
-            if let Some(band) = self.chunks.iter().position(holds) {
-                self.extremes.push(band);
+            let holds = |b: &(Vec3, Vec3)| [b.0, b.1][side][axis] == at;
+            if let Some(row) = self.bounds.iter().position(holds) {
+                self.extremes.push(self.rows[row] / BAND);
             }
         }
     }
@@ -494,21 +515,23 @@ impl HardShadows {
 }
 
 /// The image's pixels as the classification visits them: the G-buffer's, in bands of [`BAND`] rows,
-/// each band row by row, lit from `towards`; with `across`, their receivers' bounds are found on the way
-/// (across that map).
+/// each band row by row, lit from `towards`; with `map`, their positions are read across it (once for
+/// every test, [`lanes::Four::new`]), and with `within` too, their receivers checked against those bounds
+/// ([`lanes::outside`]).
 #[derive(Clone, Copy)]
 struct Pixels<'a> {
     g: &'a GBuffer,
     towards: Vec3,
-    across: Option<&'a ShadowMap>,
+    map: Option<&'a ShadowMap>,
+    within: Option<(Vec3, Vec3)>,
 }
 
 /// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
 /// pixels of one image row (in parallel over bands of [`BAND`] rows): writes the map's verdict into
 /// `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked pixels in its
 /// chunk, block by block ([`in_blocks`]: neighbouring marked pixels stay together, so their rays make
-/// coherent packets), with its count of pixels facing the light and, with `px.across`, the bounds of
-/// its receivers (else empty bounds). Generic over the test, so each mode's loop has its test inlined.
+/// coherent packets), with its count of pixels facing the light and, with `px.within`, whether one of
+/// its receivers lies outside those bounds. Generic over the test, so each mode's loop has its test inlined.
 fn classify_pixels(
     par: bool,
     px: Pixels,
@@ -524,17 +547,17 @@ fn classify_pixels(
     parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
         out.marked.clear();
         out.facing = 0;
-        let mut receivers = lanes::Receivers::new();
+        let mut outside = 0;
         let rows = vis.len() / w;
         // Where each row's marked pixels start in the band's list, and where the last ends.
         let mut starts = [0; BAND + 1];
         for (y, start) in starts.iter_mut().enumerate().take(rows) {
             *start = out.marked.len();
             let row = c * chunk + y * w;
-            for (i, four) in lanes::fours(g, row..row + w, px.towards) {
+            for (i, four) in lanes::fours(g, row..row + w, px.towards, px.map) {
                 let at = i - c * chunk;
-                if let Some(map) = px.across {
-                    receivers.add(map, px.towards, &four);
+                if let (Some(map), Some(fitted)) = (px.map, px.within) {
+                    outside |= lanes::outside(map, &four, fitted);
                 }
                 let v = classify(&four);
                 lanes::write_visibility(v.lit, &mut vis[at..at + four.len()]);
@@ -547,7 +570,7 @@ fn classify_pixels(
             }
         }
         starts[rows] = out.marked.len();
-        out.bounds = receivers.bounds();
+        out.outside = outside != 0;
         in_blocks(
             &mut out.marked,
             &mut out.scratch,
@@ -608,15 +631,6 @@ fn receiver(b: (Vec3, Vec3), map: &ShadowMap, towards: Vec3, p: Vec3, nrm: Vec3)
 /// The smallest bounds holding `a` and `b`.
 fn union(a: (Vec3, Vec3), b: (Vec3, Vec3)) -> (Vec3, Vec3) {
     (a.0.min(b.0), a.1.max(b.1))
-}
-
-/// Whether a map fitted to receivers' bounds `a` is the one fitted to `b`: the same extent across the
-/// light and, for soft shadows (whose map and mask reach as deep as the deepest receiver), the same
-/// deepest receiver. (`==`, not bits: a zero of either sign gives the same map.)
-fn same_fit(a: (Vec3, Vec3), b: (Vec3, Vec3), soft: bool) -> bool {
-    a.0.truncate() == b.0.truncate()
-        && a.1.truncate() == b.1.truncate()
-        && (!soft || a.0.z == b.0.z)
 }
 
 /// Checks the settings and the G-buffer; returns the unit light direction.
