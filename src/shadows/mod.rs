@@ -41,7 +41,7 @@
 //! the CPU the map and the classification (four pixels at a time, bound by its scattered reads of the map
 //! and the G-buffer's 24 bytes a pixel) cost about a third of hard shadow rays that mostly escape to the
 //! sky, and the marked rays graze silhouettes at ~10× an average shadow ray's cost, so on the crowd of
-//! 16 × 2,880 triangles selective hard shadows take about 2.6× less CPU than a ray per pixel traced as
+//! 16 × 2,880 triangles selective hard shadows take about 2.8× less CPU than a ray per pixel traced as
 //! packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench suite in
 //! docs/BENCHMARKS.md), and on a crowd of 700k triangles, smaller than a texel (a map about as costly as
 //! the rays, 4% of pixels marked), about 1.6×;
