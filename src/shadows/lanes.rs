@@ -139,8 +139,8 @@ impl<'a> Four<'a> {
     }
 }
 
-/// Points `p`'s coordinates across `map` and along its light: `p · u`, `p · v` and `p · towards` per lane
-/// (in `Vec3::dot`'s order, as [`ShadowMap::project`] and `super::receiver` sum them).
+/// The coordinates of the points `p` across `map` and along its light: `p · u`, `p · v` and `p · towards`
+/// per lane (in `Vec3::dot`'s order, as [`ShadowMap::project`] and `super::receiver` sum them).
 #[inline(always)]
 fn light(map: &ShadowMap, p: Quad) -> [Vec4; 3] {
     let (u, v, towards, ..) = map.frame();
