@@ -53,9 +53,10 @@ fn square_over_ground() -> (Vec<[Vec3; 3]>, MeshBvh, GBuffer) {
     (tris, bvh, g)
 }
 
-/// Broken occluders (triangles with an infinite or NaN corner, as a corrupt mesh gives) are left out of
-/// the map: the same map and image as without them, hard and soft, where one infinite corner once made
-/// the nearest point, and so every depth, infinite. The rays see only the square (the BVH's triangles).
+/// Broken occluders (triangles with an infinite or NaN corner, as a corrupt mesh gives, or corners so far
+/// out that their projection along the light passes `f32`) are left out of the map: the same map and image
+/// as without them, hard and soft, where one infinite corner once made the nearest point, and so every
+/// depth, infinite. The rays see only the square (the BVH's triangles).
 #[test]
 fn non_finite_triangles_leave_the_map_alone() {
     let (tris, bvh, g) = square_over_ground();
@@ -67,6 +68,12 @@ fn non_finite_triangles_leave_the_map_alone() {
         Vec3::new(f32::NEG_INFINITY, 2.0, 0.0),
         Vec3::Y * 2.0,
         Vec3::ONE * 2.0,
+    ]);
+    // Finite corners, but beyond `f32` once projected along the light.
+    broken.push([
+        Vec3::splat(3e38),
+        Vec3::splat(3e38) - Vec3::X * 1e38,
+        Vec3::splat(2.9e38),
     ]);
     for (mode, angle) in [
         (ShadowMode::Selective, 0.0),

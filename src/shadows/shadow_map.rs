@@ -69,13 +69,10 @@ impl Placed {
         self.reach.clear();
         let mut top = f32::MIN;
         for t in tris {
-            let q = t.map(|p| light * Vec3A::from(p));
-            // A triangle with a non-finite corner (a broken mesh) covers nothing and moves no depth: a
-            // NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
-            if !(q[0] + q[1] + q[2]).is_finite() {
+            let Some(q) = in_light(&light, t) else {
                 self.reach.push([1, 0]);
                 continue;
-            }
+            };
             top = top.max(q[0].z.max(q[1].z).max(q[2].z));
             let reach = bands(&q.map(|q| texels(q).truncate()), map.res);
             for b in reach[0]..=reach[1] {
@@ -141,10 +138,10 @@ impl ShadowMap {
         res: usize,
         parallel: bool,
     ) {
-        let towards = self.towards;
+        let light = self.light();
         let highest = |tris: &[[Vec3; 3]]| {
-            (tris.iter().filter(|t| t.iter().all(|p| p.is_finite())))
-                .flat_map(|t| t.map(|p| p.dot(towards)))
+            (tris.iter().filter_map(|t| in_light(&light, t)))
+                .flat_map(|q| q.map(|q| q.z))
                 .fold(f32::MIN, f32::max)
         };
         // A soft light's map reaches as far as the penumbrae, which depends on the point nearest the
@@ -269,6 +266,15 @@ impl ShadowMap {
             self.depth[at..at + 3].try_into().expect("three texels")
         })
     }
+}
+
+/// Triangle `t` in light space (`light * p` for each corner, [`ShadowMap::light`]), or `None` when a
+/// coordinate is not finite — a broken mesh's corner, or one beyond `f32` once projected: such a triangle
+/// covers nothing and moves no depth, in the placing pass and in an area light's nearest-point pass alike.
+/// A NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
+fn in_light(light: &Mat3A, t: &[Vec3; 3]) -> Option<[Vec3A; 3]> {
+    let q = t.map(|p| *light * Vec3A::from(p));
+    (q[0] + q[1] + q[2]).is_finite().then_some(q)
 }
 
 /// The first and last band of [`BAND_ROWS`] rows of a `res`-texel map whose texel centres the bounds of
