@@ -58,6 +58,7 @@ pub mod anim;
 pub mod bvh;
 pub mod characterize;
 pub mod collide;
+pub mod dispatch;
 pub mod ecs;
 mod error;
 pub mod geometry;

@@ -661,3 +661,97 @@ fn bad_input_is_an_error() {
         &[1.0; 16]
     );
 }
+
+/// Sets `kinetrace::dispatch::baseline_only_for_tests` for as long as it lives.
+struct BaselineOnly;
+
+impl BaselineOnly {
+    fn new() -> Self {
+        kinetrace::dispatch::baseline_only_for_tests(true);
+        Self
+    }
+}
+
+impl Drop for BaselineOnly {
+    fn drop(&mut self) {
+        kinetrace::dispatch::baseline_only_for_tests(false);
+    }
+}
+
+/// What a pass left, bit for bit: every depth of its map, its marked pixels in order, every visibility.
+type Outcome = (Vec<u32>, Vec<u32>, Vec<u32>);
+
+/// `run` on a cold pass with the loops' baseline build, then on another with their AVX2-generation build:
+/// what each left.
+fn in_both_builds(run: impl Fn(&mut HardShadows)) -> [Outcome; 2] {
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let outcome = |pass: &HardShadows| {
+        let map = pass.shadow_map();
+        let res = map.resolution();
+        let depths = (0..res * res)
+            .map(|k| map.depth(k % res, k / res))
+            .collect::<Vec<_>>();
+        (
+            bits(&depths),
+            pass.marked().to_vec(),
+            bits(pass.visibility()),
+        )
+    };
+    let (mut base, mut wide) = (HardShadows::new(), HardShadows::new());
+    {
+        let _only = BaselineOnly::new();
+        run(&mut base);
+    }
+    run(&mut wide);
+    [outcome(&base), outcome(&wide)]
+}
+
+/// The pass's loops built for the target's baseline and for the AVX2 generation (`kinetrace::dispatch`,
+/// which runs the second where the CPU has it) give the same pass bit for bit: the map's every depth, the
+/// marked pixels in their order and every visibility, in every mode, hard and soft, on one thread and on
+/// all, on a crowd frame and on adversarial scenes (every path of the classification). Both passes start
+/// cold, so each fits its map from the same sampled rows.
+#[test]
+fn baseline_and_wide_builds_give_the_same_pass() {
+    if !kinetrace::dispatch::wide_available() {
+        eprintln!("SKIPPED: this CPU lacks the AVX2 generation; only the baseline build runs here");
+        return;
+    }
+    let never = |_: Vec3, _: Vec3| false;
+    let world = crowd_world(60);
+    let (_, crowd_g) = crowd::primary_hits(&world, 320, 180, &crowd::Camera::default());
+    let mut compared = 0;
+    for mode in [
+        ShadowMode::ShadowMap,
+        ShadowMode::Selective,
+        ShadowMode::RayTraced,
+    ] {
+        for (light_angle, parallel) in [(0.0, false), (0.0, true), (0.02, false), (0.02, true)] {
+            let s = ShadowSettings {
+                light_angle,
+                parallel,
+                ..settings(mode, crowd::sun())
+            };
+            let [base, wide] = in_both_builds(|pass| {
+                crowd::sun_visibility(&world, &crowd_g, &s, pass, &mut Vec::new()).unwrap();
+            });
+            assert_eq!(wide, base, "crowd, {mode:?}, {light_angle} rad, {parallel}");
+            compared += 1;
+            for seed in 0..3 {
+                let towards = [Vec3::Y, Vec3::new(0.6, 1.0, 0.3)][seed as usize % 2].normalize();
+                let (tris, g) = adversarial_scene(seed, towards);
+                let s = ShadowSettings {
+                    map_resolution: 64,
+                    towards_light: towards,
+                    ..s
+                };
+                let [base, wide] = in_both_builds(|pass| {
+                    pass.run(&s, &tris, &g, never).unwrap();
+                });
+                assert_eq!(wide, base, "seed {seed}, {mode:?}, {light_angle} rad");
+                compared += 1;
+            }
+        }
+    }
+    println!("{compared} passes the same in both builds");
+}

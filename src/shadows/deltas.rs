@@ -54,26 +54,31 @@ impl Deltas {
         self.res = res;
         self.smooth.resize(res * res, f32::NAN);
         parallel::fill_chunks(par, &mut self.smooth, ROWS * res, |band, out| {
-            for (r, row) in out.chunks_mut(res).enumerate() {
-                let j = band * ROWS + r;
-                if j == 0 || j + 1 == res {
-                    row.fill(f32::NAN);
-                    continue;
-                }
-                (row[0], row[res - 1]) = (f32::NAN, f32::NAN);
-                let rows = [j - 1, j, j + 1].map(|y| &depth[y * res..(y + 1) * res]);
-                let windows = rows[0]
-                    .windows(3)
-                    .zip(rows[1].windows(3))
-                    .zip(rows[2].windows(3));
-                for (t, ((a, b), c)) in row[1..res - 1].iter_mut().zip(windows) {
-                    *t = if delta(a, b, c) <= edge {
-                        b[1]
-                    } else {
-                        f32::NAN
-                    };
-                }
-            }
+            crate::dispatch::widest(
+                #[inline(always)]
+                || {
+                    for (r, row) in out.chunks_mut(res).enumerate() {
+                        let j = band * ROWS + r;
+                        if j == 0 || j + 1 == res {
+                            row.fill(f32::NAN);
+                            continue;
+                        }
+                        (row[0], row[res - 1]) = (f32::NAN, f32::NAN);
+                        let rows = [j - 1, j, j + 1].map(|y| &depth[y * res..(y + 1) * res]);
+                        let windows = rows[0]
+                            .windows(3)
+                            .zip(rows[1].windows(3))
+                            .zip(rows[2].windows(3));
+                        for (t, ((a, b), c)) in row[1..res - 1].iter_mut().zip(windows) {
+                            *t = if delta(a, b, c) <= edge {
+                                b[1]
+                            } else {
+                                f32::NAN
+                            };
+                        }
+                    }
+                },
+            )
         });
     }
 

@@ -388,7 +388,6 @@ impl HardShadows {
         // A pixel with no surface or one facing away from the light, else its n·L.
         let toward = |nrm| classify::facing(nrm, towards, away);
         let bias = s.bias_texels;
-        let (vis, chunks) = (&mut self.visibility, &mut self.chunks);
         // Only a soft map depends on the deepest receiver (`ShadowMap::render`): a hard one is not
         // checked along the light.
         let deepest = |b: (Vec3, Vec3)| if soft { b.0.z } else { f32::NEG_INFINITY };
@@ -399,35 +398,51 @@ impl HardShadows {
             map: (s.mode != ShadowMode::RayTraced).then_some(map),
             within: fitted.map(|b| (b.0.truncate().extend(deepest(b)), b.1)),
         };
+        let into = Classification {
+            par: s.parallel,
+            px,
+            visibility: &mut self.visibility,
+            chunks: &mut self.chunks,
+        };
         // One classification per mode, each its own loop (the test inlined, no dispatch per pixel). The
         // hard modes settle most pixels four at a time ([`lanes::decide`]); the rest, pixel by pixel.
         match s.mode {
-            ShadowMode::RayTraced => classify_pixels(s.parallel, px, vis, chunks, |four| {
-                lanes::mark_facing(four, away)
-            }),
-            ShadowMode::ShadowMap => classify_pixels(s.parallel, px, vis, chunks, |four| {
-                let decided = lanes::decide(map, map.depths(), four, away, bias);
-                lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
-                    Ok(cos) => classify::shadow_map_only(map, p, cos, bias),
-                    Err(c) => c,
-                })
-            }),
-            ShadowMode::Selective if soft => classify_pixels(s.parallel, px, vis, chunks, |four| {
-                lanes::each(four, |p, nrm| match toward(nrm) {
-                    Ok(cos) if cos <= horizon => Class::Marked,
-                    Ok(cos) => classify::soft(map, mask, p, cos, bias),
-                    Err(c) => c,
-                })
-            }),
-            ShadowMode::Selective => classify_pixels(s.parallel, px, vis, chunks, |four| {
-                let decided = lanes::decide(map, deltas.table(), four, away, bias);
-                lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
-                    Ok(cos) => classify::selective(map, deltas, p, cos, bias),
-                    Err(c) => c,
-                })
-            }),
+            ShadowMode::RayTraced => into.each_four(
+                #[inline(always)]
+                |four| lanes::mark_facing(four, away),
+            ),
+            ShadowMode::ShadowMap => into.each_four(
+                #[inline(always)]
+                |four| {
+                    let decided = lanes::decide(map, map.depths(), four, away, bias);
+                    lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
+                        Ok(cos) => classify::shadow_map_only(map, p, cos, bias),
+                        Err(c) => c,
+                    })
+                },
+            ),
+            ShadowMode::Selective if soft => into.each_four(
+                #[inline(always)]
+                |four| {
+                    lanes::each(four, |p, nrm| match toward(nrm) {
+                        Ok(cos) if cos <= horizon => Class::Marked,
+                        Ok(cos) => classify::soft(map, mask, p, cos, bias),
+                        Err(c) => c,
+                    })
+                },
+            ),
+            ShadowMode::Selective => into.each_four(
+                #[inline(always)]
+                |four| {
+                    let decided = lanes::decide(map, deltas.table(), four, away, bias);
+                    lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
+                        Ok(cos) => classify::selective(map, deltas, p, cos, bias),
+                        Err(c) => c,
+                    })
+                },
+            ),
         }
-        chunks.iter().any(|c| c.outside)
+        self.chunks.iter().any(|c| c.outside)
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
@@ -471,11 +486,17 @@ impl HardShadows {
         let rows = &self.rows;
         self.bounds.resize(rows.len(), NO_BOUNDS);
         parallel::fill(par, &mut self.bounds, 1, |k| {
-            let mut receivers = lanes::Receivers::new();
-            for (_, four) in lanes::fours(g, rows[k] * w..(rows[k] + 1) * w, towards, Some(map)) {
-                receivers.add(map, &four);
-            }
-            receivers.bounds()
+            crate::dispatch::widest(
+                #[inline(always)]
+                || {
+                    let mut receivers = lanes::Receivers::new();
+                    let row = rows[k] * w..(rows[k] + 1) * w;
+                    for (_, four) in lanes::fours(g, row, towards, Some(map)) {
+                        receivers.add(map, &four);
+                    }
+                    receivers.bounds()
+                },
+            )
         });
         self.bounds.iter().fold(NO_BOUNDS, |a, &b| union(a, b))
     }
@@ -526,59 +547,75 @@ struct Pixels<'a> {
     within: Option<(Vec3, Vec3)>,
 }
 
-/// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
-/// pixels of one image row (in parallel over bands of [`BAND`] rows): writes the map's verdict into
-/// `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked pixels in its
-/// chunk, block by block ([`in_blocks`]: neighbouring marked pixels stay together, so their rays make
-/// coherent packets), with its count of pixels facing the light and, with `px.within`, whether one of
-/// its receivers lies outside those bounds. Generic over the test, so each mode's loop has its test inlined.
-fn classify_pixels(
+/// One classification of every pixel: the pixels, on all threads or not, and where their verdicts go.
+struct Classification<'a> {
     par: bool,
-    px: Pixels,
-    visibility: &mut Vec<f32>,
-    chunks: &mut Vec<Chunk>,
-    classify: impl Fn(&lanes::Four) -> lanes::Verdicts + Sync,
-) {
-    let g = px.g;
-    let (w, n) = (g.width, g.width * g.height);
-    let chunk = BAND * w;
-    visibility.resize(n, 1.0);
-    chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
-    parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
-        out.marked.clear();
-        out.facing = 0;
-        let mut outside = 0;
-        let rows = vis.len() / w;
-        // Where each row's marked pixels start in the band's list, and where the last ends.
-        let mut starts = [0; BAND + 1];
-        for (y, start) in starts.iter_mut().enumerate().take(rows) {
-            *start = out.marked.len();
-            let row = c * chunk + y * w;
-            for (i, four) in lanes::fours(g, row..row + w, px.towards, px.map) {
-                let at = i - c * chunk;
-                if let (Some(map), Some(fitted)) = (px.map, px.within) {
-                    outside |= lanes::outside(map, &four, fitted);
-                }
-                let v = classify(&four);
-                lanes::write_visibility(v.lit, &mut vis[at..at + four.len()]);
-                out.facing += v.facing.count_ones() as usize;
-                let mut marked = v.marked;
-                while marked != 0 {
-                    out.marked.push(i as u32 + marked.trailing_zeros());
-                    marked &= marked - 1;
-                }
-            }
-        }
-        starts[rows] = out.marked.len();
-        out.outside = outside != 0;
-        in_blocks(
-            &mut out.marked,
-            &mut out.scratch,
-            c * chunk,
-            &starts[..=rows],
-            w,
-        );
-    });
+    px: Pixels<'a>,
+    visibility: &'a mut Vec<f32>,
+    chunks: &'a mut Vec<Chunk>,
+}
+
+impl Classification<'_> {
+    /// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
+    /// pixels of one image row (in parallel over bands of [`BAND`] rows): writes the map's verdict into
+    /// `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked pixels in
+    /// its chunk, block by block ([`in_blocks`]: neighbouring marked pixels stay together, so their rays
+    /// make coherent packets), with its count of pixels facing the light and, with `px.within`, whether one
+    /// of its receivers lies outside those bounds. Generic over the test, so each mode's loop has its test
+    /// inlined (mark it `#[inline(always)]`: the loop runs in [`widest`](crate::dispatch::widest)).
+    fn each_four(self, classify: impl Fn(&lanes::Four) -> lanes::Verdicts + Sync) {
+        let Self {
+            par,
+            px,
+            visibility,
+            chunks,
+        } = self;
+        let g = px.g;
+        let (w, n) = (g.width, g.width * g.height);
+        let chunk = BAND * w;
+        visibility.resize(n, 1.0);
+        chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
+        parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
+            crate::dispatch::widest(
+                #[inline(always)]
+                || {
+                    out.marked.clear();
+                    out.facing = 0;
+                    let mut outside = 0;
+                    let rows = vis.len() / w;
+                    // Where each row's marked pixels start in the band's list, and where the last ends.
+                    let mut starts = [0; BAND + 1];
+                    for (y, start) in starts.iter_mut().enumerate().take(rows) {
+                        *start = out.marked.len();
+                        let row = c * chunk + y * w;
+                        for (i, four) in lanes::fours(g, row..row + w, px.towards, px.map) {
+                            let at = i - c * chunk;
+                            if let (Some(map), Some(fitted)) = (px.map, px.within) {
+                                outside |= lanes::outside(map, &four, fitted);
+                            }
+                            let v = classify(&four);
+                            lanes::write_visibility(v.lit, &mut vis[at..at + four.len()]);
+                            out.facing += v.facing.count_ones() as usize;
+                            let mut marked = v.marked;
+                            while marked != 0 {
+                                out.marked.push(i as u32 + marked.trailing_zeros());
+                                marked &= marked - 1;
+                            }
+                        }
+                    }
+                    starts[rows] = out.marked.len();
+                    out.outside = outside != 0;
+                    in_blocks(
+                        &mut out.marked,
+                        &mut out.scratch,
+                        c * chunk,
+                        &starts[..=rows],
+                        w,
+                    );
+                },
+            )
+        });
+    }
 }
 
 /// Reorders the marked pixels `marked` of the band whose first pixel is `band`, listed row by row (row

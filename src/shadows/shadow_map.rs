@@ -60,6 +60,7 @@ impl Placed {
     /// nearest the light, then sorts the projected triangles into the bands (a counting sort; triangles
     /// off the map or between texel centres go nowhere). The projection is [`ShadowMap::project`]'s, bit
     /// for bit, but for the depth's origin. No allocation once warm.
+    #[inline(always)]
     fn place(&mut self, tris: &[[Vec3; 3]], map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
         let light = map.light();
@@ -175,18 +176,23 @@ impl ShadowMap {
         parallel::for_each_mut(parallel, &mut placed, |c, chunk| {
             let first = c * PLACE_CHUNK;
             let tris = &triangles[first..(first + PLACE_CHUNK).min(triangles.len())];
-            chunk.place(tris, this);
+            crate::dispatch::widest(|| chunk.place(tris, this));
         });
         self.top = early.unwrap_or_else(|| placed.iter().map(|p| p.top).fold(f32::MIN, f32::max));
         let mut depth = std::mem::take(&mut self.depth);
         depth.resize(res * res, f32::INFINITY);
         let this = &*self;
         parallel::fill_chunks(parallel, &mut depth, BAND_ROWS * res, |band, out| {
-            out.fill(f32::INFINITY);
-            for t in placed.iter().flat_map(|p| p.band(band)) {
-                let t = t.map(|q| q.truncate().extend(this.top - q.z));
-                rasterise(&t, band * BAND_ROWS, res, out);
-            }
+            crate::dispatch::widest(
+                #[inline(always)]
+                || {
+                    out.fill(f32::INFINITY);
+                    for t in placed.iter().flat_map(|p| p.band(band)) {
+                        let t = t.map(|q| q.truncate().extend(this.top - q.z));
+                        rasterise(&t, band * BAND_ROWS, res, out);
+                    }
+                },
+            )
         });
         self.depth = depth;
         self.placed = placed;
@@ -332,6 +338,7 @@ const NARROW: usize = 4;
 /// ends exactly (a weight is monotone along the row, so the covered centres are one run), so the cost is
 /// one depth-plane step per covered texel plus a few per row. One division per triangle. Triangles seen
 /// edge-on by the light cover nothing.
+#[inline(always)]
 fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
     let rows = out.len() / res;
     let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
