@@ -158,11 +158,14 @@ pub(super) fn fours<'a>(
     map: Option<&'a ShadowMap>,
 ) -> impl Iterator<Item = (usize, Four<'a>)> {
     let end = pixels.end;
-    pixels.step_by(4).map(move |i| {
-        let j = (i + 4).min(end);
-        let four = Four::new(&g.positions[i..j], &g.normals[i..j], towards, map);
-        (i, four)
-    })
+    pixels.step_by(4).map(
+        #[inline(always)]
+        move |i| {
+            let j = (i + 4).min(end);
+            let four = Four::new(&g.positions[i..j], &g.normals[i..j], towards, map);
+            (i, four)
+        },
+    )
 }
 
 /// Lane masks as bits (lane `k` is bit `k`).

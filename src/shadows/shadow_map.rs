@@ -176,7 +176,10 @@ impl ShadowMap {
         parallel::for_each_mut(parallel, &mut placed, |c, chunk| {
             let first = c * PLACE_CHUNK;
             let tris = &triangles[first..(first + PLACE_CHUNK).min(triangles.len())];
-            crate::dispatch::widest(|| chunk.place(tris, this));
+            crate::dispatch::widest(
+                #[inline(always)]
+                || chunk.place(tris, this),
+            );
         });
         self.top = early.unwrap_or_else(|| placed.iter().map(|p| p.top).fold(f32::MIN, f32::max));
         let mut depth = std::mem::take(&mut self.depth);
