@@ -375,7 +375,9 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
             .map(|(&(_, b, c), p)| (b * cy + c) * p.z)
             .sum::<f32>();
         let row = &mut out[(y - row0) * res..(y - row0 + 1) * res];
-        let centre = |x: usize| x as f32 + 0.5;
+        // Through `i32` (exact: at most 16383): a vector conversion, where one from `usize` is several
+        // instructions a texel.
+        let centre = |x: usize| x as i32 as f32 + 0.5;
         if x1 - x0 < NARROW {
             for (x, d) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
                 if inside(centre(x), cy) {
