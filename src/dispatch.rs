@@ -4,7 +4,7 @@
 //! (`-C target-cpu`). A few hot loops are compiled a second time for the AVX2 generation of x86-64 (AVX2,
 //! FMA, BMI1, BMI2, LZCNT, POPCNT: three-operand SIMD, one-instruction bit counts) and run that way where
 //! the CPU has it ([`wide_available`]): the selective shadow pass's classification, shadow map and `Δ`
-//! table ([`shadows`](crate::shadows); about 4% of a pass on the crowd). Same operations in the same
+//! table ([`shadows`](crate::shadows); about 5% of a selective pass on the crowd). Same operations in the same
 //! order — Rust never fuses a product and a sum into one rounding unless asked (`mul_add`) — so the
 //! results are bit for bit the baseline build's.
 

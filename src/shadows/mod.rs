@@ -39,12 +39,14 @@
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (1–4% of them on the crowd for hard shadows). On
 //! the CPU the map and the classification (four pixels at a time, bound by its scattered reads of the map
-//! and the G-buffer's 24 bytes a pixel) cost about a third of hard shadow rays that mostly escape to the
-//! sky, and the marked rays graze silhouettes at ~10× an average shadow ray's cost, so on the crowd of
-//! 16 × 2,880 triangles selective hard shadows take about 2.8× less CPU than a ray per pixel traced as
-//! packets of 8 × 8 pixels (same query and threads on both sides; see the `shadows` bench suite in
-//! docs/BENCHMARKS.md), and on a crowd of 700k triangles, smaller than a texel (a map about as costly as
-//! the rays, 4% of pixels marked), about 1.6×;
+//! and the G-buffer's 24 bytes a pixel; built for AVX2 too, see [`dispatch`](crate::dispatch)) cost about
+//! a fifth of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles, and the
+//! marked rays graze silhouettes at ~10× an average shadow ray's cost, so there selective hard shadows
+//! take about 3.0× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same query and
+//! threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md). On a crowd of 700k
+//! triangles, smaller than a texel, the map and classification alone cost 29% of a ray per pixel and 4%
+//! of the pixels are marked: about 1.7×, and at most 3.5× with no ray at all, which takes a map rendered
+//! where rasterisation is nearly free (the thesis's GPU) rather than on the CPU;
 //! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
