@@ -674,21 +674,15 @@ fn primary_work(world: &World, w: u32, h: u32, camera: &Camera) -> Vec<u32> {
 }
 
 /// Sun visibility per pixel of `g` (1 lit, 0 shadowed), computed as `settings.mode` says, with the
-/// shadow-ray queries of the world's trees.
+/// shadow map rendered straight from the world's meshes and the shadow-ray queries of their trees.
 pub fn sun_visibility<'a>(
     world: &World,
     g: &GBuffer,
     settings: &ShadowSettings,
     pass: &'a mut HardShadows,
-    triangles: &mut Vec<[Vec3; 3]>,
 ) -> kinetrace::Result<&'a [f32]> {
     let tw = world.resource::<TraceWorld>();
     let all = QueryFilter::default();
-    triangles.clear();
-    // The ray-traced mode reads no triangles: gathering them would only slow the reference down.
-    if settings.mode != ShadowMode::RayTraced {
-        tw.world_triangles(&all, triangles);
-    }
     // Neighbouring pixels' rays towards the sun as packets: a node visit serves the whole packet; a lone
     // ray goes alone.
     let rays = Packets(
@@ -697,7 +691,7 @@ pub fn sun_visibility<'a>(
             _ => tw.occluded_packet(segments, &all, out),
         },
     );
-    pass.run(settings, triangles, g, rays)
+    pass.run(settings, &tw.occluders(&all), g, rays)
 }
 
 /// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see
@@ -726,7 +720,7 @@ pub fn render(world: &World, w: u32, h: u32, camera: &Camera, view: View) -> ima
     let mut pass = HardShadows::new();
     let visibility = match view {
         View::Heatmap => vec![1.0; hits.len()],
-        _ => sun_visibility(world, &g, &settings, &mut pass, &mut Vec::new())
+        _ => sun_visibility(world, &g, &settings, &mut pass)
             .expect("valid settings")
             .to_vec(),
     };

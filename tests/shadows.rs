@@ -202,7 +202,7 @@ fn crowd_shadows(
         ..settings(mode, crowd::sun())
     };
     let mut pass = HardShadows::new();
-    let vis = crowd::sun_visibility(world, g, &s, &mut pass, &mut Vec::new())
+    let vis = crowd::sun_visibility(world, g, &s, &mut pass)
         .unwrap()
         .to_vec();
     (vis, pass.stats())
@@ -387,7 +387,7 @@ fn selective_marks_what_the_full_classification_marks() {
                 ..settings(ShadowMode::Selective, crowd::sun())
             };
             let mut pass = HardShadows::new();
-            crowd::sun_visibility(&world, &g, &s, &mut pass, &mut Vec::new()).unwrap();
+            crowd::sun_visibility(&world, &g, &s, &mut pass).unwrap();
             let want = full_classification(&pass, &s, &g);
             assert!(!want.is_empty(), "frame {frames} marks pixels");
             assert_eq!(
@@ -395,7 +395,7 @@ fn selective_marks_what_the_full_classification_marks() {
                 want,
                 "frame {frames}, parallel {parallel}"
             );
-            let vis = crowd::sun_visibility(&world, &g, &s, warm, &mut Vec::new()).unwrap();
+            let vis = crowd::sun_visibility(&world, &g, &s, warm).unwrap();
             assert_eq!(vis, pass.visibility(), "frame {frames}, warm pass");
             assert_eq!(warm.marked(), pass.marked(), "frame {frames}, warm pass");
             checked += want.len();
@@ -733,7 +733,7 @@ fn baseline_and_wide_builds_give_the_same_pass() {
                 ..settings(mode, crowd::sun())
             };
             let [base, wide] = in_both_builds(|pass| {
-                crowd::sun_visibility(&world, &crowd_g, &s, pass, &mut Vec::new()).unwrap();
+                crowd::sun_visibility(&world, &crowd_g, &s, pass).unwrap();
             });
             assert_eq!(wide, base, "crowd, {mode:?}, {light_angle} rad, {parallel}");
             compared += 1;

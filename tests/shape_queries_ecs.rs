@@ -12,6 +12,7 @@ use common::*;
 use glam::{Affine3A, DVec3, Mat3, Quat, Vec3};
 use kinetrace::ecs::*;
 use kinetrace::queries::Shape;
+use kinetrace::shadows::Occluders;
 use rand::Rng;
 use std::sync::Arc;
 
@@ -943,7 +944,8 @@ fn wide_tree_by_frame(points: usize, event: Event) -> Vec<bool> {
 /// `TraceWorld::world_triangles` gives every accepted entity's triangles placed in the world — the same
 /// multiset, bit for bit, as transforming each mesh's own indexed vertices by its `TraceTransform` — under
 /// every filter, on a scene with a mesh large enough to be transformed in parallel chunks; a second call
-/// into the same buffer does not grow it.
+/// into the same buffer does not grow it. `TraceWorld::occluders` holds the same triangles: each group's
+/// placed by the group's transform.
 #[test]
 fn world_triangles_are_every_accepted_mesh_placed() {
     let mut s = scene();
@@ -975,6 +977,15 @@ fn world_triangles_are_every_accepted_mesh_placed() {
             let room = got.capacity();
             tw.world_triangles(&filter, &mut got);
             assert_eq!(got.capacity(), room, "frame {f}, {filter:?}");
+            let occluders = tw.occluders(&filter);
+            let placed: Vec<[Vec3; 3]> = (0..occluders.groups())
+                .flat_map(|g| {
+                    let (tris, place) = occluders.group(g);
+                    let at = move |p| place.map_or(p, |a| a.transform_point3(p));
+                    tris.iter().map(move |t| t.map(at))
+                })
+                .collect();
+            assert_eq!(sorted(&placed), sorted(&want), "frame {f}, {filter:?}");
         }
     }
 }

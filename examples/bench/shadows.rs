@@ -46,7 +46,7 @@ pub fn run(rec: &mut Records) {
     let scene = format!("crowd {characters}x{triangles}, {side}x{side}");
     println!("\n{scene}");
     let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
-    let (mut pass, mut tris) = (HardShadows::new(), Vec::new());
+    let mut pass = HardShadows::new();
     if let Ok(mode) = std::env::var("KINETRACE_SHADOW_PROFILE") {
         let mode = match mode.as_str() {
             "traced" => ShadowMode::RayTraced,
@@ -63,8 +63,7 @@ pub fn run(rec: &mut Records) {
         let cpu = cpu_seconds(CpuClock::Process);
         for _ in 0..=reps {
             std::hint::black_box(
-                crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris)
-                    .expect("valid settings"),
+                crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings"),
             );
         }
         let s = pass.stats();
@@ -88,7 +87,7 @@ pub fn run(rec: &mut Records) {
             ..Default::default()
         };
         let (t, vis) = best_of(rec.reps(), || {
-            crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris)
+            crowd::sun_visibility(&world, &g, &settings, &mut pass)
                 .expect("valid settings")
                 .to_vec()
         });
@@ -118,8 +117,7 @@ pub fn run(rec: &mut Records) {
             };
             let (t, cpu) = (Instant::now(), cpu_seconds(CpuClock::Process));
             std::hint::black_box(
-                crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris)
-                    .expect("valid settings"),
+                crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings"),
             );
             let (cpu, t) = (
                 cpu_seconds(CpuClock::Process) - cpu,
@@ -265,7 +263,7 @@ pub fn run(rec: &mut Records) {
     for _ in 0..MOVING_FRAMES {
         crowd::step(&mut world, &mut schedule);
         let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
-        crowd::sun_visibility(&world, &g, &settings, &mut pass, &mut tris).expect("valid settings");
+        crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings");
         refits += pass.stats().refitted as usize;
     }
     let moving = format!("selective, {MOVING_FRAMES} moving frames");

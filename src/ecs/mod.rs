@@ -124,4 +124,4 @@ pub use ray_kinds::{
 };
 pub use stats::{OptionStats, PlannedOption, StructureStats, StructureWhy};
 pub use transform_sync::TransformSource;
-pub use world::TraceWorld;
+pub use world::{TraceWorld, WorldOccluders};

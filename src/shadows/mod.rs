@@ -1,8 +1,9 @@
 //! Selective ray-traced shadows, hard and soft (thesis §6.3): a shadow map from the light decides most
 //! pixels, and shadow rays only the pixels it may get wrong.
 //!
-//! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles in
-//! world space and a shadow-ray query ([`ShadowRays`]: a closure `occluded(from, to)`, e.g.
+//! Per frame, [`HardShadows::run`] takes the camera's primary hits (a [`GBuffer`]), the scene's triangles
+//! ([`Occluders`]: in world space, or each mesh's with its transform, e.g. `TraceWorld::occluders`) and a
+//! shadow-ray query ([`ShadowRays`]: a closure `occluded(from, to)`, e.g.
 //! `TraceWorld::occluded` or [`MeshBvh::any_hit`](crate::MeshBvh::any_hit), or a batched one in
 //! [`Packets`], e.g. `TraceWorld::occluded_packet`), and writes a visibility per pixel:
 //!
@@ -60,10 +61,12 @@
 mod classify;
 mod deltas;
 mod lanes;
+mod occluders;
 mod penumbra;
 mod rays;
 mod shadow_map;
 
+pub use occluders::Occluders;
 pub use penumbra::LightDisc;
 pub use rays::{PACKET, Packets, ShadowRays};
 pub use shadow_map::ShadowMap;
@@ -250,9 +253,10 @@ impl HardShadows {
         Self::default()
     }
 
-    /// Computes the visibility of the light at every pixel of `gbuffer`; `triangles` are every occluder in
-    /// world space (used for the shadow map; the ray-traced mode does not read them) and `rays` says
-    /// whether anything lies on a segment (a closure `occluded(from, to)`, or a batched query in
+    /// Computes the visibility of the light at every pixel of `gbuffer`; `occluders` are every triangle
+    /// ([`Occluders`]: in world space, or in groups placed by transforms such as `TraceWorld::occluders`;
+    /// used for the shadow map, the ray-traced mode does not read them) and `rays` says whether anything
+    /// lies on a segment (a closure `occluded(from, to)`, or a batched query in
     /// [`Packets`], which gets neighbouring pixels' rays together). Returns the visibility (also in
     /// [`visibility`](Self::visibility)). Errors: a zero or non-finite light direction, a map resolution
     /// below 4 or above 16384, negative or non-finite tolerances, or a G-buffer whose arrays do not hold
@@ -260,7 +264,7 @@ impl HardShadows {
     pub fn run(
         &mut self,
         settings: &ShadowSettings,
-        triangles: &[[Vec3; 3]],
+        occluders: &(impl Occluders + ?Sized),
         gbuffer: &GBuffer,
         rays: impl ShadowRays,
     ) -> Result<&[f32]> {
@@ -279,7 +283,7 @@ impl HardShadows {
             let t = Instant::now();
             self.map.aim(towards);
             let sampled = self.receivers(gbuffer, towards, par, false);
-            self.fit_map(s, triangles, sampled);
+            self.fit_map(s, occluders, sampled);
             map_time += t.elapsed();
             sampled
         });
@@ -290,7 +294,7 @@ impl HardShadows {
         if refitted {
             let t = Instant::now();
             fit = self.receivers(gbuffer, towards, par, true);
-            self.fit_map(s, triangles, fit);
+            self.fit_map(s, occluders, fit);
             map_time += t.elapsed();
             let t = Instant::now();
             self.classify(s, gbuffer, towards, None);
@@ -348,10 +352,15 @@ impl HardShadows {
 
     /// Renders the map over the receivers' bounds `receivers` (see [`Self::receivers`]), with what the
     /// mode classifies against: the penumbra mask (soft selective) or the smooth texels (hard selective).
-    fn fit_map(&mut self, s: &ShadowSettings, triangles: &[[Vec3; 3]], receivers: (Vec3, Vec3)) {
+    fn fit_map(
+        &mut self,
+        s: &ShadowSettings,
+        occluders: &(impl Occluders + ?Sized),
+        receivers: (Vec3, Vec3),
+    ) {
         let (par, soft) = (s.parallel, s.light_angle > 0.0);
         self.map.render(
-            triangles,
+            occluders,
             receivers,
             s.light_angle.tan(),
             s.map_resolution,

@@ -1,8 +1,9 @@
 //! The shadow map of a directional light: the scene's triangles rasterised orthographically along the
 //! light into a square depth map that just covers them.
 
+use super::Occluders;
 use crate::parallel;
-use glam::{Mat3A, Vec2, Vec3, Vec3A};
+use glam::{Affine3A, Mat3A, Vec2, Vec3, Vec3A};
 
 /// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
@@ -33,9 +34,43 @@ pub struct ShadowMap {
     texel: f32,
     /// `1 / texel`: points are projected with a product, not a division.
     per_texel: f32,
-    /// The triangles placed across the map and sorted into bands, one entry per [`PLACE_CHUNK`] of them;
-    /// kept between frames.
+    /// The occluders' pieces — each group's triangles cut into runs of at most [`PLACE_CHUNK`] — as (group,
+    /// first triangle), and each piece's triangles placed across the map and sorted into bands; kept
+    /// between frames.
+    pieces: Vec<(usize, usize)>,
     placed: Vec<Placed>,
+}
+
+/// How a group of occluders goes into light space ([`ShadowMap::light`]): its transform composed with the
+/// light, `m · p + t` — for triangles in world space the light alone and `t = −0`, which adds nothing
+/// to any float (not even the sign of a zero), so they project bit for bit as [`ShadowMap::project`]
+/// does. One form for both: no branch per point.
+#[derive(Clone, Copy)]
+struct ToLight {
+    m: Mat3A,
+    t: Vec3A,
+}
+
+impl ToLight {
+    /// For a group placed by `place` (`None`: in world space) under the light transform `light`.
+    fn new(light: Mat3A, place: Option<Affine3A>) -> Self {
+        match place {
+            None => Self {
+                m: light,
+                t: Vec3A::splat(-0.0),
+            },
+            Some(a) => Self {
+                m: light * a.matrix3,
+                t: light * a.translation,
+            },
+        }
+    }
+
+    /// Point `p` in light space.
+    #[inline(always)]
+    fn apply(&self, p: Vec3) -> Vec3A {
+        self.m * Vec3A::from(p) + self.t
+    }
 }
 
 /// Triangles one worker places across the map and sorts into bands at a time.
@@ -56,21 +91,20 @@ struct Placed {
 }
 
 impl Placed {
-    /// Finds the bands each triangle of `tris` may cover on `map` ([`bands`]) and the chunk's point
-    /// nearest the light, then sorts the projected triangles into the bands (a counting sort; triangles
-    /// off the map or between texel centres go nowhere). The projection is [`ShadowMap::project`]'s, bit
-    /// for bit, but for the depth's origin. No allocation once warm.
+    /// Finds the bands each triangle of `tris` (taken into light space by `to`) may cover on `map`
+    /// ([`bands`]) and the chunk's point nearest the light, then sorts the projected triangles into the bands (a counting sort; triangles
+    /// off the map or between texel centres go nowhere). For triangles in world space the projection is
+    /// [`ShadowMap::project`]'s, bit for bit, but for the depth's origin. No allocation once warm.
     #[inline(always)]
-    fn place(&mut self, tris: &[[Vec3; 3]], map: &ShadowMap) {
+    fn place(&mut self, tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
-        let light = map.light();
         let texels = |q: Vec3A| map.in_texels(q.truncate()).extend(q.z);
         self.bins.clear();
         self.bins.resize(count + 1, 0);
         self.reach.clear();
         let mut top = f32::MIN;
         for t in tris {
-            let Some(q) = in_light(&light, t) else {
+            let Some(q) = in_light(to, t) else {
                 self.reach.push([1, 0]);
                 continue;
             };
@@ -91,7 +125,7 @@ impl Placed {
         // the cursors shifted by one band. A quarter of a detailed scene's triangles cover a centre: they
         // are projected again here rather than all of them kept from the first loop.
         for (t, &[b0, b1]) in tris.iter().zip(&self.reach).filter(|(_, r)| r[0] <= r[1]) {
-            let t = t.map(|p| texels(light * Vec3A::from(p)));
+            let t = t.map(|p| texels(to.apply(p)));
             for at in &mut self.bins[b0 as usize..=b1 as usize] {
                 self.binned[*at as usize] = t;
                 *at += 1;
@@ -121,7 +155,8 @@ impl ShadowMap {
         Vec2::new(p.dot(self.u), p.dot(self.v))
     }
 
-    /// Renders `triangles` (world space) as seen from the light the map is [aimed](Self::aim) at into a
+    /// Renders `occluders` (each group taken into light space through its transform, in pieces of at most
+    /// [`PLACE_CHUNK`] triangles) as seen from the light the map is [aimed](Self::aim) at into a
     /// `res × res` map that covers the receivers' bounds (`receivers`, lower and upper corner: x, y from
     /// [`across`](Self::across), z = `p · towards`; empty when lower > upper), widened by `spread` (the
     /// tangent of an area light's angular radius, 0 for a point-like one) times the depth from the
@@ -133,29 +168,42 @@ impl ShadowMap {
     /// triangle with a non-finite corner (or one beyond `f32` once projected) is left out.
     pub(super) fn render(
         &mut self,
-        triangles: &[[Vec3; 3]],
+        occluders: &(impl Occluders + ?Sized),
         receivers: (Vec3, Vec3),
         spread: f32,
         res: usize,
         parallel: bool,
     ) {
         let light = self.light();
-        let highest = |tris: &[[Vec3; 3]]| {
-            (tris.iter().filter_map(|t| in_light(&light, t)))
+        self.pieces.clear();
+        for g in 0..occluders.groups() {
+            let n = occluders.group(g).0.len();
+            self.pieces
+                .extend((0..n).step_by(PLACE_CHUNK).map(|first| (g, first)));
+        }
+        // Piece `(g, first)`'s triangles, and how they go into light space.
+        let piece = |&(g, first): &(usize, usize)| {
+            let (tris, place) = occluders.group(g);
+            let tris = &tris[first..(first + PLACE_CHUNK).min(tris.len())];
+            (tris, ToLight::new(light, place))
+        };
+        let highest = |pieces: &[(usize, usize)]| {
+            let (tris, to) = piece(&pieces[0]);
+            (tris.iter().filter_map(|t| in_light(to, t)))
                 .flat_map(|q| q.map(|q| q.z))
                 .fold(f32::MIN, f32::max)
         };
         // A soft light's map reaches as far as the penumbrae, which depends on the point nearest the
         // light: a pass of its own. A hard light's map does not, and the placing pass finds it.
         let early = (spread > 0.0)
-            .then(|| parallel::map_reduce(parallel, triangles, 4096, f32::MIN, highest, f32::max));
+            .then(|| parallel::map_reduce(parallel, &self.pieces, 1, f32::MIN, highest, f32::max));
         let widen = Vec2::splat((early.unwrap_or(f32::MIN) - receivers.0.z).max(0.0) * spread);
         let (lo, hi) = (
             receivers.0.truncate() - widen,
             receivers.1.truncate() + widen,
         );
         self.res = res;
-        if triangles.is_empty() || lo.x > hi.x {
+        if self.pieces.is_empty() || lo.x > hi.x {
             self.depth.clear();
             self.depth.resize(res * res, f32::INFINITY);
             (self.corner, self.top) = (Vec2::ZERO, 0.0);
@@ -171,14 +219,13 @@ impl ShadowMap {
         // four on the 696k-triangle crowd): the placing pass finds each one's bands, across the light, and
         // keeps in full only the few that cover one, projected and in band order for the bands to read.
         let mut placed = std::mem::take(&mut self.placed);
-        placed.resize_with(triangles.len().div_ceil(PLACE_CHUNK), Placed::default);
+        placed.resize_with(self.pieces.len(), Placed::default);
         let this = &*self;
         parallel::for_each_mut(parallel, &mut placed, |c, chunk| {
-            let first = c * PLACE_CHUNK;
-            let tris = &triangles[first..(first + PLACE_CHUNK).min(triangles.len())];
+            let (tris, to) = piece(&this.pieces[c]);
             crate::dispatch::widest(
                 #[inline(always)]
-                || chunk.place(tris, this),
+                || chunk.place(tris, to, this),
             );
         });
         self.top = early.unwrap_or_else(|| placed.iter().map(|p| p.top).fold(f32::MIN, f32::max));
@@ -277,12 +324,12 @@ impl ShadowMap {
     }
 }
 
-/// Triangle `t` in light space (`light * p` for each corner, [`ShadowMap::light`]), or `None` when a
+/// Triangle `t` in light space (each corner taken there by `to`), or `None` when a
 /// coordinate is not finite — a broken mesh's corner, or one beyond `f32` once projected: such a triangle
 /// covers nothing and moves no depth, in the placing pass and in an area light's nearest-point pass alike.
 /// A NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
-fn in_light(light: &Mat3A, t: &[Vec3; 3]) -> Option<[Vec3A; 3]> {
-    let q = t.map(|p| *light * Vec3A::from(p));
+fn in_light(to: ToLight, t: &[Vec3; 3]) -> Option<[Vec3A; 3]> {
+    let q = t.map(|p| to.apply(p));
     (q[0] + q[1] + q[2]).is_finite().then_some(q)
 }
 
@@ -423,6 +470,19 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng, rngs::SmallRng};
 
+    /// A map aimed along `towards`, and the receivers' bounds of the square from (10, 0, 10) to
+    /// (90, 0, 90) across it.
+    fn aimed(towards: Vec3) -> (ShadowMap, (Vec3, Vec3)) {
+        let mut map = ShadowMap::default();
+        map.aim(towards);
+        let across = |p: Vec3| map.across(p).extend(p.dot(towards));
+        let (lo, hi) = (
+            across(Vec3::new(10.0, 0.0, 10.0)),
+            across(Vec3::new(90.0, 0.0, 90.0)),
+        );
+        (map, (lo.min(hi), lo.max(hi)))
+    }
+
     /// The rendered map equals every triangle projected with [`ShadowMap::project`] and rasterised
     /// into every band, bit for bit: the placing pass bins each triangle into all the bands it covers
     /// (its own projection agreeing with `project`), over several chunks of triangles, in parallel or
@@ -449,14 +509,7 @@ mod tests {
             .collect();
         let towards = Vec3::new(0.3, 1.0, 0.2).normalize();
         for (spread, parallel) in [(0.0, true), (0.0, false), (0.01, true)] {
-            let mut map = ShadowMap::default();
-            map.aim(towards);
-            let across = |p: Vec3| map.across(p).extend(p.dot(towards));
-            let (lo, hi) = (
-                across(Vec3::new(10.0, 0.0, 10.0)),
-                across(Vec3::new(90.0, 0.0, 90.0)),
-            );
-            let receivers = (lo.min(hi), lo.max(hi));
+            let (mut map, receivers) = aimed(towards);
             map.render(&tris, receivers, spread, 256, parallel);
             let nearest = (tris.iter().flatten())
                 .map(|p| map.project(*p).z)
@@ -470,6 +523,86 @@ mod tests {
             }
             let covered = want.iter().filter(|d| d.is_finite()).count();
             assert!(covered > 256 * 256 / 4, "{covered} texels covered");
+            let bits = |d: &[f32]| d.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+            assert!(
+                bits(map.depths()) == bits(&want),
+                "spread {spread}, parallel {parallel}"
+            );
+        }
+    }
+
+    /// Occluders in groups, each placed by its own transform, some empty: the map equals every group's
+    /// triangles taken into light space by the transform composed with the light (`light · M`, `light · t`)
+    /// and rasterised into every band, bit for bit — the pieces cut at [`PLACE_CHUNK`] within each group
+    /// and across them, in parallel or not, hard and soft.
+    #[test]
+    fn grouped_occluders_render_as_their_placed_triangles() {
+        struct Groups(Vec<(Vec<[Vec3; 3]>, Option<Affine3A>)>);
+        impl Occluders for Groups {
+            fn groups(&self) -> usize {
+                self.0.len()
+            }
+            fn group(&self, g: usize) -> (&[[Vec3; 3]], Option<Affine3A>) {
+                (&self.0[g].0, self.0[g].1)
+            }
+        }
+        let mut r = SmallRng::seed_from_u64(9);
+        let mut group = |n: usize| -> Vec<[Vec3; 3]> {
+            (0..n)
+                .map(|_| {
+                    let o = Vec3::new(
+                        r.random_range(-40.0..40.0),
+                        r.random_range(0.0..10.0),
+                        r.random_range(-40.0..40.0),
+                    );
+                    let mut corner = || o + Vec3::new(r.random(), r.random(), r.random()) * 0.5;
+                    [corner(), corner(), corner()]
+                })
+                .collect()
+        };
+        let placed = |yaw: f32, at: Vec3| {
+            Some(Affine3A::from_scale_rotation_translation(
+                Vec3::splat(1.1),
+                glam::Quat::from_rotation_y(yaw),
+                at,
+            ))
+        };
+        let groups = Groups(vec![
+            (
+                group(PLACE_CHUNK + 5),
+                placed(0.3, Vec3::new(50.0, 0.0, 50.0)),
+            ),
+            (Vec::new(), placed(1.0, Vec3::ZERO)),
+            (group(7), None),
+            (
+                group(2 * PLACE_CHUNK),
+                placed(-2.0, Vec3::new(45.0, 1.0, 55.0)),
+            ),
+        ]);
+        let towards = Vec3::new(0.3, 1.0, 0.2).normalize();
+        for (spread, parallel) in [(0.0, true), (0.0, false), (0.01, true)] {
+            let (mut map, receivers) = aimed(towards);
+            map.render(&groups, receivers, spread, 256, parallel);
+            let light = map.light();
+            let in_light = |p: Vec3, a: Option<Affine3A>| match a {
+                Some(a) => (light * a.matrix3) * Vec3A::from(p) + light * a.translation,
+                None => light * Vec3A::from(p),
+            };
+            let corners = || {
+                (groups.0.iter())
+                    .flat_map(|(tris, a)| tris.iter().map(move |t| t.map(|p| in_light(p, *a))))
+            };
+            let top = corners().flatten().map(|q| q.z).fold(f32::MIN, f32::max);
+            assert_eq!(map.top, top, "depth starts at the point nearest the light");
+            let mut want = vec![f32::INFINITY; 256 * 256];
+            for (band, out) in want.chunks_mut(BAND_ROWS * 256).enumerate() {
+                for q in corners() {
+                    let t = q.map(|q| map.in_texels(q.truncate()).extend(top - q.z));
+                    rasterise(&t, band * BAND_ROWS, 256, out);
+                }
+            }
+            let covered = want.iter().filter(|d| d.is_finite()).count();
+            assert!(covered > 1000, "{covered} texels covered");
             let bits = |d: &[f32]| d.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
             assert!(
                 bits(map.depths()) == bits(&want),
