@@ -121,7 +121,10 @@ impl<'a> Four<'a> {
             normals,
             n,
             cos: n.dot(towards),
-            light: map.map(|m| light(m, Quad::load(positions))),
+            // Four pixels without a surface (the sky) need no place on the map: neither test reads it.
+            light: map
+                .filter(|_| !n.is_zero().all())
+                .map(|m| light(m, Quad::load(positions))),
         }
     }
 
@@ -213,6 +216,9 @@ pub(super) fn decide(
     bias_texels: f32,
 ) -> (Verdicts, Bits) {
     let (mut verdicts, facing) = surfaces(px, away);
+    if facing == 0 {
+        return (verdicts, 0);
+    }
     let (.., corner, per_texel, top) = map.frame();
     let ([pu, pv, pt], cos) = (px.light(map), px.cos);
     let qx = (pu - corner.x) * per_texel;
@@ -268,6 +274,11 @@ fn first(n: usize) -> BVec4A {
 /// a wrong one). Compares alone, no bounds carried from pixel to pixel.
 #[inline(always)]
 pub(super) fn outside(map: &ShadowMap, px: &Four, fitted: (Vec3, Vec3)) -> Bits {
+    // Missing lanes have a zero normal: they do not face the light.
+    let facing = px.cos.cmpgt(Vec4::ZERO);
+    if !facing.any() {
+        return 0;
+    }
     let q = px.light(map);
     let (lo, hi) = (
         fitted.0.to_array().map(Vec4::splat),
@@ -278,8 +289,7 @@ pub(super) fn outside(map: &ShadowMap, px: &Four, fitted: (Vec3, Vec3)) -> Bits 
         & q[1].cmpge(lo[1])
         & q[1].cmple(hi[1])
         & q[2].cmpge(lo[2]);
-    // Missing lanes have a zero normal: they do not face the light.
-    (!within & px.cos.cmpgt(Vec4::ZERO)).bitmask()
+    (!within & facing).bitmask()
 }
 
 /// The bounds of the receivers among the pixels given to [`add`](Self::add): x and y across a map, z
