@@ -328,6 +328,7 @@ impl ShadowMap {
 /// coordinate is not finite — a broken mesh's corner, or one beyond `f32` once projected: such a triangle
 /// covers nothing and moves no depth, in the placing pass and in an area light's nearest-point pass alike.
 /// A NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
+#[inline(always)]
 fn in_light(to: ToLight, t: &[Vec3; 3]) -> Option<[Vec3A; 3]> {
     let q = t.map(|p| to.apply(p));
     (q[0] + q[1] + q[2]).is_finite().then_some(q)
