@@ -45,9 +45,9 @@
 //! marked rays graze silhouettes at ~10× an average shadow ray's cost, so there selective hard shadows
 //! take about 3.0× less CPU than a ray per pixel traced as packets of 8 × 8 pixels (same query and
 //! threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md). On a crowd of 700k
-//! triangles, smaller than a texel, the map and classification alone cost 29% of a ray per pixel and 4%
-//! of the pixels are marked: about 1.7×, and at most 3.5× with no ray at all, which takes a map rendered
-//! where rasterisation is nearly free (the thesis's GPU) rather than on the CPU;
+//! triangles, smaller than a texel, the map and classification alone cost a quarter of a ray per pixel
+//! and 4% of the pixels are marked: about 1.8×, and at most 3.9× with no ray at all — 3× there takes a
+//! map rendered where rasterisation is nearly free (the thesis's GPU) rather than on the CPU;
 //! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
