@@ -93,8 +93,8 @@ impl Quad {
 
 /// Up to four neighbouring pixels of one image row: their surfaces, as slices (for the scalar tests), and
 /// their normals in lanes, with `n · L` per lane; with a map, their positions' coordinates across it and
-/// along the light, computed once for every test that reads them. A pass that only asks which pixels
-/// face the light reads half the G-buffer.
+/// along the light, computed once for every test that reads them (where some pixel shows a surface). A
+/// pass that only asks which pixels face the light reads half the G-buffer.
 pub(super) struct Four<'a> {
     positions: &'a [Vec3],
     normals: &'a [Vec3],

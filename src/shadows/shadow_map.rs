@@ -92,9 +92,10 @@ struct Placed {
 
 impl Placed {
     /// Finds the bands each triangle of `tris` (taken into light space by `to`) may cover on `map`
-    /// ([`bands`]) and the chunk's point nearest the light, then sorts the projected triangles into the bands (a counting sort; triangles
-    /// off the map or between texel centres go nowhere). For triangles in world space the projection is
-    /// [`ShadowMap::project`]'s, bit for bit, but for the depth's origin. No allocation once warm.
+    /// ([`bands`]) and the chunk's point nearest the light, then sorts the projected triangles into the
+    /// bands (a counting sort; triangles off the map or between texel centres go nowhere). For triangles
+    /// in world space the projection is [`ShadowMap::project`]'s, bit for bit, but for the depth's
+    /// origin. No allocation once warm.
     #[inline(always)]
     fn place(&mut self, tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
@@ -188,8 +189,8 @@ impl ShadowMap {
             (tris, ToLight::new(light, place))
         };
         let highest = |pieces: &[(usize, usize)]| {
-            let (tris, to) = piece(&pieces[0]);
-            (tris.iter().filter_map(|t| in_light(to, t)))
+            (pieces.iter().map(piece))
+                .flat_map(|(tris, to)| tris.iter().filter_map(move |t| in_light(to, t)))
                 .flat_map(|q| q.map(|q| q.z))
                 .fold(f32::MIN, f32::max)
         };
