@@ -533,10 +533,11 @@ mod tests {
         }
     }
 
-    /// Occluders in groups, each placed by its own transform, some empty: the map equals every group's
-    /// triangles taken into light space by the transform composed with the light (`light · M`, `light · t`)
-    /// and rasterised into every band, bit for bit — the pieces cut at [`PLACE_CHUNK`] within each group
-    /// and across them, in parallel or not, hard and soft.
+    /// Occluders in groups, each placed by its own transform, one empty, one broken (a NaN translation:
+    /// its triangles cover nothing): the map equals every group's triangles taken into light space by the
+    /// transform composed with the light (`light · M`, `light · t`) and rasterised into every band, bit for
+    /// bit — the pieces cut at [`PLACE_CHUNK`] within each group and across them, in parallel or not, hard
+    /// and soft.
     #[test]
     fn grouped_occluders_render_as_their_placed_triangles() {
         struct Groups(Vec<(Vec<[Vec3; 3]>, Option<Affine3A>)>);
@@ -576,6 +577,8 @@ mod tests {
             ),
             (Vec::new(), placed(1.0, Vec3::ZERO)),
             (group(7), None),
+            // A broken transform: its triangles cover nothing and move no depth.
+            (group(50), placed(0.0, Vec3::NAN)),
             (
                 group(2 * PLACE_CHUNK),
                 placed(-2.0, Vec3::new(45.0, 1.0, 55.0)),
