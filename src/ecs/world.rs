@@ -637,15 +637,14 @@ impl TraceWorld {
     /// take about 3 ms on a 2-core VM, 4 on one thread. No allocation once `out` is large enough.
     pub fn world_triangles(&self, filter: &QueryFilter, out: &mut Vec<[Vec3; 3]>) {
         out.clear();
-        for e in &self.tlas_entities {
-            let inst = &self.instances[e];
-            if filter.accepts(*e, inst.layers) {
-                let t = inst.transform;
-                let tris = inst.bvh.slot_triangles();
-                crate::parallel::extend_mapped(true, out, tris, WORLD_CHUNK, |tri| {
-                    tri.map(|p| t.transform_point3(p))
-                });
-            }
+        let occluders = self.occluders(filter);
+        for g in 0..occluders.groups() {
+            // A rejected entity is an empty group, without a transform.
+            let (tris, place) = occluders.group(g);
+            let t = place.unwrap_or(Affine3A::IDENTITY);
+            crate::parallel::extend_mapped(true, out, tris, WORLD_CHUNK, |tri| {
+                tri.map(|p| t.transform_point3(p))
+            });
         }
     }
 
