@@ -610,7 +610,7 @@ impl TraceWorld {
     /// ([`HardShadows::run`](crate::shadows::HardShadows::run)): one group per entity, its mesh's triangles
     /// with its transform, so the map projects them straight from the meshes instead of from a copy in world
     /// space ([`world_triangles`](Self::world_triangles): on a crowd of 700k triangles, 25 MB each way and
-    /// about 3 ms a frame on 2 cores). Allocates nothing; the world cannot change while it is borrowed.
+    /// 3–4 ms a frame on 2 cores). Allocates nothing; the world cannot change while it is borrowed.
     ///
     /// ```
     /// # use kinetrace::ecs::{QueryFilter, TraceWorld};
@@ -634,7 +634,7 @@ impl TraceWorld {
     /// `out` (cleared first): what a rasteriser needs (a shadow map renders from
     /// [`occluders`](Self::occluders) without this copy). O(triangles), each entity's transformed on all
     /// threads (feature `parallel`), straight into `out`: memory-bound, 700k triangles (25 MB each way)
-    /// take about 3 ms on a 2-core VM, 4 on one thread. No allocation once `out` is large enough.
+    /// take 3–4 ms on a 2-core VM, 5 on one thread. No allocation once `out` is large enough.
     pub fn world_triangles(&self, filter: &QueryFilter, out: &mut Vec<[Vec3; 3]>) {
         out.clear();
         let occluders = self.occluders(filter);

@@ -10,7 +10,7 @@ use glam::{Affine3A, Vec3};
 /// group per mesh — [`TraceWorld::occluders`](crate::ecs::TraceWorld::occluders) does so for the ECS world
 /// — so the map projects each mesh's own triangles through its transform and the light at once instead of
 /// having them copied into world space every frame (on a crowd of 700k triangles, 25 MB each way and
-/// about 3 ms a frame on 2 cores). The map is then the same up to rounding: a transform composed with the
+/// 3–4 ms a frame on 2 cores). The map is then the same up to rounding: a transform composed with the
 /// light rounds differently from the two applied in turn.
 pub trait Occluders: Sync {
     /// How many groups.
