@@ -118,6 +118,7 @@ pub(crate) struct Kernels {
     pub trace: Module,
     pub scene: Module,
     pub skin: Module,
+    pub shadow_map: Module,
     pub frame: Module,
     /// The resident frame's SAH cost reduction (reduce.wgsl with `sah_blocks` appended).
     pub frame_sah: Module,
@@ -222,6 +223,13 @@ impl Kernels {
                 shader!("skin.wgsl"),
                 &[Read, Read, Read, Read, Write, Uniform, Read, Read],
                 &["skin"],
+            ),
+            shadow_map: Module::new(
+                &compiler,
+                "shadow_map",
+                shader!("shadow_map.wgsl"),
+                &[Read, Read, Read, Write, Write, Write, Write, Read],
+                &["map_top", "map_small", "map_plan", "map_large"],
             ),
             frame: Module::new(
                 &compiler,

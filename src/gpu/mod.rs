@@ -37,6 +37,7 @@ mod ploc;
 mod precise;
 mod scan;
 pub(crate) mod scene;
+mod shadow_map;
 mod skin;
 pub(crate) mod sort;
 pub mod taskpool;
@@ -66,6 +67,7 @@ pub(crate) use frame::{
 pub use ploc::{GpuPloc, PlocBuildCounts};
 #[cfg(feature = "testing")]
 pub use precise::divide;
+pub use shadow_map::GpuShadowMap;
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]
 pub use sort::sort_pairs;

@@ -64,12 +64,16 @@ mod lanes;
 mod occluders;
 mod penumbra;
 mod rays;
+mod renderer;
 mod shadow_map;
 
 pub use occluders::Occluders;
 pub use penumbra::LightDisc;
 pub use rays::{PACKET, Packets, ShadowRays};
+pub use renderer::{CpuMap, MapRenderer};
 pub use shadow_map::ShadowMap;
+#[cfg(feature = "gpu")]
+pub(crate) use shadow_map::ToLight;
 
 use crate::{Error, Result, parallel};
 use classify::Class;
@@ -268,6 +272,20 @@ impl HardShadows {
         gbuffer: &GBuffer,
         rays: impl ShadowRays,
     ) -> Result<&[f32]> {
+        self.run_with(settings, occluders, gbuffer, rays, &mut CpuMap)
+    }
+
+    /// [`run`](Self::run) with the shadow map rendered by `renderer`: [`CpuMap`] (what `run` does), or
+    /// the GPU (`gpu::GpuShadowMap`, feature `gpu`), which renders the same map. Also errors when the
+    /// renderer fails (a GPU error).
+    pub fn run_with(
+        &mut self,
+        settings: &ShadowSettings,
+        occluders: &(impl Occluders + ?Sized),
+        gbuffer: &GBuffer,
+        rays: impl ShadowRays,
+        renderer: &mut impl MapRenderer,
+    ) -> Result<&[f32]> {
         let towards = validate(settings, gbuffer)?;
         let par = settings.parallel;
         let n = gbuffer.width * gbuffer.height;
@@ -279,14 +297,15 @@ impl HardShadows {
         // where one does (the sample missed an extreme) are the exact bounds found, the map fitted to
         // them and every pixel classified again: the same map and image as a fit to the exact bounds,
         // for a twentieth of a pass over the G-buffer.
-        let sampled = (s.mode != ShadowMode::RayTraced).then(|| {
+        let mut sampled = None;
+        if s.mode != ShadowMode::RayTraced {
             let t = Instant::now();
             self.map.aim(towards);
-            let sampled = self.receivers(gbuffer, towards, par, false);
-            self.fit_map(s, occluders, sampled);
+            let bounds = self.receivers(gbuffer, towards, par, false);
+            self.fit_map(s, occluders, bounds, renderer)?;
             map_time += t.elapsed();
-            sampled
-        });
+            sampled = Some(bounds);
+        }
         let t = Instant::now();
         let refitted = self.classify(s, gbuffer, towards, sampled);
         classify_time += t.elapsed();
@@ -294,7 +313,7 @@ impl HardShadows {
         if refitted {
             let t = Instant::now();
             fit = self.receivers(gbuffer, towards, par, true);
-            self.fit_map(s, occluders, fit);
+            self.fit_map(s, occluders, fit, renderer)?;
             map_time += t.elapsed();
             let t = Instant::now();
             self.classify(s, gbuffer, towards, None);
@@ -357,15 +376,17 @@ impl HardShadows {
         s: &ShadowSettings,
         occluders: &(impl Occluders + ?Sized),
         receivers: (Vec3, Vec3),
-    ) {
+        renderer: &mut impl MapRenderer,
+    ) -> Result<()> {
         let (par, soft) = (s.parallel, s.light_angle > 0.0);
-        self.map.render(
+        renderer.render_map(
+            &mut self.map,
             occluders,
             receivers,
             s.light_angle.tan(),
             s.map_resolution,
             par,
-        );
+        )?;
         let edge = s.edge_texels * self.map.texel_size();
         if s.mode == ShadowMode::Selective && soft {
             // The deepest receiver's depth: top − its lowest `p · towards`.
@@ -374,6 +395,7 @@ impl HardShadows {
         } else if s.mode == ShadowMode::Selective {
             self.deltas.find(&self.map, edge, par);
         }
+        Ok(())
     }
 
     /// Classifies every pixel against the last map as the mode says (visibility and each band's marked

@@ -46,14 +46,14 @@ pub struct ShadowMap {
 /// to any float (not even the sign of a zero), so they project bit for bit as [`ShadowMap::project`]
 /// does. One form for both: no branch per point.
 #[derive(Clone, Copy)]
-struct ToLight {
-    m: Mat3A,
-    t: Vec3A,
+pub(crate) struct ToLight {
+    pub(crate) m: Mat3A,
+    pub(crate) t: Vec3A,
 }
 
 impl ToLight {
     /// For a group placed by `place` (`None`: in world space) under the light transform `light`.
-    fn new(light: Mat3A, place: Option<Affine3A>) -> Self {
+    pub(crate) fn new(light: Mat3A, place: Option<Affine3A>) -> Self {
         match place {
             None => Self {
                 m: light,
@@ -198,24 +198,9 @@ impl ShadowMap {
         // light: a pass of its own. A hard light's map does not, and the placing pass finds it.
         let early = (spread > 0.0)
             .then(|| parallel::map_reduce(parallel, &self.pieces, 1, f32::MIN, highest, f32::max));
-        let widen = Vec2::splat((early.unwrap_or(f32::MIN) - receivers.0.z).max(0.0) * spread);
-        let (lo, hi) = (
-            receivers.0.truncate() - widen,
-            receivers.1.truncate() + widen,
-        );
-        self.res = res;
-        if self.pieces.is_empty() || lo.x > hi.x {
-            self.depth.clear();
-            self.depth.resize(res * res, f32::INFINITY);
-            (self.corner, self.top) = (Vec2::ZERO, 0.0);
-            (self.texel, self.per_texel) = (1.0, 1.0);
+        if !self.fit(receivers, spread, early, res, !self.pieces.is_empty()) {
             return;
         }
-        let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
-        // One texel of margin on each side.
-        self.texel = extent / (res as f32 - 2.0).max(1.0);
-        self.per_texel = self.texel.recip();
-        self.corner = lo - Vec2::splat(self.texel);
         // Most of a detailed scene's triangles are smaller than a texel and cover no texel centre (three in
         // four on the 696k-triangle crowd): the placing pass finds each one's bands, across the light, and
         // keeps in full only the few that cover one, projected and in band order for the bands to read.
@@ -249,11 +234,54 @@ impl ShadowMap {
         self.placed = placed;
     }
 
+    /// Sizes the map to `res × res` texels over the receivers' bounds (see [`render`](Self::render)),
+    /// widened by `spread` times the depth from `nearest` (the occluders' largest `p · towards`, known
+    /// first only for an area light's map) to the deepest receiver. False, with every texel empty, when
+    /// there is nothing to render (`occupied` false: no triangles) or no receiver: then the map is done.
+    pub(crate) fn fit(
+        &mut self,
+        receivers: (Vec3, Vec3),
+        spread: f32,
+        nearest: Option<f32>,
+        res: usize,
+        occupied: bool,
+    ) -> bool {
+        let widen = Vec2::splat((nearest.unwrap_or(f32::MIN) - receivers.0.z).max(0.0) * spread);
+        let (lo, hi) = (
+            receivers.0.truncate() - widen,
+            receivers.1.truncate() + widen,
+        );
+        self.res = res;
+        if !occupied || lo.x > hi.x {
+            self.depth.clear();
+            self.depth.resize(res * res, f32::INFINITY);
+            (self.corner, self.top) = (Vec2::ZERO, 0.0);
+            (self.texel, self.per_texel) = (1.0, 1.0);
+            return false;
+        }
+        let extent = (hi - lo).max_element().max(f32::MIN_POSITIVE);
+        // One texel of margin on each side.
+        self.texel = extent / (res as f32 - 2.0).max(1.0);
+        self.per_texel = self.texel.recip();
+        self.corner = lo - Vec2::splat(self.texel);
+        true
+    }
+
+    /// Takes a map rendered elsewhere over the frame [`fit`](Self::fit) set: the point nearest the light
+    /// (`top`), and each texel's depth as `depth(k)` for texel `k`, row by row.
+    #[cfg(feature = "gpu")]
+    pub(crate) fn take_rendered(&mut self, top: f32, depth: impl Fn(usize) -> f32) {
+        self.top = top;
+        let n = self.res * self.res;
+        self.depth.clear();
+        self.depth.extend((0..n).map(depth));
+    }
+
     /// The light-space transform as a matrix with rows `u`, `v` and `towards`: `light() * p` is
     /// `across(p)` and `p · towards` bit for bit (glam multiplies a matrix by a vector column by column,
     /// `(u.x·x + u.y·y) + u.z·z`, the order of `Vec3::dot`), the three products at once for passes that
     /// project many points.
-    fn light(&self) -> Mat3A {
+    pub(crate) fn light(&self) -> Mat3A {
         Mat3A::from_cols(self.u.into(), self.v.into(), self.towards.into()).transpose()
     }
 
@@ -273,7 +301,7 @@ impl ShadowMap {
     /// order: the axes across (`u`, `v`) and towards the light, texel (0, 0)'s corner, the inverse of the
     /// texel size and the depth origin.
     #[inline(always)]
-    pub(super) fn frame(&self) -> (Vec3, Vec3, Vec3, Vec2, f32, f32) {
+    pub(crate) fn frame(&self) -> (Vec3, Vec3, Vec3, Vec2, f32, f32) {
         (
             self.u,
             self.v,

@@ -1,0 +1,249 @@
+//! The shadow map of a [`HardShadows`](crate::shadows::HardShadows) pass rendered on the GPU
+//! (shaders/shadow_map.wgsl), texel for texel the map the CPU renders.
+
+use super::GpuContext;
+use super::buffers::{GpuBuffer, Readback, STORAGE, bind_group};
+use crate::Result;
+use crate::shadows::{MapRenderer, Occluders, ShadowMap, ToLight};
+use glam::Vec3;
+
+/// Renders [`HardShadows`](crate::shadows::HardShadows)' shadow maps on the GPU: give it to
+/// [`HardShadows::run_with`](crate::shadows::HardShadows::run_with).
+///
+/// The kernels take each corner into light space and rasterise every triangle with the CPU's operations
+/// in the CPU's order (no contraction, divisions rounded as the CPU rounds; see
+/// [`GpuContext::contraction_free`]), so each texel holds the depth the CPU map holds (a zero's sign
+/// aside) and the pass's classification, rays and image are the CPU pass's. Use it where the GPU is free
+/// and the CPU is not: the map is the pass's one cost proportional to the triangles (on the CPU, about
+/// 40 ns a triangle of a 700k-triangle crowd on one core). Costs per pass: the occluders uploaded, 36 bytes a
+/// triangle (plus 64 a group); one submission and one blocking wait (two for an area light's map, whose
+/// extent depends on the point nearest the light); 4 bytes a texel read back. Its buffers grow to the
+/// largest scene and map seen and are kept.
+///
+/// ```no_run
+/// use kinetrace::gpu::{GpuContext, GpuShadowMap};
+/// use kinetrace::shadows::{GBuffer, HardShadows, ShadowSettings};
+/// use glam::Vec3;
+/// # fn main() -> kinetrace::Result<()> {
+/// let gpu = GpuContext::new()?;
+/// let mut on_gpu = GpuShadowMap::new(&gpu);
+/// let ground = vec![[Vec3::new(-9.0, 0.0, -9.0), Vec3::new(9.0, 0.0, -9.0), Vec3::new(0.0, 0.0, 9.0)]];
+/// let mut g = GBuffer::new(1, 1);
+/// g.set(0, Vec3::ZERO, Vec3::Y);
+/// let mut pass = HardShadows::new();
+/// let no_occluder = |_: Vec3, _: Vec3| false;
+/// let lit = pass.run_with(&ShadowSettings::default(), &ground, &g, no_occluder, &mut on_gpu)?;
+/// assert_eq!(lit[0], 1.0);
+/// # Ok(()) }
+/// ```
+pub struct GpuShadowMap {
+    ctx: GpuContext,
+    corners: GpuBuffer,
+    starts: GpuBuffer,
+    to_light: GpuBuffer,
+    depth: GpuBuffer,
+    state: GpuBuffer,
+    large: GpuBuffer,
+    args: GpuBuffer,
+    params: GpuBuffer,
+    /// Bound for the arguments while `map_large` reads them as its dispatch's sizes (a buffer may not be
+    /// both in one dispatch).
+    stand_in: GpuBuffer,
+    /// Each group's first triangle (then the count), and its transform into light space, as uploaded.
+    first: Vec<u32>,
+    transforms: Vec<[f32; 16]>,
+}
+
+/// Words of the kernels' state: the nearest point's key and the count of triangles listed as large.
+const STATE_WORDS: usize = 2;
+
+impl GpuShadowMap {
+    /// Empty buffers on `ctx`'s device; they grow on the first render.
+    pub fn new(ctx: &GpuContext) -> Self {
+        let storage = |label| GpuBuffer::storage(ctx, label, 256);
+        Self {
+            ctx: ctx.clone(),
+            corners: storage("shadow map corners"),
+            starts: storage("shadow map groups"),
+            to_light: storage("shadow map transforms"),
+            depth: storage("shadow map depths"),
+            state: storage("shadow map state"),
+            large: storage("shadow map large triangles"),
+            args: GpuBuffer::new(
+                ctx,
+                "shadow map dispatch args",
+                12,
+                STORAGE | wgpu::BufferUsages::INDIRECT,
+            ),
+            params: storage("shadow map params"),
+            stand_in: storage("shadow map stand-in"),
+            first: Vec::new(),
+            transforms: Vec::new(),
+        }
+    }
+
+    /// Uploads `occluders` and their transforms into `map`'s light space; returns the triangle count.
+    fn upload(&mut self, map: &ShadowMap, occluders: &(impl Occluders + ?Sized)) -> Result<u32> {
+        let ctx = &self.ctx;
+        let light = map.light();
+        self.first.clear();
+        self.transforms.clear();
+        let mut n = 0u64;
+        for g in 0..occluders.groups() {
+            let (tris, place) = occluders.group(g);
+            self.first.push(n as u32);
+            let to = ToLight::new(light, place);
+            let [x, y, z] = [to.m.x_axis, to.m.y_axis, to.m.z_axis];
+            let t = to.t;
+            self.transforms.push([
+                x.x, x.y, x.z, 0.0, y.x, y.y, y.z, 0.0, z.x, z.y, z.z, 0.0, t.x, t.y, t.z, 0.0,
+            ]);
+            n += tris.len() as u64;
+        }
+        ctx.check_storage("shadow-map triangles", n * 36)?;
+        ctx.check_threads("shadow-map triangles", n, 256)?;
+        self.first.push(n as u32);
+        self.corners.ensure(ctx, n * 36);
+        self.large.ensure(ctx, n * 4);
+        self.starts.ensure(ctx, self.first.len() as u64 * 4);
+        self.to_light.ensure(ctx, self.transforms.len() as u64 * 64);
+        let mut at = 0;
+        for g in 0..occluders.groups() {
+            let tris: &[[Vec3; 3]] = occluders.group(g).0;
+            if !tris.is_empty() {
+                ctx.write_buffer(self.corners.buffer(), at, bytemuck::cast_slice(tris));
+                at += tris.len() as u64 * 36;
+            }
+        }
+        self.starts.write(ctx, &self.first);
+        self.to_light.write(ctx, &self.transforms);
+        Ok(n as u32)
+    }
+
+    /// Writes the kernels' parameters: `n` triangles onto a map of `res` texels a side over `map`'s frame.
+    fn set_params(&self, map: &ShadowMap, n: u32, res: usize) {
+        let (.., corner, per_texel, _) = map.frame();
+        let words = [
+            n,
+            self.transforms.len() as u32,
+            res as u32,
+            self.ctx.max_groups().min(0xffff),
+            corner.x.to_bits(),
+            corner.y.to_bits(),
+            per_texel.to_bits(),
+            0,
+        ];
+        self.params.write(&self.ctx, &words);
+    }
+
+    /// Records the nearest point's reduction over `n` triangles (the state cleared first).
+    fn record_top(&self, enc: &mut wgpu::CommandEncoder, group: &wgpu::BindGroup, n: u32) {
+        enc.clear_buffer(self.state.buffer(), 0, None);
+        let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("kinetrace shadow map top"),
+            timestamp_writes: None,
+        });
+        pass.set_bind_group(0, group, &[]);
+        pass.set_pipeline(self.ctx.kernels.shadow_map.pipeline("map_top"));
+        let (x, y) = self.ctx.groups(n, 256);
+        pass.dispatch_workgroups(x, y, 1);
+    }
+
+    /// The kernels' bind group, with `args` bound for the dispatch arguments.
+    fn bind(&self, args: &GpuBuffer) -> wgpu::BindGroup {
+        bind_group(
+            &self.ctx,
+            &self.ctx.kernels.shadow_map.layout,
+            &[
+                self.corners.binding(),
+                self.starts.binding(),
+                self.to_light.binding(),
+                self.depth.binding(),
+                self.state.binding(),
+                self.large.binding(),
+                args.binding(),
+                self.params.binding(),
+            ],
+        )
+    }
+}
+
+/// The float an order-preserving key (shaders/shadow_map.wgsl's `key`) stands for.
+fn unkey(k: u32) -> f32 {
+    f32::from_bits(if k & 0x8000_0000 != 0 {
+        k & 0x7fff_ffff
+    } else {
+        !k
+    })
+}
+
+impl MapRenderer for GpuShadowMap {
+    fn render_map(
+        &mut self,
+        map: &mut ShadowMap,
+        occluders: &(impl Occluders + ?Sized),
+        receivers: (Vec3, Vec3),
+        spread: f32,
+        res: usize,
+        _parallel: bool,
+    ) -> Result<()> {
+        let n = self.upload(map, occluders)?;
+        let texels = (res * res) as u64;
+        self.ctx.check_storage("shadow map", texels * 4)?;
+        self.depth.ensure(&self.ctx, texels * 4);
+        self.state.ensure(&self.ctx, STATE_WORDS as u64 * 4);
+        // The point nearest the light: an area light's map first needs it to know its extent.
+        let nearest = if spread > 0.0 && n > 0 {
+            self.set_params(map, n, res);
+            let mut enc = self.ctx.encoder();
+            self.record_top(&mut enc, &self.bind(&self.args), n);
+            let top = Readback::<u32>::record(&self.ctx, &mut enc, self.state.buffer(), 1);
+            self.ctx.submit(enc);
+            Some(top.wait(&self.ctx)?[0])
+        } else {
+            None
+        };
+        let highest = |k: u32| if k == 0 { f32::MIN } else { unkey(k) };
+        if !map.fit(receivers, spread, nearest.map(highest), res, n > 0) {
+            return Ok(());
+        }
+        self.set_params(map, n, res);
+        let (group, reading_args) = (self.bind(&self.args), self.bind(&self.stand_in));
+        let mut enc = self.ctx.encoder();
+        self.record_top(&mut enc, &group, n);
+        enc.clear_buffer(self.depth.buffer(), 0, Some(texels * 4));
+        {
+            let k = &self.ctx.kernels.shadow_map;
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("kinetrace shadow map"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_pipeline(k.pipeline("map_small"));
+            let (x, y) = self.ctx.groups(n, 256);
+            pass.dispatch_workgroups(x, y, 1);
+            pass.set_pipeline(k.pipeline("map_plan"));
+            pass.dispatch_workgroups(1, 1, 1);
+            pass.set_pipeline(k.pipeline("map_large"));
+            pass.set_bind_group(0, &reading_args, &[]);
+            pass.dispatch_workgroups_indirect(self.args.buffer(), 0);
+        }
+        let back = Readback::<u32>::record_parts(
+            &self.ctx,
+            &mut enc,
+            &[
+                (self.state.buffer(), 1),
+                (self.depth.buffer(), texels as usize),
+            ],
+        );
+        self.ctx.submit(enc);
+        let words = back.wait(&self.ctx)?;
+        // A stored depth is its key complemented; 0 is an empty texel.
+        let depth = &words[1..];
+        map.take_rendered(highest(words[0]), |k| match depth[k] {
+            0 => f32::INFINITY,
+            d => unkey(!d),
+        });
+        Ok(())
+    }
+}

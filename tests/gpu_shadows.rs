@@ -1,0 +1,189 @@
+//! The shadow map rendered on the GPU (`gpu::GpuShadowMap`) against the CPU's, texel for texel, and whole
+//! shadow passes with either map against each other — on lavapipe in CI (`KINETRACE_REQUIRE_GPU=1` makes a
+//! missing adapter a failure; without it these tests skip and say so). What makes the CPU map right is
+//! tested in `tests/shadows.rs` and the map's unit tests (analytic shadows, brute-force coverage).
+#![cfg(feature = "gpu")]
+
+#[allow(dead_code)]
+#[path = "../examples/crowd.rs"]
+mod crowd;
+
+mod common;
+use common::*;
+use glam::{Affine3A, Quat, Vec3};
+use kinetrace::gpu::GpuShadowMap;
+use kinetrace::shadows::{GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
+use rand::Rng;
+
+/// Groups of triangles, each with its own placement.
+struct Groups(Vec<(Vec<[Vec3; 3]>, Option<Affine3A>)>);
+
+impl Occluders for Groups {
+    fn groups(&self) -> usize {
+        self.0.len()
+    }
+
+    fn group(&self, g: usize) -> (&[[Vec3; 3]], Option<Affine3A>) {
+        (&self.0[g].0, self.0[g].1)
+    }
+}
+
+/// Triangles over a 100 × 100 area: mostly smaller than a texel, some tens of texels wide, a few far off
+/// the map, needles and collinear ones, and broken ones (a NaN or infinite corner); in groups placed by
+/// rotations, scales and translations, one in world space, one empty, one with a NaN transform.
+fn scene(seed: u64) -> Groups {
+    let mut r = rng(seed);
+    let tri = |k: usize, r: &mut rand::rngs::SmallRng| {
+        let size = if k.is_multiple_of(53) { 40.0 } else { 0.4 };
+        let far = if k.is_multiple_of(1001) { 700.0 } else { 0.0 };
+        let o = rand_vec(r, 0.0, 100.0) * Vec3::new(1.0, 0.2, 1.0) + Vec3::X * far;
+        let mut t = [o, o + rand_vec(r, 0.0, size), o + rand_vec(r, 0.0, size)];
+        match k % 397 {
+            1 => t[2] = t[0] + (t[1] - t[0]) * 0.5,       // collinear
+            2 => t[2] = t[1] + Vec3::new(1e-6, 0.0, 0.0), // needle
+            3 => t[1].y = f32::NAN,                       // broken
+            4 => t[2].x = f32::INFINITY,                  // broken
+            _ => {}
+        }
+        t
+    };
+    let mut groups = Vec::new();
+    let mut k = 0;
+    for g in 0..9 {
+        let n = if g == 3 { 0 } else { 1500 + 700 * g };
+        let tris: Vec<[Vec3; 3]> = (0..n)
+            .map(|_| {
+                k += 1;
+                tri(k, &mut r)
+            })
+            .collect();
+        let place = match g {
+            0 => None,
+            5 => Some(Affine3A::from_translation(Vec3::NAN)),
+            _ => Some(Affine3A::from_scale_rotation_translation(
+                Vec3::splat(r.random_range(0.5..1.5)),
+                Quat::from_rotation_y(r.random_range(-0.3..0.3)),
+                rand_vec(&mut r, -10.0, 10.0) * Vec3::new(1.0, 0.1, 1.0),
+            )),
+        };
+        groups.push((tris, place));
+    }
+    Groups(groups)
+}
+
+/// A `side × side` grid of ground receivers over the scene, facing up.
+fn ground(side: usize) -> GBuffer {
+    let mut g = GBuffer::new(side, side);
+    for j in 0..side {
+        for i in 0..side {
+            let at = |k: usize| 110.0 * (k as f32 + 0.37) / side as f32 - 5.0;
+            g.set(j * side + i, Vec3::new(at(i), 0.0, at(j)), Vec3::Y);
+        }
+    }
+    g
+}
+
+/// Every texel of the two passes' maps holds the same depth (equal as floats: a zero's sign aside), and
+/// their visibility and marked pixels are the same.
+fn assert_same_pass(cpu: &HardShadows, gpu: &HardShadows, what: &str) {
+    let (a, b) = (cpu.shadow_map(), gpu.shadow_map());
+    assert_eq!(a.resolution(), b.resolution(), "{what}");
+    assert_eq!(a.texel_size(), b.texel_size(), "{what}: the map's frame");
+    let res = a.resolution();
+    let mut covered = 0;
+    for j in 0..res {
+        for i in 0..res {
+            let (da, db) = (a.depth(i, j), b.depth(i, j));
+            assert!(da == db, "{what}: texel ({i}, {j}): CPU {da}, GPU {db}");
+            covered += da.is_finite() as usize;
+        }
+    }
+    assert!(
+        covered > res * res / 4,
+        "{what}: only {covered} texels covered"
+    );
+    assert_eq!(cpu.marked(), gpu.marked(), "{what}: marked pixels");
+    assert_eq!(cpu.visibility(), gpu.visibility(), "{what}: visibility");
+}
+
+#[test]
+fn gpu_map_is_the_cpu_map_texel_for_texel() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let occluders = scene(11);
+    let world: Vec<[Vec3; 3]> = (occluders.0.iter())
+        .flat_map(|(tris, place)| {
+            let a = place.unwrap_or(Affine3A::IDENTITY);
+            tris.iter().map(move |t| t.map(|p| a.transform_point3(p)))
+        })
+        .collect();
+    // Brute force: any triangle crossing the segment (f64 Möller–Trumbore).
+    let rays = |from: Vec3, to: Vec3| {
+        (world.iter())
+            .any(|&t| moller_trumbore(from, to - from, t).is_some_and(|h| h.0 > 0.0 && h.0 < 1.0))
+    };
+    let g = ground(64);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    for (mode, angle) in [
+        (ShadowMode::ShadowMap, 0.0),
+        (ShadowMode::Selective, 0.0),
+        (ShadowMode::Selective, 0.03),
+    ] {
+        for (towards, res) in [(Vec3::new(0.3, 1.0, 0.2), 256), (Vec3::Y, 200)] {
+            let s = ShadowSettings {
+                mode,
+                towards_light: towards,
+                map_resolution: res,
+                light_angle: angle,
+                samples: 4,
+                ..Default::default()
+            };
+            let what = format!("{mode:?}, light angle {angle}, towards {towards}, {res}²");
+            let mut cpu = HardShadows::new();
+            cpu.run(&s, &occluders, &g, rays).expect("the CPU pass");
+            let mut gpu = HardShadows::new();
+            gpu.run_with(&s, &occluders, &g, rays, &mut on_gpu)
+                .expect("the GPU pass");
+            assert_same_pass(&cpu, &gpu, &what);
+        }
+    }
+}
+
+/// A crowd frame's selective pass with the map rendered on the GPU from the world's meshes and transforms
+/// is the CPU pass: same map, same marked pixels, same image.
+#[test]
+fn crowd_pass_with_the_gpu_map_is_the_cpu_pass() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let opt = crowd::Options {
+        characters: 6,
+        triangles: 1_500,
+        gpu: false,
+        ..Default::default()
+    };
+    let (mut world, mut schedule) = crowd::setup(&opt).expect("the crowd sets up");
+    for _ in 0..20 {
+        crowd::step(&mut world, &mut schedule);
+    }
+    let (_, g) = crowd::primary_hits(&world, 160, 120, &crowd::Camera::default());
+    let tw = world.resource::<kinetrace::ecs::TraceWorld>();
+    let all = kinetrace::ecs::QueryFilter::default();
+    let rays = |from: Vec3, to: Vec3| tw.occluded(from, to, &all);
+    let s = ShadowSettings {
+        towards_light: crowd::sun(),
+        map_resolution: 256,
+        ..Default::default()
+    };
+    let mut cpu = HardShadows::new();
+    cpu.run(&s, &tw.occluders(&all), &g, rays)
+        .expect("the CPU pass");
+    let mut gpu = HardShadows::new();
+    gpu.run_with(
+        &s,
+        &tw.occluders(&all),
+        &g,
+        rays,
+        &mut GpuShadowMap::new(&ctx),
+    )
+    .expect("the GPU pass");
+    assert!(cpu.stats().rays > 0, "some pixels get rays");
+    assert_same_pass(&cpu, &gpu, "crowd frame 20");
+}
