@@ -26,7 +26,10 @@ use glam::{Affine3A, Quat, Vec2, Vec3};
 use kinetrace::adaptive::Choice;
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
-use kinetrace::shadows::{GBuffer, HardShadows, Packets, ShadowMode, ShadowSettings};
+use kinetrace::gpu::GpuShadowMap;
+use kinetrace::shadows::{
+    CpuMap, GBuffer, HardShadows, MapRenderer, Occluders, Packets, ShadowMode, ShadowSettings,
+};
 use kinetrace::{Mesh, Ray};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
@@ -137,6 +140,11 @@ struct Crowd {
     /// Whether camera rays go as 8×8 packets or ray by ray: the planner's choice, learned from the
     /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
     camera_packets: Mutex<Choice<bool>>,
+    /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
+    /// the planner's choice, learned from the seconds per occluder triangle each way (see
+    /// [`sun_visibility`]).
+    gpu_map: Option<Mutex<GpuShadowMap>>,
+    map_on_gpu: Mutex<Choice<bool>>,
 }
 
 /// The images' shadow mode and the sun's angular radius (see [`Options`]), to switch them between frames.
@@ -398,6 +406,9 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
         camera_packets: Mutex::new(Choice::packets()),
+        gpu_map: (world.get_resource::<GpuQueries>())
+            .map(|g| Mutex::new(GpuShadowMap::new(g.context()))),
+        map_on_gpu: Mutex::new(Choice::map_on_gpu()),
     });
     schedule.add_systems((
         walk.before(TraceSystems::TopLevel),
@@ -493,11 +504,15 @@ fn run_frames(
             )
             .save(&path)?;
             let crowd = world.resource_mut::<Crowd>().into_inner();
-            let packets = (crowd.camera_packets.lock())
-                .unwrap_or_else(|poisoned| poisoned.into_inner())
-                .current();
+            let packets = lock(&crowd.camera_packets).current();
+            // The shadow map's device, where there is a choice.
+            let map = match crowd.gpu_map {
+                Some(_) if lock(&crowd.map_on_gpu).current() => ", shadow map on the GPU",
+                Some(_) => ", shadow map on the CPU",
+                None => "",
+            };
             println!(
-                "    {}: camera rays {} (the planner's pick)",
+                "    {}: camera rays {}{map} (the planner's picks)",
                 path.display(),
                 if packets {
                     "as 8x8 packets"
@@ -606,8 +621,7 @@ pub fn primary_hits(
     camera: &Camera,
 ) -> (Vec<Option<RayHit>>, GBuffer) {
     let tw = world.resource::<TraceWorld>();
-    let mut planner = (world.resource::<Crowd>().camera_packets.lock())
-        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    let mut planner = lock(&world.resource::<Crowd>().camera_packets);
     let all = QueryFilter::default();
     let ray_at = pixel_ray(w, h, camera);
     let mut g = GBuffer::new(w as usize, h as usize);
@@ -674,12 +688,49 @@ fn primary_work(world: &World, w: u32, h: u32, camera: &Camera) -> Vec<u32> {
 }
 
 /// Sun visibility per pixel of `g` (1 lit, 0 shadowed), computed as `settings.mode` says, with the
-/// shadow map rendered straight from the world's meshes and the shadow-ray queries of their trees.
+/// shadow map rendered straight from the world's meshes and the shadow-ray queries of their trees. With
+/// a GPU the map is rendered there or on the CPU — the same map — as the planner's [`Choice::map_on_gpu`]
+/// picks from the seconds per occluder triangle each way measured on the passes so far.
 pub fn sun_visibility<'a>(
     world: &World,
     g: &GBuffer,
     settings: &ShadowSettings,
     pass: &'a mut HardShadows,
+) -> kinetrace::Result<&'a [f32]> {
+    let crowd = world.resource::<Crowd>();
+    // A ray per pixel renders no map.
+    let gpu_map = crowd.gpu_map.as_ref();
+    let Some(gpu_map) = gpu_map.filter(|_| settings.mode != ShadowMode::RayTraced) else {
+        return sun_visibility_with(world, g, settings, pass, &mut CpuMap);
+    };
+    let mut planner = lock(&crowd.map_on_gpu);
+    let all = QueryFilter::default();
+    let occluders = world.resource::<TraceWorld>().occluders(&all);
+    let triangles = (0..occluders.groups())
+        .map(|k| occluders.group(k).0.len())
+        .sum::<usize>() as f64;
+    let on_gpu = planner.decide(triangles);
+    if on_gpu {
+        sun_visibility_with(world, g, settings, pass, &mut *lock(gpu_map))?;
+    } else {
+        sun_visibility_with(world, g, settings, pass, &mut CpuMap)?;
+    }
+    planner.served(on_gpu, triangles, pass.stats().map_time.as_secs_f64());
+    Ok(pass.visibility())
+}
+
+/// `m` locked, whether or not a thread panicked holding it (the planners' state stays usable).
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// [`sun_visibility`] with the map rendered by `renderer`.
+pub fn sun_visibility_with<'a>(
+    world: &World,
+    g: &GBuffer,
+    settings: &ShadowSettings,
+    pass: &'a mut HardShadows,
+    renderer: &mut impl MapRenderer,
 ) -> kinetrace::Result<&'a [f32]> {
     let tw = world.resource::<TraceWorld>();
     let all = QueryFilter::default();
@@ -691,7 +742,7 @@ pub fn sun_visibility<'a>(
             _ => tw.occluded_packet(segments, &all, out),
         },
     );
-    pass.run(settings, &tw.occluders(&all), g, rays)
+    pass.run_with(settings, &tw.occluders(&all), g, rays, renderer)
 }
 
 /// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see

@@ -557,6 +557,15 @@ impl Choice<bool> {
         Choice::new(&[(false, 1.0, 1.0), (true, 1.5, 1.0)]).expect("two options")
     }
 
+    /// Whether a shadow pass renders its map on the GPU ([`GpuShadowMap`](crate::gpu::GpuShadowMap))
+    /// rather than on the CPU's threads, per triangle of the occluders: the CPU first (nothing to try
+    /// where there is no GPU), the GPU 0.25 × its seconds per triangle — our guess at a GPU's
+    /// rasterisation with the upload and read-back it pays, which the first measurements replace (on
+    /// a software adapter the GPU measures slower and is dropped).
+    pub fn map_on_gpu() -> Self {
+        Choice::new(&[(false, 1.0, 1.0), (true, 0.25, 1.0)]).expect("two options")
+    }
+
     /// Whether a mesh's grid bins triangles with the triangle–cell overlap test: off first, as
     /// [`GridOptions`](crate::grid::GridOptions)' default; on, 0.92 × its seconds per ray and 2.4 × its
     /// rebuild (`bench grid --quick`: queries 0–16% faster, builds 2.2–2.6× slower). Tried only while a

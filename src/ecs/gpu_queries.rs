@@ -181,8 +181,10 @@ mod imp {
     }
 
     impl GpuQueries {
-        /// The device, for the GPU rebuilds of [`RebuildPolicy::Adaptive`](crate::ecs::RebuildPolicy).
-        pub(crate) fn context(&self) -> &GpuContext {
+        /// The device the queries run on: for the GPU rebuilds of
+        /// [`RebuildPolicy::Adaptive`](crate::ecs::RebuildPolicy), and for a frame's other GPU work on
+        /// the same device (a [`GpuShadowMap`](crate::gpu::GpuShadowMap), say).
+        pub fn context(&self) -> &GpuContext {
             &self.inner.ctx
         }
 

@@ -178,6 +178,10 @@ fn unkey(k: u32) -> f32 {
 }
 
 impl MapRenderer for GpuShadowMap {
+    fn on_gpu(&self) -> bool {
+        true
+    }
+
     fn render_map(
         &mut self,
         map: &mut ShadowMap,

@@ -188,7 +188,9 @@ pub struct ShadowStats {
     /// extreme (or could not tell: a receiver facing the light at a non-finite position), so the map was
     /// rendered and every pixel classified a second time, over the exact bounds.
     pub refitted: bool,
-    /// Time rendering the shadow map.
+    /// Whether the shadow map was rendered on the GPU ([`HardShadows::run_with`] a `GpuShadowMap`).
+    pub map_on_gpu: bool,
+    /// Time rendering the shadow map (on the GPU: uploading, rendering and reading it back).
     pub map_time: Duration,
     /// Time classifying and compacting.
     pub classify_time: Duration,
@@ -362,6 +364,7 @@ impl HardShadows {
             facing,
             rays: self.marked.len(),
             refitted,
+            map_on_gpu: s.mode != ShadowMode::RayTraced && renderer.on_gpu(),
             map_time,
             classify_time,
             trace_time: t2.elapsed(),

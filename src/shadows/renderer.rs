@@ -21,6 +21,12 @@ pub trait MapRenderer: sealed::Sealed {
         res: usize,
         parallel: bool,
     ) -> Result<()>;
+
+    /// Whether the map is rendered on the GPU ([`ShadowStats::map_on_gpu`](super::ShadowStats)).
+    #[doc(hidden)]
+    fn on_gpu(&self) -> bool {
+        false
+    }
 }
 
 /// The shadow map rendered on the CPU, on all threads where the pass runs in parallel: what
