@@ -3,7 +3,8 @@
 //! shadow ray per pixel, at 1024×1024 (a smaller crowd with `--quick`) with a shadow map of the image's
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
-//! less.
+//! less. With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
+//! time and map phase, and the pixels unlike the CPU-map image (none).
 //!
 //! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`) runs only that mode's hard
 //! shadows, `KINETRACE_SHADOW_REPS` times (default 60) after one warm pass, prints the last pass's phase
@@ -11,7 +12,8 @@
 
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
-use kinetrace::shadows::{HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::gpu::GpuShadowMap;
+use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
 use std::time::Instant;
 
 const SUITE: &str = "shadows";
@@ -252,6 +254,7 @@ pub fn run(rec: &mut Records) {
     ] {
         rec.add(SUITE, &scene, subject, metric, value, unit);
     }
+    gpu_map_rows(rec, &world, &g, &scene, &sel, traced_cpu);
     // Consecutive frames of the moving crowd through one warm pass: how often the receivers' bounds
     // sampled where the last frame's extremes were missed one, so the map was fitted twice.
     let settings = ShadowSettings {
@@ -275,4 +278,61 @@ pub fn run(rec: &mut Records) {
         refits as f64,
         "frames",
     );
+}
+
+/// Selective hard shadows with the map rendered on the GPU (`GpuShadowMap`): time and CPU time per image,
+/// the map's phase (upload, kernels, read-back), and the pixels unlike the CPU-map image `cpu_image`
+/// (none: the maps are the same); the CPU speed-up against a ray per pixel's `traced_cpu` seconds.
+/// Skipped, saying so, without a GPU.
+fn gpu_map_rows(
+    rec: &mut Records,
+    world: &bevy_ecs::world::World,
+    g: &GBuffer,
+    scene: &str,
+    cpu_image: &[f32],
+    traced_cpu: f64,
+) {
+    let ctx = match rec.gpu() {
+        Ok(c) => c,
+        Err(e) => {
+            println!("  shadow map on the GPU skipped: {e}");
+            return;
+        }
+    };
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    let mut pass = HardShadows::new();
+    let settings = ShadowSettings {
+        towards_light: crowd::sun(),
+        map_resolution: g.width,
+        ..Default::default()
+    };
+    let mut run = |pass: &mut HardShadows| {
+        crowd::sun_visibility_with(world, g, &settings, pass, &mut on_gpu)
+            .expect("the GPU pass")
+            .to_vec()
+    };
+    let (t, image) = best_of(rec.reps(), || run(&mut pass));
+    let map = pass.stats().map_time.as_secs_f64();
+    let mut cpu = f64::INFINITY;
+    for _ in 0..rec.reps() {
+        let before = cpu_seconds(CpuClock::Process);
+        std::hint::black_box(run(&mut pass));
+        cpu = cpu.min(cpu_seconds(CpuClock::Process) - before);
+    }
+    let unlike = image.iter().zip(cpu_image).filter(|(a, b)| a != b).count();
+    let subject = "selective, map on the GPU";
+    for (subject, metric, value, unit) in [
+        (subject, "time per image", t * 1e3, "ms"),
+        (subject, "CPU per image", cpu * 1e3, "ms"),
+        (subject, "map", map * 1e3, "ms"),
+        (subject, "pixels unlike CPU map", unlike as f64, "pixels"),
+        (
+            "traced/selective, map on the GPU",
+            "CPU speed-up",
+            traced_cpu / cpu,
+            "x",
+        ),
+    ] {
+        rec.add(SUITE, scene, subject, metric, value, unit);
+    }
 }
