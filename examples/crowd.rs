@@ -18,7 +18,8 @@
 //! shadows from the sun (`--shadows`: shadow map alone, selective ray-traced — the default — or a shadow
 //! ray per pixel, see `kinetrace::shadows`; `--soft RAD` makes the sun a disc of that angular radius with soft
 //! shadows), the turret's hits marked red; camera rays go as 8×8 packets or ray by ray, whichever the
-//! planner measured faster on this scene (see `primary_hits`). Batched queries run on the GPU when one is found
+//! planner measured faster on this scene (see `primary_hits`), and with a GPU the shadow map is rendered
+//! there or on the CPU, the same map, whichever the planner measured faster (see `sun_visibility`). Batched queries run on the GPU when one is found
 //! (`--cpu` keeps them on the CPU).
 
 use bevy_ecs::prelude::*;

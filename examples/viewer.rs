@@ -1,4 +1,6 @@
-//! The crowd demo in a window: the scene ray traced on the CPU every frame and shown through a wgpu surface.
+//! The crowd demo in a window: the scene ray traced on the CPU every frame and shown through a wgpu surface;
+//! with `--gpu` the shadow map of the selective and map-only modes is rendered on the GPU where the planner
+//! measures that faster (the same map either way; see the crowd's `sun_visibility`).
 //!
 //! ```text
 //! cargo run --release --features viewer --example viewer -- [--characters 32] [--triangles 5000]

@@ -25,6 +25,8 @@ mod scale;
 mod scenes;
 #[path = "../examples/report/secondary_rows.rs"]
 mod secondary_rows;
+#[path = "../examples/report/shadow_rows.rs"]
+mod shadow_rows;
 
 use plotters::coord::ranged1d::Ranged;
 use std::path::{Path, PathBuf};
@@ -73,6 +75,28 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             scenes.len() * harness::Strategy::GPU.len(),
             "KINETRACE_REQUIRE_GPU=1: the GPU strategies must run ({:?})",
             report.skipped
+        );
+    }
+    // The shadow-map section: a CPU row per scene, and the GPU's and the planner's where a GPU runs; every
+    // renderer's map and image are the CPU map's.
+    let cpu_maps = report
+        .shadows
+        .iter()
+        .filter(|r| r.renderer == "cpu")
+        .count();
+    assert_eq!(cpu_maps, scenes.len(), "a CPU shadow-map row per scene");
+    if std::env::var("KINETRACE_REQUIRE_GPU").is_ok_and(|v| v == "1") && cfg!(feature = "gpu") {
+        assert_eq!(
+            report.shadows.len(),
+            3 * scenes.len(),
+            "CPU, GPU and planned maps"
+        );
+    }
+    for r in &report.shadows {
+        assert_eq!(
+            r.mismatches, 0,
+            "{} {}: texels or pixels unlike the CPU map's",
+            r.scene, r.renderer
         );
     }
     // The GPU's LBVH is the CPU's, node for node: the same error, frame for frame.

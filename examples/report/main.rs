@@ -11,8 +11,8 @@
 //!          --scenes NAME,NAME --strategies NAME,NAME
 //! (--runs N: every scene N times, each strategy's median run reported; 1 by default;
 //!  --scenes / --strategies: only those, by the names the summary prints; all by default; the
-//!  secondary-ray and closest-point batch sections run unless --strategies leaves out `secondary`
-//!  or `points`)
+//!  secondary-ray, closest-point batch and shadow-map sections run unless --strategies leaves out
+//!  `secondary`, `points` or `shadows`)
 //! ```
 //!
 //! The crowd's row on a huge-page heap comes from this executable started again with `--crowd-child`
@@ -29,6 +29,7 @@ mod point_rows;
 mod scale;
 mod scenes;
 mod secondary_rows;
+mod shadow_rows;
 
 use harness::Settings;
 use std::path::PathBuf;
@@ -107,6 +108,7 @@ fn main() {
             let bad: u32 = (report.rows.iter().map(|r| r.mismatches))
                 .chain(report.secondary.iter().map(|r| r.mismatches))
                 .chain(report.points.iter().map(|r| r.mismatches))
+                .chain(report.shadows.iter().map(|r| r.mismatches))
                 .sum();
             println!(
                 "wrote {} files to {} ({} strategies per scene, {} mismatches against brute force)",

@@ -10,6 +10,7 @@ use super::plots;
 use super::point_rows::{self, PointRow};
 use super::scenes::Scene;
 use super::secondary_rows::{self, SecondaryRow};
+use super::shadow_rows::{self, ShadowRow};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -72,11 +73,13 @@ pub struct Report {
     pub secondary: Vec<SecondaryRow>,
     /// The closest-point batch section's rows (none when `--strategies` leaves out `points`).
     pub points: Vec<PointRow>,
+    /// The shadow-map section's rows (none when `--strategies` leaves out `shadows`).
+    pub shadows: Vec<ShadowRow>,
 }
 
 /// Which scenes and strategies to run, by name; an empty list runs them all. A scene filter also leaves
-/// out the 256-instance crowd unless it names `crowd`; a strategy filter leaves out the secondary-ray
-/// and closest-point batch sections unless it names `secondary` or `points`. For measuring a change on the scenes it concerns
+/// out the 256-instance crowd unless it names `crowd`; a strategy filter leaves out the secondary-ray,
+/// closest-point batch and shadow-map sections unless it names `secondary`, `points` or `shadows`. For measuring a change on the scenes it concerns
 /// without paying for the others.
 #[derive(Clone, Debug, Default)]
 pub struct Only {
@@ -143,8 +146,11 @@ pub fn write_report(
             None => missing = Some("not run (the caller is not the report's executable)".into()),
         }
     }
-    let (mut secondary, mut points) = (Vec::new(), Vec::new());
+    let (mut secondary, mut points, mut shadows) = (Vec::new(), Vec::new(), Vec::new());
     for scene in &scenes {
+        if Only::keeps(&only.strategies, "shadows") {
+            shadows.extend(shadow_rows::run(scene, settings, gpu.as_ref()));
+        }
         if Only::keeps(&only.strategies, "secondary") {
             secondary.extend(secondary_rows::run(scene, settings));
         }
@@ -201,7 +207,8 @@ pub fn write_report(
         + &crowd_table
         + &option_rows::picks_table(&picks)
         + &secondary_rows::table(&secondary)
-        + &point_rows::table(&points);
+        + &point_rows::table(&points)
+        + &shadow_rows::table(&shadows);
     let png = out.join("overview.png");
     plots::overview(&png, &rows, &names, &looks)?;
     files.push(png);
@@ -223,6 +230,7 @@ pub fn write_report(
         strategies,
         secondary,
         points,
+        shadows,
     })
 }
 

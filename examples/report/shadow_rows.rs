@@ -1,0 +1,201 @@
+//! The report's shadow-map section (issue 16): per scene, its middle frame seen by the secondary section's
+//! camera (`side`² pixels: 128², 32² in `--quick`), selective hard shadows of a directional light along
+//! the frame's light direction, with the shadow map rendered on the CPU, on the GPU (`GpuShadowMap`,
+//! where there is one) and as the planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each
+//! pass's map seconds per triangle taught as the crowd demo does. All on one CPU thread.
+//!
+//! Per row: milliseconds per pass and of its map (the GPU's with its upload and read-back), the pixels
+//! marked for rays, and mismatches: texels of the map and pixels of the image unlike the CPU-map pass's
+//! (the renderers give the same map, so none).
+
+use super::camera::Orbit;
+use super::harness::{Gpu, frame_light};
+#[cfg(feature = "gpu")]
+use super::harness::{median, planned_label};
+use super::scenes::Scene;
+#[cfg(feature = "gpu")]
+use super::secondary_rows::ROUNDS;
+use glam::Vec3;
+#[cfg(feature = "gpu")]
+use kinetrace::adaptive::Choice;
+use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::raysort::RayScene;
+use kinetrace::shadows::{CpuMap, GBuffer, HardShadows, MapRenderer, ShadowSettings};
+use kinetrace::{MeshBvh, Ray};
+use std::fmt::Write as _;
+use std::time::Instant;
+
+/// One renderer on one scene.
+pub struct ShadowRow {
+    pub scene: &'static str,
+    pub renderer: String,
+    pub pass_ms: f64,
+    pub map_ms: f64,
+    pub marked: f64,
+    pub mismatches: u32,
+}
+
+/// The scene's rows: the CPU map, the GPU map (with `gpu`), then the planner's, its picks in the name.
+pub fn run(
+    scene: &Scene,
+    settings: &super::harness::Settings,
+    gpu: Option<&Gpu>,
+) -> Vec<ShadowRow> {
+    let mut pos = Vec::new();
+    scene.positions(settings.frames / 2, &mut pos);
+    let mesh = scene.mesh(&pos);
+    let rs =
+        RayScene::build(&mesh, &BuildOptions::new(Builder::SAH)).expect("scene meshes are valid");
+    let side = if settings.frames <= super::harness::Settings::QUICK.frames {
+        32
+    } else {
+        128
+    };
+    let orbit = Orbit::around(rs.bvh().bvh().bounds(), Vec3::new(0.3, 0.5, 0.8), 0.9);
+    let mut g = GBuffer::new(side, side);
+    orbit.hits(&rs, side, |pixel, primary, h| {
+        let n = if h.normal.dot(primary.dir()) > 0.0 {
+            -h.normal
+        } else {
+            h.normal
+        };
+        g.set(pixel as usize, primary.at(h.t), n);
+    });
+    let tris: Vec<[Vec3; 3]> = (0..mesh.triangle_count())
+        .map(|i| mesh.triangle(i))
+        .collect();
+    let s = ShadowSettings {
+        towards_light: (frame_light(&orbit.bounds) - orbit.bounds.center()).normalize(),
+        map_resolution: side,
+        normal_offset: 1e-4 * orbit.size,
+        ray_length: 2.0 * orbit.size,
+        parallel: false,
+        ..Default::default()
+    };
+    let bvh: &MeshBvh = rs.bvh();
+    let rays = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    let run = |p: &mut HardShadows, renderer: &mut dyn RenderInto| {
+        renderer.render_pass(p, &s, &tris, &g, &rays);
+    };
+    // A warm pass (its buffers grown), then the timed one.
+    let pass = |renderer: &mut dyn FnMut(&mut HardShadows)| {
+        let mut p = HardShadows::new();
+        renderer(&mut p);
+        let start = Instant::now();
+        renderer(&mut p);
+        (start.elapsed().as_secs_f64(), p)
+    };
+    let (cpu_s, cpu) = pass(&mut |p| run(p, &mut CpuMap));
+    let row = |renderer: String, seconds: f64, p: &HardShadows| ShadowRow {
+        scene: scene.name,
+        renderer,
+        pass_ms: seconds * 1e3,
+        map_ms: p.stats().map_time.as_secs_f64() * 1e3,
+        marked: 100.0 * p.stats().ray_fraction(),
+        mismatches: unlike(&cpu, p),
+    };
+    // The GPU rows follow where the feature is on.
+    #[cfg_attr(not(feature = "gpu"), allow(unused_mut))]
+    let mut rows = vec![row("cpu".into(), cpu_s, &cpu)];
+    #[cfg(feature = "gpu")]
+    if let Some(ctx) = gpu {
+        let mut on_gpu = kinetrace::gpu::GpuShadowMap::new(ctx);
+        let (gpu_s, p) = pass(&mut |p| run(p, &mut on_gpu));
+        rows.push(row("gpu".into(), gpu_s, &p));
+        let mut planner = Choice::map_on_gpu();
+        let (mut times, mut maps, mut bad) = (Vec::new(), Vec::new(), 0);
+        let mut picks = [0usize; 2];
+        let mut p = HardShadows::new();
+        for _ in 0..ROUNDS {
+            let on = planner.decide(tris.len() as f64);
+            let start = Instant::now();
+            if on {
+                run(&mut p, &mut on_gpu);
+            } else {
+                run(&mut p, &mut CpuMap);
+            }
+            times.push(start.elapsed().as_secs_f64());
+            let map = p.stats().map_time.as_secs_f64();
+            planner.served(on, tris.len() as f64, map);
+            maps.push(map);
+            picks[on as usize] += 1;
+            bad += unlike(&cpu, &p);
+        }
+        let name = |on: bool| if on { "gpu" } else { "cpu" };
+        let label = planned_label(
+            name(planner.current()),
+            ["cpu", "gpu"].into_iter().zip(picks),
+        );
+        let mut r = row(label, median(&mut times), &p);
+        r.map_ms = median(&mut maps) * 1e3;
+        r.mismatches = bad;
+        rows.push(r);
+    }
+    #[cfg(not(feature = "gpu"))]
+    let _ = gpu; // of an uninhabited type without the feature
+    rows
+}
+
+/// A map renderer behind a trait object: a selective pass of `tris` with its map rendered by `self`.
+trait RenderInto {
+    fn render_pass(
+        &mut self,
+        pass: &mut HardShadows,
+        s: &ShadowSettings,
+        tris: &[[Vec3; 3]],
+        g: &GBuffer,
+        rays: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
+    );
+}
+
+impl<R: MapRenderer> RenderInto for R {
+    fn render_pass(
+        &mut self,
+        pass: &mut HardShadows,
+        s: &ShadowSettings,
+        tris: &[[Vec3; 3]],
+        g: &GBuffer,
+        rays: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
+    ) {
+        pass.run_with(s, tris, g, rays, self)
+            .expect("valid settings");
+    }
+}
+
+/// Texels of `got`'s map and pixels of its image unlike `want`'s (floats compared as floats).
+fn unlike(want: &HardShadows, got: &HardShadows) -> u32 {
+    let (a, b) = (want.shadow_map(), got.shadow_map());
+    let res = a.resolution();
+    let texels = (0..res * res)
+        .filter(|&k| a.depth(k % res, k / res) != b.depth(k % res, k / res))
+        .count();
+    let pixels = (want.visibility().iter().zip(got.visibility()))
+        .filter(|(x, y)| x != y)
+        .count();
+    (texels + pixels) as u32
+}
+
+/// The summary's section: per scene, a row per renderer.
+pub fn table(rows: &[ShadowRow]) -> String {
+    if rows.is_empty() {
+        return String::new();
+    }
+    let mut s = String::from(
+        "\n## Shadow maps (issue 16)\n\nPer scene, its middle frame through the secondary section's camera; \
+         selective hard shadows of a directional light along the frame's light, the map (as many texels a \
+         side as the image) rendered on the CPU, on the GPU, or as the planner picks over 12 passes \
+         (its milliseconds the passes' median; its picks, passes per renderer, in brackets). One CPU \
+         thread; the GPU's map time includes its upload and read-back. Mismatches: map texels and image \
+         pixels unlike the CPU-map pass's.\n\n\
+         | scene | map | ms/pass | map ms | marked % | mismatches |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    for r in rows {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {} |",
+            r.scene, r.renderer, r.pass_ms, r.map_ms, r.marked, r.mismatches
+        );
+    }
+    s
+}
