@@ -300,12 +300,23 @@ impl<T: Pod> Readback<T> {
 
     /// The results if the GPU has finished, without blocking.
     pub fn try_take(&self, ctx: &GpuContext) -> Option<Result<Vec<T>>> {
+        let mut collect = Some(<[T]>::to_vec);
+        self.try_read(ctx, &mut collect)
+    }
+
+    /// The results given to `f` (taken from it) if the GPU has finished, without blocking.
+    fn try_read<R>(
+        &self,
+        ctx: &GpuContext,
+        f: &mut Option<impl FnOnce(&[T]) -> R>,
+    ) -> Option<Result<R>> {
         ctx.poll();
         if let Err(e) = ctx.take_failure() {
             return Some(Err(e));
         }
         let done = self.state.lock().expect("readback state").take()?;
-        Some(done.map_err(Error::Gpu).map(|()| self.read(ctx)))
+        let f = f.take().expect("read once");
+        Some(done.map_err(Error::Gpu).map(|()| self.read(ctx, f)))
     }
 
     /// Whether the results are there (a [`wait`](Self::wait) would not block), without blocking.
@@ -316,23 +327,33 @@ impl<T: Pod> Readback<T> {
 
     /// Blocks until the results are there.
     pub fn wait(self, ctx: &GpuContext) -> Result<Vec<T>> {
+        self.wait_with(ctx, <[T]>::to_vec)
+    }
+
+    /// Blocks until the results are there and gives them to `f` where they lie (the mapped staging
+    /// buffer, when aligned for `T`), copied into no vector: for large results read once.
+    pub(crate) fn wait_with<R>(self, ctx: &GpuContext, f: impl FnOnce(&[T]) -> R) -> Result<R> {
+        let mut f = Some(f);
         loop {
-            if let Some(r) = self.try_take(ctx) {
+            if let Some(r) = self.try_read(ctx, &mut f) {
                 return r;
             }
             ctx.wait()?;
         }
     }
 
-    fn read(&self, ctx: &GpuContext) -> Vec<T> {
+    fn read<R>(&self, ctx: &GpuContext, f: impl FnOnce(&[T]) -> R) -> R {
         let Some(staging) = self.staging.lock().expect("staging").take() else {
-            return Vec::new();
+            return f(&[]);
         };
         let bytes = self.len * std::mem::size_of::<T>();
         let view = staging
             .get_mapped_range(..(bytes as u64).next_multiple_of(4))
             .expect("buffer is mapped");
-        let out = bytemuck::pod_collect_to_vec(&view[..bytes]);
+        let out = match bytemuck::try_cast_slice(&view[..bytes]) {
+            Ok(results) => f(results),
+            Err(_) => f(&bytemuck::pod_collect_to_vec(&view[..bytes])),
+        };
         drop(view);
         staging.unmap();
         ctx.staging.give_back(staging);
