@@ -47,8 +47,11 @@
 //! threads on both sides; see the `shadows` bench suite in docs/BENCHMARKS.md). On a crowd of 700k
 //! triangles, smaller than a texel, the map and classification alone cost a quarter of a ray per pixel
 //! and 4% of the pixels are marked: about 1.8×, and at most 3.9× with no ray at all — 3× there takes a
-//! map rendered where rasterisation is nearly free (the thesis's GPU) rather than on the CPU;
-//! soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
+//! map rendered where rasterisation is nearly free (the thesis's GPU) rather than on the CPU:
+//! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU
+//! (what that saves on a hardware GPU is not measured yet: the upload of 36 bytes a triangle and the
+//! read-back of 4 bytes a texel stay on the CPU's side; on a software adapter it is slower than the
+//! CPU's map); soft shadows, 16 rays a pixel, gain about 4× and 1.7×. Use it for soft shadows, where
 //! shadow rays are expensive (dense occluders, many triangles over the receivers) or where the map is
 //! rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
 //! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
