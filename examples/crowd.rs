@@ -707,9 +707,7 @@ pub fn sun_visibility<'a>(
     let mut planner = lock(&crowd.map_on_gpu);
     let all = QueryFilter::default();
     let occluders = world.resource::<TraceWorld>().occluders(&all);
-    let triangles = (0..occluders.groups())
-        .map(|k| occluders.group(k).0.len())
-        .sum::<usize>() as f64;
+    let triangles = occluders.triangle_count() as f64;
     let on_gpu = planner.decide(triangles);
     if on_gpu {
         sun_visibility_with(world, g, settings, pass, &mut *lock(gpu_map))?;

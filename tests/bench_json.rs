@@ -162,7 +162,7 @@ fn raysort_suite_json_parses() {
 
 #[test]
 fn shadows_suite_json_parses() {
-    check("shadows", false);
+    check("shadows", true);
 }
 
 #[test]

@@ -11,7 +11,7 @@ mod crowd;
 mod common;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
-use kinetrace::gpu::GpuShadowMap;
+use kinetrace::gpu::{GpuContext, GpuOptions, GpuShadowMap};
 use kinetrace::shadows::{GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
 use rand::Rng;
 
@@ -186,4 +186,60 @@ fn crowd_pass_with_the_gpu_map_is_the_cpu_pass() {
     .expect("the GPU pass");
     assert!(cpu.stats().rays > 0, "some pixels get rays");
     assert_same_pass(&cpu, &gpu, "crowd frame 20");
+}
+
+/// A warm GPU map costs, per render, one submission (two for an area light, whose extent waits for the
+/// point nearest the light), the upload of 36 bytes a triangle plus each group's first triangle and
+/// transform and the parameters, the read-back of 4 bytes a texel plus the nearest point, and no new
+/// buffer (a context of its own: the counters are the context's, and the other tests share theirs).
+#[test]
+fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels() {
+    if gpu_or_skip().is_none() {
+        return;
+    }
+    let ctx = GpuContext::with_options(&GpuOptions {
+        hardware_only: false,
+        ..Default::default()
+    })
+    .expect("the adapter the shared context found");
+    let occluders = scene(3);
+    let triangles: u64 = occluders.0.iter().map(|(t, _)| t.len() as u64).sum();
+    let groups = occluders.0.len() as u64;
+    let g = ground(32);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    let mut pass = HardShadows::new();
+    let res = 128u64;
+    for (angle, submissions) in [(0.0, 1), (0.03, 2)] {
+        let s = ShadowSettings {
+            mode: ShadowMode::ShadowMap,
+            towards_light: Vec3::new(0.3, 1.0, 0.2),
+            map_resolution: res as usize,
+            light_angle: angle,
+            ..Default::default()
+        };
+        let no_ray = |_: Vec3, _: Vec3| false;
+        pass.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
+            .expect("the warm-up pass");
+        let before = ctx.counters();
+        pass.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
+            .expect("the GPU pass");
+        let d = ctx.counters().since(&before);
+        assert!(!pass.stats().refitted, "one map a pass");
+        assert!(pass.stats().map_on_gpu);
+        let params = 32 * submissions;
+        assert_eq!(d.submissions, submissions, "light angle {angle}");
+        assert_eq!(
+            d.uploaded_bytes,
+            36 * triangles + 4 * (groups + 1) + 64 * groups + params,
+            "light angle {angle}"
+        );
+        let nearest = 4 * submissions;
+        assert_eq!(
+            d.read_back_bytes,
+            4 * res * res + nearest,
+            "light angle {angle}"
+        );
+        assert!(d.blocking_waits <= submissions, "light angle {angle}");
+        assert_eq!(d.allocated_bytes, 0, "light angle {angle}: no new buffer");
+    }
 }

@@ -13,7 +13,7 @@
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
 use kinetrace::gpu::GpuShadowMap;
-use kinetrace::shadows::{GBuffer, HardShadows, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
 use std::time::Instant;
 
 const SUITE: &str = "shadows";
@@ -319,6 +319,12 @@ fn gpu_map_rows(
         std::hint::black_box(run(&mut pass));
         cpu = cpu.min(cpu_seconds(CpuClock::Process) - before);
     }
+    let before = ctx.counters();
+    run(&mut pass);
+    let d = ctx.counters().since(&before);
+    let triangles = (world.resource::<kinetrace::ecs::TraceWorld>())
+        .occluders(&kinetrace::ecs::QueryFilter::default())
+        .triangle_count() as f64;
     let unlike = image.iter().zip(cpu_image).filter(|(a, b)| a != b).count();
     let subject = "selective, map on the GPU";
     for (subject, metric, value, unit) in [
@@ -326,6 +332,25 @@ fn gpu_map_rows(
         (subject, "CPU per image", cpu * 1e3, "ms"),
         (subject, "map", map * 1e3, "ms"),
         (subject, "pixels unlike CPU map", unlike as f64, "pixels"),
+        (
+            subject,
+            "uploaded a pass",
+            d.uploaded_bytes as f64 / triangles,
+            "B/triangle",
+        ),
+        (
+            subject,
+            "read back a pass",
+            d.read_back_bytes as f64 / (g.width * g.width) as f64,
+            "B/texel",
+        ),
+        (subject, "submissions a pass", d.submissions as f64, ""),
+        (
+            subject,
+            "blocking waits a pass",
+            d.blocking_waits as f64,
+            "",
+        ),
         (
             "traced/selective, map on the GPU",
             "CPU speed-up",

@@ -19,6 +19,11 @@ pub trait Occluders: Sync {
     /// Group `g` (below [`groups`](Self::groups)): its triangles, and the transform that places them in
     /// world space (`None`: they are in world space).
     fn group(&self, g: usize) -> (&[[Vec3; 3]], Option<Affine3A>);
+
+    /// Triangles in all groups.
+    fn triangle_count(&self) -> usize {
+        (0..self.groups()).map(|g| self.group(g).0.len()).sum()
+    }
 }
 
 /// Triangles in world space (a slice, a `Vec`, an array): one group.
