@@ -4,16 +4,17 @@
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
 //! less. With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
-//! time and map phase, and the pixels unlike the CPU-map image (none).
+//! time and map phase, the pixels unlike the CPU-map image (none), and per pass the bytes uploaded per
+//! triangle and read back per texel, the submissions and the blocking waits.
 //!
-//! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`) runs only that mode's hard
-//! shadows, `KINETRACE_SHADOW_REPS` times (default 60) after one warm pass, prints the last pass's phase
-//! times and nothing else: what `perf record` should see.
+//! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`, or `gpu`: selective with the
+//! map on the GPU) runs only that mode's hard shadows, `KINETRACE_SHADOW_REPS` times (default 60) after
+//! one warm pass, prints the last pass's phase times and nothing else: what `perf record` should see.
 
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
 use kinetrace::gpu::GpuShadowMap;
-use kinetrace::shadows::{GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{CpuMap, GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
 use std::time::Instant;
 
 const SUITE: &str = "shadows";
@@ -50,6 +51,10 @@ pub fn run(rec: &mut Records) {
     let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
     let mut pass = HardShadows::new();
     if let Ok(mode) = std::env::var("KINETRACE_SHADOW_PROFILE") {
+        let mut on_gpu = (mode == "gpu").then(|| match rec.gpu() {
+            Ok(ctx) => GpuShadowMap::new(&ctx),
+            Err(e) => panic!("KINETRACE_SHADOW_PROFILE=gpu needs a GPU: {e}"),
+        });
         let mode = match mode.as_str() {
             "traced" => ShadowMode::RayTraced,
             "map" => ShadowMode::ShadowMap,
@@ -64,15 +69,18 @@ pub fn run(rec: &mut Records) {
         };
         let cpu = cpu_seconds(CpuClock::Process);
         for _ in 0..=reps {
-            std::hint::black_box(
-                crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings"),
-            );
+            let vis = match &mut on_gpu {
+                Some(m) => crowd::sun_visibility_with(&world, &g, &settings, &mut pass, m),
+                None => crowd::sun_visibility_with(&world, &g, &settings, &mut pass, &mut CpuMap),
+            };
+            std::hint::black_box(vis.expect("valid settings"));
         }
         let s = pass.stats();
         println!(
-            "  {mode:?} x{reps}: {:.3} ms CPU a pass; last pass: map {:?}, classify {:?}, rays {:?}, {} rays, refitted {}",
+            "  {mode:?} x{reps}: {:.3} ms CPU a pass; last pass: map {:?} (on the GPU: {}), classify {:?}, rays {:?}, {} rays, refitted {}",
             (cpu_seconds(CpuClock::Process) - cpu) * 1e3 / (reps + 1) as f64,
             s.map_time,
+            s.map_on_gpu,
             s.classify_time,
             s.trace_time,
             s.rays,
