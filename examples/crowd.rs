@@ -27,7 +27,6 @@ use glam::{Affine3A, Quat, Vec2, Vec3};
 use kinetrace::adaptive::Choice;
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
-use kinetrace::gpu::GpuShadowMap;
 use kinetrace::shadows::{
     CpuMap, GBuffer, HardShadows, MapRenderer, Occluders, Packets, ShadowMode, ShadowSettings,
 };
@@ -132,6 +131,27 @@ impl Walker {
     }
 }
 
+/// The GPU's shadow-map renderer (without the `gpu` feature there is none, and this type is never made).
+#[cfg(feature = "gpu")]
+type GpuMap = kinetrace::gpu::GpuShadowMap;
+#[cfg(not(feature = "gpu"))]
+type GpuMap = CpuMap;
+
+/// The GPU's shadow-map renderer where the queries found a GPU whose kernels round as the CPU does (its
+/// map then equals the CPU's, so the planner may switch between them without the image changing).
+fn gpu_map(world: &World) -> Option<Mutex<GpuMap>> {
+    #[cfg(feature = "gpu")]
+    return (world.get_resource::<GpuQueries>())
+        .map(GpuQueries::context)
+        .filter(|ctx| ctx.contraction_free())
+        .map(|ctx| Mutex::new(GpuMap::new(ctx)));
+    #[cfg(not(feature = "gpu"))]
+    {
+        let _ = world;
+        None
+    }
+}
+
 #[derive(Resource)]
 struct Crowd {
     summary: Summary,
@@ -144,7 +164,7 @@ struct Crowd {
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
     /// the planner's choice, learned from the seconds per occluder triangle each way (see
     /// [`sun_visibility`]).
-    gpu_map: Option<Mutex<GpuShadowMap>>,
+    gpu_map: Option<Mutex<GpuMap>>,
     map_on_gpu: Mutex<Choice<bool>>,
 }
 
@@ -407,8 +427,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
         camera_packets: Mutex::new(Choice::packets()),
-        gpu_map: (world.get_resource::<GpuQueries>())
-            .map(|g| Mutex::new(GpuShadowMap::new(g.context()))),
+        gpu_map: gpu_map(&world),
         map_on_gpu: Mutex::new(Choice::map_on_gpu()),
     });
     schedule.add_systems((

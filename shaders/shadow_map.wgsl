@@ -31,6 +31,8 @@ const SMALL_ROWS: u32 = 4u;
 const SMALL_TEXELS: u32 = 64u;
 // Centres along a row below which each is tested (the CPU's NARROW).
 const NARROW: u32 = 4u;
+// 2^126 texels²: larger triangles cover nothing (the CPU's MAX_AREA).
+const MAX_AREA: u32 = 0x7e800000u;
 
 // An order-preserving key of a float: larger floats, larger keys (−0 below +0).
 fn key(f: f32) -> u32 {
@@ -136,7 +138,8 @@ fn setup(i: u32) -> Setup {
     let xs = span(lo.x, hi.x, mp.res);
     if ys.y < ys.x || xs.y < xs.x { return s; }
     let area = (s.t1.x - s.t0.x) * (s.t2.y - s.t0.y) - (s.t1.y - s.t0.y) * (s.t2.x - s.t0.x);
-    if area == 0.0 || !finite3(vec3<f32>(area)) { return s; }
+    // The CPU's MAX_AREA: beyond it 1 / area would be subnormal, which a GPU may flush to zero.
+    if area == 0.0 || !(abs(area) < bitcast<f32>(MAX_AREA)) { return s; }
     let per_area = div_rn(1.0, area);
     s.e0 = coef(s.t1, s.t2, per_area);
     s.e1 = coef(s.t2, s.t0, per_area);
@@ -257,5 +260,6 @@ fn map_large(
     let k = linear_group(wid, nwg);
     if k >= atomicLoad(&state[1]) { return; }
     let s = setup(large[k]);
+    if !s.ok { return; }
     for (var y = s.y0 + lid; y <= s.y1; y += WG) { raster_row(s, y); }
 }

@@ -30,7 +30,8 @@ impl Occluders for Groups {
 
 /// Triangles over a 100 × 100 area: mostly smaller than a texel, some tens of texels wide, a few far off
 /// the map, needles and collinear ones, and broken ones (a NaN or infinite corner); in groups placed by
-/// rotations, scales and translations, one in world space, one empty, one with a NaN transform.
+/// rotations, scales and translations, one in world space, two empty (one of them the last), one with a
+/// NaN transform.
 fn scene(seed: u64) -> Groups {
     let mut r = rng(seed);
     let tri = |k: usize, r: &mut rand::rngs::SmallRng| {
@@ -49,8 +50,8 @@ fn scene(seed: u64) -> Groups {
     };
     let mut groups = Vec::new();
     let mut k = 0;
-    for g in 0..9 {
-        let n = if g == 3 { 0 } else { 1500 + 700 * g };
+    for g in 0..10 {
+        let n = if g == 3 || g == 9 { 0 } else { 1500 + 700 * g };
         let tris: Vec<[Vec3; 3]> = (0..n)
             .map(|_| {
                 k += 1;
@@ -86,6 +87,10 @@ fn ground(side: usize) -> GBuffer {
 /// Every texel of the two passes' maps holds the same depth (equal as floats: a zero's sign aside), and
 /// their visibility and marked pixels are the same.
 fn assert_same_pass(cpu: &HardShadows, gpu: &HardShadows, what: &str) {
+    assert!(
+        !cpu.stats().map_on_gpu && gpu.stats().map_on_gpu,
+        "{what}: where the maps were rendered"
+    );
     let (a, b) = (cpu.shadow_map(), gpu.shadow_map());
     assert_eq!(a.resolution(), b.resolution(), "{what}");
     assert_eq!(a.texel_size(), b.texel_size(), "{what}: the map's frame");
@@ -145,6 +150,108 @@ fn gpu_map_is_the_cpu_map_texel_for_texel() {
                 .expect("the GPU pass");
             assert_same_pass(&cpu, &gpu, &what);
         }
+    }
+}
+
+/// Where triangles' corners sit on texel centres and their edges run along rows and columns through
+/// them — the rasteriser's ties, its row spans' ends and its slack — the GPU map is the CPU's: a light
+/// straight down, receivers on the integers 0..=126 (a 128² map of unit texels whose centres lie on
+/// the half-integers), occluders with corners on the half-integer lattice (right triangles with
+/// axis-aligned legs, thin slivers a centre wide, and lattice triangles of any shape).
+#[test]
+fn gpu_map_is_the_cpu_map_where_edges_run_through_texel_centres() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let mut r = rng(23);
+    let half = |r: &mut rand::rngs::SmallRng, hi: i32| r.random_range(0..hi) as f32 + 0.5;
+    let mut tris = Vec::new();
+    for k in 0..3000 {
+        let (x, z, y) = (half(&mut r, 120), half(&mut r, 120), half(&mut r, 20));
+        let (w, d) = (r.random_range(1..9) as f32, r.random_range(1..9) as f32);
+        let t = match k % 3 {
+            0 => [
+                Vec3::new(x, y, z),
+                Vec3::new(x + w, y, z),
+                Vec3::new(x, y + 1.0, z + d),
+            ],
+            1 => [
+                Vec3::new(x, y, z),
+                Vec3::new(x + w, y, z + 1.0),
+                Vec3::new(x, y, z + 1.0),
+            ],
+            _ => [
+                Vec3::new(x, y, z),
+                Vec3::new(half(&mut r, 126), y + 2.0, half(&mut r, 126)),
+                Vec3::new(half(&mut r, 126), y, half(&mut r, 126)),
+            ],
+        };
+        tris.push(t);
+    }
+    let side = 127;
+    let mut g = GBuffer::new(side, side);
+    for j in 0..side {
+        for i in 0..side {
+            g.set(j * side + i, Vec3::new(i as f32, 0.0, j as f32), Vec3::Y);
+        }
+    }
+    let rays = |from: Vec3, to: Vec3| {
+        (tris.iter())
+            .any(|&t| moller_trumbore(from, to - from, t).is_some_and(|h| h.0 > 0.0 && h.0 < 1.0))
+    };
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    for mode in [ShadowMode::ShadowMap, ShadowMode::Selective] {
+        let s = ShadowSettings {
+            mode,
+            towards_light: Vec3::Y,
+            map_resolution: 128,
+            ..Default::default()
+        };
+        let mut cpu = HardShadows::new();
+        cpu.run(&s, &tris, &g, rays).expect("the CPU pass");
+        assert_eq!(cpu.shadow_map().texel_size(), 1.0, "unit texels");
+        let mut gpu = HardShadows::new();
+        gpu.run_with(&s, &tris, &g, rays, &mut on_gpu)
+            .expect("the GPU pass");
+        assert_same_pass(&cpu, &gpu, &format!("lattice, {mode:?}"));
+    }
+}
+
+/// Nothing to render — no occluder, only broken ones, or no receiver — gives the CPU's empty map and
+/// image on the GPU too, with no error.
+#[test]
+fn gpu_map_of_nothing_is_the_cpu_map() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let broken = vec![
+        [Vec3::NAN, Vec3::ONE, Vec3::ZERO],
+        [Vec3::ZERO, Vec3::INFINITY, Vec3::X],
+    ];
+    let none: Vec<[Vec3; 3]> = Vec::new();
+    let sky = GBuffer::new(16, 16);
+    let g = ground(16);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    let s = ShadowSettings {
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: 64,
+        ..Default::default()
+    };
+    for (what, occluders, g) in [
+        ("no occluder", &none, &g),
+        ("broken", &broken, &g),
+        ("no receiver", &broken, &sky),
+    ] {
+        let mut cpu = HardShadows::new();
+        cpu.run(&s, occluders, g, |_: Vec3, _: Vec3| false)
+            .expect("the CPU pass");
+        let mut gpu = HardShadows::new();
+        gpu.run_with(&s, occluders, g, |_: Vec3, _: Vec3| false, &mut on_gpu)
+            .expect("the GPU pass");
+        let (a, b) = (cpu.shadow_map(), gpu.shadow_map());
+        assert_eq!(a.resolution(), b.resolution(), "{what}");
+        for k in 0..64 * 64 {
+            let (x, y) = (k % 64, k / 64);
+            assert_eq!(a.depth(x, y), f32::INFINITY, "{what}: the CPU map is empty");
+            assert_eq!(b.depth(x, y), f32::INFINITY, "{what}: texel ({x}, {y})");
+        }
+        assert_eq!(cpu.visibility(), gpu.visibility(), "{what}");
     }
 }
 

@@ -13,7 +13,6 @@ use super::harness::{Gpu, frame_light};
 #[cfg(feature = "gpu")]
 use super::harness::{median, planned_label};
 use super::scenes::Scene;
-#[cfg(feature = "gpu")]
 use super::secondary_rows::ROUNDS;
 use glam::Vec3;
 #[cfg(feature = "gpu")]
@@ -180,13 +179,13 @@ pub fn table(rows: &[ShadowRow]) -> String {
     if rows.is_empty() {
         return String::new();
     }
-    let mut s = String::from(
+    let mut s = format!(
         "\n## Shadow maps (issue 16)\n\nPer scene, its middle frame through the secondary section's camera; \
          selective hard shadows of a directional light along the frame's light, the map (as many texels a \
-         side as the image) rendered on the CPU, on the GPU, or as the planner picks over 12 passes \
-         (its milliseconds the passes' median; its picks, passes per renderer, in brackets). One CPU \
-         thread; the GPU's map time includes its upload and read-back. Mismatches: map texels and image \
-         pixels unlike the CPU-map pass's.\n\n\
+         side as the image) rendered on the CPU, on the GPU, or as the planner picks over {ROUNDS} \
+         passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets). One \
+         CPU thread; the GPU's map time includes its upload and read-back. Mismatches: map texels and \
+         image pixels unlike the CPU-map pass's.\n\n\
          | scene | map | ms/pass | map ms | marked % | mismatches |\n\
          |---|---|---|---|---|---|\n",
     );

@@ -200,10 +200,7 @@ impl GpuPairs {
     /// Grows the buffers to what the last overflow asked for (at least doubling), within the device's
     /// limits.
     fn grow(&mut self, ctx: &GpuContext) -> Result<()> {
-        let limits = ctx.device.limits();
-        let limit = limits
-            .max_storage_buffer_binding_size
-            .min(limits.max_buffer_size);
+        let limit = ctx.storage_limit();
         let (queue, pairs) = self.capacity();
         let want = [
             (self.demand.queue.load(Ordering::Relaxed), queue, ITEM_BYTES),

@@ -262,13 +262,19 @@ impl GpuContext {
         Ok(())
     }
 
+    /// The largest storage buffer the device binds whole: the lesser of its `max_buffer_size` and
+    /// `max_storage_buffer_binding_size` (what a growing buffer may double up to).
+    pub(crate) fn storage_limit(&self) -> u64 {
+        let limits = self.device.limits();
+        limits
+            .max_buffer_size
+            .min(limits.max_storage_buffer_binding_size)
+    }
+
     /// Refuses, with [`Error::Gpu`], a storage buffer of `bytes` larger than the device's
     /// `max_buffer_size` or `max_storage_buffer_binding_size` (buffers are bound whole).
     pub(crate) fn check_storage(&self, what: &str, bytes: u64) -> Result<()> {
-        let limits = self.device.limits();
-        let max = limits
-            .max_buffer_size
-            .min(limits.max_storage_buffer_binding_size);
+        let max = self.storage_limit();
         if bytes.max(256).next_multiple_of(256) > max {
             return Err(Error::Gpu(format!(
                 "{what}: a {bytes}-byte storage buffer exceeds this device's limit of {max} bytes"

@@ -11,15 +11,19 @@ use glam::Vec3;
 /// [`HardShadows::run_with`](crate::shadows::HardShadows::run_with).
 ///
 /// The kernels take each corner into light space and rasterise every triangle with the CPU's operations
-/// in the CPU's order (no contraction, divisions rounded as the CPU rounds; see
-/// [`GpuContext::contraction_free`]), so each texel holds the depth the CPU map holds (a zero's sign
-/// aside) and the pass's classification, rays and image are the CPU pass's. Use it where the GPU is free
-/// and the CPU is not: the map is the pass's one cost proportional to the triangles (on the CPU, about
-/// 40 ns a triangle of a 700k-triangle crowd on one core). Costs per pass: the occluders uploaded, 36 bytes a
-/// triangle (plus 64 a group); one submission and one blocking wait (two for an area light's map, whose
-/// extent depends on the point nearest the light); 4 bytes a texel read back, straight into the map. Its buffers grow
-/// to the largest scene and map seen and are kept (a warm render allocates none; wgpu's command
-/// encoder and two bind groups are made per render).
+/// in the CPU's order (divisions rounded as the CPU rounds), so where the context compiles them without
+/// contraction ([`GpuContext::contraction_free`]: Vulkan) each texel holds the depth the CPU map holds
+/// (a zero's sign aside) and the pass's classification, rays and image are the CPU pass's; elsewhere
+/// (Metal, DX12) up to the rounding of fused operations. Triangles that would need subnormal
+/// arithmetic, which a GPU may flush to zero, cover nothing on either side (see the CPU rasteriser's
+/// largest area). Use it where the GPU is free and the CPU is not: the map is the pass's one cost
+/// proportional to the triangles (on the CPU, about 40 ns a triangle of a 700k-triangle crowd on one
+/// core). Costs per pass: the occluders uploaded, 36 bytes a triangle plus 68 a group and 32 of
+/// parameters a submission; one submission and at most one blocking wait (two of each for an area
+/// light's map, whose extent waits for the point nearest the light); 4 bytes a texel read back,
+/// straight into the map. Its buffers grow to the largest scene and map seen and are kept (a warm
+/// render allocates none; wgpu's command encoders and bind groups are made per render). A GPU error is
+/// the pass's error (its map left empty).
 ///
 /// ```no_run
 /// use kinetrace::gpu::{GpuContext, GpuShadowMap};
@@ -104,8 +108,9 @@ impl GpuShadowMap {
         ctx.check_storage("shadow-map triangles", n * 36)?;
         ctx.check_threads("shadow-map triangles", n, 256)?;
         self.first.push(n as u32);
-        self.corners.ensure(ctx, n * 36);
-        self.large.ensure(ctx, n * 4);
+        let limit = ctx.storage_limit();
+        self.corners.ensure_within(ctx, n * 36, limit);
+        self.large.ensure_within(ctx, n * 4, limit);
         self.starts.ensure(ctx, self.first.len() as u64 * 4);
         self.to_light.ensure(ctx, self.transforms.len() as u64 * 64);
         let mut at = 0;
@@ -195,7 +200,8 @@ impl MapRenderer for GpuShadowMap {
         let n = self.upload(map, occluders)?;
         let texels = (res * res) as u64;
         self.ctx.check_storage("shadow map", texels * 4)?;
-        self.depth.ensure(&self.ctx, texels * 4);
+        self.depth
+            .ensure_within(&self.ctx, texels * 4, self.ctx.storage_limit());
         self.state.ensure(&self.ctx, STATE_WORDS as u64 * 4);
         // The point nearest the light: an area light's map first needs it to know its extent.
         let nearest = if spread > 0.0 && n > 0 {

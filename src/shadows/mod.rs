@@ -385,14 +385,19 @@ impl HardShadows {
         renderer: &mut impl MapRenderer,
     ) -> Result<()> {
         let (par, soft) = (s.parallel, s.light_angle > 0.0);
-        renderer.render_map(
+        let rendered = renderer.render_map(
             &mut self.map,
             occluders,
             receivers,
             s.light_angle.tan(),
             s.map_resolution,
             par,
-        )?;
+        );
+        if rendered.is_err() {
+            // A renderer's error (the GPU's) leaves no half-written map behind.
+            self.map.clear(s.map_resolution);
+            return rendered;
+        }
         let edge = s.edge_texels * self.map.texel_size();
         if s.mode == ShadowMode::Selective && soft {
             // The deepest receiver's depth: top − its lowest `p · towards`.

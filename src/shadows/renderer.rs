@@ -6,8 +6,9 @@ use glam::Vec3;
 
 /// What renders a [`HardShadows`](super::HardShadows) pass's shadow map
 /// ([`run_with`](super::HardShadows::run_with)): [`CpuMap`], or `gpu::GpuShadowMap` (feature `gpu`).
-/// Every renderer gives the same map, so the pass's image does not depend on the choice, only its cost.
-/// Sealed: the crate's renderers are the only ones.
+/// Every renderer gives the same map (the GPU's where its kernels round as the CPU's do, see
+/// `gpu::GpuShadowMap`), so the pass's image does not depend on the choice, only its cost. Sealed: the
+/// crate's renderers are the only ones.
 pub trait MapRenderer: sealed::Sealed {
     /// Renders `occluders` into `map` (already aimed at the light) over the receivers' bounds, as
     /// [`ShadowMap`]'s own render does.

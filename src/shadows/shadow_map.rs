@@ -253,8 +253,7 @@ impl ShadowMap {
         );
         self.res = res;
         if !occupied || lo.x > hi.x {
-            self.depth.clear();
-            self.depth.resize(res * res, f32::INFINITY);
+            self.clear(res);
             (self.corner, self.top) = (Vec2::ZERO, 0.0);
             (self.texel, self.per_texel) = (1.0, 1.0);
             return false;
@@ -265,6 +264,13 @@ impl ShadowMap {
         self.per_texel = self.texel.recip();
         self.corner = lo - Vec2::splat(self.texel);
         true
+    }
+
+    /// Makes the map `res × res` empty texels.
+    pub(crate) fn clear(&mut self, res: usize) {
+        self.res = res;
+        self.depth.clear();
+        self.depth.resize(res * res, f32::INFINITY);
     }
 
     /// Takes a map rendered elsewhere over the frame [`fit`](Self::fit) set: the point nearest the light
@@ -407,6 +413,11 @@ fn centres(lo: f32, hi: f32, n: usize) -> (usize, usize) {
     }
 }
 
+/// Twice the area, in texels², from which a triangle covers nothing (2¹²⁶; also a non-finite one): its
+/// reciprocal would be subnormal, which a GPU may flush to zero (`GpuShadowMap` renders the same map).
+/// Such a triangle is 2⁶³ texels across: a receiver under it sees an empty texel and is marked for a ray.
+const MAX_AREA: f32 = (1u128 << 126) as f32;
+
 /// Triangles whose bounds span fewer texel centres than this along a row are rasterised centre by centre;
 /// wider ones solve each row's covered span.
 const NARROW: usize = 4;
@@ -417,7 +428,7 @@ const NARROW: usize = 4;
 /// bounds; a wider one solves each row's covered span from the three edge functions and checks its two
 /// ends exactly (a weight is monotone along the row, so the covered centres are one run), so the cost is
 /// one depth-plane step per covered texel plus a few per row. One division per triangle. Triangles seen
-/// edge-on by the light cover nothing.
+/// edge-on by the light cover nothing, nor do those of [`MAX_AREA`] or more.
 #[inline(always)]
 fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
     let rows = out.len() / res;
@@ -430,7 +441,7 @@ fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
     }
     // Edge k's weight is a_k x + b_k y + c_k, normalised so the three sum to 1 (barycentrics).
     let area = (t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[1].y - t[0].y) * (t[2].x - t[0].x);
-    if area == 0.0 || !area.is_finite() {
+    if area == 0.0 || !area.is_finite() || area.abs() >= MAX_AREA {
         return;
     }
     let per_area = area.recip();
