@@ -98,6 +98,12 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
             "{} {}: texels or pixels unlike the CPU map's",
             r.scene, r.renderer
         );
+        assert!(
+            r.covered > 1.0,
+            "{} {}: an empty map compares trivially",
+            r.scene,
+            r.renderer
+        );
     }
     // The GPU's LBVH is the CPU's, node for node: the same error, frame for frame.
     for gpu in report

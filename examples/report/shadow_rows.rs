@@ -5,7 +5,7 @@
 //! pass's map seconds per triangle taught as the crowd demo does. All on one CPU thread.
 //!
 //! Per row: milliseconds per pass and of its map (the GPU's with its upload and read-back), the pixels
-//! marked for rays, and mismatches: texels of the map and pixels of the image unlike the CPU-map pass's
+//! marked for rays, the map's texels covered, and mismatches: texels of the map and pixels of the image unlike the CPU-map pass's
 //! (the renderers give the same map, so none).
 
 use super::camera::Orbit;
@@ -31,6 +31,8 @@ pub struct ShadowRow {
     pub pass_ms: f64,
     pub map_ms: f64,
     pub marked: f64,
+    /// Percent of the map's texels some triangle covers.
+    pub covered: f64,
     pub mismatches: u32,
 }
 
@@ -91,6 +93,7 @@ pub fn run(
         pass_ms: seconds * 1e3,
         map_ms: p.stats().map_time.as_secs_f64() * 1e3,
         marked: 100.0 * p.stats().ray_fraction(),
+        covered: covered(p),
         mismatches: unlike(&cpu, p),
     };
     // The GPU rows follow where the feature is on.
@@ -161,6 +164,16 @@ impl<R: MapRenderer> RenderInto for R {
     }
 }
 
+/// Percent of the pass's map texels that hold a depth.
+fn covered(p: &HardShadows) -> f64 {
+    let map = p.shadow_map();
+    let res = map.resolution();
+    let held = (0..res * res)
+        .filter(|&k| map.depth(k % res, k / res).is_finite())
+        .count();
+    100.0 * held as f64 / (res * res).max(1) as f64
+}
+
 /// Texels of `got`'s map and pixels of its image unlike `want`'s (floats compared as floats).
 fn unlike(want: &HardShadows, got: &HardShadows) -> u32 {
     let (a, b) = (want.shadow_map(), got.shadow_map());
@@ -186,14 +199,14 @@ pub fn table(rows: &[ShadowRow]) -> String {
          passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets). One \
          CPU thread; the GPU's map time includes its upload and read-back. Mismatches: map texels and \
          image pixels unlike the CPU-map pass's.\n\n\
-         | scene | map | ms/pass | map ms | marked % | mismatches |\n\
-         |---|---|---|---|---|---|\n",
+         | scene | map | ms/pass | map ms | marked % | texels covered % | mismatches |\n\
+         |---|---|---|---|---|---|---|\n",
     );
     for r in rows {
         let _ = writeln!(
             s,
-            "| {} | {} | {:.3} | {:.3} | {:.2} | {} |",
-            r.scene, r.renderer, r.pass_ms, r.map_ms, r.marked, r.mismatches
+            "| {} | {} | {:.3} | {:.3} | {:.2} | {:.1} | {} |",
+            r.scene, r.renderer, r.pass_ms, r.map_ms, r.marked, r.covered, r.mismatches
         );
     }
     s
