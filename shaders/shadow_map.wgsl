@@ -25,10 +25,12 @@ struct MapParams {
 @group(0) @binding(6) var<storage, read_write> args: array<u32>;
 @group(0) @binding(7) var<storage, read> mp: MapParams;
 
-// Triangles spanning more rows of texel centres than this, or more centres in all, are rasterised by a
-// workgroup each (a row per invocation), the rest by their own invocation.
+// Triangles spanning more rows of texel centres than this, or more centres in all, are rasterised by
+// SPLIT workgroups each (a row per invocation: a triangle under the whole map, the ground, spread over
+// several of the GPU's cores), the rest by their own invocation.
 const SMALL_ROWS: u32 = 4u;
 const SMALL_TEXELS: u32 = 64u;
+const SPLIT: u32 = 8u;
 // Centres along a row below which each is tested (the CPU's NARROW).
 const NARROW: u32 = 4u;
 // 2^126 texels²: larger triangles cover nothing (the CPU's MAX_AREA).
@@ -241,25 +243,27 @@ fn map_small(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgro
     for (var y = s.y0; y <= s.y1; y++) { raster_row(s, y); }
 }
 
-// The indirect sizes of `map_large`: a workgroup per listed triangle.
+// The indirect sizes of `map_large`: SPLIT workgroups per listed triangle.
 @compute @workgroup_size(1)
 fn map_plan() {
-    let a = fold_groups(atomicLoad(&state[1]), mp.max_groups);
+    let a = fold_groups(atomicLoad(&state[1]) * SPLIT, mp.max_groups);
     args[0] = a.x;
     args[1] = a.y;
     args[2] = a.z;
 }
 
-// A listed triangle per workgroup, a row per invocation.
+// A listed triangle per SPLIT workgroups, a row per invocation: workgroup `part` of the triangle takes
+// the rows part·WG + lid, then every SPLIT·WG rows on.
 @compute @workgroup_size(256)
 fn map_large(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(num_workgroups) nwg: vec3<u32>,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let k = linear_group(wid, nwg);
+    let g = linear_group(wid, nwg);
+    let k = g / SPLIT;
     if k >= atomicLoad(&state[1]) { return; }
     let s = setup(large[k]);
     if !s.ok { return; }
-    for (var y = s.y0 + lid; y <= s.y1; y += WG) { raster_row(s, y); }
+    for (var y = s.y0 + (g % SPLIT) * WG + lid; y <= s.y1; y += SPLIT * WG) { raster_row(s, y); }
 }

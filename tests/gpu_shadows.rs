@@ -215,6 +215,53 @@ fn gpu_map_is_the_cpu_map_where_edges_run_through_texel_centres() {
     }
 }
 
+/// A triangle under the whole of a map of more rows than its workgroups' invocations cover in one step
+/// (8 × 256) — the ground under a 2,600² map, the map's rows shared out among the workgroups — renders
+/// as on the CPU, as do the small triangles standing on it.
+#[test]
+fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let mut r = rng(31);
+    let floor = [
+        Vec3::new(-10.0, 0.0, -10.0),
+        Vec3::new(120.0, 0.0, -10.0),
+        Vec3::new(120.0, 0.0, 120.0),
+        Vec3::new(-10.0, 0.0, 120.0),
+    ];
+    let mut tris = vec![
+        [floor[0], floor[2], floor[1]],
+        [floor[0], floor[3], floor[2]],
+    ];
+    for _ in 0..200 {
+        let o = rand_vec(&mut r, 0.0, 100.0) * Vec3::new(1.0, 0.1, 1.0);
+        tris.push([
+            o,
+            o + rand_vec(&mut r, 0.0, 3.0),
+            o + rand_vec(&mut r, 0.0, 3.0),
+        ]);
+    }
+    let s = ShadowSettings {
+        mode: ShadowMode::ShadowMap,
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: 2600,
+        ..Default::default()
+    };
+    let g = ground(32);
+    let mut cpu = HardShadows::new();
+    cpu.run(&s, &tris, &g, |_: Vec3, _: Vec3| false)
+        .expect("the CPU pass");
+    let mut gpu = HardShadows::new();
+    gpu.run_with(
+        &s,
+        &tris,
+        &g,
+        |_: Vec3, _: Vec3| false,
+        &mut GpuShadowMap::new(&ctx),
+    )
+    .expect("the GPU pass");
+    assert_same_pass(&cpu, &gpu, "ground under a 2,600² map");
+}
+
 /// Nothing to render — no occluder, only broken ones, or no receiver — gives the CPU's empty map and
 /// image on the GPU too, with no error.
 #[test]
