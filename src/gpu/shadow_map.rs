@@ -221,7 +221,12 @@ impl MapRenderer for GpuShadowMap {
         self.set_params(map, n, res);
         let (group, reading_args) = (self.bind(&self.args), self.bind(&self.stand_in));
         let mut enc = self.ctx.encoder();
-        self.record_top(&mut enc, &group, n);
+        if nearest.is_some() {
+            // The nearest point is in the state already: only the large triangles' count starts afresh.
+            enc.clear_buffer(self.state.buffer(), 4, Some(4));
+        } else {
+            self.record_top(&mut enc, &group, n);
+        }
         enc.clear_buffer(self.depth.buffer(), 0, Some(texels * 4));
         {
             let k = &self.ctx.kernels.shadow_map;
