@@ -75,9 +75,7 @@ pub fn run(
     };
     let bvh: &MeshBvh = rs.bvh();
     let rays = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
-    let run = |p: &mut HardShadows, renderer: &mut dyn RenderInto| {
-        renderer.render_pass(p, &s, &tris, &g, &rays);
-    };
+    let inputs: Inputs = (&s, &tris, &g, &rays);
     // A warm pass (its buffers grown), then the timed one.
     let pass = |renderer: &mut dyn FnMut(&mut HardShadows)| {
         let mut p = HardShadows::new();
@@ -86,7 +84,7 @@ pub fn run(
         renderer(&mut p);
         (start.elapsed().as_secs_f64(), p)
     };
-    let (cpu_s, cpu) = pass(&mut |p| run(p, &mut CpuMap));
+    let (cpu_s, cpu) = pass(&mut |p| render(p, inputs, &mut CpuMap));
     let row = |renderer: String, seconds: f64, p: &HardShadows| ShadowRow {
         scene: scene.name,
         renderer,
@@ -102,7 +100,7 @@ pub fn run(
     #[cfg(feature = "gpu")]
     if let Some(ctx) = gpu {
         let mut on_gpu = kinetrace::gpu::GpuShadowMap::new(ctx);
-        let (gpu_s, p) = pass(&mut |p| run(p, &mut on_gpu));
+        let (gpu_s, p) = pass(&mut |p| render(p, inputs, &mut on_gpu));
         rows.push(row("gpu".into(), gpu_s, &p));
         let mut planner = Choice::map_on_gpu();
         let (mut times, mut maps, mut bad) = (Vec::new(), Vec::new(), 0);
@@ -112,9 +110,9 @@ pub fn run(
             let on = planner.decide(tris.len() as f64);
             let start = Instant::now();
             if on {
-                run(&mut p, &mut on_gpu);
+                render(&mut p, inputs, &mut on_gpu);
             } else {
-                run(&mut p, &mut CpuMap);
+                render(&mut p, inputs, &mut CpuMap);
             }
             times.push(start.elapsed().as_secs_f64());
             let map = p.stats().map_time.as_secs_f64();
@@ -138,30 +136,18 @@ pub fn run(
     rows
 }
 
-/// A map renderer behind a trait object: a selective pass of `tris` with its map rendered by `self`.
-trait RenderInto {
-    fn render_pass(
-        &mut self,
-        pass: &mut HardShadows,
-        s: &ShadowSettings,
-        tris: &[[Vec3; 3]],
-        g: &GBuffer,
-        rays: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
-    );
-}
+/// What a pass reads: its settings, the occluders, the G-buffer and the shadow-ray query.
+type Inputs<'a> = (
+    &'a ShadowSettings,
+    &'a [[Vec3; 3]],
+    &'a GBuffer,
+    &'a (dyn Fn(Vec3, Vec3) -> bool + Sync),
+);
 
-impl<R: MapRenderer> RenderInto for R {
-    fn render_pass(
-        &mut self,
-        pass: &mut HardShadows,
-        s: &ShadowSettings,
-        tris: &[[Vec3; 3]],
-        g: &GBuffer,
-        rays: &(dyn Fn(Vec3, Vec3) -> bool + Sync),
-    ) {
-        pass.run_with(s, tris, g, rays, self)
-            .expect("valid settings");
-    }
+/// A selective pass over `inputs` into `pass`, its map rendered by `renderer`.
+fn render(pass: &mut HardShadows, (s, tris, g, rays): Inputs, renderer: &mut impl MapRenderer) {
+    pass.run_with(s, tris, g, rays, renderer)
+        .expect("valid settings");
 }
 
 /// Percent of the pass's map texels that hold a depth.
