@@ -11,6 +11,7 @@ mod crowd;
 mod common;
 use common::*;
 use glam::{Affine3A, Quat, Vec3};
+use kinetrace::Error;
 use kinetrace::gpu::{GpuContext, GpuOptions, GpuShadowMap};
 use kinetrace::shadows::{GBuffer, HardShadows, Occluders, ShadowMode, ShadowSettings};
 use rand::Rng;
@@ -396,4 +397,44 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels() {
         assert!(d.blocking_waits <= submissions, "light angle {angle}");
         assert_eq!(d.allocated_bytes, 0, "light angle {angle}: no new buffer");
     }
+}
+
+/// A map larger than the device binds is an error (`Error::Gpu`, saying which buffer), not a panic, and
+/// the pass keeps no half-made map; the same renderer then renders a map that fits.
+#[test]
+fn a_map_past_the_devices_buffers_is_an_error() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let limits = ctx.limits();
+    let limit = limits
+        .max_buffer_size
+        .min(limits.max_storage_buffer_binding_size);
+    let res = 16_384u64;
+    if res * res * 4 <= limit {
+        skip("this device binds a 16,384² map (1 GiB): no map past its buffers to ask for");
+        return;
+    }
+    let occluders = scene(5);
+    let g = ground(16);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    let mut pass = HardShadows::new();
+    let mut s = ShadowSettings {
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: res as usize,
+        ..Default::default()
+    };
+    let no_ray = |_: Vec3, _: Vec3| false;
+    match pass.run_with(&s, &occluders, &g, no_ray, &mut on_gpu) {
+        Err(Error::Gpu(why)) => assert!(why.contains("shadow map"), "{why}"),
+        other => panic!(
+            "a {res}² map on a {limit}-byte device: {:?}",
+            other.map(|v| v.len())
+        ),
+    }
+    assert_eq!(pass.shadow_map().resolution(), 0, "no map kept");
+    s.map_resolution = 64;
+    let mut cpu = HardShadows::new();
+    cpu.run(&s, &occluders, &g, no_ray).expect("the CPU pass");
+    pass.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
+        .expect("a map that fits");
+    assert_same_pass(&cpu, &pass, "after the error");
 }

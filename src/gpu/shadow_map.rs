@@ -22,8 +22,8 @@ use glam::Vec3;
 /// parameters a submission; one submission and at most one blocking wait (two of each for an area
 /// light's map, whose extent waits for the point nearest the light); 4 bytes a texel read back,
 /// straight into the map. Its buffers grow to the largest scene and map seen and are kept (a warm
-/// render allocates none; wgpu's command encoders and bind groups are made per render). A GPU error is
-/// the pass's error (its map left empty).
+/// render allocates none; wgpu's command encoders and bind groups are made per render). A GPU error (a map or
+/// scene larger than the device's buffers, say) is the pass's error, and the pass keeps no map (0 × 0).
 ///
 /// ```no_run
 /// use kinetrace::gpu::{GpuContext, GpuShadowMap};

@@ -394,8 +394,9 @@ impl HardShadows {
             par,
         );
         if rendered.is_err() {
-            // A renderer's error (the GPU's) leaves no half-written map behind.
-            self.map.clear(s.map_resolution);
+            // A renderer's error (the GPU's) leaves no map behind: none half-written, and none of the
+            // resolution asked for (which may be the error).
+            self.map.clear(0);
             return rendered;
         }
         let edge = s.edge_texels * self.map.texel_size();
