@@ -4,7 +4,7 @@
 use super::GpuContext;
 use super::buffers::{GpuBuffer, Readback, STORAGE, bind_group};
 use crate::Result;
-use crate::shadows::{MapRenderer, Occluders, ShadowMap, ToLight};
+use crate::shadows::{self, MapRenderer, Occluders, ShadowMap, ToLight, unkey};
 use glam::Vec3;
 
 /// Renders [`HardShadows`](crate::shadows::HardShadows)' shadow maps on the GPU: give it to
@@ -174,15 +174,6 @@ impl GpuShadowMap {
     }
 }
 
-/// The float an order-preserving key (shaders/shadow_map.wgsl's `key`) stands for.
-fn unkey(k: u32) -> f32 {
-    f32::from_bits(if k & 0x8000_0000 != 0 {
-        k & 0x7fff_ffff
-    } else {
-        !k
-    })
-}
-
 impl MapRenderer for GpuShadowMap {
     fn on_gpu(&self) -> bool {
         true
@@ -214,8 +205,7 @@ impl MapRenderer for GpuShadowMap {
         } else {
             None
         };
-        let highest = |k: u32| if k == 0 { f32::MIN } else { unkey(k) };
-        if !map.fit(receivers, spread, nearest.map(highest), res, n > 0) {
+        if !map.fit(receivers, spread, nearest.map(shadows::nearest), res, n > 0) {
             return Ok(());
         }
         self.set_params(map, n, res);
@@ -256,7 +246,7 @@ impl MapRenderer for GpuShadowMap {
         back.wait_with(&self.ctx, |words| {
             // A stored depth is its key complemented; 0 is an empty texel.
             let depth = &words[1..];
-            map.take_rendered(highest(words[0]), |k| match depth[k] {
+            map.take_rendered(shadows::nearest(words[0]), |k| match depth[k] {
                 0 => f32::INFINITY,
                 d => unkey(!d),
             });

@@ -76,7 +76,7 @@ pub use rays::{PACKET, Packets, ShadowRays};
 pub use renderer::{CpuMap, MapRenderer};
 pub use shadow_map::ShadowMap;
 #[cfg(feature = "gpu")]
-pub(crate) use shadow_map::ToLight;
+pub(crate) use shadow_map::{ToLight, nearest, unkey};
 
 use crate::{Error, Result, parallel};
 use classify::Class;
