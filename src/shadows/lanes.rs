@@ -250,7 +250,7 @@ pub(super) fn decide(
     let d = Vec4::splat(top) - pt;
     let texel = map.texel_size();
     let constant = Vec4::splat(texel * bias_texels);
-    // `classify::tolerances`: the receiver's reach within one texel, from its slope.
+    // `classify::slope_bias`: the receiver's reach within one texel, from its slope.
     let c = cos.max(Vec4::splat(1.0 / 64.0));
     let tan = (Vec4::ONE - c * c).max(Vec4::ZERO).sqrt() / c;
     let reach = Vec4::splat(texel * std::f32::consts::SQRT_2) * tan;
@@ -506,15 +506,15 @@ mod tests {
                 // With the positions across the map computed up front and without.
                 let four = Four::new(&ps, &ns, towards, Some(&map));
                 let bare = Four::new(&ps, &ns, towards, None);
-                let scalar = |p: Vec3, n: Vec3, test: &dyn Fn(Vec3, f32) -> Class| {
-                    classify::facing(n, towards, 0.0).map_or_else(|c| c, |cos| test(p, cos))
+                let scalar = |p: Vec3, n: Vec3, test: &dyn Fn(Vec3, Vec3, f32) -> Class| {
+                    classify::facing(n, towards, 0.0).map_or_else(|c| c, |cos| test(p, n, cos))
                 };
-                let selective = |p, cos| classify::selective(&map, &deltas, p, cos, bias);
-                let map_only = |p, cos| classify::shadow_map_only(&map, p, cos, bias);
+                let selective = |p, n, cos| classify::selective(&map, &deltas, p, n, cos, bias);
+                let map_only = |p, _, cos| classify::shadow_map_only(&map, p, cos, bias);
                 for (table, test, four) in [
                     (
                         deltas.table(),
-                        &selective as &dyn Fn(Vec3, f32) -> Class,
+                        &selective as &dyn Fn(Vec3, Vec3, f32) -> Class,
                         &four,
                     ),
                     (map.depths(), &map_only, &four),
@@ -532,7 +532,7 @@ mod tests {
                             marked: v.marked >> k & 1,
                         };
                         assert_eq!(bit(v), expect(scalar(p, n, test)), "pixel {p}, {n}");
-                        let traced = scalar(p, n, &|_, _| Class::Marked);
+                        let traced = scalar(p, n, &|_, _, _| Class::Marked);
                         assert_eq!(bit(marks), expect(traced), "pixel {p}, {n}");
                     }
                     assert_eq!(v.lit >> len | v.facing >> len | v.marked >> len, 0);

@@ -15,12 +15,13 @@
 //!    map and image either way, for a pass over the G-buffer less in a moving scene whose extremes stay
 //!    near where they were;
 //! 2. classification of every pixel: `Δ`, the largest depth difference between the pixel's texel and its
-//!    eight neighbours, flags shadow edges, where the receiver's depth span within one texel (`d̂`) is
-//!    compared with the depths of the four texels whose centres surround it: where some may shade it
-//!    (one lies in front of it by more than the constant bias) and some may not, the pixel is
-//!    *potentially incorrect* and marked (a one-sided form of the thesis's `[s − Δ, s + Δ]` overlap over
-//!    the nine texels, which also marks the occluder's own lit side at its silhouette and receivers a
-//!    texel away from the edge; see `classify::selective`). `Δ` is computed for every texel beforehand, in
+//!    eight neighbours, flags shadow edges, where the receiver's own surface within one texel (the
+//!    thesis's `d̂`, here its tangent plane extended to the four texels whose centres surround it) is
+//!    compared with those texels' depths: where some may shade it (one lies in front of the plane by
+//!    more than the constant bias) and some may not, the pixel is *potentially incorrect* and marked (a
+//!    one-sided, per-direction form of the thesis's `[s − Δ, s + Δ]` overlap over the nine texels, which
+//!    also marks the occluder's own lit side at its silhouette and receivers a texel away from the edge;
+//!    see `classify::selective`). `Δ` is computed for every texel beforehand, in
 //!    one vectorised pass over the map, and pixels are visited row by row in bands of 8 rows (the
 //!    G-buffer read as it lies), four at a time in SIMD lanes where the map's depth alone decides (bit for
 //!    bit the pixel-by-pixel test, which decides the rest).
@@ -481,7 +482,7 @@ impl HardShadows {
                 |four| {
                     let decided = lanes::decide(map, deltas.table(), four, away, bias);
                     lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
-                        Ok(cos) => classify::selective(map, deltas, p, cos, bias),
+                        Ok(cos) => classify::selective(map, deltas, p, nrm, cos, bias),
                         Err(c) => c,
                     })
                 },

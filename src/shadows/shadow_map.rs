@@ -351,13 +351,18 @@ impl ShadowMap {
     /// The depths of the four texels whose centres surround map point `(x, y)` (texel `i`'s centre is at
     /// `i + 0.5`), a point with `x` and `y` in `[1, resolution − 1)`: the texel it falls in and those of
     /// its neighbours on the sides it is nearer, rows `⌊y − ½⌋` and the next, columns `⌊x − ½⌋` and the
-    /// next.
-    pub(super) fn around(&self, x: f32, y: f32) -> [f32; 4] {
+    /// next, in that order (column first); and where the first one's centre lies from the point, in
+    /// texels (both in `(−1, 0]`; the others' are one more across, along or both).
+    pub(super) fn around(&self, x: f32, y: f32) -> ([f32; 4], Vec2) {
         // `x − ½ ≥ ½` truncates to its floor, at most `res − 2`.
         let (i, j) = ((x - 0.5) as usize, (y - 0.5) as usize);
         let at = j * self.res + i;
         let d = &self.depth;
-        [d[at], d[at + 1], d[at + self.res], d[at + self.res + 1]]
+        let first = Vec2::new(i as f32 + 0.5 - x, j as f32 + 0.5 - y);
+        (
+            [d[at], d[at + 1], d[at + self.res], d[at + self.res + 1]],
+            first,
+        )
     }
 
     /// The 3 × 3 texels centred on interior texel `(i, j)`, as three rows of three.
