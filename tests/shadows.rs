@@ -252,8 +252,8 @@ fn selective_matches_ray_traced_on_crowd_frames() {
 /// from its eight neighbours read one by one; at an edge, the receiver's tangent plane, its depth slope
 /// across the map found by projecting the point one normal away (`ShadowMap::project`), in f64, extended
 /// to the four texels whose centres (`i + ½`) surround the receiver and compared with their depths less
-/// the constant bias. Returns the pixels it marks and those it leaves undecided: a plane within rounding of
-/// a texel's depth (left out of the comparison both ways).
+/// the constant bias (marked where the normal is not finite). Returns the pixels it marks and those it
+/// leaves undecided: a plane within rounding of a texel's depth (left out of the comparison both ways).
 fn full_classification(
     pass: &HardShadows,
     s: &ShadowSettings,
@@ -294,6 +294,11 @@ fn full_classification(
         // `w · (n·u, n·v) / cos` a texel, `cos` kept above 1/64 (a grazing plane steep but finite).
         let across = (map.project(p + n) - q).truncate().as_dvec2();
         let slope = across * (w as f64 * w as f64 / cos.max(1.0 / 64.0) as f64);
+        if !slope.is_finite() {
+            // A broken normal: no plane, a ray decides.
+            marked.push(k as u32);
+            continue;
+        }
         let (qx, qy, d) = (q.x as f64, q.y as f64, q.z as f64);
         let (i0, j0) = ((q.x - 0.5).floor() as usize, (q.y - 0.5).floor() as usize);
         let bias = (w * s.bias_texels) as f64;
@@ -382,6 +387,12 @@ fn adversarial_scene(seed: u64, towards: Vec3) -> (Vec<[Vec3; 3]>, GBuffer) {
         };
         let normal =
             (towards * r.random_range(-0.3..1.0) + common::rand_dir(&mut r)).normalize_or(towards);
+        // A few broken normals: a NaN or an infinite component.
+        let normal = match r.random_range(0..100) {
+            0 => Vec3::new(f32::NAN, 1.0, 0.0),
+            1 => Vec3::new(f32::INFINITY, 1.0, 0.0),
+            _ => normal,
+        };
         g.set(k, Vec3::new(x, y, z), normal);
     }
     (tris, g)

@@ -153,6 +153,8 @@ pub struct GBuffer {
     /// The hit point under each pixel (world space).
     pub positions: Vec<Vec3>,
     /// The unit surface normal there, facing the camera; `Vec3::ZERO` where the pixel shows no surface.
+    /// The selective pass extends the surface along its tangent plane to the shadow-map texels around
+    /// the pixel: give the geometric normal, or a shading normal close to it.
     pub normals: Vec<Vec3>,
 }
 
