@@ -225,7 +225,8 @@ fn map_top(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     let q1 = in_light(i, g, 1u);
     let q2 = in_light(i, g, 2u);
     if !finite3((q0 + q1) + q2) { return; }
-    atomicMax(&state[0], key(max(max(q0.z, q1.z), q2.z)));
+    // Each corner's key, not the key of `max`: a tie of ±0 goes to +0 whatever the order (as the CPU's).
+    atomicMax(&state[0], max(max(key(q0.z), key(q1.z)), key(q2.z)));
 }
 
 // Each triangle rasterised by its invocation, or listed for `map_large`.

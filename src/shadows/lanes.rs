@@ -250,12 +250,13 @@ pub(super) fn decide(
     let d = Vec4::splat(top) - pt;
     let texel = map.texel_size();
     let constant = Vec4::splat(texel * bias_texels);
-    // `classify::slope_bias`: the receiver's reach within one texel, from its slope.
+    // `classify::slope_bias`, its operations in its order: the constant bias plus the receiver's reach
+    // within one texel, from its slope.
     let c = cos.max(Vec4::splat(1.0 / 64.0));
     let tan = (Vec4::ONE - c * c).max(Vec4::ZERO).sqrt() / c;
     let reach = Vec4::splat(texel * std::f32::consts::SQRT_2) * tan;
-    let slope = constant + reach;
-    let lit = (d.cmple(s + constant) | d.cmple(s + slope)).bitmask() & settled;
+    let slope_bias = constant + reach;
+    let lit = (d.cmple(s + constant) | d.cmple(s + slope_bias)).bitmask() & settled;
     verdicts.lit |= lit;
     verdicts.facing |= settled;
     (verdicts, facing & !settled)

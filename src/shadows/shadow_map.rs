@@ -376,17 +376,19 @@ impl ShadowMap {
 
 /// Triangle `t` in light space (each corner taken there by `to`), or `None` when a
 /// coordinate is not finite — a broken mesh's corner, or one beyond `f32` once projected: such a triangle
-/// covers nothing and moves no depth, in the placing pass and in an area light's nearest-point pass alike.
-/// A NaN or infinity in any coordinate makes the sum non-finite (as does a sum past `f32`).
+/// covers nothing and moves no depth, in an area light's nearest-point pass and in the placing pass alike
+/// (whose lanes, [`reach_lanes`], repeat this test's operations). A NaN or infinity in any coordinate makes
+/// the sum non-finite (as does a sum past `f32`).
 #[inline(always)]
 fn in_light(to: ToLight, t: &[Vec3; 3]) -> Option<[Vec3A; 3]> {
     let q = t.map(|p| to.apply(p));
     (q[0] + q[1] + q[2]).is_finite().then_some(q)
 }
 
-/// An order-preserving key of a float: larger floats, larger keys (−0 below +0; every key of a number
-/// above 0), so that the point nearest the light is one maximum whatever the order its candidates come
-/// in, as the GPU's (`shaders/shadow_map.wgsl`'s `key`), where `f32::max` may return either zero.
+/// An order-preserving key of a float: larger floats, larger keys (−0 below +0; every number's key is
+/// above 0, so 0 stands for none), so that the point nearest the light is one maximum whatever the order
+/// its candidates come in, as the GPU's (`shaders/shadow_map.wgsl`'s `key`), where `f32::max` may return
+/// either zero.
 #[inline(always)]
 fn key(f: f32) -> u32 {
     let b = f.to_bits();
@@ -473,14 +475,14 @@ fn reach_lanes(tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) -> ([[u32; 2]; 
 #[inline(always)]
 fn lane_span(lo: f32, hi: f32, n: usize) -> (i32, i32) {
     let n = n as f32;
-    // SAFETY: clamped to `[−1, n]`, `n` at most 16384, and `f32::max` turns NaN into −1: finite and
-    // well within `i32`.
-    let trunc = |x: f32| unsafe { (x.max(-1.0).min(n)).to_int_unchecked::<i32>() };
-    let (a, b) = (lo - 0.5, hi - 0.5);
+    // Clamped to `[−1, n]`, `n` at most 16384; `f32::max` turns NaN into −1.
+    let (a, b) = ((lo - 0.5).max(-1.0).min(n), (hi - 0.5).max(-1.0).min(n));
+    // SAFETY: `a` and `b` are finite and within `[−1, 16384]` (clamped above): well within `i32`.
+    let trunc = |x: f32| unsafe { x.to_int_unchecked::<i32>() };
     let (ta, tb) = (trunc(a), trunc(b));
     // Truncation towards zero, then one up (ceil) or down (floor) where it moved the other way.
-    let first = ta + ((ta as f32) < a.max(-1.0).min(n)) as i32;
-    let last = tb - ((tb as f32) > b.max(-1.0).min(n)) as i32;
+    let first = ta + ((ta as f32) < a) as i32;
+    let last = tb - ((tb as f32) > b) as i32;
     (first.max(0), last.min(n as i32 - 1))
 }
 
@@ -644,8 +646,13 @@ mod tests {
                     (.., 0) => [1e12, -1e12][k % 2],
                     _ => 0.0,
                 };
-                // Far off across the light (perpendicular to `towards` below), and below the rest
-                // (away from the light), so the nearest point and a soft map's extent stay put.
+                if k == 77 {
+                    // The point nearest the light, on a triangle off the map (it covers no centre).
+                    let o = Vec3::new(-400.0, 200.0, 300.0);
+                    return [o, o + Vec3::X, o + Vec3::Z];
+                }
+                // Far off across the light (perpendicular to `towards` below) and a little away from
+                // it, so that the nearest point (triangle 77's) and a soft map's extent stay put.
                 let o = Vec3::new(
                     r.random_range(0.0..100.0),
                     r.random_range(0.0..20.0),
@@ -762,6 +769,52 @@ mod tests {
                 bits(map.depths()) == bits(&want),
                 "spread {spread}, parallel {parallel}"
             );
+        }
+    }
+
+    /// [`lane_span`] decides as [`span`] (the rasteriser's): the same first and last centre wherever the
+    /// span is not empty, and empty where it is, for bounds on, between and beyond the centres, at the
+    /// clamps, at ±0, beyond `i32` and infinite. (NaN bounds come only from a triangle that is not
+    /// finite, which [`reach_lanes`] leaves out whatever its span.)
+    #[test]
+    fn lane_span_decides_as_span() {
+        let n = 64;
+        let edges = [
+            f32::NEG_INFINITY,
+            -1e12,
+            -3.0,
+            -1.5,
+            -1.0,
+            -0.5,
+            -0.25,
+            -0.0,
+            0.0,
+            0.25,
+            0.5,
+            0.75,
+            1.0,
+            1.5,
+            31.5,
+            32.0,
+            62.5,
+            63.0,
+            63.5,
+            64.0,
+            64.5,
+            65.0,
+            1e12,
+            f32::INFINITY,
+        ];
+        for &lo in &edges {
+            for &hi in &edges {
+                let (first, last) = span(lo, hi, n);
+                let (a, b) = lane_span(lo, hi, n);
+                if first <= last {
+                    assert_eq!((a, b), (first as i32, last as i32), "[{lo}, {hi}]");
+                } else {
+                    assert!(a > b, "[{lo}, {hi}]: {a}..={b}, not empty");
+                }
+            }
         }
     }
 
