@@ -252,18 +252,15 @@ fn selective_matches_ray_traced_on_crowd_frames() {
 /// from its eight neighbours read one by one; at an edge, the receiver's tangent plane, its depth slope
 /// across the map found by projecting the point one normal away (`ShadowMap::project`), in f64, extended
 /// to the four texels whose centres (`i + ½`) surround the receiver and compared with their depths less
-/// the constant bias (marked where the normal is not finite). Returns the pixels it marks and those it
-/// leaves undecided: a plane within rounding of a texel's depth (left out of the comparison both ways).
-fn full_classification(
-    pass: &HardShadows,
-    s: &ShadowSettings,
-    g: &GBuffer,
-) -> (Vec<u32>, Vec<u32>) {
+/// the constant bias: lit when none lies in front, shadowed when all do, else marked (marked, too, where
+/// the normal is not finite). A plane within rounding of a texel's depth leaves the pixel undecided (left
+/// out of the comparison both ways).
+fn full_classification(pass: &HardShadows, s: &ShadowSettings, g: &GBuffer) -> Classified {
     let map = pass.shadow_map();
     let (res, w) = (map.resolution(), map.texel_size());
     let towards = s.towards_light.normalize();
     let edge = s.edge_texels * w;
-    let (mut marked, mut unsure) = (Vec::new(), Vec::new());
+    let (mut marked, mut unsure, mut edges) = (Vec::new(), Vec::new(), Vec::new());
     for (k, (&p, &n)) in g.positions.iter().zip(&g.normals).enumerate() {
         let cos = n.dot(towards);
         if n == Vec3::ZERO || cos <= 0.0 {
@@ -277,7 +274,7 @@ fn full_classification(
         }
         let (i, j) = (i as usize, j as usize);
         let depth = map.depth(i, j);
-        if !depth.is_finite() {
+        if !depth.is_finite() || !cos.is_finite() {
             marked.push(k as u32);
             continue;
         }
@@ -290,9 +287,11 @@ fn full_classification(
         if delta <= edge {
             continue;
         }
-        // One normal away the point moves `(n·u, n·v) / w` texels across: the plane's depth changes by
+        // `reach` normals away (the map's width, so that rounding is small beside the move) the point
+        // moves `reach · (n·u, n·v) / w` texels across: the plane's depth changes by
         // `w · (n·u, n·v) / cos` a texel, `cos` kept above 1/64 (a grazing plane steep but finite).
-        let across = (map.project(p + n) - q).truncate().as_dvec2();
+        let reach = res as f32 * w;
+        let across = (map.project(p + n * reach) - q).truncate().as_dvec2() / reach as f64;
         let slope = across * (w as f64 * w as f64 / cos.max(1.0 / 64.0) as f64);
         if !slope.is_finite() {
             // A broken normal: no plane, a ray decides.
@@ -311,13 +310,43 @@ fn full_classification(
             front += (margin < 0.0) as u32;
             close |= margin.abs() <= rounding;
         }
-        if close {
-            unsure.push(k as u32);
-        } else if front != 0 && front != 4 {
-            marked.push(k as u32);
+        match (close, front) {
+            (true, _) => unsure.push(k as u32),
+            (false, 0) => edges.push((k, 1.0)),
+            (false, 4) => edges.push((k, 0.0)),
+            _ => marked.push(k as u32),
         }
     }
-    (marked, unsure)
+    Classified {
+        marked,
+        unsure,
+        edges,
+    }
+}
+
+/// What [`full_classification`] found: the pixels it marks, those it leaves undecided (ascending), and the
+/// edge pixels it decides, each with its visibility (1 lit, 0 shadowed).
+struct Classified {
+    marked: Vec<u32>,
+    unsure: Vec<u32>,
+    edges: Vec<(usize, f32)>,
+}
+
+impl Classified {
+    /// Asserts that `pass` marked the pixels marked here (but the undecided ones) and gave the decided
+    /// edge pixels their visibility; returns how many pixels it checked and left out.
+    fn check(&self, pass: &HardShadows, what: &str) -> (usize, usize) {
+        assert!(
+            self.unsure.len() * 100 < self.marked.len(),
+            "{what}: {:?} undecided",
+            self.unsure
+        );
+        assert_eq!(decided(pass.marked(), &self.unsure), self.marked, "{what}");
+        for &(k, v) in &self.edges {
+            assert_eq!(pass.visibility()[k], v, "{what}: edge pixel {k}");
+        }
+        (self.marked.len() + self.edges.len(), self.unsure.len())
+    }
 }
 
 /// The marked pixels but those the oracle left `undecided`, in ascending order.
@@ -414,21 +443,13 @@ fn selective_marks_what_the_full_classification_marks() {
             };
             let mut pass = HardShadows::new();
             crowd::sun_visibility(&world, &g, &s, &mut pass).unwrap();
-            let (want, unsure) = full_classification(&pass, &s, &g);
-            assert!(!want.is_empty(), "frame {frames} marks pixels");
-            assert!(
-                unsure.len() * 100 < want.len(),
-                "frame {frames}: {unsure:?} undecided"
-            );
-            assert_eq!(
-                decided(pass.marked(), &unsure),
-                want,
-                "frame {frames}, parallel {parallel}"
-            );
+            let want = full_classification(&pass, &s, &g);
+            assert!(!want.marked.is_empty(), "frame {frames} marks pixels");
+            let (n, left) = want.check(&pass, &format!("frame {frames}, parallel {parallel}"));
             let vis = crowd::sun_visibility(&world, &g, &s, warm).unwrap();
             assert_eq!(vis, pass.visibility(), "frame {frames}, warm pass");
             assert_eq!(warm.marked(), pass.marked(), "frame {frames}, warm pass");
-            (checked, left_out) = (checked + want.len(), left_out + unsure.len());
+            (checked, left_out) = (checked + n, left_out + left);
         }
     }
     for seed in 0..6 {
@@ -442,21 +463,13 @@ fn selective_marks_what_the_full_classification_marks() {
             };
             let mut pass = HardShadows::new();
             pass.run(&s, &tris, &g, never).unwrap();
-            let (want, unsure) = full_classification(&pass, &s, &g);
-            assert!(want.len() > 200, "seed {seed}: {} marked", want.len());
-            assert!(
-                unsure.len() * 100 < want.len(),
-                "seed {seed}: {unsure:?} undecided"
-            );
-            assert_eq!(
-                decided(pass.marked(), &unsure),
-                want,
-                "seed {seed}, parallel {parallel}"
-            );
-            (checked, left_out) = (checked + want.len(), left_out + unsure.len());
+            let want = full_classification(&pass, &s, &g);
+            assert!(want.marked.len() > 200, "seed {seed}: {:?}", want.marked);
+            let (n, left) = want.check(&pass, &format!("seed {seed}, parallel {parallel}"));
+            (checked, left_out) = (checked + n, left_out + left);
         }
     }
-    println!("{checked} marked pixels agree, {left_out} undecided by the oracle");
+    println!("{checked} marked and decided edge pixels agree, {left_out} undecided by the oracle");
 }
 
 /// The map is fitted to every receiver facing the light, whatever rows the pass samples first: with two
