@@ -129,8 +129,8 @@ pub(super) fn selective(
     let (depths, first) = map.around(q.x, q.y);
     let slope = slope(map, nrm, cos);
     if !slope.is_finite() {
-        // A normal with a non-finite component across the light (with a finite `cos`: an infinite
-        // one along the other axis): no plane to compare with either.
+        // A finite normal far from unit length can still overflow the slope: no plane to compare
+        // with either.
         return Class::Marked;
     }
     let bias = map.texel_size() * bias_texels;
