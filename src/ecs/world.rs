@@ -11,9 +11,9 @@ use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
 use crate::grid::{StructureKind, UniformGrid};
 use crate::shadows::Occluders;
+use bevy_ecs::entity::EntityHashMap;
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
-use std::collections::HashMap;
 use std::sync::Arc;
 
 /// One traceable entity's state.
@@ -344,7 +344,7 @@ pub(crate) fn topology_id(mesh: &Mesh) -> u64 {
 /// plugin's systems; read it through [`SpatialRays`](super::SpatialRays) or directly.
 #[derive(Resource, Default)]
 pub struct TraceWorld {
-    pub(crate) instances: HashMap<Entity, Instance>,
+    pub(crate) instances: EntityHashMap<Instance>,
     pub(super) tlas: Bvh,
     /// TLAS primitive id → entity.
     pub(super) tlas_entities: Vec<Entity>,
