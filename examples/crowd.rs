@@ -161,6 +161,10 @@ struct Crowd {
     /// Whether camera rays go as 8×8 packets or ray by ray: the planner's choice, learned from the
     /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
     camera_packets: Mutex<Choice<bool>>,
+    /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked pixels of
+    /// one 8×8 block together) or ray by ray: the planner's choice, learned from the seconds per ray
+    /// each way measured on the passes so far (see [`sun_visibility_with`]).
+    marked_packets: Mutex<Choice<bool>>,
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
     /// the planner's choice, learned from the seconds per occluder triangle each way (see
     /// [`sun_visibility`]).
@@ -427,6 +431,7 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
         camera_packets: Mutex::new(Choice::packets()),
+        marked_packets: Mutex::new(Choice::sparse_packets()),
         gpu_map: gpu_map(&world),
         map_on_gpu: Mutex::new(Choice::map_on_gpu()),
     });
@@ -525,6 +530,11 @@ fn run_frames(
             .save(&path)?;
             let crowd = world.resource_mut::<Crowd>().into_inner();
             let packets = lock(&crowd.camera_packets).current();
+            let marked = if lock(&crowd.marked_packets).current() {
+                "as packets"
+            } else {
+                "ray by ray"
+            };
             // The shadow map's device, where there is a choice.
             let map = match crowd.gpu_map {
                 Some(_) if lock(&crowd.map_on_gpu).current() => ", shadow map on the GPU",
@@ -532,7 +542,7 @@ fn run_frames(
                 None => "",
             };
             println!(
-                "    {}: camera rays {}{map} (the planner's picks)",
+                "    {}: camera rays {}, marked pixels' shadow rays {marked}{map} (the planner's picks)",
                 path.display(),
                 if packets {
                     "as 8x8 packets"
@@ -743,6 +753,13 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
 }
 
 /// [`sun_visibility`] with the map rendered by `renderer`.
+///
+/// A ray per pixel (the reference) traces each 8×8 block's rays together as a packet: coherent rays, a
+/// node visit serving the whole packet. The pixels a selective pass marks are few and scattered, a
+/// block's often a handful along a shadow's edge: their rays go as packets or ray by ray
+/// ([`sun_visibility_rays`]) as the planner's [`Choice::sparse_packets`] picks from the seconds per ray
+/// each way measured on the passes so far (kept from pass to pass; the same answers either way): one by
+/// one first, since packets of so few rays measured 4–7% slower per pass (docs/BENCHMARKS.md, stop 46).
 pub fn sun_visibility_with<'a>(
     world: &World,
     g: &GBuffer,
@@ -750,17 +767,49 @@ pub fn sun_visibility_with<'a>(
     pass: &'a mut HardShadows,
     renderer: &mut impl MapRenderer,
 ) -> kinetrace::Result<&'a [f32]> {
+    if settings.mode == ShadowMode::RayTraced {
+        return sun_visibility_rays(world, g, settings, pass, renderer, true);
+    }
+    let mut planner = lock(&world.resource::<Crowd>().marked_packets);
+    // The last pass's rays: what this one likely sends.
+    let as_packets = planner.decide(pass.stats().rays as f64);
+    sun_visibility_rays(world, g, settings, pass, renderer, as_packets)?;
+    let s = pass.stats();
+    planner.served(as_packets, s.rays as f64, s.trace_time.as_secs_f64());
+    Ok(pass.visibility())
+}
+
+/// [`sun_visibility_with`] with the shadow rays as packets (`as_packets`: each batch the pass gives,
+/// up to 64 rays of one 8×8 block, traced together; a lone ray alone) or ray by ray, whatever the
+/// planner would pick.
+pub fn sun_visibility_rays<'a>(
+    world: &World,
+    g: &GBuffer,
+    settings: &ShadowSettings,
+    pass: &'a mut HardShadows,
+    renderer: &mut impl MapRenderer,
+    as_packets: bool,
+) -> kinetrace::Result<&'a [f32]> {
     let tw = world.resource::<TraceWorld>();
     let all = QueryFilter::default();
-    // Neighbouring pixels' rays towards the sun as packets: a node visit serves the whole packet; a lone
-    // ray goes alone.
-    let rays = Packets(
-        |segments: &[(Vec3, Vec3)], out: &mut [bool]| match segments {
-            &[(from, to)] => out[0] = tw.occluded(from, to, &all),
-            _ => tw.occluded_packet(segments, &all, out),
-        },
-    );
-    pass.run_with(settings, &tw.occluders(&all), g, rays, renderer)
+    let occluders = tw.occluders(&all);
+    let single = |from, to| tw.occluded(from, to, &all);
+    if as_packets {
+        let packets = Packets(
+            |segments: &[(Vec3, Vec3)], out: &mut [bool]| match segments {
+                &[(from, to)] => out[0] = single(from, to),
+                _ => tw.occluded_packet(segments, &all, out),
+            },
+        );
+        pass.run_with(settings, &occluders, g, packets, renderer)
+    } else {
+        pass.run_with(settings, &occluders, g, single, renderer)
+    }
+}
+
+/// Whether the planner sends the marked pixels' shadow rays as packets now (see [`sun_visibility_with`]).
+pub fn marked_rays_as_packets(world: &World) -> bool {
+    lock(&world.resource::<Crowd>().marked_packets).current()
 }
 
 /// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see

@@ -764,3 +764,29 @@ fn a_grid_within_the_margin_of_the_bvh_does_not_keep_the_rules_pick() {
     assert!(on_grid >= 280, "a cheaper grid: {on_grid} frames on it");
     assert_eq!(choice.decide(4096.0), Grid);
 }
+
+/// The marked pixels' shadow rays (`Choice::sparse_packets`): one by one first; packets in use after 80
+/// passes only where they cost clearly less per ray (0.7 of single rays' seconds), single rays kept where
+/// packets cost 5% less (within the planner's margin) or 5% more (as measured on the crowd), packets
+/// then tried for at most three passes.
+#[test]
+fn sparse_packets_start_one_by_one_and_switch_only_for_a_clear_gain() {
+    assert!(!Choice::sparse_packets().decide(1e4), "single rays first");
+    for (packets, settles) in [(0.7, true), (0.95, false), (1.05, false)] {
+        let mut choice = Choice::sparse_packets();
+        let mut on_packets = 0;
+        for _ in 0..80 {
+            let option = choice.decide(1e4);
+            let per_ray = if option { packets } else { 1.0 } * 1e-6;
+            choice.served(option, 1e4, per_ray * 1e4);
+            on_packets += option as u32;
+        }
+        assert_eq!(choice.decide(1e4), settles, "packets at {packets}×");
+        if !settles {
+            assert!(
+                on_packets <= 3,
+                "packets at {packets}×: {on_packets} passes"
+            );
+        }
+    }
+}

@@ -12,7 +12,9 @@ use common::RayOracle;
 use glam::Vec3;
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::ecs::TraceWorld;
-use kinetrace::shadows::{GBuffer, HardShadows, LightDisc, Packets, ShadowMode, ShadowSettings};
+use kinetrace::shadows::{
+    CpuMap, GBuffer, HardShadows, LightDisc, Packets, ShadowMode, ShadowSettings,
+};
 use kinetrace::{Error, Mesh, MeshBvh, Ray};
 
 fn settings(mode: ShadowMode, towards_light: Vec3) -> ShadowSettings {
@@ -243,6 +245,46 @@ fn selective_matches_ray_traced_on_crowd_frames() {
         );
         assert!(stats.rays > 0 && sel_diff <= map_diff);
         assert!(shadowed > 0, "the frame has shadows to get right");
+    }
+}
+
+/// The crowd demo sends the marked pixels' shadow rays as packets or ray by ray, as its planner picks
+/// (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and soft, the
+/// selective image is the same pixel for pixel either way, and the planner's passes, whichever way each
+/// went, give it too.
+#[test]
+fn marked_rays_as_packets_or_one_by_one_give_one_image() {
+    for (frames, world, g) in crowd_frames() {
+        for light_angle in [0.0, 0.02] {
+            let s = ShadowSettings {
+                light_angle,
+                samples: 16,
+                ..settings(ShadowMode::Selective, crowd::sun())
+            };
+            let image = |as_packets| {
+                let mut pass = HardShadows::new();
+                let vis =
+                    crowd::sun_visibility_rays(&world, &g, &s, &mut pass, &mut CpuMap, as_packets)
+                        .unwrap()
+                        .to_vec();
+                (vis, pass.stats().rays)
+            };
+            let ((packets, rays), (single, _)) = (image(true), image(false));
+            assert!(rays > 0, "frame {frames}: rays to compare");
+            let differ = packets.iter().zip(&single).filter(|(a, b)| a != b).count();
+            assert_eq!(
+                differ, 0,
+                "frame {frames}, light {light_angle}: {rays} rays"
+            );
+            let mut pass = HardShadows::new();
+            for _ in 0..4 {
+                let planned = crowd::sun_visibility(&world, &g, &s, &mut pass).unwrap();
+                assert!(
+                    planned == single.as_slice(),
+                    "frame {frames}, light {light_angle}"
+                );
+            }
+        }
     }
 }
 

@@ -3,7 +3,8 @@
 //! shadow ray per pixel, at 1024×1024 (a smaller crowd with `--quick`) with a shadow map of the image's
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
-//! less. With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
+//! less; the same for the selective pass with its marked pixels' rays one by one and as packets (the
+//! crowd's planner picks between them), and the planner's pick after all the passes. With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
 //! time and map phase, the pixels unlike the CPU-map image (none), and per pass the bytes uploaded per
 //! triangle and read back per texel, the submissions and the blocking waits.
 //!
@@ -137,6 +138,30 @@ pub fn run(rec: &mut Records) {
         }
     }
     let [[sel_wall, sel_cpu], [traced_wall, traced_cpu]] = best;
+    // The marked pixels' rays as packets and one by one (the crowd's planner picks between them),
+    // alternated pass by pass: each way's least CPU time.
+    let mut marked = [f64::INFINITY; 2];
+    let settings = ShadowSettings {
+        towards_light: crowd::sun(),
+        map_resolution: side_map,
+        ..Default::default()
+    };
+    for _ in 0..ALTERNATIONS {
+        for (as_packets, m) in [false, true].into_iter().zip(&mut marked) {
+            let cpu = cpu_seconds(CpuClock::Process);
+            let vis = crowd::sun_visibility_rays(
+                &world,
+                &g,
+                &settings,
+                &mut pass,
+                &mut CpuMap,
+                as_packets,
+            );
+            std::hint::black_box(vis.expect("valid settings"));
+            *m = m.min(cpu_seconds(CpuClock::Process) - cpu);
+        }
+    }
+    let packets_now = crowd::marked_rays_as_packets(&world) as u8 as f64;
     for (subject, metric, value, unit) in [
         ("selective", "CPU per image", sel_cpu * 1e3, "ms"),
         ("ray traced", "CPU per image", traced_cpu * 1e3, "ms"),
@@ -152,6 +177,19 @@ pub fn run(rec: &mut Records) {
             traced_wall / sel_wall,
             "x",
         ),
+        (
+            "selective, rays one by one",
+            "CPU per image",
+            marked[0] * 1e3,
+            "ms",
+        ),
+        (
+            "selective, rays as packets",
+            "CPU per image",
+            marked[1] * 1e3,
+            "ms",
+        ),
+        ("selective", "planner's rays as packets", packets_now, "0/1"),
     ] {
         rec.add(SUITE, &scene, subject, metric, value, unit);
     }

@@ -2,24 +2,27 @@
 //! camera (`side`² pixels: 128², 32² in `--quick`), selective hard shadows of a directional light along
 //! the frame's light direction, with the shadow map rendered on the CPU, on the GPU (`GpuShadowMap`,
 //! where there is one) and as the planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each
-//! pass's map seconds per triangle taught as the crowd demo does. All on one CPU thread.
+//! pass's map seconds per triangle taught as the crowd demo does; and with the map on the CPU, the
+//! marked pixels' shadow rays as packets (each batch the pass gives, up to 64 rays of one 8×8 block,
+//! traced together) and as the planner's [`Choice::sparse_packets`] picks between packets and single rays over
+//! [`ROUNDS`] passes, each pass's seconds per ray taught as the crowd demo does. All on one CPU thread.
 //!
 //! Per row: milliseconds per pass and of its map (the GPU's with its upload and read-back), the pixels
 //! marked for rays, the map's texels covered, and mismatches: texels of the map and pixels of the image unlike the CPU-map pass's
-//! (the renderers give the same map, so none).
+//! (the renderers give the same map, and packets the same answers as single rays, so none).
 
 use super::camera::Orbit;
 use super::harness::{Gpu, frame_light};
-#[cfg(feature = "gpu")]
 use super::harness::{median, planned_label};
 use super::scenes::Scene;
 use super::secondary_rows::ROUNDS;
 use glam::Vec3;
-#[cfg(feature = "gpu")]
 use kinetrace::adaptive::Choice;
-use kinetrace::bvh::{BuildOptions, Builder};
+use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::raysort::RayScene;
-use kinetrace::shadows::{CpuMap, GBuffer, HardShadows, MapRenderer, ShadowSettings};
+use kinetrace::shadows::{
+    CpuMap, GBuffer, HardShadows, MapRenderer, PACKET, Packets, ShadowRays, ShadowSettings,
+};
 use kinetrace::{MeshBvh, Ray};
 use std::fmt::Write as _;
 use std::time::Instant;
@@ -36,7 +39,8 @@ pub struct ShadowRow {
     pub mismatches: u32,
 }
 
-/// The scene's rows: the CPU map, the GPU map (with `gpu`), then the planner's, its picks in the name.
+/// The scene's rows: the CPU map (its marked pixels' rays one by one, as packets, then as the planner
+/// picks), the GPU map (with `gpu`), then the planner's map, its picks in the name.
 pub fn run(
     scene: &Scene,
     settings: &super::harness::Settings,
@@ -75,7 +79,14 @@ pub fn run(
     };
     let bvh: &MeshBvh = rs.bvh();
     let rays = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
-    let inputs: Inputs = (&s, &tris, &g, &rays);
+    let packets = |segments: &[(Vec3, Vec3)], out: &mut [bool]| {
+        let mut r = [Ray::segment(Vec3::ZERO, Vec3::X); PACKET];
+        for (r, &(from, to)) in r.iter_mut().zip(segments) {
+            *r = Ray::segment(from, to);
+        }
+        bvh.any_hits_packet(&r[..segments.len()], out, &mut TraversalStats::default());
+    };
+    let inputs: Inputs = (&s, &tris, &g);
     // A warm pass (its buffers grown), then the timed one.
     let pass = |renderer: &mut dyn FnMut(&mut HardShadows)| {
         let mut p = HardShadows::new();
@@ -84,7 +95,7 @@ pub fn run(
         renderer(&mut p);
         (start.elapsed().as_secs_f64(), p)
     };
-    let (cpu_s, cpu) = pass(&mut |p| render(p, inputs, &mut CpuMap));
+    let (cpu_s, cpu) = pass(&mut |p| render(p, inputs, rays, &mut CpuMap));
     let row = |renderer: String, seconds: f64, p: &HardShadows| ShadowRow {
         scene: scene.name,
         renderer,
@@ -94,13 +105,46 @@ pub fn run(
         covered: covered(p),
         mismatches: unlike(&cpu, p),
     };
+    let (packets_s, p) = pass(&mut |p| render(p, inputs, Packets(&packets), &mut CpuMap));
+    let mut rows = vec![
+        row("cpu".into(), cpu_s, &cpu),
+        row("cpu, rays as packets".into(), packets_s, &p),
+    ];
+    let mut planner = Choice::sparse_packets();
+    let (mut times, mut bad, mut picks) = (Vec::new(), 0, [0usize; 2]);
+    let mut p = HardShadows::new();
+    for _ in 0..ROUNDS {
+        // The last pass's rays: what this one likely sends.
+        let as_packets = planner.decide(p.stats().rays as f64);
+        let start = Instant::now();
+        if as_packets {
+            render(&mut p, inputs, Packets(&packets), &mut CpuMap);
+        } else {
+            render(&mut p, inputs, rays, &mut CpuMap);
+        }
+        times.push(start.elapsed().as_secs_f64());
+        let stats = p.stats();
+        planner.served(
+            as_packets,
+            stats.rays as f64,
+            stats.trace_time.as_secs_f64(),
+        );
+        picks[as_packets as usize] += 1;
+        bad += unlike(&cpu, &p);
+    }
+    let name = |packets: bool| if packets { "packets" } else { "single rays" };
+    let label = planned_label(
+        name(planner.current()),
+        ["single rays", "packets"].into_iter().zip(picks),
+    );
+    let mut r = row(format!("cpu, rays {label}"), median(&mut times), &p);
+    r.mismatches = bad;
+    rows.push(r);
     // The GPU rows follow where the feature is on.
-    #[cfg_attr(not(feature = "gpu"), allow(unused_mut))]
-    let mut rows = vec![row("cpu".into(), cpu_s, &cpu)];
     #[cfg(feature = "gpu")]
     if let Some(ctx) = gpu {
         let mut on_gpu = kinetrace::gpu::GpuShadowMap::new(ctx);
-        let (gpu_s, p) = pass(&mut |p| render(p, inputs, &mut on_gpu));
+        let (gpu_s, p) = pass(&mut |p| render(p, inputs, rays, &mut on_gpu));
         rows.push(row("gpu".into(), gpu_s, &p));
         let mut planner = Choice::map_on_gpu();
         let (mut times, mut maps, mut bad) = (Vec::new(), Vec::new(), 0);
@@ -110,9 +154,9 @@ pub fn run(
             let on = planner.decide(tris.len() as f64);
             let start = Instant::now();
             if on {
-                render(&mut p, inputs, &mut on_gpu);
+                render(&mut p, inputs, rays, &mut on_gpu);
             } else {
-                render(&mut p, inputs, &mut CpuMap);
+                render(&mut p, inputs, rays, &mut CpuMap);
             }
             times.push(start.elapsed().as_secs_f64());
             let map = p.stats().map_time.as_secs_f64();
@@ -136,16 +180,16 @@ pub fn run(
     rows
 }
 
-/// What a pass reads: its settings, the occluders, the G-buffer and the shadow-ray query.
-type Inputs<'a> = (
-    &'a ShadowSettings,
-    &'a [[Vec3; 3]],
-    &'a GBuffer,
-    &'a (dyn Fn(Vec3, Vec3) -> bool + Sync),
-);
+/// What a pass reads besides its shadow-ray query: its settings, the occluders and the G-buffer.
+type Inputs<'a> = (&'a ShadowSettings, &'a [[Vec3; 3]], &'a GBuffer);
 
-/// A selective pass over `inputs` into `pass`, its map rendered by `renderer`.
-fn render(pass: &mut HardShadows, (s, tris, g, rays): Inputs, renderer: &mut impl MapRenderer) {
+/// A selective pass over `inputs` into `pass`, its rays traced by `rays`, its map rendered by `renderer`.
+fn render(
+    pass: &mut HardShadows,
+    (s, tris, g): Inputs,
+    rays: impl ShadowRays,
+    renderer: &mut impl MapRenderer,
+) {
     pass.run_with(s, tris, g, rays, renderer)
         .expect("valid settings");
 }
@@ -182,10 +226,12 @@ pub fn table(rows: &[ShadowRow]) -> String {
         "\n## Shadow maps (issue 16)\n\nPer scene, its middle frame through the secondary section's camera; \
          selective hard shadows of a directional light along the frame's light, the map (as many texels a \
          side as the image) rendered on the CPU, on the GPU, or as the planner picks over {ROUNDS} \
-         passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets). One \
-         CPU thread; the GPU's map time includes its upload and read-back. Mismatches: map texels and \
-         image pixels unlike the CPU-map pass's.\n\n\
-         | scene | map | ms/pass | map ms | marked % | texels covered % | mismatches |\n\
+         passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets); with \
+         the CPU's map, the marked pixels' shadow rays one by one, as packets of a block's rays, or as \
+         the planner picks over {ROUNDS} passes. One CPU thread; the GPU's map time includes its upload \
+         and read-back. Mismatches: map texels and image pixels unlike the CPU-map pass's (rays one by \
+         one).\n\n\
+         | scene | map, rays | ms/pass | map ms | marked % | texels covered % | mismatches |\n\
          |---|---|---|---|---|---|---|\n",
     );
     for r in rows {
