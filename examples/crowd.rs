@@ -163,8 +163,9 @@ struct Crowd {
     camera_packets: Mutex<Choice<bool>>,
     /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked pixels of
     /// one 8×8 block together) or ray by ray: the planner's choice, learned from the seconds per ray
-    /// each way measured on the passes so far (see [`sun_visibility_with`]).
-    marked_packets: Mutex<Choice<bool>>,
+    /// each way measured on the passes so far, one for hard shadows and one for soft (see
+    /// [`sun_visibility_with`]).
+    marked_packets: Mutex<[MarkedRays; 2]>,
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
     /// the planner's choice, learned from the seconds per occluder triangle each way (see
     /// [`sun_visibility`]).
@@ -431,7 +432,10 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
         camera_packets: Mutex::new(Choice::packets()),
-        marked_packets: Mutex::new(Choice::sparse_packets()),
+        marked_packets: Mutex::new([
+            MarkedRays::new(Choice::sparse_packets()),
+            MarkedRays::new(Choice::packets()),
+        ]),
         gpu_map: gpu_map(&world),
         map_on_gpu: Mutex::new(Choice::map_on_gpu()),
     });
@@ -530,7 +534,8 @@ fn run_frames(
             .save(&path)?;
             let crowd = world.resource_mut::<Crowd>().into_inner();
             let packets = lock(&crowd.camera_packets).current();
-            let marked = if lock(&crowd.marked_packets).current() {
+            let soft = (crowd.sun_angle > 0.0) as usize;
+            let marked = if lock(&crowd.marked_packets)[soft].choice.current() {
                 "as packets"
             } else {
                 "ray by ray"
@@ -752,14 +757,30 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
+/// The planner's choice between packets and single rays for one kind of selective pass's marked pixels'
+/// shadow rays, and how many rays its last pass sent (what the next likely sends).
+struct MarkedRays {
+    choice: Choice<bool>,
+    rays: f64,
+}
+
+impl MarkedRays {
+    fn new(choice: Choice<bool>) -> Self {
+        Self { choice, rays: 0.0 }
+    }
+}
+
 /// [`sun_visibility`] with the map rendered by `renderer`.
 ///
 /// A ray per pixel (the reference) traces each 8×8 block's rays together as a packet: coherent rays, a
 /// node visit serving the whole packet. The pixels a selective pass marks are few and scattered, a
 /// block's often a handful along a shadow's edge: their rays go as packets or ray by ray
-/// ([`sun_visibility_rays`]) as the planner's [`Choice::sparse_packets`] picks from the seconds per ray
-/// each way measured on the passes so far (kept from pass to pass; the same answers either way): one by
-/// one first, since packets of so few rays measured 4–7% slower per pass (docs/BENCHMARKS.md, stop 46).
+/// ([`sun_visibility_rays`]) as the planner picks from the seconds per ray each way measured on the
+/// passes so far (kept from pass to pass; the same answers either way). For hard shadows,
+/// [`Choice::sparse_packets`]: one by one first, since packets of a block's single rays measured 4–7%
+/// slower per pass (docs/BENCHMARKS.md, stop 46); soft shadows send each marked pixel's rays across
+/// the light's disc together, a batch of the same kind as the reference's, and start with packets
+/// ([`Choice::packets`]).
 pub fn sun_visibility_with<'a>(
     world: &World,
     g: &GBuffer,
@@ -767,15 +788,16 @@ pub fn sun_visibility_with<'a>(
     pass: &'a mut HardShadows,
     renderer: &mut impl MapRenderer,
 ) -> kinetrace::Result<&'a [f32]> {
-    if settings.mode == ShadowMode::RayTraced {
+    if settings.mode != ShadowMode::Selective {
         return sun_visibility_rays(world, g, settings, pass, renderer, true);
     }
-    let mut planner = lock(&world.resource::<Crowd>().marked_packets);
-    // The last pass's rays: what this one likely sends.
-    let as_packets = planner.decide(pass.stats().rays as f64);
+    let mut planners = lock(&world.resource::<Crowd>().marked_packets);
+    let planner = &mut planners[(settings.light_angle > 0.0) as usize];
+    let as_packets = planner.choice.decide(planner.rays);
     sun_visibility_rays(world, g, settings, pass, renderer, as_packets)?;
     let s = pass.stats();
-    planner.served(as_packets, s.rays as f64, s.trace_time.as_secs_f64());
+    planner.rays = s.rays as f64;
+    (planner.choice).served(as_packets, planner.rays, s.trace_time.as_secs_f64());
     Ok(pass.visibility())
 }
 
@@ -807,9 +829,12 @@ pub fn sun_visibility_rays<'a>(
     }
 }
 
-/// Whether the planner sends the marked pixels' shadow rays as packets now (see [`sun_visibility_with`]).
-pub fn marked_rays_as_packets(world: &World) -> bool {
-    lock(&world.resource::<Crowd>().marked_packets).current()
+/// Whether the planner sends the marked pixels' shadow rays as packets now, for hard shadows or soft
+/// (see [`sun_visibility_with`]).
+pub fn marked_rays_as_packets(world: &World, soft: bool) -> bool {
+    lock(&world.resource::<Crowd>().marked_packets)[soft as usize]
+        .choice
+        .current()
 }
 
 /// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see

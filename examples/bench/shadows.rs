@@ -161,7 +161,8 @@ pub fn run(rec: &mut Records) {
             *m = m.min(cpu_seconds(CpuClock::Process) - cpu);
         }
     }
-    let packets_now = crowd::marked_rays_as_packets(&world) as u8 as f64;
+    let packets_now =
+        [false, true].map(|soft| crowd::marked_rays_as_packets(&world, soft) as u8 as f64);
     for (subject, metric, value, unit) in [
         ("selective", "CPU per image", sel_cpu * 1e3, "ms"),
         ("ray traced", "CPU per image", traced_cpu * 1e3, "ms"),
@@ -189,7 +190,18 @@ pub fn run(rec: &mut Records) {
             marked[1] * 1e3,
             "ms",
         ),
-        ("selective", "planner's rays as packets", packets_now, "0/1"),
+        (
+            "selective",
+            "planner's rays as packets",
+            packets_now[0],
+            "0/1",
+        ),
+        (
+            "soft selective",
+            "planner's rays as packets",
+            packets_now[1],
+            "0/1",
+        ),
     ] {
         rec.add(SUITE, &scene, subject, metric, value, unit);
     }
