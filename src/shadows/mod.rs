@@ -44,11 +44,12 @@
 //! map and the G-buffer's 24 bytes a pixel; built for AVX2 too, see [`dispatch`](crate::dispatch)) cost
 //! under a quarter of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles,
 //! and the marked rays graze silhouettes at several times an average shadow ray's cost, so there
-//! selective hard shadows take about 3.5× less CPU than a ray per pixel traced as packets of 8 × 8
-//! pixels (same query and threads on both sides; see the `shadows` bench suite in
-//! docs/BENCHMARKS.md). On a crowd of 700k triangles, smaller than a texel, the map and classification
-//! alone cost a sixth of a ray per pixel but 2.4% of the pixels are marked and their rays graze dense
-//! geometry: about 2.5× — 3× there takes a map rendered where rasterisation is nearly free (the
+//! selective hard shadows take 3.2–3.5× less CPU than a ray per pixel traced as packets of 8 × 8
+//! pixels (same query and threads on both sides, 2-core Intel and AMD VMs; see the `shadows` bench
+//! suite in docs/BENCHMARKS.md). On a crowd of 700k triangles, smaller than a texel, the map and
+//! classification alone cost a sixth of a ray per pixel but 2.4% of the pixels are marked and their
+//! rays graze dense geometry (about 1.1 µs each on one core, six times an average ray of the
+//! reference): 2.3–2.5× — 3× there takes a map rendered where rasterisation is nearly free (the
 //! thesis's GPU) rather than on the CPU: [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the
 //! same map, texel for texel, on the GPU (what that saves on a hardware GPU is not measured yet: the
 //! upload of 36 bytes a triangle and the read-back of 4 bytes a texel stay on the CPU's side; on a
