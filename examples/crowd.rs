@@ -162,8 +162,8 @@ struct Crowd {
     /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
     camera_packets: Mutex<Choice<bool>>,
     /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked pixels of
-    /// one 8×8 block together) or ray by ray: the planner's choice, learned from the seconds per ray
-    /// each way measured on the passes so far, one for hard shadows and one for soft (see
+    /// one 8×8 block together) or ray by ray: the planner's choice, learned from the seconds per marked
+    /// pixel each way measured on the passes so far, one for hard shadows and one for soft (see
     /// [`sun_visibility_with`]).
     marked_packets: Mutex<[MarkedRays; 2]>,
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
@@ -775,12 +775,12 @@ impl MarkedRays {
 /// A ray per pixel (the reference) traces each 8×8 block's rays together as a packet: coherent rays, a
 /// node visit serving the whole packet. The pixels a selective pass marks are few and scattered, a
 /// block's often a handful along a shadow's edge: their rays go as packets or ray by ray
-/// ([`sun_visibility_rays`]) as the planner picks from the seconds per ray each way measured on the
-/// passes so far (kept from pass to pass; the same answers either way). For hard shadows,
-/// [`Choice::sparse_packets`]: one by one first, since packets of a block's single rays measured 4–7%
+/// ([`sun_visibility_rays`]) as the planner picks from the seconds per marked pixel each way measured
+/// on the passes so far (kept from pass to pass; the same answers either way). For hard shadows,
+/// [`Choice::sparse_packets`]: one by one first, since packets of a block's few rays measured 4–7%
 /// slower per pass (docs/BENCHMARKS.md, stop 46); soft shadows send each marked pixel's rays across
-/// the light's disc together, a batch of the same kind as the reference's, and start with packets
-/// ([`Choice::packets`]).
+/// the light's disc together (16 from one point, close in direction), dense batches, and start with
+/// packets ([`Choice::packets`]), which the crowd's soft passes keep.
 pub fn sun_visibility_with<'a>(
     world: &World,
     g: &GBuffer,

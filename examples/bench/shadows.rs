@@ -4,7 +4,8 @@
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
 //! less; the same for the selective pass with its marked pixels' rays one by one and as packets (the
-//! crowd's planner picks between them), and the planner's pick after all the passes. With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
+//! crowd's planner picks between them), and the planner's picks after all the passes, hard and soft.
+//! With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
 //! time and map phase, the pixels unlike the CPU-map image (none), and per pass the bytes uploaded per
 //! triangle and read back per texel, the submissions and the blocking waits.
 //!

@@ -4,8 +4,9 @@
 //! where there is one) and as the planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each
 //! pass's map seconds per triangle taught as the crowd demo does; and with the map on the CPU, the
 //! marked pixels' shadow rays as packets (each batch the pass gives, up to 64 rays of one 8×8 block,
-//! traced together) and as the planner's [`Choice::sparse_packets`] picks between packets and single rays over
-//! [`ROUNDS`] passes, each pass's seconds per ray taught as the crowd demo does. All on one CPU thread.
+//! traced together) and as the planner's [`Choice::sparse_packets`] picks between packets and single
+//! rays over [`ROUNDS`] passes, each pass's seconds per marked pixel taught as the crowd demo does. All
+//! on one CPU thread.
 //!
 //! Per row: milliseconds per pass and of its map (the GPU's with its upload and read-back), the pixels
 //! marked for rays, the map's texels covered, and mismatches: texels of the map and pixels of the image unlike the CPU-map pass's
