@@ -161,10 +161,10 @@ struct Crowd {
     /// Whether camera rays go as 8×8 packets or ray by ray: the planner's choice, learned from the
     /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
     camera_packets: Mutex<Choice<bool>>,
-    /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked pixels of
-    /// one 8×8 block together) or ray by ray: the planner's choice, learned from the seconds per marked
-    /// pixel each way measured on the passes so far, one for hard shadows and one for soft (see
-    /// [`sun_visibility_with`]).
+    /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked
+    /// pixels of one 8×8 block together) or ray by ray: the planner's choice, learned from the
+    /// seconds per marked pixel each way measured on the passes so far, one for hard shadows and
+    /// one for soft (see [`sun_visibility_with`]).
     marked_packets: Mutex<[MarkedRays; 2]>,
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
     /// the planner's choice, learned from the seconds per occluder triangle each way (see
@@ -534,11 +534,14 @@ fn run_frames(
             .save(&path)?;
             let crowd = world.resource_mut::<Crowd>().into_inner();
             let packets = lock(&crowd.camera_packets).current();
+            // Only a selective pass consults the marked pixels' planner.
             let soft = (crowd.sun_angle > 0.0) as usize;
-            let marked = if lock(&crowd.marked_packets)[soft].choice.current() {
-                "as packets"
-            } else {
-                "ray by ray"
+            let marked = match crowd.shadows {
+                ShadowMode::Selective if lock(&crowd.marked_packets)[soft].choice.current() => {
+                    ", marked pixels' shadow rays as packets"
+                }
+                ShadowMode::Selective => ", marked pixels' shadow rays ray by ray",
+                _ => "",
             };
             // The shadow map's device, where there is a choice.
             let map = match crowd.gpu_map {
@@ -547,7 +550,7 @@ fn run_frames(
                 None => "",
             };
             println!(
-                "    {}: camera rays {}, marked pixels' shadow rays {marked}{map} (the planner's picks)",
+                "    {}: camera rays {}{marked}{map} (the planner's picks)",
                 path.display(),
                 if packets {
                     "as 8x8 packets"
@@ -757,16 +760,19 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// The planner's choice between packets and single rays for one kind of selective pass's marked pixels'
-/// shadow rays, and how many rays its last pass sent (what the next likely sends).
+/// The planner's choice between packets and single rays for one kind of selective pass's marked
+/// pixels' shadow rays, and how many pixels its last pass marked (what the next likely marks).
 struct MarkedRays {
     choice: Choice<bool>,
-    rays: f64,
+    pixels: f64,
 }
 
 impl MarkedRays {
     fn new(choice: Choice<bool>) -> Self {
-        Self { choice, rays: 0.0 }
+        Self {
+            choice,
+            pixels: 0.0,
+        }
     }
 }
 
@@ -777,7 +783,7 @@ impl MarkedRays {
 /// block's often a handful along a shadow's edge: their rays go as packets or ray by ray
 /// ([`sun_visibility_rays`]) as the planner picks from the seconds per marked pixel each way measured
 /// on the passes so far (kept from pass to pass; the same answers either way). For hard shadows,
-/// [`Choice::sparse_packets`]: one by one first, since packets of a block's few rays measured 4–7%
+/// [`Choice::sparse_packets`]: one by one first, since packets of a block's few rays measured 4–8%
 /// slower per pass (docs/BENCHMARKS.md, stop 46); soft shadows send each marked pixel's rays across
 /// the light's disc together (16 from one point, close in direction), dense batches, and start with
 /// packets ([`Choice::packets`]), which the crowd's soft passes keep.
@@ -793,11 +799,11 @@ pub fn sun_visibility_with<'a>(
     }
     let mut planners = lock(&world.resource::<Crowd>().marked_packets);
     let planner = &mut planners[(settings.light_angle > 0.0) as usize];
-    let as_packets = planner.choice.decide(planner.rays);
+    let as_packets = planner.choice.decide(planner.pixels);
     sun_visibility_rays(world, g, settings, pass, renderer, as_packets)?;
     let s = pass.stats();
-    planner.rays = s.rays as f64;
-    (planner.choice).served(as_packets, planner.rays, s.trace_time.as_secs_f64());
+    planner.pixels = s.rays as f64;
+    (planner.choice).served(as_packets, planner.pixels, s.trace_time.as_secs_f64());
     Ok(pass.visibility())
 }
 

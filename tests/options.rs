@@ -765,10 +765,10 @@ fn a_grid_within_the_margin_of_the_bvh_does_not_keep_the_rules_pick() {
     assert_eq!(choice.decide(4096.0), Grid);
 }
 
-/// The marked pixels' shadow rays (`Choice::sparse_packets`): one by one first; packets in use after 80
-/// passes only where they cost clearly less per ray (0.7 of single rays' seconds), single rays kept where
-/// packets cost 5% less (within the planner's margin) or 5% more (as measured on the crowd), packets
-/// then tried for at most three passes.
+/// The marked pixels' shadow rays (`Choice::sparse_packets`): one by one first; packets in use after
+/// 80 passes only where they cost clearly less per ray (0.7 of single rays' seconds), single rays
+/// kept where packets cost 5% less (within the planner's margin) or 5% more (as measured on the
+/// crowd), packets then tried for at most three passes.
 #[test]
 fn sparse_packets_start_one_by_one_and_switch_only_for_a_clear_gain() {
     assert!(!Choice::sparse_packets().decide(1e4), "single rays first");

@@ -248,10 +248,10 @@ fn selective_matches_ray_traced_on_crowd_frames() {
     }
 }
 
-/// The crowd demo sends the marked pixels' shadow rays as packets or ray by ray, as its planner picks
-/// (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and soft, the
-/// selective image is the same pixel for pixel either way, and the planner's passes, whichever way each
-/// went, give it too.
+/// The crowd demo sends the marked pixels' shadow rays as packets or ray by ray, as its planner
+/// picks (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and
+/// soft, the selective image is the same pixel for pixel either way, and the planner's passes,
+/// whichever way each went, give it too.
 #[test]
 fn marked_rays_as_packets_or_one_by_one_give_one_image() {
     for (frames, world, g) in crowd_frames() {

@@ -195,13 +195,13 @@ pub fn run(rec: &mut Records) {
             "selective",
             "planner's rays as packets",
             packets_now[0],
-            "0/1",
+            "bool",
         ),
         (
             "soft selective",
             "planner's rays as packets",
             packets_now[1],
-            "0/1",
+            "bool",
         ),
     ] {
         rec.add(SUITE, &scene, subject, metric, value, unit);
