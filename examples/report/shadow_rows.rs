@@ -116,76 +116,87 @@ pub fn run(
         row("cpu".into(), cpu_s, &cpu),
         row("cpu, rays as packets".into(), packets_s, &p),
     ];
-    let mut planner = Choice::sparse_packets();
-    let (mut times, mut maps, mut bad, mut picks) = (Vec::new(), Vec::new(), 0, [0usize; 2]);
-    let mut p = HardShadows::new();
-    for _ in 0..ROUNDS {
-        // The last pass's rays: what this one likely sends.
-        let as_packets = planner.decide(p.stats().rays as f64);
-        let start = Instant::now();
-        if as_packets {
-            render(&mut p, inputs, Packets(&packets), &mut CpuMap);
-        } else {
-            render(&mut p, inputs, rays, &mut CpuMap);
-        }
-        times.push(start.elapsed().as_secs_f64());
-        let stats = p.stats();
-        maps.push(stats.map_time.as_secs_f64());
-        planner.served(
-            as_packets,
-            stats.rays as f64,
-            stats.trace_time.as_secs_f64(),
-        );
-        picks[as_packets as usize] += 1;
-        bad += unlike(&cpu, &p);
-    }
-    let name = |packets: bool| if packets { "packets" } else { "single rays" };
-    let label = planned_label(
-        name(planner.current()),
-        ["single rays", "packets"].into_iter().zip(picks),
-    );
-    let mut r = row(format!("cpu, rays {label}"), median(&mut times), &p);
-    r.map_ms = median(&mut maps) * 1e3;
-    r.mismatches = bad;
-    rows.push(r);
+    rows.push(planned_row(
+        Choice::sparse_packets(),
+        ["single rays", "packets"],
+        "cpu, rays ",
+        &row,
+        &cpu,
+        // The last pass's marked pixels: what this one likely marks.
+        |p| p.stats().rays as f64,
+        |p, as_packets| {
+            if as_packets {
+                render(p, inputs, Packets(&packets), &mut CpuMap);
+            } else {
+                render(p, inputs, rays, &mut CpuMap);
+            }
+            let stats = p.stats();
+            (stats.rays as f64, stats.trace_time.as_secs_f64())
+        },
+    ));
     // The GPU rows follow where the feature is on.
     #[cfg(feature = "gpu")]
     if let Some(ctx) = gpu {
         let mut on_gpu = kinetrace::gpu::GpuShadowMap::new(ctx);
         let (gpu_s, p) = pass(&mut |p| render(p, inputs, rays, &mut on_gpu));
         rows.push(row("gpu".into(), gpu_s, &p));
-        let mut planner = Choice::map_on_gpu();
-        let (mut times, mut maps, mut bad) = (Vec::new(), Vec::new(), 0);
-        let mut picks = [0usize; 2];
-        let mut p = HardShadows::new();
-        for _ in 0..ROUNDS {
-            let on = planner.decide(tris.len() as f64);
-            let start = Instant::now();
-            if on {
-                render(&mut p, inputs, rays, &mut on_gpu);
-            } else {
-                render(&mut p, inputs, rays, &mut CpuMap);
-            }
-            times.push(start.elapsed().as_secs_f64());
-            let map = p.stats().map_time.as_secs_f64();
-            planner.served(on, tris.len() as f64, map);
-            maps.push(map);
-            picks[on as usize] += 1;
-            bad += unlike(&cpu, &p);
-        }
-        let name = |on: bool| if on { "gpu" } else { "cpu" };
-        let label = planned_label(
-            name(planner.current()),
-            ["cpu", "gpu"].into_iter().zip(picks),
-        );
-        let mut r = row(label, median(&mut times), &p);
-        r.map_ms = median(&mut maps) * 1e3;
-        r.mismatches = bad;
-        rows.push(r);
+        let triangles = tris.len() as f64;
+        rows.push(planned_row(
+            Choice::map_on_gpu(),
+            ["cpu", "gpu"],
+            "",
+            &row,
+            &cpu,
+            |_| triangles,
+            |p, on| {
+                if on {
+                    render(p, inputs, rays, &mut on_gpu);
+                } else {
+                    render(p, inputs, rays, &mut CpuMap);
+                }
+                (triangles, p.stats().map_time.as_secs_f64())
+            },
+        ));
     }
     #[cfg(not(feature = "gpu"))]
     let _ = gpu; // of an uninhabited type without the feature
     rows
+}
+
+/// The planner's row: [`ROUNDS`] passes into one pass's buffers, each run by `run(pass, option)` with
+/// the option `planner` decides for `units(pass)` (the work expected, read before the pass), which
+/// returns the units the pass served and their seconds, taught back. Named `prefix` and the planner's
+/// label (`names[option]`) by `row`; its milliseconds a pass and of its map the passes' medians, its
+/// mismatches against `cpu`'s summed over them.
+fn planned_row(
+    mut planner: Choice<bool>,
+    names: [&str; 2],
+    prefix: &str,
+    row: &dyn Fn(String, f64, &HardShadows) -> ShadowRow,
+    cpu: &HardShadows,
+    units: impl Fn(&HardShadows) -> f64,
+    mut run: impl FnMut(&mut HardShadows, bool) -> (f64, f64),
+) -> ShadowRow {
+    let (mut times, mut maps, mut bad, mut picks) = (Vec::new(), Vec::new(), 0, [0usize; 2]);
+    let mut p = HardShadows::new();
+    for _ in 0..ROUNDS {
+        let option = planner.decide(units(&p));
+        let start = Instant::now();
+        let (served, seconds) = run(&mut p, option);
+        times.push(start.elapsed().as_secs_f64());
+        maps.push(p.stats().map_time.as_secs_f64());
+        planner.served(option, served, seconds);
+        picks[option as usize] += 1;
+        bad += unlike(cpu, &p);
+    }
+    let label = planned_label(
+        names[planner.current() as usize],
+        names.into_iter().zip(picks),
+    );
+    let mut r = row(format!("{prefix}{label}"), median(&mut times), &p);
+    r.map_ms = median(&mut maps) * 1e3;
+    r.mismatches = bad;
+    r
 }
 
 /// What a pass reads besides its shadow-ray query: its settings, the occluders and the G-buffer.
