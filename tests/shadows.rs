@@ -251,10 +251,16 @@ fn selective_matches_ray_traced_on_crowd_frames() {
 /// The crowd demo sends the marked pixels' shadow rays as packets or ray by ray, as its planner
 /// picks (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and
 /// soft, the selective image is the same pixel for pixel either way, and the planner's passes,
-/// whichever way each went, give it too.
+/// whichever way each went, give it too. For hard shadows every marked pixel's visibility is also the
+/// brute-force oracle's (exact arithmetic over every triangle of the scene, as
+/// `ray_traced_equals_brute_force_occlusion`).
 #[test]
 fn marked_rays_as_packets_or_one_by_one_give_one_image() {
     for (frames, world, g) in crowd_frames() {
+        let mut tris = Vec::new();
+        world
+            .resource::<TraceWorld>()
+            .world_triangles(&Default::default(), &mut tris);
         for light_angle in [0.0, 0.02] {
             let s = ShadowSettings {
                 light_angle,
@@ -267,10 +273,20 @@ fn marked_rays_as_packets_or_one_by_one_give_one_image() {
                     crowd::sun_visibility_rays(&world, &g, &s, &mut pass, &mut CpuMap, as_packets)
                         .unwrap()
                         .to_vec();
-                (vis, pass.stats().rays)
+                (vis, pass.marked().to_vec())
             };
-            let ((packets, rays), (single, _)) = (image(true), image(false));
+            let ((packets, marked), (single, _)) = (image(true), image(false));
+            let rays = marked.len();
             assert!(rays > 0, "frame {frames}: rays to compare");
+            if light_angle == 0.0 {
+                for &i in &marked {
+                    let (p, n) = (g.positions[i as usize], g.normals[i as usize]);
+                    let from = p + n * s.normal_offset;
+                    let ray = Ray::segment(from, from + s.towards_light * s.ray_length);
+                    RayOracle::new(&ray, tris.iter().copied())
+                        .check_any(single[i as usize] == 0.0, &format!("frame {frames}, {i}"));
+                }
+            }
             let differ = packets.iter().zip(&single).filter(|(a, b)| a != b).count();
             assert_eq!(
                 differ, 0,
