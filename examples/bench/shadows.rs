@@ -11,7 +11,8 @@
 //!
 //! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`, or `gpu`: selective with the
 //! map on the GPU) runs only that mode's hard shadows, `KINETRACE_SHADOW_REPS` times (default 60) after
-//! one warm pass, prints the last pass's phase times and nothing else: what `perf record` should see.
+//! one warm pass, prints the median phase times of those passes and nothing else: what `perf record`
+//! should see.
 
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
@@ -70,21 +71,29 @@ pub fn run(rec: &mut Records) {
             ..Default::default()
         };
         let cpu = cpu_seconds(CpuClock::Process);
+        let mut phases = Vec::with_capacity(reps + 1);
         for _ in 0..=reps {
             let vis = match &mut on_gpu {
                 Some(m) => crowd::sun_visibility_with(&world, &g, &settings, &mut pass, m),
                 None => crowd::sun_visibility_with(&world, &g, &settings, &mut pass, &mut CpuMap),
             };
             std::hint::black_box(vis.expect("valid settings"));
+            let s = pass.stats();
+            phases.push([s.map_time, s.classify_time, s.trace_time]);
         }
+        let median = |k: usize| {
+            let mut t: Vec<_> = phases[reps.min(1)..].iter().map(|p| p[k]).collect();
+            t.sort();
+            t[t.len() / 2]
+        };
         let s = pass.stats();
         println!(
-            "  {mode:?} x{reps}: {:.3} ms CPU a pass; last pass: map {:?} (on the GPU: {}), classify {:?}, rays {:?}, {} rays, refitted {}",
+            "  {mode:?} x{reps}: {:.3} ms CPU a pass; median of the passes after the first: map {:?} (on the GPU: {}), classify {:?}, rays {:?}; {} rays, refitted {}",
             (cpu_seconds(CpuClock::Process) - cpu) * 1e3 / (reps + 1) as f64,
-            s.map_time,
+            median(0),
             s.map_on_gpu,
-            s.classify_time,
-            s.trace_time,
+            median(1),
+            median(2),
             s.rays,
             s.refitted
         );
@@ -324,6 +333,16 @@ pub fn run(rec: &mut Records) {
     let mut refits = 0;
     for _ in 0..MOVING_FRAMES {
         crowd::step(&mut world, &mut schedule);
+        if let Ok(b) = std::env::var("KT_EXP_REBUILD") {
+            let mut cfg = world.resource_mut::<kinetrace::ecs::TraceConfig>();
+            cfg.policy = kinetrace::ecs::RebuildPolicy::Lauterbach { threshold: -1.0 };
+            if b == "sah" {
+                cfg.builder = kinetrace::bvh::Builder::SAH;
+            }
+            schedule.run(&mut world);
+            let st = world.resource::<kinetrace::ecs::TraceStats>();
+            eprintln!("rebuilds {} refits {}", st.rebuilds, st.refits);
+        }
         let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
         crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings");
         refits += pass.stats().refitted as usize;
