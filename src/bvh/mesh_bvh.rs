@@ -270,8 +270,8 @@ impl MeshBvh {
         // three (the binary walk takes it from its root itself).
         let slack = || ray.hit_slack(&self.bvh.bounds());
         match (&self.compact, &self.wide) {
-            (Some(c), _) => c.traverse(ray, slack(), counter, leaf),
-            (None, Some(w)) => w.traverse(ray, slack(), counter, leaf),
+            (Some(c), _) => c.traverse(&self.tris, ray, slack(), counter, leaf),
+            (None, Some(w)) => w.traverse(&self.tris, ray, slack(), counter, leaf),
             (None, None) => traverse(&self.bvh.nodes, ray, counter, leaf),
         }
     }

@@ -18,8 +18,8 @@
 //! vector multiply-adds) before the same four-box test as the float tree. A refit re-derives the tree
 //! (collapse + quantise): it is meant for meshes that do not deform.
 
-use super::simd::hit4;
-use super::{EMPTY_LANE, WIDTH, WideBvh, WideNode, walk};
+use super::simd::RayLanes;
+use super::{EMPTY_LANE, Visit, WIDTH, WideBvh, WideNode, walk};
 use crate::bvh::traverse::Counter;
 use crate::geometry::Ray;
 use glam::Vec4;
@@ -132,6 +132,14 @@ impl CompactNode {
     }
 }
 
+impl Visit for CompactNode {
+    /// Dequantises the node, then tests it as a [`WideNode`].
+    #[inline(always)]
+    fn visit(&self, lanes: &RayLanes, tmax: f32) -> (u32, [f32; WIDTH], [u32; WIDTH]) {
+        self.dequantise().visit(lanes, tmax)
+    }
+}
+
 /// A [`WideBvh`] with quantised child boxes. See the [module docs](self).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CompactWideBvh {
@@ -163,17 +171,14 @@ impl CompactWideBvh {
 
     /// [`WideBvh::traverse`] over the dequantised boxes.
     #[inline]
-    pub(crate) fn traverse<C: Counter>(
+    pub(crate) fn traverse<C: Counter, T>(
         &self,
+        slot_data: &[T],
         ray: &Ray,
         slack: f32,
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        walk(&self.nodes, ray, slack, counter, leaf, |c, lanes, tmax| {
-            let node = c.dequantise();
-            let (mask, near) = hit4(&node, lanes, tmax);
-            (mask, near, node.child)
-        });
+        walk(&self.nodes, slot_data, ray, slack, counter, leaf);
     }
 }

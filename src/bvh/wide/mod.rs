@@ -35,6 +35,7 @@ mod proximity;
 pub mod simd;
 
 use super::node::{COUNT_SHIFT, FIRST_MASK};
+use super::prefetch;
 use super::stack::Stack;
 use super::traverse::Counter;
 use super::{LEAF_BIT, MAX_DEPTH, Node};
@@ -240,41 +241,86 @@ impl WideBvh {
     /// Walks the leaves whose boxes the ray reaches within the current `tmax`, nearest box first, with the
     /// contract of the binary `traverse`: `leaf(slots, tmax)` may lower `*tmax` and returns true to stop.
     /// `slack` is the ray's [`hit_slack`](Ray::hit_slack) for the tree's box, added to every limit as the
-    /// binary `traverse` adds it. The ray must be valid.
+    /// binary `traverse` adds it. `slot_data` is what a leaf's slots index (the triangles), asked of the
+    /// cache as soon as a leaf's box is hit ([`prefetch_lanes`]). The ray must be valid.
     #[inline]
-    pub(crate) fn traverse<C: Counter>(
+    pub(crate) fn traverse<C: Counter, T>(
         &self,
+        slot_data: &[T],
         ray: &Ray,
         slack: f32,
         counter: &mut C,
         leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
     ) {
-        walk(
-            &self.nodes,
-            ray,
-            slack,
-            counter,
-            leaf,
-            |node, lanes, tmax| {
-                let (mask, near) = hit4(node, lanes, tmax);
-                (mask, near, node.child)
-            },
-        );
+        walk(&self.nodes, slot_data, ray, slack, counter, leaf);
+    }
+}
+
+/// Asks the cache for what the kept lanes of `mask` lead to, so that it arrives while the walk goes on
+/// with the nearest lane: a leaf lane's first slot's entries in `slot_data` (two lines), an inner lane's
+/// node in `nodes` and its per-node data in `node_data` (two lines each; the node's twice when
+/// `node_data` is empty). A dropped lane asks for node `here`, the one just visited, already in cache.
+/// Four lanes and no branch per lane: a loop over the kept lanes mispredicted its exit about once a
+/// node. A hint only: no load, no fault, whatever the address. For ray walks it made incoherent
+/// closest-hit rays 1.12–1.21× as fast (`bench cpu --quick`, random rays, one thread, medians of six
+/// alternated runs, 2-core Intel VM) and left coherent camera rays, whose lines are in cache anyway,
+/// unchanged within noise.
+#[inline(always)]
+fn prefetch_lanes<N, T, D>(
+    nodes: &[N],
+    here: u32,
+    child: &[u32; WIDTH],
+    mask: u32,
+    slot_data: &[T],
+    node_data: &[D],
+) {
+    let here: *const i8 = nodes.as_ptr().wrapping_add(here as usize).cast();
+    for (i, &c) in child.iter().enumerate() {
+        let first = (c & FIRST_MASK) as usize;
+        let slot: *const i8 = slot_data.as_ptr().wrapping_add(first).cast();
+        let inner: *const i8 = nodes.as_ptr().wrapping_add(c as usize).cast();
+        let data: *const i8 = if node_data.is_empty() {
+            inner
+        } else {
+            node_data.as_ptr().wrapping_add(c as usize).cast()
+        };
+        let (a, b) = match (mask >> i & 1 != 0, is_leaf(c)) {
+            (false, _) => (here, here),
+            (true, true) => (slot, slot),
+            (true, false) => (inner, data),
+        };
+        for at in [a, a.wrapping_add(64), b, b.wrapping_add(64)] {
+            prefetch(at);
+        }
+    }
+}
+
+/// A wide node a ray walk can test.
+trait Visit {
+    /// The node's four lanes against a ray within `tmax`: the hit mask, the entry distances and the lane
+    /// payloads.
+    fn visit(&self, lanes: &RayLanes, tmax: f32) -> (u32, [f32; WIDTH], [u32; WIDTH]);
+}
+
+impl Visit for WideNode {
+    #[inline(always)]
+    fn visit(&self, lanes: &RayLanes, tmax: f32) -> (u32, [f32; WIDTH], [u32; WIDTH]) {
+        let (mask, near) = hit4(self, lanes, tmax);
+        (mask, near, self.child)
     }
 }
 
 /// The ordered traversal of a wide tree whose root is `nodes[0]` (none for an empty tree), with the
-/// contract of [`WideBvh::traverse`]. `visit(node, lanes, tmax)` tests a node's four lanes: the hit mask,
-/// the entry distances and the lane payloads (the float tree tests its node, the [`compact`] one
-/// dequantises first).
+/// contract of [`WideBvh::traverse`] (the float tree tests its nodes, the [`compact`] one dequantises
+/// them first: [`Visit`]).
 #[inline(always)]
-fn walk<N, C: Counter>(
+fn walk<N: Visit, C: Counter, T>(
     nodes: &[N],
+    slot_data: &[T],
     ray: &Ray,
     slack: f32,
     counter: &mut C,
     mut leaf: impl FnMut(Range<usize>, &mut f32) -> bool,
-    visit: impl Fn(&N, &RayLanes, f32) -> (u32, [f32; WIDTH], [u32; WIDTH]),
 ) {
     if nodes.is_empty() {
         return;
@@ -296,8 +342,9 @@ fn walk<N, C: Counter>(
             limit = hit_limit(tmax, slack);
         } else {
             counter.inner();
-            let (mask, near, child) = visit(&nodes[cur as usize], &lanes, limit);
+            let (mask, near, child) = nodes[cur as usize].visit(&lanes, limit);
             if mask != 0 {
+                prefetch_lanes::<_, _, ()>(nodes, cur, &child, mask, slot_data, &[]);
                 cur = nearest_first(&child, mask, &near, &mut stack);
                 continue;
             }

@@ -17,10 +17,9 @@
 
 use super::discs::{LaneDiscs, disc4};
 use super::{
-    EMPTY_LANE, FIRST_MASK, NearStack, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots,
-    nearest_first,
+    EMPTY_LANE, NearStack, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots,
+    nearest_first, prefetch_lanes,
 };
-use crate::bvh::prefetch;
 use crate::bvh::stack::Stack;
 use crate::geometry::Aabb;
 use glam::{Vec3, Vec4};
@@ -84,7 +83,7 @@ impl WideBvh {
                 let (d2, mask) = bound4(node, discs.get(cur as usize), p, limit);
                 let mask = keep_used(mask, node, limit == f32::INFINITY);
                 if mask != 0 {
-                    self.prefetch_lanes(node, mask, slot_data, discs);
+                    prefetch_lanes(&self.nodes, cur, &node.child, mask, slot_data, discs);
                     cur = nearest_first(&node.child, mask, &d2, &mut stack);
                     continue;
                 }
@@ -98,34 +97,6 @@ impl WideBvh {
                     cur = node;
                     break;
                 }
-            }
-        }
-    }
-
-    /// Asks the cache for the first slot's entries (two lines) of `slot_data` of each leaf lane of `mask`
-    /// and for the node and its discs (two lines each; the node's twice when there are no discs) of each
-    /// inner lane; a dropped lane asks for `node` itself, already in cache. Four lanes and no branch per
-    /// lane: a loop over the kept lanes mispredicted its exit about once a node. A hint only: no load, no
-    /// fault, whatever the address.
-    #[inline(always)]
-    fn prefetch_lanes<T>(&self, node: &WideNode, mask: u32, slot_data: &[T], discs: &[LaneDiscs]) {
-        let here: *const i8 = (node as *const WideNode).cast();
-        for (i, &c) in node.child.iter().enumerate() {
-            let first = (c & FIRST_MASK) as usize;
-            let slot: *const i8 = slot_data.as_ptr().wrapping_add(first).cast();
-            let inner: *const i8 = self.nodes.as_ptr().wrapping_add(c as usize).cast();
-            let disc: *const i8 = if discs.is_empty() {
-                inner
-            } else {
-                discs.as_ptr().wrapping_add(c as usize).cast()
-            };
-            let (a, b) = match (mask >> i & 1 != 0, is_leaf(c)) {
-                (false, _) => (here, here),
-                (true, true) => (slot, slot),
-                (true, false) => (inner, disc),
-            };
-            for at in [a, a.wrapping_add(64), b, b.wrapping_add(64)] {
-                prefetch(at);
             }
         }
     }
