@@ -175,6 +175,63 @@ fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
     }
 }
 
+/// Batched any-hit queries, whose walks run four at a time interleaved node by node
+/// (`MeshBvh::any_hits_interleaved`, and `any_hits` on all threads), answer every ray as the brute-force
+/// oracle allows and exactly as `any_hit` ray by ray: on the wide, compact and binary trees, in batches of
+/// every size around the four walks (none, fewer, as many, one more, several rounds of refills), with
+/// invalid rays (which hit nothing) and the box test's hard rays mixed in.
+#[test]
+fn interleaved_any_hits_answer_as_brute_force_and_ray_by_ray() {
+    for (name, m) in [("soup", soup(12, 2000)), ("icosphere", icosphere(3))] {
+        let wide = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
+        let mut compact = wide.clone();
+        compact.set_compact(true);
+        assert!(compact.compact().is_some(), "{name}: compact tree");
+        let mut binary = wide.clone();
+        binary.set_wide(false);
+        let mut all = rays(&m, 9, 240);
+        all.extend(hard_rays(&wide, 10));
+        let o = Vec3::splat(0.1);
+        for (k, bad) in [
+            Ray::new(Vec3::NAN, Vec3::X),
+            Ray::new(o, Vec3::ZERO),
+            Ray::with_range(o, Vec3::Y, f32::NAN, 1.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            all.insert(3 + 37 * k, bad);
+        }
+        for (tree, bvh) in [("wide", &wide), ("compact", &compact), ("binary", &binary)] {
+            let one_by_one: Vec<bool> = all.iter().map(|r| bvh.any_hit(r)).collect();
+            let mut hits = 0;
+            for (i, (r, &got)) in all.iter().zip(&one_by_one).enumerate() {
+                assert_any_hit(&m, r, got, &format!("{name} {tree} ray {i}"));
+                hits += got as usize;
+            }
+            assert!(
+                hits > all.len() / 4 && hits < all.len(),
+                "{name} {tree}: {hits} hits"
+            );
+            let mut from = 0;
+            for len in [0, 1, 2, 3, 4, 5, 8, 9, 31, usize::MAX] {
+                let to = from + len.min(all.len() - from);
+                let mut out = vec![true; to - from];
+                bvh.any_hits_interleaved(&all[from..to], &mut out);
+                assert_eq!(
+                    out,
+                    one_by_one[from..to],
+                    "{name} {tree}: rays {from}..{to}"
+                );
+                from = to;
+            }
+            let mut out = vec![true; all.len()];
+            bvh.any_hits(&all, &mut out);
+            assert_eq!(out, one_by_one, "{name} {tree}: any_hits");
+        }
+    }
+}
+
 /// A wide tree taken out of use for a try of the binary tree ([`MeshBvh::suspend_wide`]) comes back
 /// refitted to the positions of the meantime without a new collapse (the same wide topology); after a
 /// partial rebuild changed the binary tree's topology it comes back collapsed anew, never stale.

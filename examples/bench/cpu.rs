@@ -230,14 +230,17 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             });
             let (ta, _) =
                 one_thread(|| best_of(reps, || rays.iter().filter(|r| bvh.any_hit(r)).count()));
+            let mut any = vec![false; rays.len()];
+            let (tai, _) =
+                one_thread(|| best_of(reps, || bvh.any_hits_interleaved(&rays, &mut any)));
             let mut out = vec![None; rays.len()];
             let (tcn, _) = best_of(reps, || bvh.closest_hits(&rays, &mut out));
-            let mut any = vec![false; rays.len()];
             let (tan, _) = best_of(reps, || bvh.any_hits(&rays, &mut any));
             let subject = format!("kinetrace {tree} {kind}");
             for (metric, t) in [
                 ("closest 1 thread", tc),
                 ("any-hit 1 thread", ta),
+                ("any-hit interleaved 1 thread", tai),
                 ("closest all threads", tcn),
                 ("any-hit all threads", tan),
             ] {

@@ -2,9 +2,10 @@
 
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::compact::CompactWideBvh;
-use super::wide::{DiscCache, LaneDiscs, WideBvh};
+use super::wide::simd::RayLanes;
+use super::wide::{DiscCache, LaneDiscs, WideBvh, any_interleaved};
 use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_pass};
-use crate::geometry::{Aabb, Ray, TriangleRay};
+use crate::geometry::{Aabb, Ray, TriangleRay, hit_limit};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
 use glam::{Vec3, Vec3A};
@@ -496,10 +497,52 @@ impl MeshBvh {
         parallel::fill(true, out, 256, |i| self.closest_hit(&rays[i]));
     }
 
-    /// [`any_hit`](Self::any_hit) for every ray, on all threads with the `parallel` feature.
+    /// [`any_hit`](Self::any_hit) for every ray, on all threads with the `parallel` feature. `out` must
+    /// be as long as `rays`.
+    ///
+    /// Each thread keeps four rays' walks of the wide or compact tree going at once, a node of each in
+    /// turn ([`any_hits_interleaved`](Self::any_hits_interleaved)), so that one ray's wait for memory
+    /// overlaps the others' work: the same answers and node visits as `any_hit` ray by ray, at 1.2–1.5×
+    /// the rays a second where the nodes are not in cache (`bench cpu --quick`, random rays, one thread,
+    /// 2-core Intel VM), 1.0–1.25× on coherent camera rays.
     pub fn any_hits(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill(true, out, 256, |i| self.any_hit(&rays[i]));
+        parallel::fill_chunks(true, out, 256, |c, out| {
+            self.any_hits_interleaved(&rays[c * 256..c * 256 + out.len()], out);
+        });
+    }
+
+    /// [`any_hit`](Self::any_hit) for every ray on the calling thread, four rays' walks interleaved on
+    /// the wide or compact tree (see [`any_hits`](Self::any_hits)); ray by ray on the binary tree.
+    /// `out` must be as long as `rays`. No allocation.
+    pub fn any_hits_interleaved(&self, rays: &[Ray], out: &mut [bool]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        let bounds = self.bvh.bounds();
+        let start = |i: usize| {
+            let ray = &rays[i];
+            ray.is_valid().then(|| {
+                let limit = hit_limit(ray.tmax, ray.hit_slack(&bounds));
+                (
+                    RayLanes::new(ray),
+                    limit,
+                    (TriangleRay::new(ray), ray.tmin, ray.tmax),
+                )
+            })
+        };
+        let leaf = |&(tr, tmin, tmax): &(TriangleRay, f32, f32), slots: Range<usize>| {
+            slots
+                .map(|s| self.tris[s])
+                .any(|[a, b, c]| tr.intersect(a, b, c, tmin, tmax).is_some())
+        };
+        match (&self.compact, &self.wide) {
+            (Some(c), _) => any_interleaved(c.nodes(), &self.tris, out, start, leaf),
+            (None, Some(w)) => any_interleaved(w.nodes(), &self.tris, out, start, leaf),
+            (None, None) => {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = self.any_hit(r);
+                }
+            }
+        }
     }
 
     fn closest_with<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
