@@ -3,15 +3,53 @@
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::compact::CompactWideBvh;
 use super::wide::simd::RayLanes;
-use super::wide::{DiscCache, LaneDiscs, WideBvh, any_interleaved};
+use super::wide::{AnyJob, DiscCache, LaneDiscs, WideBvh, any_interleaved};
 use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_pass};
 use crate::geometry::{Aabb, Ray, TriangleRay, hit_limit};
 use crate::mesh::{Mesh, check_positions};
 use crate::{Error, Result, parallel};
 use glam::{Vec3, Vec3A};
+use std::cell::Cell;
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// What an interleaved any-hit walk's leaves test a ray with ([`MeshBvh::any_job`]).
+#[derive(Clone, Copy)]
+pub(crate) struct LeafRay {
+    tr: TriangleRay,
+    tmin: f32,
+    tmax: f32,
+}
+
+impl LeafRay {
+    /// For `ray`, over its whole range.
+    #[inline(always)]
+    fn new(ray: &Ray) -> Self {
+        Self {
+            tr: TriangleRay::new(ray),
+            tmin: ray.tmin,
+            tmax: ray.tmax,
+        }
+    }
+
+    /// Whether the ray hits any of the triangles `tris[slots]`.
+    #[inline(always)]
+    pub(crate) fn hits(&self, tris: &[[Vec3; 3]], slots: Range<usize>) -> bool {
+        (slots.map(|s| tris[s]))
+            .any(|[a, b, c]| self.tr.intersect(a, b, c, self.tmin, self.tmax).is_some())
+    }
+
+    /// [`hits`](Self::hits) for a job's tagged ray, as [`any_interleaved`] calls its leaf test.
+    #[inline(always)]
+    pub(crate) fn hits_tagged<X>(
+        (_, ray): &(X, LeafRay),
+        tris: &[[Vec3; 3]],
+        slots: Range<usize>,
+    ) -> bool {
+        ray.hits(tris, slots)
+    }
+}
 
 /// The nearest intersection of a ray with a mesh.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -517,32 +555,42 @@ impl MeshBvh {
     /// `out` must be as long as `rays`. No allocation.
     pub fn any_hits_interleaved(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        let bounds = self.bvh.bounds();
-        let start = |i: usize| {
-            let ray = &rays[i];
-            ray.is_valid().then(|| {
-                let limit = hit_limit(ray.tmax, ray.hit_slack(&bounds));
-                (
-                    RayLanes::new(ray),
-                    limit,
-                    (TriangleRay::new(ray), ray.tmin, ray.tmax),
-                )
-            })
-        };
-        let leaf = |&(tr, tmin, tmax): &(TriangleRay, f32, f32), slots: Range<usize>| {
-            slots
-                .map(|s| self.tris[s])
-                .any(|[a, b, c]| tr.intersect(a, b, c, tmin, tmax).is_some())
-        };
+        out.fill(false);
+        let hits = Cell::from_mut(out).as_slice_of_cells();
+        let hit = |&(i, _): &(usize, LeafRay)| hits[i].set(true);
+        let never = |_: &(usize, LeafRay)| false;
         match (&self.compact, &self.wide) {
-            (Some(c), _) => any_interleaved(c.nodes(), &self.tris, out, start, leaf),
-            (None, Some(w)) => any_interleaved(w.nodes(), &self.tris, out, start, leaf),
+            (Some(c), _) => {
+                let start = |i| self.any_job(c.nodes(), &rays[i], i);
+                any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
+            }
+            (None, Some(w)) => {
+                let start = |i| self.any_job(w.nodes(), &rays[i], i);
+                any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
+            }
             (None, None) => {
-                for (o, r) in out.iter_mut().zip(rays) {
-                    *o = self.any_hit(r);
+                for (o, r) in hits.iter().zip(rays) {
+                    o.set(self.any_hit(r));
                 }
             }
         }
+    }
+
+    /// Ray `ray`'s any-hit walk of this mesh's tree `nodes` (its wide or compact one), tagged `tag`, for
+    /// [`any_interleaved`]: `None` for an invalid ray, which hits nothing.
+    pub(crate) fn any_job<'a, N, X>(
+        &'a self,
+        nodes: &'a [N],
+        ray: &Ray,
+        tag: X,
+    ) -> Option<AnyJob<'a, N, [Vec3; 3], (X, LeafRay)>> {
+        ray.is_valid().then(|| AnyJob {
+            nodes,
+            slot_data: &self.tris,
+            lanes: RayLanes::new(ray),
+            limit: hit_limit(ray.tmax, ray.hit_slack(&self.bvh.bounds())),
+            data: (tag, LeafRay::new(ray)),
+        })
     }
 
     fn closest_with<C: Counter>(&self, ray: &Ray, counter: &mut C) -> Option<Hit> {
@@ -582,12 +630,10 @@ impl MeshBvh {
         if !ray.is_valid() {
             return false;
         }
-        let tr = TriangleRay::new(ray);
+        let leaf = LeafRay::new(ray);
         let mut hit = false;
-        self.walk(ray, counter, |slots, tmax| {
-            hit = slots
-                .map(|s| self.tris[s])
-                .any(|[a, b, c]| tr.intersect(a, b, c, ray.tmin, *tmax).is_some());
+        self.walk(ray, counter, |slots, _| {
+            hit = leaf.hits(&self.tris, slots);
             hit
         });
         hit

@@ -39,6 +39,12 @@ impl<T: Copy, const N: usize> Stack<T, N> {
         self.len += n.min(M);
     }
 
+    /// Empties the stack.
+    #[inline(always)]
+    pub(crate) fn clear(&mut self) {
+        self.len = 0;
+    }
+
     /// Pops the entry pushed last, or `None` when the stack is empty.
     #[inline(always)]
     pub(crate) fn pop(&mut self) -> Option<T> {

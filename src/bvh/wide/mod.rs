@@ -350,14 +350,9 @@ fn walk<N: Visit, C: Counter, T>(
             }
         }
         // Pop the next subtree that can still hold something within tmax.
-        loop {
-            let Some((node, entry)) = stack.pop() else {
-                return;
-            };
-            if entry <= limit {
-                cur = node;
-                break;
-            }
+        match pop_within(&mut stack, limit) {
+            Some(node) => cur = node,
+            None => return,
         }
     }
 }
@@ -366,78 +361,85 @@ fn walk<N: Visit, C: Counter, T>(
 /// while the other three test theirs (two gained less, eight no more; `bench cpu --quick`).
 const INTERLEAVED: usize = 4;
 
-/// One ray's walk within [`any_interleaved`]: where it is, and what its leaves test with.
-struct AnyWalk<X> {
-    lanes: RayLanes,
-    limit: f32,
-    stack: NearStack,
-    cur: u32,
-    ray: usize,
-    data: X,
+/// An any-hit walk for [`any_interleaved`] to run: a ray down one wide tree.
+pub(crate) struct AnyJob<'a, N, T, X> {
+    /// The tree's nodes (root first), and what its leaves' slots index (asked of the cache ahead).
+    pub nodes: &'a [N],
+    pub slot_data: &'a [T],
+    /// The ray's box-test constants, and its box limit ([`hit_limit`]).
+    pub lanes: RayLanes,
+    pub limit: f32,
+    /// What the caller's leaf test needs (the ray, its triangles).
+    pub data: X,
 }
 
-/// Any-hit walks of rays `0..n` down the wide tree `nodes`, [`INTERLEAVED`] at a time and a node of each
-/// in turn, each into `out[ray]`: the answers of as many [`walk`]s that stop at their first hit, but
-/// while one walk waits for its next node (or leaf triangles) to come from memory, the others work —
-/// a single walk spends over half of its time on those two loads when the tree is not in cache.
-/// `start(ray)` gives a ray's box-test constants, its box limit ([`hit_limit`]) and what its leaves
-/// need, or `None` for a ray that hits nothing (invalid); `leaf(data, slots)` says whether the ray
-/// hits anything in the slots. Costs the same node visits as the walks one by one.
-pub(crate) fn any_interleaved<N: Visit, T, X>(
-    nodes: &[N],
-    slot_data: &[T],
-    out: &mut [bool],
-    start: impl Fn(usize) -> Option<(RayLanes, f32, X)>,
-    mut leaf: impl FnMut(&X, Range<usize>) -> bool,
+/// Runs any-hit walks `0..jobs` ([`AnyJob`]s, from `start(job)`; `None`: nothing to walk), [`INTERLEAVED`]
+/// at a time and a node of each in turn: the answers of as many [`walk`]s that stop at their first hit,
+/// but while one walk waits for its next node (or leaf triangles) to come from memory, the others work
+/// — a single walk spends over half of its time on those two loads when the tree is not in cache.
+/// `leaf(data, slot_data, slots)` says whether the walk's ray hits anything in the slots; at the first such leaf
+/// the walk calls `hit(data)` and ends. A walk whose `settled(data)` turns true (its ray was found
+/// blocked by another walk) ends at its next step. Costs the same node visits as the walks one by one.
+pub(crate) fn any_interleaved<'a, N: Visit + 'a, T: 'a, X>(
+    jobs: usize,
+    mut start: impl FnMut(usize) -> Option<AnyJob<'a, N, T, X>>,
+    mut leaf: impl FnMut(&X, &[T], Range<usize>) -> bool,
+    mut hit: impl FnMut(&X),
+    settled: impl Fn(&X) -> bool,
 ) {
-    out.fill(false);
-    if nodes.is_empty() {
-        return;
-    }
-    let (mut next, n) = (0, out.len());
-    // The next ray with something to walk, started.
+    let mut next = 0;
+    // The next job with something to walk, at its root.
     let mut begin = || {
-        while next < n {
+        while next < jobs {
             next += 1;
-            if let Some((lanes, limit, data)) = start(next - 1) {
-                return Some(AnyWalk {
-                    lanes,
-                    limit,
-                    stack: NearStack::new(),
-                    cur: 0,
-                    ray: next - 1,
-                    data,
-                });
+            match start(next - 1) {
+                Some(job) if !job.nodes.is_empty() => return Some((job, 0u32)),
+                _ => {}
             }
         }
         None
     };
-    let mut walks: [Option<AnyWalk<X>>; INTERLEAVED] = std::array::from_fn(|_| begin());
+    // Each walk's stack stays in place (not moved with the walk: 1.6 KB), emptied when a walk ends.
+    let mut stacks: [NearStack; INTERLEAVED] = std::array::from_fn(|_| NearStack::new());
+    let mut walks: [Option<_>; INTERLEAVED] = std::array::from_fn(|_| begin());
     while walks.iter().any(Option::is_some) {
-        for slot in &mut walks {
-            let Some(w) = slot else { continue };
-            if is_leaf(w.cur) {
-                if leaf(&w.data, leaf_slots(w.cur)) {
-                    out[w.ray] = true;
-                    *slot = begin();
-                    continue;
-                }
+        for (slot, stack) in walks.iter_mut().zip(&mut stacks) {
+            let Some((w, cur)) = slot else { continue };
+            let ended = if settled(&w.data) {
+                true
+            } else if is_leaf(*cur) && leaf(&w.data, w.slot_data, leaf_slots(*cur)) {
+                hit(&w.data);
+                true
             } else {
-                let (mask, near, child) = nodes[w.cur as usize].visit(&w.lanes, w.limit);
-                if mask != 0 {
-                    prefetch_lanes::<_, _, ()>(nodes, w.cur, &child, mask, slot_data, &[]);
-                    w.cur = nearest_first(&child, mask, &near, &mut w.stack);
-                    continue;
+                if !is_leaf(*cur) {
+                    let (mask, near, child) = w.nodes[*cur as usize].visit(&w.lanes, w.limit);
+                    if mask != 0 {
+                        prefetch_lanes::<_, _, ()>(w.nodes, *cur, &child, mask, w.slot_data, &[]);
+                        *cur = nearest_first(&child, mask, &near, stack);
+                        continue;
+                    }
                 }
-            }
-            // Pop the next subtree the ray can reach; none left: no hit.
-            let limit = w.limit;
-            match std::iter::from_fn(|| w.stack.pop()).find(|&(_, entry)| entry <= limit) {
-                Some((node, _)) => w.cur = node,
-                None => *slot = begin(),
+                match pop_within(stack, w.limit) {
+                    Some(node) => {
+                        *cur = node;
+                        false
+                    }
+                    None => true,
+                }
+            };
+            if ended {
+                stack.clear();
+                *slot = begin();
             }
         }
     }
+}
+
+/// Pops the next subtree whose entry lies within `limit` (those beyond it are dropped): `None` when the
+/// stack runs out, the walk's end.
+#[inline(always)]
+fn pop_within(stack: &mut NearStack, limit: f32) -> Option<u32> {
+    std::iter::from_fn(|| stack.pop()).find_map(|(node, entry)| (entry <= limit).then_some(node))
 }
 
 /// What the collapse knows of one binary node.
