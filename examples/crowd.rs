@@ -28,7 +28,8 @@ use kinetrace::adaptive::Choice;
 use kinetrace::anim::humanoid;
 use kinetrace::ecs::*;
 use kinetrace::shadows::{
-    CpuMap, GBuffer, HardShadows, MapRenderer, Occluders, Packets, ShadowMode, ShadowSettings,
+    CpuMap, GBuffer, HardShadows, Interleaved, MapRenderer, Occluders, Packets, ShadowMode,
+    ShadowSettings,
 };
 use kinetrace::{Mesh, Ray};
 use std::path::PathBuf;
@@ -161,11 +162,11 @@ struct Crowd {
     /// Whether camera rays go as 8×8 packets or ray by ray: the planner's choice, learned from the
     /// seconds per ray each way measured on groups of the images' tiles (see [`primary_hits`]).
     camera_packets: Mutex<Choice<bool>>,
-    /// Whether the shadow rays of the pixels a selective pass marks go as packets (the marked
-    /// pixels of one 8×8 block together) or ray by ray: the planner's choice, learned from the
-    /// seconds per marked pixel each way measured on the passes so far, one for hard shadows and
-    /// one for soft (see [`sun_visibility_with`]).
-    marked_packets: Mutex<[MarkedRays; 2]>,
+    /// Whether a pass's shadow rays go as packets (the rays of one 8×8 block of pixels together) or as
+    /// single rays (walked four at a time, interleaved): the planner's choice, learned from the seconds
+    /// per pixel that got rays each way measured on the passes so far, one for each of a selective
+    /// pass's marked pixels and a ray-traced pass's pixels, hard and soft (see [`sun_visibility_with`]).
+    ray_packets: Mutex<[PassRays; 4]>,
     /// With a GPU: its shadow-map renderer, and whether a pass renders its map there or on the CPU —
     /// the planner's choice, learned from the seconds per occluder triangle each way (see
     /// [`sun_visibility`]).
@@ -432,9 +433,11 @@ pub fn setup(opt: &Options) -> Result<(World, Schedule), Box<dyn std::error::Err
         shadows: opt.shadows,
         sun_angle: opt.sun_angle,
         camera_packets: Mutex::new(Choice::packets()),
-        marked_packets: Mutex::new([
-            MarkedRays::new(Choice::sparse_packets()),
-            MarkedRays::new(Choice::packets()),
+        ray_packets: Mutex::new([
+            PassRays::new(Choice::sparse_packets()),
+            PassRays::new(Choice::packets()),
+            PassRays::new(Choice::sparse_packets()),
+            PassRays::new(Choice::packets()),
         ]),
         gpu_map: gpu_map(&world),
         map_on_gpu: Mutex::new(Choice::map_on_gpu()),
@@ -534,14 +537,17 @@ fn run_frames(
             .save(&path)?;
             let crowd = world.resource_mut::<Crowd>().into_inner();
             let packets = lock(&crowd.camera_packets).current();
-            // Only a selective pass consults the marked pixels' planner.
-            let soft = (crowd.sun_angle > 0.0) as usize;
+            // A shadow map alone traces no shadow rays.
+            let soft = crowd.sun_angle > 0.0;
             let marked = match crowd.shadows {
-                ShadowMode::Selective if lock(&crowd.marked_packets)[soft].choice.current() => {
-                    ", marked pixels' shadow rays as packets"
+                ShadowMode::ShadowMap => "",
+                mode if lock(&crowd.ray_packets)[planner(mode, soft)]
+                    .choice
+                    .current() =>
+                {
+                    ", shadow rays as packets"
                 }
-                ShadowMode::Selective => ", marked pixels' shadow rays ray by ray",
-                _ => "",
+                _ => ", shadow rays single, interleaved",
             };
             // The shadow map's device, where there is a choice.
             let map = match crowd.gpu_map {
@@ -760,14 +766,14 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-/// The planner's choice between packets and single rays for one kind of selective pass's marked
-/// pixels' shadow rays, and how many pixels its last pass marked (what the next likely marks).
-struct MarkedRays {
+/// The planner's choice between packets and single rays for one kind of pass's shadow rays, and how
+/// many pixels got rays in its last pass (what the next likely gives them).
+struct PassRays {
     choice: Choice<bool>,
     pixels: f64,
 }
 
-impl MarkedRays {
+impl PassRays {
     fn new(choice: Choice<bool>) -> Self {
         Self {
             choice,
@@ -778,15 +784,16 @@ impl MarkedRays {
 
 /// [`sun_visibility`] with the map rendered by `renderer`.
 ///
-/// A ray per pixel (the reference) traces each 8×8 block's rays together as a packet: coherent rays, a
-/// node visit serving the whole packet. The pixels a selective pass marks are few and scattered, a
-/// block's often a handful along a shadow's edge: their rays go as packets or ray by ray
-/// ([`sun_visibility_rays`]) as the planner picks from the seconds per marked pixel each way measured
-/// on the passes so far (kept from pass to pass; the same answers either way). For hard shadows,
-/// [`Choice::sparse_packets`]: one by one first, since packets of a block's few rays measured 4–8%
-/// slower per pass (docs/BENCHMARKS.md, stop 46); soft shadows send each marked pixel's rays across
-/// the light's disc together (16 from one point, close in direction), dense batches, and start with
-/// packets ([`Choice::packets`]), which the crowd's soft passes keep.
+/// A pass's shadow rays go as packets (a block of 8×8 pixels' rays together: a node visit serves the
+/// whole packet) or as single rays walked four at a time, interleaved (`TraceWorld::occluded_interleaved`:
+/// one walk's wait for memory overlaps the others' work) ([`sun_visibility_rays`]), as the planner picks
+/// from the seconds per pixel that got rays each way measured on the passes so far (kept from pass to
+/// pass; the same answers either way), one planner per kind of pass. For hard shadows,
+/// [`Choice::sparse_packets`]: single rays first, since on the crowd they measured faster both for a
+/// selective pass's few scattered marked pixels (a block's often a handful along a shadow's edge) and
+/// for a ray per pixel (docs/BENCHMARKS.md, stops 46 and 47); soft shadows send each pixel's rays
+/// across the light's disc together (16 from one point, close in direction), dense batches, and start
+/// with packets ([`Choice::packets`]). A shadow map alone traces no rays and consults no planner.
 pub fn sun_visibility_with<'a>(
     world: &World,
     g: &GBuffer,
@@ -794,11 +801,11 @@ pub fn sun_visibility_with<'a>(
     pass: &'a mut HardShadows,
     renderer: &mut impl MapRenderer,
 ) -> kinetrace::Result<&'a [f32]> {
-    if settings.mode != ShadowMode::Selective {
-        return sun_visibility_rays(world, g, settings, pass, renderer, true);
+    if settings.mode == ShadowMode::ShadowMap {
+        return sun_visibility_rays(world, g, settings, pass, renderer, false);
     }
-    let mut planners = lock(&world.resource::<Crowd>().marked_packets);
-    let planner = &mut planners[(settings.light_angle > 0.0) as usize];
+    let mut planners = lock(&world.resource::<Crowd>().ray_packets);
+    let planner = &mut planners[planner(settings.mode, settings.light_angle > 0.0)];
     let as_packets = planner.choice.decide(planner.pixels);
     sun_visibility_rays(world, g, settings, pass, renderer, as_packets)?;
     let s = pass.stats();
@@ -808,8 +815,8 @@ pub fn sun_visibility_with<'a>(
 }
 
 /// [`sun_visibility_with`] with the shadow rays as packets (`as_packets`: each batch the pass gives,
-/// up to 64 rays of one 8×8 block, traced together; a lone ray alone) or ray by ray, whatever the
-/// planner would pick.
+/// up to 64 rays of one 8×8 block, traced together; a lone ray alone) or as single rays (batches of up
+/// to 64 across blocks, four walked at a time interleaved), whatever the planner would pick.
 pub fn sun_visibility_rays<'a>(
     world: &World,
     g: &GBuffer,
@@ -831,16 +838,25 @@ pub fn sun_visibility_rays<'a>(
         );
         pass.run_with(settings, &occluders, g, packets, renderer)
     } else {
-        pass.run_with(settings, &occluders, g, single, renderer)
+        let interleaved = Interleaved(|segments: &[(Vec3, Vec3)], out: &mut [bool]| {
+            tw.occluded_interleaved(segments, &all, out)
+        });
+        pass.run_with(settings, &occluders, g, interleaved, renderer)
     }
 }
 
-/// Whether the planner sends the marked pixels' shadow rays as packets now, for hard shadows or soft
-/// (see [`sun_visibility_with`]).
-pub fn marked_rays_as_packets(world: &World, soft: bool) -> bool {
-    lock(&world.resource::<Crowd>().marked_packets)[soft as usize]
+/// Whether the planner sends the shadow rays of a pass in `mode` (selective: its marked pixels'; ray
+/// traced: every pixel's) as packets now, for hard shadows or soft (see [`sun_visibility_with`]).
+pub fn rays_as_packets(world: &World, mode: ShadowMode, soft: bool) -> bool {
+    lock(&world.resource::<Crowd>().ray_packets)[planner(mode, soft)]
         .choice
         .current()
+}
+
+/// Which of the crowd's shadow-ray planners a pass in `mode` consults (a shadow map alone traces no
+/// rays: its passes teach the selective one nothing, as they give no pixel a ray).
+fn planner(mode: ShadowMode, soft: bool) -> usize {
+    (mode == ShadowMode::RayTraced) as usize * 2 + soft as usize
 }
 
 /// Ray traces the world from `camera`: primary rays as packets or ray by ray as the planner picks (see

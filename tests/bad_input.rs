@@ -788,6 +788,9 @@ fn ecs_immediate_and_batched_queries_with_bad_values_find_nothing() {
             let mut out = [true; 2];
             tw.occluded_packet(&[(from, Vec3::splat(bad)), (from, to)], &all, &mut out);
             assert_eq!(out, [false, true], "{bad}");
+            let mut out = [true; 2];
+            tw.occluded_interleaved(&[(from, Vec3::splat(bad)), (from, to)], &all, &mut out);
+            assert_eq!(out, [false, true], "{bad}");
             let shape = Shape::sphere(Vec3::new(0.5, 0.5, 0.5), bad);
             assert!(tw.cast_shape(&shape, -Vec3::Z, 10.0, &all).is_none());
             assert!(

@@ -144,21 +144,28 @@ fn queued_packets_answer_like_single_rays() {
     }
 }
 
+/// Entity `k` of a row: `mesh` turned `k` radians about x, `k · step − 3` along x and `k · rise` up.
+fn in_a_row(mesh: kinetrace::Mesh, k: usize, step: f32, rise: f32) -> (TraceMesh, TraceTransform) {
+    let k = k as f32;
+    (
+        TraceMesh(mesh),
+        TraceTransform(Affine3A::from_rotation_translation(
+            Quat::from_rotation_x(k),
+            Vec3::new(k * step - 3.0, k * rise, 0.0),
+        )),
+    )
+}
+
 #[test]
 fn world_packets_match_brute_force() {
     let (mut world, mut schedule) = app_with(TraceConfig::default());
     for k in 0..5 {
-        world.spawn((
-            TraceMesh(if k % 2 == 0 {
-                icosphere(2)
-            } else {
-                cube_sphere(3)
-            }),
-            TraceTransform(Affine3A::from_rotation_translation(
-                Quat::from_rotation_x(k as f32),
-                Vec3::new(k as f32 * 1.5 - 3.0, 0.0, 0.0),
-            )),
-        ));
+        let mesh = if k % 2 == 0 {
+            icosphere(2)
+        } else {
+            cube_sphere(3)
+        };
+        world.spawn(in_a_row(mesh, k, 1.5, 0.0));
     }
     schedule.run(&mut world);
     let mut rays = camera(Vec3::new(0.0, 2.0, -8.0), Vec3::ZERO, 16, 8, 0.9);
@@ -176,6 +183,67 @@ fn world_packets_match_brute_force() {
     }
     assert!(out.iter().filter(|h| h.is_some()).count() > 50);
     assert!(out[3].is_none() && out[9].is_none());
+}
+
+/// Scattered shadow segments through the two-level world, their walks interleaved
+/// (`TraceWorld::occluded_interleaved`), answer exactly as `occluded` segment by segment and as the exact
+/// brute-force oracle allows: overlapping entities (several walks per segment, one blocked walk ending
+/// the others), one entity kept as a grid (walked on its own), one on a layer the filter rejects,
+/// invalid and empty segments among them, in batches of every size around the four walks.
+#[test]
+fn interleaved_segments_answer_as_occluded_and_brute_force() {
+    let (mut world, mut schedule) = app_with(TraceConfig::default());
+    let mut grid = None;
+    for k in 0..6 {
+        let mesh = if k % 2 == 0 {
+            icosphere(2)
+        } else {
+            bumpy_torus(800)
+        };
+        let mut e = world.spawn(in_a_row(mesh, k, 0.8, 0.2));
+        e.insert(QueryLayers(if k == 4 { 0b10 } else { 0b01 }));
+        if k == 3 {
+            grid = Some(e.insert(TraceStructure(Structure::Grid)).id());
+        }
+    }
+    schedule.run(&mut world);
+    schedule.run(&mut world);
+    let grid = grid.unwrap();
+    let kept = world.resource::<TraceWorld>().structure(grid).unwrap().0;
+    assert_eq!(kept, kinetrace::grid::StructureKind::Grid);
+    let filter = QueryFilter {
+        layers: 0b01,
+        ..Default::default()
+    };
+    let mut r = rng(41);
+    let mut segments: Vec<(Vec3, Vec3)> = (0..300)
+        .map(|_| (rand_vec(&mut r, -3.5, 3.5), rand_vec(&mut r, -3.5, 3.5)))
+        .collect();
+    segments[5].1 = Vec3::NAN;
+    segments[11].1 = segments[11].0;
+    let one_by_one: Vec<bool> = {
+        let tw = world.resource::<TraceWorld>();
+        segments
+            .iter()
+            .map(|&(a, b)| tw.occluded(a, b, &filter))
+            .collect()
+    };
+    let (_, tris) = common::ecs::world_triangles(&mut world, &filter);
+    for (i, (&(a, b), &got)) in segments.iter().zip(&one_by_one).enumerate() {
+        RayOracle::new(&Ray::segment(a, b), tris.iter().copied())
+            .check_any(got, &format!("segment {i}"));
+    }
+    let blocked = one_by_one.iter().filter(|&&b| b).count();
+    assert!(blocked > 60 && blocked < 240, "{blocked} of 300 blocked");
+    let tw = world.resource::<TraceWorld>();
+    let mut from = 0;
+    for len in [0, 1, 3, 4, 5, 9, 64, usize::MAX] {
+        let to = from + len.min(segments.len() - from);
+        let mut out = vec![true; to - from];
+        tw.occluded_interleaved(&segments[from..to], &filter, &mut out);
+        assert_eq!(out, one_by_one[from..to], "segments {from}..{to}");
+        from = to;
+    }
 }
 
 /// Coincident entities (the same triangles at the same transform) are hit at the same distance; the answer

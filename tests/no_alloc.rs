@@ -148,8 +148,11 @@ fn refit_only_ecs_frames_do_not_allocate() {
             let trace_world = world.resource::<TraceWorld>();
             trace_world.cast_packet(&tile, f32::INFINITY, &QueryFilter::default(), &mut hits);
             trace_world.occluded_packet(&segments, &QueryFilter::default(), &mut blocked);
+            let mut interleaved = [false; 8];
+            trace_world.occluded_interleaved(&segments, &QueryFilter::default(), &mut interleaved);
             allocated += allocations() - before;
             assert!(hits.iter().all(Option::is_some) && blocked.iter().all(|b| *b));
+            assert_eq!(interleaved, blocked);
             let stats = world.resource::<TraceStats>();
             binary_tried |= (stats.options.iter())
                 .any(|o| o.entity == e && o.option == PlannedOption::Wide(false) && o.tried);

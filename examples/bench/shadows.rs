@@ -3,8 +3,9 @@
 //! shadow ray per pixel, at 1024×1024 (a smaller crowd with `--quick`) with a shadow map of the image's
 //! resolution (as in the thesis), on all threads, warm buffers; and selective against a ray per pixel
 //! alternated pass by pass, in wall-clock and in CPU time (all threads), which a loaded machine disturbs
-//! less; the same for the selective pass with its marked pixels' rays one by one and as packets (the
-//! crowd's planner picks between them), and the planner's picks after all the passes, hard and soft.
+//! less; the same for the selective pass with its marked pixels' rays as single rays (four walked at
+//! once, interleaved) and as packets, and for a ray per pixel (the crowd's planner picks between them),
+//! and the planner's picks after all the passes, hard and soft.
 //! With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
 //! time and map phase, the pixels unlike the CPU-map image (none), and per pass the bytes uploaded per
 //! triangle and read back per texel, the submissions and the blocking waits.
@@ -148,31 +149,37 @@ pub fn run(rec: &mut Records) {
         }
     }
     let [[sel_wall, sel_cpu], [traced_wall, traced_cpu]] = best;
-    // The marked pixels' rays as packets and one by one (the crowd's planner picks between them),
-    // alternated pass by pass: each way's least CPU time.
-    let mut marked = [f64::INFINITY; 2];
-    let settings = ShadowSettings {
-        towards_light: crowd::sun(),
-        map_resolution: side_map,
-        ..Default::default()
-    };
-    for _ in 0..ALTERNATIONS {
-        for (as_packets, m) in [false, true].into_iter().zip(&mut marked) {
-            let cpu = cpu_seconds(CpuClock::Process);
-            let vis = crowd::sun_visibility_rays(
-                &world,
-                &g,
-                &settings,
-                &mut pass,
-                &mut CpuMap,
-                as_packets,
-            );
-            std::hint::black_box(vis.expect("valid settings"));
-            *m = m.min(cpu_seconds(CpuClock::Process) - cpu);
+    // The selective pass's and the ray-traced one's rays as single rays and as packets (the crowd's
+    // planner picks between them), alternated pass by pass: each way's least CPU time.
+    let mut ways = [[f64::INFINITY; 2]; 2];
+    for (mode, way) in [ShadowMode::Selective, ShadowMode::RayTraced]
+        .into_iter()
+        .zip(&mut ways)
+    {
+        let settings = ShadowSettings {
+            mode,
+            towards_light: crowd::sun(),
+            map_resolution: side_map,
+            ..Default::default()
+        };
+        for _ in 0..ALTERNATIONS {
+            for (as_packets, m) in [false, true].into_iter().zip(way.iter_mut()) {
+                let cpu = cpu_seconds(CpuClock::Process);
+                let vis = crowd::sun_visibility_rays(
+                    &world,
+                    &g,
+                    &settings,
+                    &mut pass,
+                    &mut CpuMap,
+                    as_packets,
+                );
+                std::hint::black_box(vis.expect("valid settings"));
+                *m = m.min(cpu_seconds(CpuClock::Process) - cpu);
+            }
         }
     }
-    let packets_now =
-        [false, true].map(|soft| crowd::marked_rays_as_packets(&world, soft) as u8 as f64);
+    let [marked, every] = ways;
+    let packets_now = |mode, soft| crowd::rays_as_packets(&world, mode, soft) as u8 as f64;
     for (subject, metric, value, unit) in [
         ("selective", "CPU per image", sel_cpu * 1e3, "ms"),
         ("ray traced", "CPU per image", traced_cpu * 1e3, "ms"),
@@ -189,7 +196,7 @@ pub fn run(rec: &mut Records) {
             "x",
         ),
         (
-            "selective, rays one by one",
+            "selective, single rays",
             "CPU per image",
             marked[0] * 1e3,
             "ms",
@@ -201,15 +208,33 @@ pub fn run(rec: &mut Records) {
             "ms",
         ),
         (
+            "ray traced, single rays",
+            "CPU per image",
+            every[0] * 1e3,
+            "ms",
+        ),
+        (
+            "ray traced, rays as packets",
+            "CPU per image",
+            every[1] * 1e3,
+            "ms",
+        ),
+        (
             "selective",
             "planner's rays as packets",
-            packets_now[0],
+            packets_now(ShadowMode::Selective, false),
             "bool",
         ),
         (
             "soft selective",
             "planner's rays as packets",
-            packets_now[1],
+            packets_now(ShadowMode::Selective, true),
+            "bool",
+        ),
+        (
+            "ray traced",
+            "planner's rays as packets",
+            packets_now(ShadowMode::RayTraced, false),
             "bool",
         ),
     ] {
@@ -333,16 +358,6 @@ pub fn run(rec: &mut Records) {
     let mut refits = 0;
     for _ in 0..MOVING_FRAMES {
         crowd::step(&mut world, &mut schedule);
-        if let Ok(b) = std::env::var("KT_EXP_REBUILD") {
-            let mut cfg = world.resource_mut::<kinetrace::ecs::TraceConfig>();
-            cfg.policy = kinetrace::ecs::RebuildPolicy::Lauterbach { threshold: -1.0 };
-            if b == "sah" {
-                cfg.builder = kinetrace::bvh::Builder::SAH;
-            }
-            schedule.run(&mut world);
-            let st = world.resource::<kinetrace::ecs::TraceStats>();
-            eprintln!("rebuilds {} refits {}", st.rebuilds, st.refits);
-        }
         let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
         crowd::sun_visibility(&world, &g, &settings, &mut pass).expect("valid settings");
         refits += pass.stats().refitted as usize;

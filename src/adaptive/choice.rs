@@ -557,14 +557,17 @@ impl Choice<bool> {
         Choice::new(&[(false, 1.0, 1.0), (true, 1.5, 1.0)]).expect("two options")
     }
 
-    /// [`packets`](Self::packets) for *sparse* rays handed over in small coherent batches: the pixels
-    /// a selective shadow pass marks ([`HardShadows`](crate::shadows::HardShadows)), a handful along
-    /// a shadow's edge in each 8 × 8 block, whose parallel rays share a direction but few nodes.
-    /// Single rays first, packets 1.05 × their seconds per ray: on the crowd's marked pixels packets
-    /// measured 4–8% slower per pass (`bench shadows`, docs/BENCHMARKS.md stop 46), the packet's
-    /// setup and lane bookkeeping spent on a few rays. Packets are tried early (up to three frames:
-    /// their optimistic prediction, less a 25% spread, undercuts single rays) and kept only if they
-    /// measure cheaper by the planner's margin.
+    /// [`packets`](Self::packets) for rays whose single walks are cheap against packets: *sparse* rays
+    /// handed over in small coherent batches — the pixels a selective shadow pass marks
+    /// ([`HardShadows`](crate::shadows::HardShadows)), a handful along a shadow's edge in each 8 × 8
+    /// block, whose parallel rays share a direction but few nodes — and single rays walked several at
+    /// a time, interleaved (`TraceWorld::occluded_interleaved`), whose overlapped waits for memory
+    /// beat a packet's shared node visits even on a ray per pixel. Single rays first, packets 1.05 ×
+    /// their seconds per ray: on the crowd's marked pixels packets measured 4–8% slower per pass one by
+    /// one (`bench shadows`, docs/BENCHMARKS.md stop 46) and 15–20% slower than interleaved single
+    /// rays (stop 47), and on a ray per pixel 5–11% slower than interleaved single rays. Packets are
+    /// tried early (up to three frames: their optimistic prediction, less a 25% spread, undercuts
+    /// single rays) and kept only if they measure cheaper by the planner's margin.
     pub fn sparse_packets() -> Self {
         Choice::new(&[(false, 1.0, 1.0), (true, 1.05, 1.0)]).expect("two options")
     }

@@ -83,6 +83,7 @@ mod systems;
 mod top_level;
 mod transform_sync;
 mod world;
+mod world_interleaved;
 mod world_packets;
 
 pub use crate::adaptive::{Build, Device, Prediction, Verdict};

@@ -6,6 +6,7 @@ use super::top_level::TopLevelState;
 use super::{PlannedOption, QueryFilter, RayHit, StructureWhy};
 use crate::Mesh;
 use crate::adaptive::Estimate;
+use crate::bvh::wide::WideNode;
 use crate::bvh::{Bvh, Hit, MeshBvh, TraversalStats, traverse};
 use crate::characterize::SceneProfile;
 use crate::geometry::{Aabb, Ray};
@@ -253,10 +254,19 @@ impl Instance {
     }
 
     /// Whether an object-space ray hits the mesh, through the mesh's structure.
-    fn any_hit(&self, ray: &Ray) -> bool {
+    pub(super) fn any_hit(&self, ray: &Ray) -> bool {
         match self.grid() {
             Some(g) => g.any_hit(ray),
             None => self.bvh.any_hit(ray),
+        }
+    }
+
+    /// The wide tree's nodes when the mesh's single rays walk it (no grid, no compact tree): what an
+    /// interleaved walk ([`TraceWorld::occluded_interleaved`]) can run.
+    pub(super) fn interleaved_tree(&self) -> Option<&[WideNode]> {
+        match (self.grid(), self.bvh.compact(), self.bvh.wide()) {
+            (None, None, Some(w)) => Some(w.nodes()),
+            _ => None,
         }
     }
 

@@ -75,7 +75,7 @@ mod shadow_map;
 
 pub use occluders::Occluders;
 pub use penumbra::LightDisc;
-pub use rays::{PACKET, Packets, ShadowRays};
+pub use rays::{Interleaved, PACKET, Packets, ShadowRays};
 pub use renderer::{CpuMap, MapRenderer};
 pub use shadow_map::ShadowMap;
 #[cfg(feature = "gpu")]

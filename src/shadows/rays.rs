@@ -26,6 +26,12 @@ pub trait ShadowRays: Sync {
             *o = self.occluded(from, to);
         }
     }
+
+    /// Whether each batch holds the rays of one 8 × 8 block of pixels only (the default: what packets
+    /// need); false lets a batch run across blocks, up to [`PACKET`] rays ([`Interleaved`]).
+    fn batches_by_block(&self) -> bool {
+        true
+    }
 }
 
 impl<F: Fn(Vec3, Vec3) -> bool + Sync> ShadowRays for F {
@@ -49,6 +55,27 @@ impl<F: Fn(&[(Vec3, Vec3)], &mut [bool]) + Sync> ShadowRays for Packets<F> {
 
     fn occluded_all(&self, segments: &[(Vec3, Vec3)], out: &mut [bool]) {
         (self.0)(segments, out)
+    }
+}
+
+/// A batched shadow-ray query, `f(segments, out)` setting `out[i]` when anything lies on segment `i`,
+/// given batches of up to [`PACKET`] segments across blocks of pixels: use it for a query that walks
+/// several single rays at once, interleaved (e.g. `TraceWorld::occluded_interleaved`), where the selective
+/// pass's sparse marked pixels would give it one or two rays a block.
+#[derive(Clone, Copy, Debug)]
+pub struct Interleaved<F>(pub F);
+
+impl<F: Fn(&[(Vec3, Vec3)], &mut [bool]) + Sync> ShadowRays for Interleaved<F> {
+    fn occluded(&self, from: Vec3, to: Vec3) -> bool {
+        Packets(&self.0).occluded(from, to)
+    }
+
+    fn occluded_all(&self, segments: &[(Vec3, Vec3)], out: &mut [bool]) {
+        (self.0)(segments, out)
+    }
+
+    fn batches_by_block(&self) -> bool {
+        false
     }
 }
 
@@ -110,9 +137,14 @@ pub(super) fn trace(
     rays: &impl ShadowRays,
 ) {
     let samples = shoot.disc.samples();
+    let by_block = rays.batches_by_block();
     let block = |i: u32| {
         let i = i as usize;
-        (i / shoot.width / BAND, i % shoot.width / BAND)
+        if by_block {
+            (i / shoot.width / BAND, i % shoot.width / BAND)
+        } else {
+            (0, 0)
+        }
     };
     parallel::fill_chunks(par, lit, PACKET, |c, lit| {
         let ids = &marked[c * PACKET..c * PACKET + lit.len()];
