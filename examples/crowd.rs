@@ -805,12 +805,12 @@ pub fn sun_visibility_with<'a>(
         return sun_visibility_rays(world, g, settings, pass, renderer, false);
     }
     let mut planners = lock(&world.resource::<Crowd>().ray_packets);
-    let planner = &mut planners[planner(settings.mode, settings.light_angle > 0.0)];
-    let as_packets = planner.choice.decide(planner.pixels);
+    let rays = &mut planners[planner(settings.mode, settings.light_angle > 0.0)];
+    let as_packets = rays.choice.decide(rays.pixels);
     sun_visibility_rays(world, g, settings, pass, renderer, as_packets)?;
     let s = pass.stats();
-    planner.pixels = s.rays as f64;
-    (planner.choice).served(as_packets, planner.pixels, s.trace_time.as_secs_f64());
+    rays.pixels = s.rays as f64;
+    (rays.choice).served(as_packets, rays.pixels, s.trace_time.as_secs_f64());
     Ok(pass.visibility())
 }
 
@@ -853,8 +853,9 @@ pub fn rays_as_packets(world: &World, mode: ShadowMode, soft: bool) -> bool {
         .current()
 }
 
-/// Which of the crowd's shadow-ray planners a pass in `mode` consults (a shadow map alone traces no
-/// rays: its passes teach the selective one nothing, as they give no pixel a ray).
+/// Which of the crowd's shadow-ray planners a pass in `mode` consults: the selective pass's or the
+/// ray-traced one's, hard or soft. A shadow map alone traces no rays and consults none (the caller
+/// does not ask; it is given the selective one's).
 fn planner(mode: ShadowMode, soft: bool) -> usize {
     (mode == ShadowMode::RayTraced) as usize * 2 + soft as usize
 }

@@ -193,7 +193,7 @@ fn world_packets_match_brute_force() {
 #[test]
 fn interleaved_segments_answer_as_occluded_and_brute_force() {
     let (mut world, mut schedule) = app_with(TraceConfig::default());
-    let mut grid = None;
+    let (mut grid, mut spawned) = (None, Vec::new());
     for k in 0..6 {
         let mesh = if k % 2 == 0 {
             icosphere(2)
@@ -202,15 +202,24 @@ fn interleaved_segments_answer_as_occluded_and_brute_force() {
         };
         let mut e = world.spawn(in_a_row(mesh, k, 0.8, 0.2));
         e.insert(QueryLayers(if k == 4 { 0b10 } else { 0b01 }));
+        spawned.push(e.id());
         if k == 3 {
             grid = Some(e.insert(TraceStructure(Structure::Grid)).id());
         }
     }
     schedule.run(&mut world);
     schedule.run(&mut world);
+    // One entity walked on its own (its grid), the others interleaved (their wide trees).
     let grid = grid.unwrap();
-    let kept = world.resource::<TraceWorld>().structure(grid).unwrap().0;
-    assert_eq!(kept, kinetrace::grid::StructureKind::Grid);
+    let tw = world.resource::<TraceWorld>();
+    assert_eq!(
+        tw.structure(grid).unwrap().0,
+        kinetrace::grid::StructureKind::Grid
+    );
+    let wide = (spawned.iter())
+        .filter(|&&e| e != grid && tw.blas(e).is_some_and(|b| b.wide().is_some()))
+        .count();
+    assert_eq!(wide, 5, "the BVH entities walk their wide trees");
     let filter = QueryFilter {
         layers: 0b01,
         ..Default::default()

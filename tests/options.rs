@@ -765,7 +765,8 @@ fn a_grid_within_the_margin_of_the_bvh_does_not_keep_the_rules_pick() {
     assert_eq!(choice.decide(4096.0), Grid);
 }
 
-/// The marked pixels' shadow rays (`Choice::sparse_packets`): one by one first; packets in use after
+/// Shadow rays whose single walks are cheap against packets (`Choice::sparse_packets`: the crowd's
+/// selective and ray-traced passes): single rays first; packets in use after
 /// 80 passes only where they cost clearly less per ray (0.7 of single rays' seconds), single rays
 /// kept where packets cost 5% less (within the planner's margin) or 5% more (as measured on the
 /// crowd), packets then tried for at most three passes.

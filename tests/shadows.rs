@@ -248,14 +248,15 @@ fn selective_matches_ray_traced_on_crowd_frames() {
     }
 }
 
-/// The crowd demo sends the marked pixels' shadow rays as packets or ray by ray, as its planner
-/// picks (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and
+/// The crowd demo sends the marked pixels' shadow rays as packets or as single rays walked four at a
+/// time interleaved (`TraceWorld::occluded_interleaved`), as its planner picks
+/// (`crowd::sun_visibility_with`): two traversals, one answer. On fixed crowd frames, hard and
 /// soft, the selective image is the same pixel for pixel either way, and the planner's passes,
 /// whichever way each went, give it too. For hard shadows every marked pixel's visibility is also the
 /// brute-force oracle's (exact arithmetic over every triangle of the scene, as
 /// `ray_traced_equals_brute_force_occlusion`).
 #[test]
-fn marked_rays_as_packets_or_one_by_one_give_one_image() {
+fn marked_rays_as_packets_or_single_interleaved_give_one_image() {
     for (frames, world, g) in crowd_frames() {
         let mut tris = Vec::new();
         world

@@ -563,9 +563,10 @@ impl Choice<bool> {
     /// block, whose parallel rays share a direction but few nodes — and single rays walked several at
     /// a time, interleaved (`TraceWorld::occluded_interleaved`), whose overlapped waits for memory
     /// beat a packet's shared node visits even on a ray per pixel. Single rays first, packets 1.05 ×
-    /// their seconds per ray: on the crowd's marked pixels packets measured 4–8% slower per pass one by
-    /// one (`bench shadows`, docs/BENCHMARKS.md stop 46) and 15–20% slower than interleaved single
-    /// rays (stop 47), and on a ray per pixel 5–11% slower than interleaved single rays. Packets are
+    /// their seconds per ray: on the crowd's marked pixels packets measured 4–8% slower per pass than
+    /// single rays one by one (`bench shadows`, docs/BENCHMARKS.md stop 46), and 5% (16 × 2,880
+    /// triangles) and 19% (64 × 10,880) slower than interleaved single rays (stop 47); on a ray per
+    /// pixel 10–12% slower than interleaved single rays (stop 47). Packets are
     /// tried early (up to three frames: their optimistic prediction, less a 25% spread, undercuts
     /// single rays) and kept only if they measure cheaper by the planner's margin.
     pub fn sparse_packets() -> Self {

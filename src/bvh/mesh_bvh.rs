@@ -3,7 +3,7 @@
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::compact::CompactWideBvh;
 use super::wide::simd::RayLanes;
-use super::wide::{AnyJob, DiscCache, LaneDiscs, WideBvh, any_interleaved};
+use super::wide::{AnyJob, DiscCache, LaneDiscs, Visit, WideBvh, any_interleaved};
 use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_pass};
 use crate::geometry::{Aabb, Ray, TriangleRay, hit_limit};
 use crate::mesh::{Mesh, check_positions};
@@ -13,6 +13,9 @@ use std::cell::Cell;
 use std::ops::Range;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Rays one task of the batched queries ([`MeshBvh::closest_hits`], [`MeshBvh::any_hits`]) answers.
+const RAYS_PER_TASK: usize = 256;
 
 /// What an interleaved any-hit walk's leaves test a ray with ([`MeshBvh::any_job`]).
 #[derive(Clone, Copy)]
@@ -532,7 +535,7 @@ impl MeshBvh {
     /// `out` must be as long as `rays`.
     pub fn closest_hits(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill(true, out, 256, |i| self.closest_hit(&rays[i]));
+        parallel::fill(true, out, RAYS_PER_TASK, |i| self.closest_hit(&rays[i]));
     }
 
     /// [`any_hit`](Self::any_hit) for every ray, on all threads with the `parallel` feature. `out` must
@@ -545,8 +548,9 @@ impl MeshBvh {
     /// 2-core Intel VM), 1.0–1.25× on coherent camera rays.
     pub fn any_hits(&self, rays: &[Ray], out: &mut [bool]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill_chunks(true, out, 256, |c, out| {
-            self.any_hits_interleaved(&rays[c * 256..c * 256 + out.len()], out);
+        parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
+            let first = c * RAYS_PER_TASK;
+            self.any_hits_interleaved(&rays[first..first + out.len()], out);
         });
     }
 
@@ -557,23 +561,24 @@ impl MeshBvh {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         out.fill(false);
         let hits = Cell::from_mut(out).as_slice_of_cells();
-        let hit = |&(i, _): &(usize, LeafRay)| hits[i].set(true);
-        let never = |_: &(usize, LeafRay)| false;
         match (&self.compact, &self.wide) {
-            (Some(c), _) => {
-                let start = |i| self.any_job(c.nodes(), &rays[i], i);
-                any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
-            }
-            (None, Some(w)) => {
-                let start = |i| self.any_job(w.nodes(), &rays[i], i);
-                any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
-            }
+            (Some(c), _) => self.any_interleaved_on(c.nodes(), rays, hits),
+            (None, Some(w)) => self.any_interleaved_on(w.nodes(), rays, hits),
             (None, None) => {
                 for (o, r) in hits.iter().zip(rays) {
                     o.set(self.any_hit(r));
                 }
             }
         }
+    }
+
+    /// [`any_hits_interleaved`](Self::any_hits_interleaved) on the wide or compact tree `nodes`, into
+    /// `hits` (all false).
+    fn any_interleaved_on<N: Visit>(&self, nodes: &[N], rays: &[Ray], hits: &[Cell<bool>]) {
+        let start = |i| self.any_job(nodes, &rays[i], i);
+        let hit = |&(i, _): &(usize, LeafRay)| hits[i].set(true);
+        let never = |_: &(usize, LeafRay)| false;
+        any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
     }
 
     /// Ray `ray`'s any-hit walk of this mesh's tree `nodes` (its wide or compact one), tagged `tag`, for

@@ -17,6 +17,25 @@ use bevy_ecs::prelude::*;
 use glam::{Affine3A, Mat3A, Vec2, Vec3};
 use std::sync::Arc;
 
+/// Runs `f` with the thread's scratch list `key`, emptied, and keeps the list for the thread's next call.
+/// The list is taken out for the call, so a query that runs inside it on the same thread (a filter's
+/// predicate querying the world, or a parallel worker stealing another batch while it waits) gets a
+/// fresh list, allocated once, instead of a second borrow's panic; the larger list is kept.
+pub(super) fn with_scratch<T, R>(
+    key: &'static std::thread::LocalKey<std::cell::RefCell<Vec<T>>>,
+    f: impl FnOnce(&mut Vec<T>) -> R,
+) -> R {
+    let mut list = key.take();
+    list.clear();
+    let r = f(&mut list);
+    key.with_borrow_mut(|kept| {
+        if list.capacity() > kept.capacity() {
+            *kept = list;
+        }
+    });
+    r
+}
+
 /// One traceable entity's state.
 pub(crate) struct Instance {
     pub bvh: MeshBvh,
@@ -695,4 +714,34 @@ impl TraceWorld {
 /// tree against the GPU's, single rays against packets); `scene.wgsl` keeps the same rule.
 pub(crate) fn nearer(t: f32, e: Entity, best: &Option<(Entity, Hit)>) -> bool {
     best.is_none_or(|(be, b)| t < b.t || (t == b.t && e.to_bits() < be.to_bits()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::with_scratch;
+    use std::cell::RefCell;
+
+    thread_local! {
+        static LIST: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
+    }
+
+    /// A scratch list used again inside its own use on the same thread gets a list of its own (no
+    /// second borrow, no panic), each call sees an empty list, and the larger of the two is kept.
+    #[test]
+    fn scratch_lists_nest_and_the_larger_one_stays() {
+        let outer = with_scratch(&LIST, |a| {
+            a.extend([1, 2, 3]);
+            let inner = with_scratch(&LIST, |b| {
+                assert!(b.is_empty());
+                b.extend(0..100);
+                b.len()
+            });
+            assert_eq!(*a, [1, 2, 3]);
+            inner + a.len()
+        });
+        assert_eq!(outer, 103);
+        let kept = LIST.with_borrow(|l| l.capacity());
+        assert!(kept >= 100, "the larger list is kept: capacity {kept}");
+        with_scratch(&LIST, |c| assert!(c.is_empty() && c.capacity() >= 100));
+    }
 }

@@ -10,6 +10,7 @@
 //! as `occluded` walks it. Allocates nothing once the thread's list of walks has grown to the most a
 //! batch needed.
 
+use super::world::with_scratch;
 use super::{QueryFilter, TraceWorld};
 use crate::bvh::{LeafRay, any_interleaved, traverse};
 use crate::geometry::Ray;
@@ -19,7 +20,7 @@ use std::cell::{Cell, RefCell};
 
 thread_local! {
     /// A batch's walks (segment, entity), kept per thread so that a warm batch allocates nothing.
-    static WALKS: RefCell<Vec<(u32, Entity)>> = const { RefCell::new(Vec::new()) };
+    static WALKS: RefCell<Vec<(usize, Entity)>> = const { RefCell::new(Vec::new()) };
 }
 
 impl TraceWorld {
@@ -39,8 +40,7 @@ impl TraceWorld {
         assert_eq!(segments.len(), out.len(), "one output per segment");
         out.fill(false);
         let hits = Cell::from_mut(out).as_slice_of_cells();
-        WALKS.with_borrow_mut(|walks| {
-            walks.clear();
+        with_scratch(&WALKS, |walks| {
             for (i, &(from, to)) in segments.iter().enumerate() {
                 let ray = Ray::segment(from, to);
                 if !ray.is_valid() {
@@ -48,17 +48,12 @@ impl TraceWorld {
                 }
                 traverse(self.tlas.nodes(), &ray, &mut (), |slots, _| {
                     let prims = &self.tlas.prim_indices()[slots];
-                    walks.extend(
-                        prims
-                            .iter()
-                            .map(|&p| (i as u32, self.tlas_entities[p as usize])),
-                    );
+                    walks.extend(prims.iter().map(|&p| (i, self.tlas_entities[p as usize])));
                     false
                 });
             }
             let start = |w: usize| {
                 let (i, e) = walks[w];
-                let i = i as usize;
                 let inst = &self.instances[&e];
                 if hits[i].get() || !filter.accepts(e, inst.layers) {
                     return None;

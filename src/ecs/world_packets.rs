@@ -10,7 +10,7 @@
 //! rays costs about what single rays cost plus the entity sort. Allocates nothing once the thread's list of
 //! reached entities has grown to the most a packet reached.
 
-use super::world::{Instance, nearer};
+use super::world::{Instance, nearer, with_scratch};
 use super::{QueryFilter, RayHit, TraceWorld};
 use crate::bvh::{Hit, MAX_PACKET, traverse};
 use crate::geometry::{Ray, hit_limit};
@@ -118,9 +118,8 @@ impl TraceWorld {
         filter: &QueryFilter,
         mut visit: impl FnMut(Entity, &Instance, &[Ray], &[usize], &mut [f32; MAX_PACKET]),
     ) {
-        REACHED.with_borrow_mut(|scratch| {
+        with_scratch(&REACHED, |scratch| {
             // Top level, ray by ray: each reached entity with the nearest entry of any ray into its box.
-            scratch.clear();
             // Each ray's slack for the whole scene (see `traverse`): the entities' boxes are tested
             // against its bound moved outward by it, as every traversal tests boxes.
             let world = self.tlas.bounds();

@@ -5,7 +5,8 @@
 //! ([`Occluders`]: in world space, or each mesh's with its transform, e.g. `TraceWorld::occluders`) and a
 //! shadow-ray query ([`ShadowRays`]: a closure `occluded(from, to)`, e.g.
 //! `TraceWorld::occluded` or [`MeshBvh::any_hit`](crate::MeshBvh::any_hit), or a batched one in
-//! [`Packets`], e.g. `TraceWorld::occluded_packet`), and writes a visibility per pixel:
+//! [`Packets`], e.g. `TraceWorld::occluded_packet`, or in [`Interleaved`], e.g.
+//! `TraceWorld::occluded_interleaved`), and writes a visibility per pixel:
 //!
 //! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
 //!    pixels' surfaces ([`ShadowMap`]). The footprint is first taken from a sample of the image's rows
@@ -270,8 +271,9 @@ impl HardShadows {
     /// Computes the visibility of the light at every pixel of `gbuffer`; `occluders` are every triangle
     /// ([`Occluders`]: in world space, or in groups placed by transforms such as `TraceWorld::occluders`;
     /// used for the shadow map, the ray-traced mode does not read them) and `rays` says whether anything
-    /// lies on a segment (a closure `occluded(from, to)`, or a batched query in
-    /// [`Packets`], which gets neighbouring pixels' rays together). Returns the visibility (also in
+    /// lies on a segment (a closure `occluded(from, to)`, or a batched query in [`Packets`], which gets
+    /// neighbouring pixels' rays together, or in [`Interleaved`], which gets up to [`PACKET`] rays
+    /// across blocks to walk several at once). Returns the visibility (also in
     /// [`visibility`](Self::visibility)). Errors: a zero or non-finite light direction, a map resolution
     /// below 4 or above 16384, negative or non-finite tolerances, or a G-buffer whose arrays do not hold
     /// `width × height` pixels.

@@ -10,11 +10,13 @@ use glam::Vec3;
 ///
 /// Any `Fn(Vec3, Vec3) -> bool + Sync` closure is one (a ray at a time, e.g. `TraceWorld::occluded` or
 /// [`MeshBvh::any_hit`](crate::MeshBvh::any_hit)); wrap a batched query in [`Packets`] to have the pass's
-/// rays traced as packets (e.g. `TraceWorld::occluded_packet`). The pass sends batches of at most
-/// [`PACKET`] segments, all from pixels of one 8 × 8 block of the image (so a packet's rays lie close
-/// together): for hard shadows, the block's marked pixels' parallel rays towards the light (a whole
-/// block's where every pixel gets a ray; often a single ray in the selective pass, whose marked pixels
-/// are sparse); for soft ones, a few pixels' rays over the light's disc.
+/// rays traced as packets (e.g. `TraceWorld::occluded_packet`), or in [`Interleaved`] for a query that
+/// walks several single rays at once (e.g. `TraceWorld::occluded_interleaved`). The pass sends batches
+/// of at most [`PACKET`] segments; for packets, all from pixels of one 8 × 8 block of the image (so a
+/// packet's rays lie close together): for hard shadows, the block's marked pixels' parallel rays towards
+/// the light (a whole block's where every pixel gets a ray; often a single ray in the selective pass,
+/// whose marked pixels are sparse); for soft ones, a few pixels' rays over the light's disc. An
+/// [`Interleaved`] query's batches run across blocks ([`batches_by_block`](Self::batches_by_block)).
 pub trait ShadowRays: Sync {
     /// Whether anything lies on the segment from `from` to `to`.
     fn occluded(&self, from: Vec3, to: Vec3) -> bool;
@@ -127,7 +129,7 @@ impl Batch {
 /// For each pixel of `marked` (listed block by block), the fraction of its rays that reach the light, into
 /// `lit`: in parallel over runs of [`PACKET`] pixels, whose rays go to `rays` in batches of up to
 /// [`PACKET`] from one `BAND × BAND` block of pixels of an image `width` pixels wide (rays far apart
-/// make poor packets: they share few nodes). A direction below the surface is blocked by the surface
+/// make poor packets: they share few nodes), or across blocks where `rays` does not batch by block. A direction below the surface is blocked by the surface
 /// itself (no ray). No allocation.
 pub(super) fn trace(
     par: bool,

@@ -438,7 +438,7 @@ pub(crate) fn any_interleaved<'a, N: Visit + 'a, T: 'a, X>(
 /// Pops the next subtree whose entry lies within `limit` (those beyond it are dropped): `None` when the
 /// stack runs out, the walk's end.
 #[inline(always)]
-fn pop_within(stack: &mut NearStack, limit: f32) -> Option<u32> {
+pub(super) fn pop_within(stack: &mut NearStack, limit: f32) -> Option<u32> {
     std::iter::from_fn(|| stack.pop()).find_map(|(node, entry)| (entry <= limit).then_some(node))
 }
 

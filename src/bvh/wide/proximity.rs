@@ -18,7 +18,7 @@
 use super::discs::{LaneDiscs, disc4};
 use super::{
     EMPTY_LANE, NearStack, WIDE_STACK, WIDTH, WideBvh, WideNode, is_leaf, leaf_slots,
-    nearest_first, prefetch_lanes,
+    nearest_first, pop_within, prefetch_lanes,
 };
 use crate::bvh::stack::Stack;
 use crate::geometry::Aabb;
@@ -89,14 +89,9 @@ impl WideBvh {
                 }
             }
             // Pop the next subtree that may still hold something within the bound.
-            loop {
-                let Some((node, d2)) = stack.pop() else {
-                    return;
-                };
-                if d2 <= limit {
-                    cur = node;
-                    break;
-                }
+            match pop_within(&mut stack, limit) {
+                Some(node) => cur = node,
+                None => return,
             }
         }
     }
