@@ -5,7 +5,9 @@
 //! pair is then one any-hit walk of the entity's tree in its object space, and four such walks run at
 //! once, a node of each in turn ([`MeshBvh::any_hits_interleaved`](crate::MeshBvh::any_hits_interleaved)),
 //! so that one walk's wait for memory overlaps the others' work. A segment found blocked ends its other
-//! walks. Answers equal [`TraceWorld::occluded`] segment by segment: the same walks, in another order.
+//! walks. Answers equal [`TraceWorld::occluded`] segment by segment: the same walks in another order,
+//! but for a blocked segment's walks that started before its blocker was found (`occluded` never
+//! starts them), cut short at their next step.
 //! An entity whose rays go through its grid, its compact tree or its binary tree is walked on its own,
 //! as `occluded` walks it. Allocates nothing once the thread's list of walks has grown to the most a
 //! batch needed.
