@@ -4,8 +4,9 @@
 //! where there is one) and as the planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each
 //! pass's map seconds per triangle taught as the crowd demo does; and with the map on the CPU, the
 //! marked pixels' shadow rays as packets (each batch the pass gives, up to 64 rays of one 8×8 block,
-//! traced together) and as the planner's [`Choice::sparse_packets`] picks between packets and single
-//! rays over [`ROUNDS`] passes, each pass's seconds per marked pixel taught as the crowd demo does. All
+//! traced together), as single rays walked four at a time interleaved (`MeshBvh::any_hits_interleaved`,
+//! as the crowd demo's single rays) and as the planner's [`Choice::sparse_packets`] picks between
+//! packets and interleaved single rays over [`ROUNDS`] passes, each pass's seconds per marked pixel taught as the crowd demo does. All
 //! on one CPU thread.
 //!
 //! Per row: milliseconds per pass and of its map (the GPU's with its upload and read-back), the pixels
@@ -22,7 +23,8 @@ use kinetrace::adaptive::Choice;
 use kinetrace::bvh::{BuildOptions, Builder, TraversalStats};
 use kinetrace::raysort::RayScene;
 use kinetrace::shadows::{
-    CpuMap, GBuffer, HardShadows, MapRenderer, PACKET, Packets, ShadowRays, ShadowSettings,
+    CpuMap, GBuffer, HardShadows, Interleaved, MapRenderer, PACKET, Packets, ShadowRays,
+    ShadowSettings,
 };
 use kinetrace::{MeshBvh, Ray};
 use std::fmt::Write as _;
@@ -40,8 +42,8 @@ pub struct ShadowRow {
     pub mismatches: u32,
 }
 
-/// The scene's rows: the CPU map (its marked pixels' rays one by one, as packets, then as the planner
-/// picks), the GPU map (with `gpu`), then the planner's map, its picks in the name.
+/// The scene's rows: the CPU map (its marked pixels' rays one by one, as packets, interleaved, then as
+/// the planner picks), the GPU map (with `gpu`), then the planner's map, its picks in the name.
 pub fn run(
     scene: &Scene,
     settings: &super::harness::Settings,
@@ -80,17 +82,26 @@ pub fn run(
     };
     let bvh: &MeshBvh = rs.bvh();
     let rays = |from: Vec3, to: Vec3| bvh.any_hit(&Ray::segment(from, to));
+    // A batch's segments (at most `PACKET`) as rays.
+    let as_rays = |segments: &[(Vec3, Vec3)]| {
+        let mut r = [Ray::segment(Vec3::ZERO, Vec3::X); PACKET];
+        for (r, &(from, to)) in r.iter_mut().zip(segments) {
+            *r = Ray::segment(from, to);
+        }
+        r
+    };
     // As the crowd demo's: a batch's rays together, a lone ray alone.
     let packets = |segments: &[(Vec3, Vec3)], out: &mut [bool]| {
         if let &[(from, to)] = segments {
             out[0] = rays(from, to);
             return;
         }
-        let mut r = [Ray::segment(Vec3::ZERO, Vec3::X); PACKET];
-        for (r, &(from, to)) in r.iter_mut().zip(segments) {
-            *r = Ray::segment(from, to);
-        }
+        let r = as_rays(segments);
         bvh.any_hits_packet(&r[..segments.len()], out, &mut TraversalStats::default());
+    };
+    // As the crowd demo's single rays: a batch's rays walked four at a time, interleaved.
+    let interleaved = |segments: &[(Vec3, Vec3)], out: &mut [bool]| {
+        bvh.any_hits_interleaved(&as_rays(segments)[..segments.len()], out);
     };
     let inputs: Inputs = (&s, &tris, &g);
     // A warm pass (its buffers grown), then the timed one.
@@ -112,13 +123,16 @@ pub fn run(
         mismatches: unlike(&cpu, p),
     };
     let (packets_s, p) = pass(&mut |p| render(p, inputs, Packets(&packets), &mut CpuMap));
+    let (interleaved_s, i) =
+        pass(&mut |p| render(p, inputs, Interleaved(&interleaved), &mut CpuMap));
     let mut rows = vec![
         row("cpu".into(), cpu_s, &cpu),
         row("cpu, rays as packets".into(), packets_s, &p),
+        row("cpu, rays interleaved".into(), interleaved_s, &i),
     ];
     rows.push(planned_row(
         Choice::sparse_packets(),
-        ["single rays", "packets"],
+        ["single rays interleaved", "packets"],
         "cpu, rays ",
         &row,
         &cpu,
@@ -128,7 +142,7 @@ pub fn run(
             if as_packets {
                 render(p, inputs, Packets(&packets), &mut CpuMap);
             } else {
-                render(p, inputs, rays, &mut CpuMap);
+                render(p, inputs, Interleaved(&interleaved), &mut CpuMap);
             }
             let stats = p.stats();
             (stats.rays as f64, stats.trace_time.as_secs_f64())
@@ -247,8 +261,8 @@ pub fn table(rows: &[ShadowRow]) -> String {
          selective hard shadows of a directional light along the frame's light, the map (as many texels a \
          side as the image) rendered on the CPU, on the GPU, or as the planner picks over {ROUNDS} \
          passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets); with \
-         the CPU's map, the marked pixels' shadow rays one by one, as packets of a block's rays, or as \
-         the planner picks over {ROUNDS} passes. One CPU thread; the GPU's map time includes its upload \
+         the CPU's map, the marked pixels' shadow rays one by one, as packets of a block's rays, as \
+         single rays walked four at a time interleaved, or as the planner picks over {ROUNDS} passes. One CPU thread; the GPU's map time includes its upload \
          and read-back. Mismatches: map texels and image pixels unlike the CPU-map pass's (rays one by \
          one).\n\n\
          | scene | map, rays | ms/pass | map ms | marked % | texels covered % | mismatches |\n\

@@ -129,8 +129,8 @@ impl Batch {
 /// For each pixel of `marked` (listed block by block), the fraction of its rays that reach the light, into
 /// `lit`: in parallel over runs of [`PACKET`] pixels, whose rays go to `rays` in batches of up to
 /// [`PACKET`] from one `BAND × BAND` block of pixels of an image `width` pixels wide (rays far apart
-/// make poor packets: they share few nodes), or across blocks where `rays` does not batch by block. A direction below the surface is blocked by the surface
-/// itself (no ray). No allocation.
+/// make poor packets: they share few nodes), or across blocks where `rays` does not batch by block. A
+/// direction below the surface is blocked by the surface itself (no ray). No allocation.
 pub(super) fn trace(
     par: bool,
     marked: &[u32],

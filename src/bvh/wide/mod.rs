@@ -377,9 +377,10 @@ pub(crate) struct AnyJob<'a, N, T, X> {
 /// at a time and a node of each in turn: the answers of as many [`walk`]s that stop at their first hit,
 /// but while one walk waits for its next node (or leaf triangles) to come from memory, the others work
 /// — a single walk spends over half of its time on those two loads when the tree is not in cache.
-/// `leaf(data, slot_data, slots)` says whether the walk's ray hits anything in the slots; at the first such leaf
-/// the walk calls `hit(data)` and ends. A walk whose `settled(data)` turns true (its ray was found
-/// blocked by another walk) ends at its next step. Costs the same node visits as the walks one by one.
+/// `leaf(data, slot_data, slots)` says whether the walk's ray hits anything in the slots; at the first
+/// such leaf the walk calls `hit(data)` and ends. A walk whose `settled(data)` turns true (its ray was
+/// found blocked by another walk) ends at its next step. Without such walks it costs the same node
+/// visits as the walks one by one.
 pub(crate) fn any_interleaved<'a, N: Visit + 'a, T: 'a, X>(
     jobs: usize,
     mut start: impl FnMut(usize) -> Option<AnyJob<'a, N, T, X>>,
