@@ -79,8 +79,9 @@ const PLACE_CHUNK: usize = 8_192;
 /// One chunk of a render's triangles placed across the map ([`Placed::place`]).
 #[derive(Clone, Debug, Default)]
 struct Placed {
-    /// Per triangle of the chunk, the first and last band of rows it may cover ([`reach_lanes`]).
-    reach: Vec<[u32; 2]>,
+    /// The chunk's triangles that may cover a texel centre, projected as in `binned`, with the first and
+    /// last band of rows they may cover ([`reach_lanes`]).
+    covering: Vec<([Vec3; 3], [u32; 2])>,
     /// Band `b` rasterises the chunk's triangles `binned[bins[b]..bins[b + 1]]`, each corner in texels
     /// across the map and its `p · towards` (the depth once the nearest point is known): projected here,
     /// so the bands read them in order instead of gathering triangles from all over the scene.
@@ -99,19 +100,27 @@ impl Placed {
     #[inline(always)]
     fn place(&mut self, tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
-        let texels = |q: Vec3A| map.in_texels(q.truncate()).extend(q.z);
+        // Corner `k` of lane `l` in texels across the map, and its `p · towards`.
+        let texels = |q: &Lanes, l: usize| {
+            [0, 1, 2].map(|k| {
+                map.in_texels(Vec2::new(q[k][0][l], q[k][1][l]))
+                    .extend(q[k][2][l])
+            })
+        };
         self.bins.clear();
         self.bins.resize(count + 1, 0);
-        self.reach.clear();
+        self.covering.clear();
         let mut top = 0;
         for block in tris.chunks(LANES) {
-            let (reach, nearest) = reach_lanes(block, to, map);
+            let (reach, nearest, q) = reach_lanes(block, to, map);
             top = top.max(nearest);
-            for &[b0, b1] in &reach[..block.len()] {
-                for b in b0..=b1 {
-                    self.bins[b as usize + 1] += 1;
+            for (l, &[b0, b1]) in reach[..block.len()].iter().enumerate() {
+                if b0 <= b1 {
+                    for b in b0..=b1 {
+                        self.bins[b as usize + 1] += 1;
+                    }
+                    self.covering.push((texels(&q, l), [b0, b1]));
                 }
-                self.reach.push([b0, b1]);
             }
         }
         self.top = top;
@@ -121,10 +130,8 @@ impl Placed {
         self.binned
             .resize(self.bins[count] as usize, [Vec3::ZERO; 3]);
         // Scatter with `bins[b]` as band b's cursor: it ends at band b + 1's start, so the starts are
-        // the cursors shifted by one band. A quarter of a detailed scene's triangles cover a centre: they
-        // are projected again here rather than all of them kept from the first loop.
-        for (t, &[b0, b1]) in tris.iter().zip(&self.reach).filter(|(_, r)| r[0] <= r[1]) {
-            let t = t.map(|p| texels(to.apply(p)));
+        // the cursors shifted by one band.
+        for &(t, [b0, b1]) in &self.covering {
             for at in &mut self.bins[b0 as usize..=b1 as usize] {
                 self.binned[*at as usize] = t;
                 *at += 1;
@@ -420,13 +427,22 @@ pub(crate) fn nearest(k: u32) -> f32 {
 /// on 2 cores).
 const LANES: usize = 8;
 
+/// Up to [`LANES`] triangles lane by lane: coordinate `a` of corner `k` is `[k][a]`.
+type Lanes = [[[f32; LANES]; 3]; 3];
+
 /// For up to [`LANES`] triangles `tris` taken into light space by `to`: per triangle the first and last
 /// band of [`BAND_ROWS`] rows of `map` whose texel centres its bounds may cover (`[1, 0]` when none, or
 /// when a corner is not finite, see [`in_light`]), and the largest [`key`] of its finite triangles'
-/// `p · towards` (0 when none). The operations of [`ToLight::apply`], [`in_light`] and
-/// [`ShadowMap::project`] in their order, lane by lane: bit for bit a triangle at a time.
+/// `p · towards` (0 when none), and the triangles in light space (lanes past the triangles NaN), which
+/// the caller keeps for the few that cover a centre (a quarter of a detailed scene's triangles): a second
+/// pass that projected those again cost 7% of the placing. The operations of [`ToLight::apply`],
+/// [`in_light`] and [`ShadowMap::project`] in their order, lane by lane: bit for bit a triangle at a time.
 #[inline(always)]
-fn reach_lanes(tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) -> ([[u32; 2]; LANES], u32) {
+fn reach_lanes(
+    tris: &[[Vec3; 3]],
+    to: ToLight,
+    map: &ShadowMap,
+) -> ([[u32; 2]; LANES], u32, Lanes) {
     // Coordinate `a` of corner `k` is `p[k][a]`, lane by lane; lanes past the triangles are NaN.
     let mut p = [[[f32::NAN; LANES]; 3]; 3];
     for (l, t) in tris.iter().enumerate() {
@@ -465,7 +481,7 @@ fn reach_lanes(tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) -> ([[u32; 2]; 
         let nearest = key(z[0]).max(key(z[1])).max(key(z[2]));
         top[l] = if finite { nearest } else { 0 };
     }
-    (reach, top.into_iter().fold(0, u32::max))
+    (reach, top.into_iter().fold(0, u32::max), q)
 }
 
 /// [`span`]'s first and last centre as integers, decided alike where the span is not empty, for every
