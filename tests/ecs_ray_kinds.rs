@@ -75,6 +75,8 @@ fn check_closest(oracle: &RayOracle, keys: &[(Entity, u32)], got: Option<&RayHit
 struct Scene {
     movers: Vec<Entity>,
     cloth: Entity,
+    /// The sphere around the second light.
+    lamp: Entity,
     rest: kinetrace::Mesh,
     lights: [Vec3; 2],
 }
@@ -106,18 +108,21 @@ impl Scene {
             .id();
         let lights = [Vec3::new(2.0, 5.0, -1.0), Vec3::new(-3.0, 2.0, 3.0)];
         // The second light sits inside a sphere: every segment toward it is occluded by that sphere.
-        world.spawn((
-            TraceMesh(icosphere(1)),
-            MotionHint::Static,
-            TraceTransform(Affine3A::from_scale_rotation_translation(
-                Vec3::splat(0.5),
-                Quat::IDENTITY,
-                lights[1],
-            )),
-        ));
+        let lamp = world
+            .spawn((
+                TraceMesh(icosphere(1)),
+                MotionHint::Static,
+                TraceTransform(Affine3A::from_scale_rotation_translation(
+                    Vec3::splat(0.5),
+                    Quat::IDENTITY,
+                    lights[1],
+                )),
+            ))
+            .id();
         Scene {
             movers,
             cloth,
+            lamp,
             rest,
             lights,
         }
@@ -145,8 +150,11 @@ impl Scene {
     }
 
     /// Primary camera rays, and from their hits (found through the world, which the oracle then
-    /// judges) shadow segments from each light to the hit point and reflection rays starting on the
-    /// surface; interleaved, with rays along the axes (zero direction components) and an invalid one.
+    /// judges) shadow segments from each light to the hit point (and one more queued as a primary
+    /// request), each through one of three filters in turn — every entity, all but the second light's
+    /// sphere, all but the cloth — so that neighbouring requests, which the queue walks together, see
+    /// different entities, and reflection rays starting on the surface; interleaved, with rays along
+    /// the axes (zero direction components) and an invalid one.
     fn requests(&self, world: &World, r: &mut rand::rngs::SmallRng) -> Vec<Request> {
         let tw = world.resource::<TraceWorld>();
         let all = QueryFilter::default();
@@ -167,9 +175,21 @@ impl Scene {
             } else {
                 h.point + 1e-3 * facing
             };
-            for (k, &light) in self.lights.iter().enumerate() {
-                let kind = RequestKind::Shadow { light: k as u32 };
-                out.push(Request::Shadow(light, point, kind, all.clone()));
+            let (lamp, cloth) = (self.lamp, self.cloth);
+            let filters = [
+                all.clone(),
+                QueryFilter::default().exclude(lamp),
+                QueryFilter::default().predicate(move |e| e != cloth),
+            ];
+            let kinds = (0..2).map(|k| RequestKind::Shadow { light: k });
+            for (k, kind) in kinds.chain([RequestKind::Primary]).enumerate() {
+                let filter = filters[(out.len() + k) % 3].clone();
+                out.push(Request::Shadow(
+                    self.lights[k % 2 + k / 2],
+                    point,
+                    kind,
+                    filter,
+                ));
             }
             let d = ray.dir() - 2.0 * ray.dir().dot(h.normal) * h.normal;
             let reflected = Ray::new(point, d);

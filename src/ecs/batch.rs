@@ -68,7 +68,10 @@ impl RayQueue {
         });
     }
 
-    /// Queues an occlusion query from `from` to `to`.
+    /// Queues an occlusion query from `from` to `to`. The frame's single occlusion queries are answered
+    /// in runs of up to 64 on all threads, each run's walks four at a time, interleaved
+    /// ([`TraceWorld::occluded_interleaved`](super::TraceWorld::occluded_interleaved), each request
+    /// through its own filter): the answers of [`TraceWorld::occluded`](super::TraceWorld::occluded).
     pub fn shadow(&mut self, tag: u64, from: Vec3, to: Vec3, filter: QueryFilter) {
         self.shadow_kind(tag, from, to, RequestKind::Primary, filter);
     }

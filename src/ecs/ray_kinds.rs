@@ -10,8 +10,10 @@
 //! nothing here.
 
 use super::stats::{OptionStats, PlannedOption};
+use super::world_interleaved::occluded_requests;
 use super::{RayHit, RayQueue, RayResults, TraceStats, TraceWorld};
 use crate::adaptive::Choice;
+use crate::bvh::MAX_PACKET;
 use crate::geometry::Ray;
 use crate::raysort::{KeyLayout, RUN_LOW_BITS, RayKind, SecondaryRay, SortScratch, SortedRays};
 use crate::{Result, parallel};
@@ -371,11 +373,29 @@ fn trace_batch(
             }
         }
     };
+    // Rays `ids(k)` one by one, into `out[k]`; occlusion in runs of up to MAX_PACKET with their walks
+    // interleaved (the same answers).
+    let one_by_one = |out: &mut [Answer], ids: &(dyn Fn(usize) -> usize + Sync)| match batch {
+        RayBatch::Closest => parallel::fill(true, out, MAX_PACKET, |k| single(ids(k))),
+        RayBatch::Occlusion => parallel::fill_chunks(true, out, MAX_PACKET, |c, out| {
+            let id = |k| ids(c * MAX_PACKET + k);
+            let mut occluded = [false; MAX_PACKET];
+            let occluded = &mut occluded[..out.len()];
+            occluded_requests(
+                world,
+                |k| &queue.shadows[rays[id(k)].tag as usize],
+                occluded,
+            );
+            for (o, &b) in out.iter_mut().zip(&*occluded) {
+                *o = if b { Answer::Occluded } else { Answer::Miss };
+            }
+        }),
+    };
     let answers = &mut *work.answers;
     answers.clear();
     answers.resize(rays.len(), Answer::Miss);
     if strategy == SecondaryStrategy::Bvh {
-        parallel::fill(true, answers, 64, single);
+        one_by_one(answers, &|j| j);
         return Ok(());
     }
     // Sorted runs read no key bit below RUN_LOW_BITS (see SecondaryStrategy::SortedRuns).
@@ -391,9 +411,7 @@ fn trace_batch(
     done.resize(valid.len(), Answer::Miss);
     match strategy {
         SecondaryStrategy::Bvh => unreachable!("answered above"),
-        SecondaryStrategy::SortedBvh => {
-            parallel::fill(true, done, 64, |k| single(valid[k] as usize));
-        }
+        SecondaryStrategy::SortedBvh => one_by_one(done, &|k| valid[k] as usize),
         SecondaryStrategy::SortedPackets | SecondaryStrategy::SortedRuns => {
             // Runs cut where the key changes above its low bits; plain packets never (all keys agree
             // above 32 bits).

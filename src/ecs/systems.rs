@@ -1,5 +1,6 @@
 //! The per-frame systems of the plugin.
 
+use super::world_interleaved::occluded_requests;
 use super::*;
 use crate::bvh::MAX_PACKET;
 use crate::{Error, Ray, parallel};
@@ -228,10 +229,18 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
                     *o = (s.tag, *b);
                 }
             } else {
-                for (o, s) in out.iter_mut().zip(shadows) {
+                // The run's primary requests, walked four at a time, interleaved.
+                let mut of = [0; MAX_PACKET];
+                let mut n = 0;
+                for (k, s) in shadows.iter().enumerate() {
                     if s.kind == RequestKind::Primary {
-                        *o = (s.tag, world.occluded(s.from, s.to, &s.filter));
+                        (of[n], n) = (k, n + 1);
                     }
+                }
+                let (of, mut occluded) = (&of[..n], [false; MAX_PACKET]);
+                occluded_requests(world, |j| &shadows[of[j]], &mut occluded[..n]);
+                for (&k, &b) in of.iter().zip(&occluded) {
+                    out[k] = (shadows[k].tag, b);
                 }
             }
         },
