@@ -1,7 +1,9 @@
 //! Suite `ecs`: frame cost of the plugin for 1, 10 and 100 deforming meshes of 10k triangles with 10k
 //! batched rays, under Lauterbach's policy and the adaptive one, split by phase; the ECS layer's own
-//! overhead (frame time minus the work of the phases: scheduling, change detection, bookkeeping); and the
-//! frame time of an idle world of 1,000 static meshes.
+//! overhead (frame time minus the work of the phases: scheduling, change detection, bookkeeping); the
+//! frame time of an idle world of 1,000 static meshes; and 10k queued shadow requests between random
+//! points among 10 (100) meshes, whose runs of single requests the queue walks four at a time,
+//! interleaved, against the same segments through `TraceWorld::occluded` one by one on all threads.
 
 use crate::record::Records;
 use bevy_ecs::prelude::*;
@@ -23,6 +25,91 @@ pub fn run(rec: &mut Records) {
         }
     }
     idle(rec, if rec.quick { 200 } else { 1000 });
+    shadow_requests(rec, if rec.quick { 10 } else { 100 }, frames);
+}
+
+/// `n` static bumpy tori of 10k triangles in rows 3 units apart, and 10k shadow segments between random
+/// points among them (scattered, as gameplay's line-of-sight checks are): the batched queries phase per
+/// frame against `occluded` one by one on all threads, same segments, same answers (asserted); medians
+/// over `frames` frames, which a shared machine disturbs less than means.
+fn shadow_requests(rec: &mut Records, n: usize, frames: usize) {
+    use rayon::prelude::*;
+    let scene = format!("{n} static x 10k tris + 10k queued shadow segments");
+    println!("\n{scene}");
+    let (mut world, mut schedule) = app(RebuildPolicy::ADAPTIVE);
+    let rest = bumpy_torus(10_000);
+    let side = (n as f32).sqrt().ceil() as usize;
+    for i in 0..n {
+        let at = Vec3::new((i % side) as f32 * 3.0, 0.0, (i / side) as f32 * 3.0);
+        world.spawn((
+            TraceMesh(rest.clone()),
+            TraceTransform(Affine3A::from_translation(at)),
+        ));
+    }
+    let mut r = SceneRng::new(2);
+    let extent = side as f32 * 3.0;
+    let mut point = || {
+        Vec3::new(
+            r.range(-1.5, extent),
+            r.range(-1.0, 1.0),
+            r.range(-1.5, extent),
+        )
+    };
+    let segments: Vec<(Vec3, Vec3)> = (0..10_000).map(|_| (point(), point())).collect();
+    let (mut queued, mut answers) = (Vec::new(), Vec::new());
+    for f in 0..frames + 2 {
+        let mut queue = world.resource_mut::<RayQueue>();
+        for (i, &(from, to)) in segments.iter().enumerate() {
+            queue.shadow(i as u64, from, to, QueryFilter::default());
+        }
+        schedule.run(&mut world);
+        world.clear_trackers();
+        if f >= 2 {
+            queued.push(world.resource::<TraceStats>().query_time);
+        }
+        answers = world.resource::<RayResults>().shadows.clone();
+    }
+    let tw = world.resource::<TraceWorld>();
+    let all = QueryFilter::default();
+    let (mut one_by_one, mut blocked) = (Vec::new(), Vec::new());
+    for _ in 0..frames {
+        let t = Instant::now();
+        blocked = (segments.par_iter())
+            .map(|&(from, to)| tw.occluded(from, to, &all))
+            .collect();
+        one_by_one.push(t.elapsed());
+    }
+    assert!(
+        answers.iter().map(|a| a.1).eq(blocked.iter().copied()),
+        "the queue and `occluded` disagree"
+    );
+    let median = |mut t: Vec<Duration>| {
+        t.sort();
+        t[t.len() / 2].as_secs_f64() * 1e3
+    };
+    let (queued, one_by_one) = (median(queued), median(one_by_one));
+    rec.add(SUITE, &scene, "queued, interleaved", "phase", queued, "ms");
+    rec.add(
+        SUITE,
+        &scene,
+        "occluded one by one",
+        "time",
+        one_by_one,
+        "ms",
+    );
+    rec.add(
+        SUITE,
+        &scene,
+        "queued vs one by one",
+        "speedup",
+        one_by_one / queued,
+        "x",
+    );
+    println!(
+        "  {} of {} blocked",
+        blocked.iter().filter(|&&b| b).count(),
+        blocked.len()
+    );
 }
 
 /// The plugin's systems run in a chain, so a single-threaded executor suits them: the multi-threaded one
