@@ -8,7 +8,7 @@ use glam::Vec3;
 use kinetrace::bvh::wide::WideBvh;
 use kinetrace::bvh::wide::simd::{self, RayLanes};
 use kinetrace::bvh::{BuildOptions, LEAF_BIT, PartialOptions};
-use kinetrace::{Aabb, Mesh, MeshBvh, Ray};
+use kinetrace::{Aabb, Hit, Mesh, MeshBvh, Ray};
 use rand::Rng;
 use rand::rngs::SmallRng;
 
@@ -175,13 +175,15 @@ fn wide_answers_equal_brute_force_and_the_binary_tree_through_refits() {
     }
 }
 
-/// Batched any-hit queries, whose walks run four at a time interleaved node by node
-/// (`MeshBvh::any_hits_interleaved`, and `any_hits` on all threads), answer every ray as the brute-force
-/// oracle allows and exactly as `any_hit` ray by ray: on the wide, compact and binary trees, in batches of
-/// every size around the four walks (none, fewer, as many, one more, several rounds of refills), with
-/// invalid rays (which hit nothing) and the box test's hard rays mixed in.
+/// Batched any-hit and closest-hit queries, whose walks run four at a time interleaved node by node
+/// (`MeshBvh::any_hits_interleaved` and `closest_hits_interleaved`, and `any_hits` and `closest_hits`
+/// on all threads), answer every ray as the brute-force oracle allows and exactly as `any_hit` and
+/// `closest_hit` ray by ray (the same triangle at the same distance, bit for bit): on the wide, compact
+/// and binary trees, in batches of every size around the four walks (none, fewer, as many, one more,
+/// several rounds of refills), with invalid rays (which hit nothing) and the box test's hard rays mixed
+/// in.
 #[test]
-fn interleaved_any_hits_answer_as_brute_force_and_ray_by_ray() {
+fn interleaved_any_and_closest_hits_answer_as_brute_force_and_ray_by_ray() {
     for (name, m) in [("soup", soup(12, 2000)), ("icosphere", icosphere(3))] {
         let wide = MeshBvh::build(&m, &BuildOptions::default()).unwrap();
         let mut compact = wide.clone();
@@ -213,22 +215,59 @@ fn interleaved_any_hits_answer_as_brute_force_and_ray_by_ray() {
                 hits > all.len() / 4 && hits < all.len(),
                 "{name} {tree}: {hits} hits"
             );
-            let mut from = 0;
-            for len in [0, 1, 2, 3, 4, 5, 8, 9, 31, usize::MAX] {
-                let to = from + len.min(all.len() - from);
-                let mut out = vec![true; to - from];
-                bvh.any_hits_interleaved(&all[from..to], &mut out);
-                assert_eq!(
-                    out,
-                    one_by_one[from..to],
-                    "{name} {tree}: rays {from}..{to}"
-                );
-                from = to;
-            }
+            let what = format!("{name} {tree}: any hits");
+            in_batches(
+                &all,
+                &one_by_one,
+                true,
+                |r, o| bvh.any_hits_interleaved(r, o),
+                &what,
+            );
             let mut out = vec![true; all.len()];
             bvh.any_hits(&all, &mut out);
             assert_eq!(out, one_by_one, "{name} {tree}: any_hits");
+
+            let one_by_one: Vec<_> = all.iter().map(|r| bvh.closest_hit(r)).collect();
+            for (i, (r, got)) in all.iter().zip(&one_by_one).enumerate() {
+                RayOracle::of_mesh(&m, r).check_closest(
+                    got.map(|h| (h.primitive, h.t)),
+                    &format!("{name} {tree} ray {i}"),
+                );
+            }
+            let dummy = Some(Hit {
+                t: -1.0,
+                primitive: u32::MAX,
+                u: 0.0,
+                v: 0.0,
+                normal: Vec3::ZERO,
+            });
+            let what = format!("{name} {tree}: closest hits");
+            let interleaved = |r: &[Ray], o: &mut [_]| bvh.closest_hits_interleaved(r, o);
+            in_batches(&all, &one_by_one, dummy, interleaved, &what);
+            let mut out = vec![dummy; all.len()];
+            bvh.closest_hits(&all, &mut out);
+            assert_eq!(out, one_by_one, "{name} {tree}: closest_hits");
         }
+    }
+}
+
+/// `batch(rays, out)` over `all` cut in batches of every size around the four interleaved walks (none,
+/// fewer, as many, one more, several rounds of refills, the rest), each `out` first filled with `stale`,
+/// against `want` (the answers ray by ray).
+fn in_batches<T: Clone + PartialEq + std::fmt::Debug>(
+    all: &[Ray],
+    want: &[T],
+    stale: T,
+    batch: impl Fn(&[Ray], &mut [T]),
+    what: &str,
+) {
+    let mut from = 0;
+    for len in [0, 1, 2, 3, 4, 5, 8, 9, 31, usize::MAX] {
+        let to = from + len.min(all.len() - from);
+        let mut out = vec![stale.clone(); to - from];
+        batch(&all[from..to], &mut out);
+        assert_eq!(out, want[from..to], "{what}: rays {from}..{to}");
+        from = to;
     }
 }
 

@@ -3,7 +3,7 @@
 use super::traverse::{Counter, TraversalStats, traverse};
 use super::wide::compact::CompactWideBvh;
 use super::wide::simd::RayLanes;
-use super::wide::{AnyJob, DiscCache, LaneDiscs, Visit, WideBvh, any_interleaved};
+use super::wide::{DiscCache, Job, LaneDiscs, Visit, WideBvh, interleaved};
 use super::{BuildOptions, Bvh, PartialOptions, PartialRebuild, refit::refit_pass};
 use crate::geometry::{Aabb, Ray, TriangleRay, hit_limit};
 use crate::mesh::{Mesh, check_positions};
@@ -43,14 +43,75 @@ impl LeafRay {
             .any(|[a, b, c]| self.tr.intersect(a, b, c, self.tmin, self.tmax).is_some())
     }
 
-    /// [`hits`](Self::hits) for a job's tagged ray, as [`any_interleaved`] calls its leaf test.
+    /// [`hits`](Self::hits) for a job's tagged ray, as [`interleaved`] calls its leaf test.
     #[inline(always)]
     pub(crate) fn hits_tagged<X>(
-        (_, ray): &(X, LeafRay),
+        (_, ray): &mut (X, LeafRay),
         tris: &[[Vec3; 3]],
         slots: Range<usize>,
+        _limit: &mut f32,
     ) -> bool {
         ray.hits(tris, slots)
+    }
+}
+
+/// A closest-hit walk's ray at its leaves and its best hit so far: the leaf test of the walk ray by ray
+/// and of the interleaved walks alike.
+struct ClosestRay {
+    tr: TriangleRay,
+    tmin: f32,
+    /// The best hit's distance; the ray's `tmax` until one is found.
+    tmax: f32,
+    /// The ray's slack for the tree's boxes ([`Ray::hit_slack`]).
+    slack: f32,
+    /// (t, primitive, slot, u, v) of the best hit so far.
+    best: Option<(f32, u32, usize, f32, f32)>,
+}
+
+impl ClosestRay {
+    /// For `ray` (valid) down a tree whose root box is `bounds`.
+    #[inline(always)]
+    fn new(ray: &Ray, bounds: &Aabb) -> Self {
+        Self {
+            tr: TriangleRay::new(ray),
+            tmin: ray.tmin,
+            tmax: ray.tmax,
+            slack: ray.hit_slack(bounds),
+            best: None,
+        }
+    }
+
+    /// Tests the triangles `tris[slots]` (slot `s` is primitive `prims[s]`) and keeps the nearest hit,
+    /// the lower primitive on a tie: whether one was nearer than the best so far.
+    #[inline(always)]
+    fn test(&mut self, tris: &[[Vec3; 3]], prims: &[u32], slots: Range<usize>) -> bool {
+        let mut nearer = false;
+        for s in slots {
+            let [a, b, c] = tris[s];
+            if let Some(h) = self.tr.intersect(a, b, c, self.tmin, self.tmax) {
+                let p = prims[s];
+                if self.best.is_none_or(|(bt, bp, ..)| h.t < bt || p < bp) {
+                    self.best = Some((h.t, p, s, h.u, h.v));
+                    self.tmax = h.t;
+                    nearer = true;
+                }
+            }
+        }
+        nearer
+    }
+
+    /// The best hit, with the geometric normal of its triangle (`tris` indexed by slot).
+    fn hit(&self, tris: &[[Vec3; 3]]) -> Option<Hit> {
+        self.best.map(|(t, primitive, s, u, v)| {
+            let [a, b, c] = tris[s];
+            Hit {
+                t,
+                primitive,
+                u,
+                v,
+                normal: (b - a).cross(c - a).normalize_or_zero(),
+            }
+        })
     }
 }
 
@@ -533,9 +594,71 @@ impl MeshBvh {
 
     /// [`closest_hit`](Self::closest_hit) for every ray, on all threads with the `parallel` feature.
     /// `out` must be as long as `rays`.
+    ///
+    /// Each thread keeps four rays' walks of the wide or compact tree going at once
+    /// ([`closest_hits_interleaved`](Self::closest_hits_interleaved)), as [`any_hits`](Self::any_hits)
+    /// does: the same answers as `closest_hit` ray by ray, at 1.3–1.8× the rays a second on random rays
+    /// and 1.05–1.4× on coherent camera rays (`bench cpu --quick`, one thread, 2-core Intel VM).
     pub fn closest_hits(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill(true, out, RAYS_PER_TASK, |i| self.closest_hit(&rays[i]));
+        parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
+            let first = c * RAYS_PER_TASK;
+            self.closest_hits_interleaved(&rays[first..first + out.len()], out);
+        });
+    }
+
+    /// [`closest_hit`](Self::closest_hit) for every ray on the calling thread, four rays' walks
+    /// interleaved on the wide or compact tree, each walk's range shrinking at its own hits; ray by ray
+    /// on the binary tree. The same answers and node visits as `closest_hit` ray by ray. `out` must be
+    /// as long as `rays`. No allocation.
+    pub fn closest_hits_interleaved(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        out.fill(None);
+        let hits = Cell::from_mut(out).as_slice_of_cells();
+        match (&self.compact, &self.wide) {
+            (Some(c), _) => self.closest_interleaved_on(c.nodes(), rays, hits),
+            (None, Some(w)) => self.closest_interleaved_on(w.nodes(), rays, hits),
+            (None, None) => {
+                for (o, r) in hits.iter().zip(rays) {
+                    o.set(self.closest_hit(r));
+                }
+            }
+        }
+    }
+
+    /// [`closest_hits_interleaved`](Self::closest_hits_interleaved) on the wide or compact tree `nodes`,
+    /// into `hits` (all `None`): a walk's answer is written at each nearer hit it finds.
+    fn closest_interleaved_on<N: Visit>(
+        &self,
+        nodes: &[N],
+        rays: &[Ray],
+        hits: &[Cell<Option<Hit>>],
+    ) {
+        let bounds = self.bvh.bounds();
+        let prims = self.bvh.prim_indices();
+        let start = |i: usize| {
+            let ray = &rays[i];
+            ray.is_valid().then(|| {
+                let data = (i, ClosestRay::new(ray, &bounds));
+                Job {
+                    nodes,
+                    slot_data: &self.tris[..],
+                    lanes: RayLanes::new(ray),
+                    limit: hit_limit(data.1.tmax, data.1.slack),
+                    data,
+                }
+            })
+        };
+        let leaf =
+            |(i, r): &mut (usize, ClosestRay), tris: &[[Vec3; 3]], slots, limit: &mut f32| {
+                if r.test(tris, prims, slots) {
+                    *limit = hit_limit(r.tmax, r.slack);
+                    hits[*i].set(r.hit(tris));
+                }
+                false
+            };
+        let never = |_: &(usize, ClosestRay)| false;
+        interleaved(rays.len(), start, leaf, |_| {}, never);
     }
 
     /// [`any_hit`](Self::any_hit) for every ray, on all threads with the `parallel` feature. `out` must
@@ -578,18 +701,18 @@ impl MeshBvh {
         let start = |i| self.any_job(nodes, &rays[i], i);
         let hit = |&(i, _): &(usize, LeafRay)| hits[i].set(true);
         let never = |_: &(usize, LeafRay)| false;
-        any_interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
+        interleaved(rays.len(), start, LeafRay::hits_tagged, hit, never);
     }
 
     /// Ray `ray`'s any-hit walk of this mesh's tree `nodes` (its wide or compact one), tagged `tag`, for
-    /// [`any_interleaved`]: `None` for an invalid ray, which hits nothing.
+    /// [`interleaved`]: `None` for an invalid ray, which hits nothing.
     pub(crate) fn any_job<'a, N, X>(
         &'a self,
         nodes: &'a [N],
         ray: &Ray,
         tag: X,
-    ) -> Option<AnyJob<'a, N, [Vec3; 3], (X, LeafRay)>> {
-        ray.is_valid().then(|| AnyJob {
+    ) -> Option<Job<'a, N, [Vec3; 3], (X, LeafRay)>> {
+        ray.is_valid().then(|| Job {
             nodes,
             slot_data: &self.tris,
             lanes: RayLanes::new(ray),
@@ -602,33 +725,14 @@ impl MeshBvh {
         if !ray.is_valid() {
             return None;
         }
-        let tr = TriangleRay::new(ray);
         let prims = self.bvh.prim_indices();
-        // (t, primitive, slot, u, v) of the best hit so far.
-        let mut best: Option<(f32, u32, usize, f32, f32)> = None;
+        let mut closest = ClosestRay::new(ray, &self.bvh.bounds());
         self.walk(ray, counter, |slots, tmax| {
-            for s in slots {
-                let [a, b, c] = self.tris[s];
-                if let Some(h) = tr.intersect(a, b, c, ray.tmin, *tmax) {
-                    let p = prims[s];
-                    if best.is_none_or(|(bt, bp, ..)| h.t < bt || p < bp) {
-                        best = Some((h.t, p, s, h.u, h.v));
-                        *tmax = h.t;
-                    }
-                }
-            }
+            closest.test(&self.tris, prims, slots);
+            *tmax = closest.tmax;
             false
         });
-        best.map(|(t, primitive, s, u, v)| {
-            let [a, b, c] = self.tris[s];
-            Hit {
-                t,
-                primitive,
-                u,
-                v,
-                normal: (b - a).cross(c - a).normalize_or_zero(),
-            }
-        })
+        closest.hit(&self.tris)
     }
 
     fn any_with<C: Counter>(&self, ray: &Ray, counter: &mut C) -> bool {

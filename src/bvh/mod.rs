@@ -53,7 +53,7 @@ pub(crate) use prefetch::prefetch;
 pub(crate) use refit::refit_nodes;
 pub use traverse::TraversalStats;
 pub(crate) use traverse::{traverse, traverse_by};
-pub(crate) use wide::any_interleaved;
+pub(crate) use wide::interleaved;
 
 use crate::geometry::Aabb;
 use crate::{Error, Result};

@@ -18,7 +18,7 @@
 
 use super::world::with_scratch;
 use super::{QueryFilter, ShadowRequest, TraceWorld};
-use crate::bvh::{LeafRay, MAX_PACKET, any_interleaved, traverse};
+use crate::bvh::{LeafRay, MAX_PACKET, interleaved, traverse};
 use crate::geometry::Ray;
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
@@ -98,7 +98,7 @@ impl TraceWorld {
             };
             let hit = |&(i, _): &(usize, LeafRay)| hits[i].set(true);
             let settled = |&(i, _): &(usize, LeafRay)| hits[i].get();
-            any_interleaved(walks.len(), start, LeafRay::hits_tagged, hit, settled);
+            interleaved(walks.len(), start, LeafRay::hits_tagged, hit, settled);
         });
     }
 }

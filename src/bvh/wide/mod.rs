@@ -357,34 +357,35 @@ fn walk<N: Visit, C: Counter, T>(
     }
 }
 
-/// Walks [`any_interleaved`] keeps going at once: with four, one walk's node is on its way from memory
+/// Walks [`interleaved`] keeps going at once: with four, one walk's node is on its way from memory
 /// while the other three test theirs (two gained less, eight no more; `bench cpu --quick`).
 const INTERLEAVED: usize = 4;
 
-/// An any-hit walk for [`any_interleaved`] to run: a ray down one wide tree.
-pub(crate) struct AnyJob<'a, N, T, X> {
+/// A walk for [`interleaved`] to run: a ray down one wide tree.
+pub(crate) struct Job<'a, N, T, X> {
     /// The tree's nodes (root first), and what its leaves' slots index (asked of the cache ahead).
     pub nodes: &'a [N],
     pub slot_data: &'a [T],
-    /// The ray's box-test constants, and its box limit ([`hit_limit`]).
+    /// The ray's box-test constants, and its box limit ([`hit_limit`]; a closest-hit walk's shrinks).
     pub lanes: RayLanes,
     pub limit: f32,
     /// What the caller's leaf test needs (the ray, its triangles).
     pub data: X,
 }
 
-/// Runs any-hit walks `0..jobs` ([`AnyJob`]s, from `start(job)`; `None`: nothing to walk), [`INTERLEAVED`]
-/// at a time and a node of each in turn: the answers of as many [`walk`]s that stop at their first hit,
-/// but while one walk waits for its next node (or leaf triangles) to come from memory, the others work
-/// — a single walk spends over half of its time on those two loads when the tree is not in cache.
-/// `leaf(data, slot_data, slots)` says whether the walk's ray hits anything in the slots; at the first
-/// such leaf the walk calls `hit(data)` and ends. A walk whose `settled(data)` turns true (its ray was
-/// found blocked by another walk) ends at its next step. Without such walks it costs the same node
-/// visits as the walks one by one.
-pub(crate) fn any_interleaved<'a, N: Visit + 'a, T: 'a, X>(
+/// Runs walks `0..jobs` ([`Job`]s, from `start(job)`; `None`: nothing to walk), [`INTERLEAVED`] at a
+/// time and a node of each in turn: the answers of as many [`walk`]s, but while one walk waits for its
+/// next node (or leaf triangles) to come from memory, the others work — a single walk spends over half
+/// of its time on those two loads when the tree is not in cache. At each leaf, `leaf(data, slot_data,
+/// slots, limit)` tests the walk's ray against the slots, and may shrink the walk's box `limit` (a
+/// closest hit found nearer); where it returns true (an any-hit walk's first hit) the walk calls
+/// `hit(data)` and ends. A walk whose `settled(data)` turns true (its ray was found blocked by another
+/// walk) ends at its next step. Without such walks it costs the same node visits as the walks one by
+/// one.
+pub(crate) fn interleaved<'a, N: Visit + 'a, T: 'a, X>(
     jobs: usize,
-    mut start: impl FnMut(usize) -> Option<AnyJob<'a, N, T, X>>,
-    mut leaf: impl FnMut(&X, &[T], Range<usize>) -> bool,
+    mut start: impl FnMut(usize) -> Option<Job<'a, N, T, X>>,
+    mut leaf: impl FnMut(&mut X, &[T], Range<usize>, &mut f32) -> bool,
     mut hit: impl FnMut(&X),
     settled: impl Fn(&X) -> bool,
 ) {
@@ -408,7 +409,9 @@ pub(crate) fn any_interleaved<'a, N: Visit + 'a, T: 'a, X>(
             let Some((w, cur)) = slot else { continue };
             let ended = if settled(&w.data) {
                 true
-            } else if is_leaf(*cur) && leaf(&w.data, w.slot_data, leaf_slots(*cur)) {
+            } else if is_leaf(*cur)
+                && leaf(&mut w.data, w.slot_data, leaf_slots(*cur), &mut w.limit)
+            {
                 hit(&w.data);
                 true
             } else {
