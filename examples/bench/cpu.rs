@@ -234,11 +234,18 @@ fn scene(rec: &mut Records, name: &str, mesh: &Mesh) {
             let (tai, _) =
                 one_thread(|| best_of(reps, || bvh.any_hits_interleaved(&rays, &mut any)));
             let mut out = vec![None; rays.len()];
+            let (tci, _) =
+                one_thread(|| best_of(reps, || bvh.closest_hits_interleaved(&rays, &mut out)));
+            assert!(
+                out == hits,
+                "interleaved closest hits differ from closest_hit's"
+            );
             let (tcn, _) = best_of(reps, || bvh.closest_hits(&rays, &mut out));
             let (tan, _) = best_of(reps, || bvh.any_hits(&rays, &mut any));
             let subject = format!("kinetrace {tree} {kind}");
             for (metric, t) in [
                 ("closest 1 thread", tc),
+                ("closest interleaved 1 thread", tci),
                 ("any-hit 1 thread", ta),
                 ("any-hit interleaved 1 thread", tai),
                 ("closest all threads", tcn),
