@@ -62,21 +62,18 @@ struct ClosestRay {
     tmin: f32,
     /// The best hit's distance; the ray's `tmax` until one is found.
     tmax: f32,
-    /// The ray's slack for the tree's boxes ([`Ray::hit_slack`]).
-    slack: f32,
     /// (t, primitive, slot, u, v) of the best hit so far.
     best: Option<(f32, u32, usize, f32, f32)>,
 }
 
 impl ClosestRay {
-    /// For `ray` (valid) down a tree whose root box is `bounds`.
+    /// For `ray` (valid).
     #[inline(always)]
-    fn new(ray: &Ray, bounds: &Aabb) -> Self {
+    fn new(ray: &Ray) -> Self {
         Self {
             tr: TriangleRay::new(ray),
             tmin: ray.tmin,
             tmax: ray.tmax,
-            slack: ray.hit_slack(bounds),
             best: None,
         }
     }
@@ -639,25 +636,28 @@ impl MeshBvh {
         let start = |i: usize| {
             let ray = &rays[i];
             ray.is_valid().then(|| {
-                let data = (i, ClosestRay::new(ray, &bounds));
+                // The ray's slack for the tree's boxes, as the walk ray by ray takes it.
+                let slack = ray.hit_slack(&bounds);
                 Job {
                     nodes,
                     slot_data: &self.tris[..],
                     lanes: RayLanes::new(ray),
-                    limit: hit_limit(data.1.tmax, data.1.slack),
-                    data,
+                    limit: hit_limit(ray.tmax, slack),
+                    data: (i, slack, ClosestRay::new(ray)),
                 }
             })
         };
-        let leaf =
-            |(i, r): &mut (usize, ClosestRay), tris: &[[Vec3; 3]], slots, limit: &mut f32| {
-                if r.test(tris, prims, slots) {
-                    *limit = hit_limit(r.tmax, r.slack);
-                    hits[*i].set(r.hit(tris));
-                }
-                false
-            };
-        let never = |_: &(usize, ClosestRay)| false;
+        let leaf = |(i, slack, r): &mut (usize, f32, ClosestRay),
+                    tris: &[[Vec3; 3]],
+                    slots,
+                    limit: &mut f32| {
+            if r.test(tris, prims, slots) {
+                *limit = hit_limit(r.tmax, *slack);
+                hits[*i].set(r.hit(tris));
+            }
+            false
+        };
+        let never = |_: &(usize, f32, ClosestRay)| false;
         interleaved(rays.len(), start, leaf, |_| {}, never);
     }
 
@@ -726,7 +726,7 @@ impl MeshBvh {
             return None;
         }
         let prims = self.bvh.prim_indices();
-        let mut closest = ClosestRay::new(ray, &self.bvh.bounds());
+        let mut closest = ClosestRay::new(ray);
         self.walk(ray, counter, |slots, tmax| {
             closest.test(&self.tris, prims, slots);
             *tmax = closest.tmax;
