@@ -594,8 +594,8 @@ impl MeshBvh {
     ///
     /// Each thread keeps four rays' walks of the wide or compact tree going at once
     /// ([`closest_hits_interleaved`](Self::closest_hits_interleaved)), as [`any_hits`](Self::any_hits)
-    /// does: the same answers as `closest_hit` ray by ray, at 1.3–1.8× the rays a second on random rays
-    /// and 1.05–1.4× on coherent camera rays (`bench cpu --quick`, one thread, 2-core Intel VM).
+    /// does: the same answers as `closest_hit` ray by ray, at 1.3–1.55× the rays a second on random rays
+    /// and 1.0–1.2× on coherent camera rays (`bench cpu --quick`, one thread, 2-core Intel VM).
     pub fn closest_hits(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
