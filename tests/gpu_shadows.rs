@@ -222,6 +222,55 @@ fn gpu_map_is_the_cpu_map_where_edges_run_through_texel_centres() {
 #[test]
 fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
     let Some(ctx) = gpu_or_skip() else { return };
+    let s = ShadowSettings {
+        mode: ShadowMode::ShadowMap,
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: 2600,
+        ..Default::default()
+    };
+    let (cpu, gpu) = both_passes(&s, &cluttered_ground(), GpuShadowMap::new(&ctx));
+    assert_same_pass(&cpu, &gpu, "ground under a 2,600² map");
+}
+
+/// The large triangles' indirect dispatch (eight workgroups a listed triangle) folded into its second
+/// and third dimensions, as it is past the device's limit of workgroups per dimension, here at two and
+/// three a dimension: the same map as the CPU's.
+#[test]
+fn gpu_map_with_its_large_triangles_dispatch_folded_is_the_cpu_map() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let s = ShadowSettings {
+        mode: ShadowMode::ShadowMap,
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: 1024,
+        ..Default::default()
+    };
+    for groups in [2, 3] {
+        let mut on_gpu = GpuShadowMap::new(&ctx);
+        on_gpu.limit_workgroups(groups);
+        let (cpu, gpu) = both_passes(&s, &cluttered_ground(), on_gpu);
+        assert_same_pass(&cpu, &gpu, &format!("folded at {groups} workgroups"));
+    }
+}
+
+/// `settings`' pass over `tris` (no shadow rays) with the CPU's map and with `on_gpu`'s.
+fn both_passes(
+    settings: &ShadowSettings,
+    tris: &[[Vec3; 3]],
+    mut on_gpu: GpuShadowMap,
+) -> (HardShadows, HardShadows) {
+    let g = ground(32);
+    let mut cpu = HardShadows::new();
+    cpu.run(settings, tris, &g, |_: Vec3, _: Vec3| false)
+        .expect("the CPU pass");
+    let mut gpu = HardShadows::new();
+    gpu.run_with(settings, tris, &g, |_: Vec3, _: Vec3| false, &mut on_gpu)
+        .expect("the GPU pass");
+    (cpu, gpu)
+}
+
+/// A 130-unit floor (two triangles, each spanning most of the map's rows) under 200 random triangles up
+/// to 3 units across.
+fn cluttered_ground() -> Vec<[Vec3; 3]> {
     let mut r = rng(31);
     let floor = [
         Vec3::new(-10.0, 0.0, -10.0),
@@ -241,26 +290,7 @@ fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
             o + rand_vec(&mut r, 0.0, 3.0),
         ]);
     }
-    let s = ShadowSettings {
-        mode: ShadowMode::ShadowMap,
-        towards_light: Vec3::new(0.3, 1.0, 0.2),
-        map_resolution: 2600,
-        ..Default::default()
-    };
-    let g = ground(32);
-    let mut cpu = HardShadows::new();
-    cpu.run(&s, &tris, &g, |_: Vec3, _: Vec3| false)
-        .expect("the CPU pass");
-    let mut gpu = HardShadows::new();
-    gpu.run_with(
-        &s,
-        &tris,
-        &g,
-        |_: Vec3, _: Vec3| false,
-        &mut GpuShadowMap::new(&ctx),
-    )
-    .expect("the GPU pass");
-    assert_same_pass(&cpu, &gpu, "ground under a 2,600² map");
+    tris
 }
 
 /// Nothing to render — no occluder, only broken ones, or no receiver — gives the CPU's empty map and

@@ -58,6 +58,9 @@ pub struct GpuShadowMap {
     /// Each group's first triangle (then the count), and its transform into light space, as uploaded.
     first: Vec<u32>,
     transforms: Vec<[f32; 16]>,
+    /// Workgroups per dimension the large triangles' indirect dispatch folds at (`fold_groups` in the
+    /// kernels): the device's limit, at most 65,535.
+    max_groups: u32,
 }
 
 /// Words of the kernels' state: the nearest point's key and the count of triangles listed as large.
@@ -85,7 +88,16 @@ impl GpuShadowMap {
             stand_in: storage("shadow map stand-in"),
             first: Vec::new(),
             transforms: Vec::new(),
+            max_groups: ctx.max_groups().min(0xffff),
         }
+    }
+
+    /// Test hook (feature `testing`): the large triangles' dispatch folds at `groups` workgroups per
+    /// dimension (at least 1, at most the device's limit), so that tests reach its second and third
+    /// dimensions without millions of large triangles.
+    #[cfg(feature = "testing")]
+    pub fn limit_workgroups(&mut self, groups: u32) {
+        self.max_groups = groups.clamp(1, self.ctx.max_groups().min(0xffff));
     }
 
     /// Uploads `occluders` and their transforms into `map`'s light space; returns the triangle count.
@@ -134,7 +146,7 @@ impl GpuShadowMap {
             n,
             self.transforms.len() as u32,
             res as u32,
-            self.ctx.max_groups().min(0xffff),
+            self.max_groups,
             corner.x.to_bits(),
             corner.y.to_bits(),
             per_texel.to_bits(),
