@@ -151,17 +151,25 @@ impl Scene {
 
     /// Primary camera rays, and from their hits (found through the world, which the oracle then
     /// judges) shadow segments from each light to the hit point (and one more queued as a primary
-    /// request), each through one of three filters in turn — every entity, all but the second light's
-    /// sphere, all but the cloth — so that neighbouring requests, which the queue walks together, see
-    /// different entities, and reflection rays starting on the surface; interleaved, with rays along
-    /// the axes (zero direction components) and an invalid one.
+    /// request) and reflection rays starting on the surface, each request through one of three filters
+    /// in turn — every entity, all but the second light's sphere, all but the cloth — so that
+    /// neighbouring requests, which the queue walks together, see different entities; interleaved,
+    /// with rays along the axes (zero direction components) and an invalid one.
     fn requests(&self, world: &World, r: &mut rand::rngs::SmallRng) -> Vec<Request> {
         let tw = world.resource::<TraceWorld>();
         let all = QueryFilter::default();
         let eye = Vec3::new(0.5, 1.0, -5.5);
         let mut out = Vec::new();
+        let (lamp, cloth) = (self.lamp, self.cloth);
+        let filters = [
+            all.clone(),
+            QueryFilter::default().exclude(lamp),
+            QueryFilter::default().predicate(move |e| e != cloth),
+        ];
+        // Neighbouring requests see different entities.
+        let next = |out: &Vec<Request>| filters[out.len() % 3].clone();
         for ray in camera(eye, Vec3::ZERO, 16, 4, 1.2) {
-            out.push(Request::Cast(ray, RequestKind::Primary, all.clone()));
+            out.push(Request::Cast(ray, RequestKind::Primary, next(&out)));
             let Some(h) = tw.cast_ray(&ray, f32::INFINITY, &all) else {
                 continue;
             };
@@ -175,28 +183,17 @@ impl Scene {
             } else {
                 h.point + 1e-3 * facing
             };
-            let (lamp, cloth) = (self.lamp, self.cloth);
-            let filters = [
-                all.clone(),
-                QueryFilter::default().exclude(lamp),
-                QueryFilter::default().predicate(move |e| e != cloth),
-            ];
             let kinds = (0..2).map(|k| RequestKind::Shadow { light: k });
             for (k, kind) in kinds.chain([RequestKind::Primary]).enumerate() {
-                let filter = filters[(out.len() + k) % 3].clone();
-                out.push(Request::Shadow(
-                    self.lights[k % 2 + k / 2],
-                    point,
-                    kind,
-                    filter,
-                ));
+                let light = self.lights[k % 2 + k / 2];
+                out.push(Request::Shadow(light, point, kind, next(&out)));
             }
             let d = ray.dir() - 2.0 * ray.dir().dot(h.normal) * h.normal;
             let reflected = Ray::new(point, d);
             out.push(Request::Cast(
                 reflected,
                 RequestKind::Reflection,
-                all.clone(),
+                next(&out),
             ));
         }
         // Axis rays from random points, a filtered reflection ray and an invalid one.

@@ -55,6 +55,40 @@ impl LeafRay {
     }
 }
 
+/// An interleaved closest-hit walk's state ([`MeshBvh::closest_job`]): its caller's tag, and what its
+/// leaves need.
+pub(crate) struct ClosestWalk<'a, X> {
+    pub(crate) tag: X,
+    /// The mesh's primitive per slot.
+    prims: &'a [u32],
+    /// The ray's slack for the tree's boxes ([`Ray::hit_slack`]).
+    slack: f32,
+    ray: ClosestRay,
+}
+
+impl<X> ClosestWalk<'_, X> {
+    /// The leaf test: the triangles `tris[slots]` against the walk's ray, keeping its nearest hit;
+    /// where one was nearer, the walk's box `limit` shrinks to it and the answer is true.
+    #[inline(always)]
+    pub(crate) fn test(
+        &mut self,
+        tris: &[[Vec3; 3]],
+        slots: Range<usize>,
+        limit: &mut f32,
+    ) -> bool {
+        let nearer = self.ray.test(tris, self.prims, slots);
+        if nearer {
+            *limit = hit_limit(self.ray.tmax, self.slack);
+        }
+        nearer
+    }
+
+    /// The walk's nearest hit so far (`tris` its mesh's triangles by slot).
+    pub(crate) fn hit(&self, tris: &[[Vec3; 3]]) -> Option<Hit> {
+        self.ray.hit(tris)
+    }
+}
+
 /// A closest-hit walk's ray at its leaves and its best hit so far: the leaf test of the walk ray by ray
 /// and of the interleaved walks alike.
 struct ClosestRay {
@@ -631,34 +665,42 @@ impl MeshBvh {
         rays: &[Ray],
         hits: &[Cell<Option<Hit>>],
     ) {
-        let bounds = self.bvh.bounds();
-        let prims = self.bvh.prim_indices();
-        let start = |i: usize| {
-            let ray = &rays[i];
-            ray.is_valid().then(|| {
-                // The ray's slack for the tree's boxes, as the walk ray by ray takes it.
-                let slack = ray.hit_slack(&bounds);
-                Job {
-                    nodes,
-                    slot_data: &self.tris[..],
-                    lanes: RayLanes::new(ray),
-                    limit: hit_limit(ray.tmax, slack),
-                    data: (i, slack, ClosestRay::new(ray)),
-                }
-            })
-        };
-        let leaf = |(i, slack, r): &mut (usize, f32, ClosestRay),
-                    tris: &[[Vec3; 3]],
-                    slots,
-                    limit: &mut f32| {
-            if r.test(tris, prims, slots) {
-                *limit = hit_limit(r.tmax, *slack);
-                hits[*i].set(r.hit(tris));
+        let start = |i: usize| self.closest_job(nodes, &rays[i], i);
+        let leaf = |w: &mut ClosestWalk<usize>, tris: &[[Vec3; 3]], slots, limit: &mut f32| {
+            if w.test(tris, slots, limit) {
+                hits[w.tag].set(w.hit(tris));
             }
             false
         };
-        let never = |_: &(usize, f32, ClosestRay)| false;
+        let never = |_: &ClosestWalk<usize>| false;
         interleaved(rays.len(), start, leaf, |_| {}, never);
+    }
+
+    /// Ray `ray`'s closest-hit walk of this mesh's tree `nodes` (its wide or compact one), tagged `tag`,
+    /// for [`interleaved`] (its leaf test: [`ClosestWalk::test`]): `None` for an invalid ray, which
+    /// hits nothing.
+    pub(crate) fn closest_job<'a, N, X>(
+        &'a self,
+        nodes: &'a [N],
+        ray: &Ray,
+        tag: X,
+    ) -> Option<Job<'a, N, [Vec3; 3], ClosestWalk<'a, X>>> {
+        ray.is_valid().then(|| {
+            // The ray's slack for the tree's boxes, as the walk ray by ray takes it.
+            let slack = ray.hit_slack(&self.bvh.bounds());
+            Job {
+                nodes,
+                slot_data: &self.tris,
+                lanes: RayLanes::new(ray),
+                limit: hit_limit(ray.tmax, slack),
+                data: ClosestWalk {
+                    tag,
+                    prims: self.bvh.prim_indices(),
+                    slack,
+                    ray: ClosestRay::new(ray),
+                },
+            }
+        })
     }
 
     /// [`any_hit`](Self::any_hit) for every ray, on all threads with the `parallel` feature. `out` must
