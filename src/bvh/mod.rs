@@ -42,8 +42,8 @@ pub mod wide;
 
 pub use build_ploc::{DEFAULT_PLOC_RADIUS, MAX_PLOC_RADIUS};
 pub use build_sah::MAX_BINS;
-pub(crate) use mesh_bvh::{ClosestWalk, LeafRay, is_collapsed, query_corners};
 pub use mesh_bvh::{GATHER_BELOW_BYTES, Hit, MeshBvh};
+pub(crate) use mesh_bvh::{LeafRay, is_collapsed, query_corners};
 pub(crate) use mesh_bvh::{next_topology_id, slot_indices};
 pub use node::{LEAF_BIT, MAX_DEPTH, MAX_LEAF_SIZE, MAX_PRIMITIVES, Node};
 pub use packet::MAX_PACKET;

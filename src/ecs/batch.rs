@@ -51,9 +51,7 @@ pub struct RayQueue {
 }
 
 impl RayQueue {
-    /// Queues a closest-hit query. The frame's single closest-hit queries are answered in runs of up to
-    /// 64 on all threads, each run's walks four at a time, interleaved, each request through its own
-    /// filter: the answers of [`TraceWorld::cast_ray`](super::TraceWorld::cast_ray).
+    /// Queues a closest-hit query.
     pub fn cast(&mut self, tag: u64, ray: Ray, filter: QueryFilter) {
         self.cast_kind(tag, ray, RequestKind::Primary, filter);
     }

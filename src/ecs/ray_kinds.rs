@@ -18,7 +18,6 @@ use crate::geometry::Ray;
 use crate::raysort::{KeyLayout, RUN_LOW_BITS, RayKind, SecondaryRay, SortScratch, SortedRays};
 use crate::{Result, parallel};
 use bevy_ecs::prelude::*;
-use glam::Vec3;
 use std::time::Instant;
 
 /// What a queued ray is for, which decides whether it joins a secondary batch and how it is keyed there.
@@ -374,22 +373,10 @@ fn trace_batch(
             }
         }
     };
-    // Rays `ids(k)` one by one, into `out[k]`: in runs of up to MAX_PACKET with their walks interleaved
-    // (the same answers).
+    // Rays `ids(k)` one by one, into `out[k]`; occlusion in runs of up to MAX_PACKET with their walks
+    // interleaved (the same answers).
     let one_by_one = |out: &mut [Answer], ids: &(dyn Fn(usize) -> usize + Sync)| match batch {
-        RayBatch::Closest => parallel::fill_chunks(true, out, MAX_PACKET, |c, out| {
-            let id = |k| ids(c * MAX_PACKET + k);
-            let mut world_rays = [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET];
-            for (k, r) in world_rays[..out.len()].iter_mut().enumerate() {
-                *r = rays[id(k)].ray;
-            }
-            let mut hits = [None; MAX_PACKET];
-            let hits = &mut hits[..out.len()];
-            world.cast_interleaved_each(&world_rays[..out.len()], |k| filter(id(k)), hits);
-            for (o, h) in out.iter_mut().zip(hits) {
-                *o = h.take().map_or(Answer::Miss, Answer::Hit);
-            }
-        }),
+        RayBatch::Closest => parallel::fill(true, out, MAX_PACKET, |k| single(ids(k))),
         RayBatch::Occlusion => parallel::fill_chunks(true, out, MAX_PACKET, |c, out| {
             let id = |k| ids(c * MAX_PACKET + k);
             let mut occluded = [false; MAX_PACKET];

@@ -202,22 +202,11 @@ fn answer_on_cpu(world: &TraceWorld, queue: &RayQueue, frame: u64, out: &mut Ray
                 *o = (r.tag, *h);
             }
         } else {
-            // The run's primary requests (secondary kinds are their batch's, [`super::ray_kinds`],
-            // answered after this pass), walked four at a time, interleaved.
-            let (mut of, mut world_rays, mut n) = (
-                [0; MAX_PACKET],
-                [Ray::new(Vec3::ZERO, Vec3::X); MAX_PACKET],
-                0,
-            );
-            for (k, r) in rays.iter().enumerate() {
+            // Secondary kinds are their batch's ([`super::ray_kinds`]), answered after this pass.
+            for (o, r) in out.iter_mut().zip(rays) {
                 if r.kind == RequestKind::Primary {
-                    (of[n], world_rays[n], n) = (k, r.ray, n + 1);
+                    *o = (r.tag, world.cast_ray(&r.ray, f32::INFINITY, &r.filter));
                 }
-            }
-            let (of, mut hits) = (&of[..n], [None; MAX_PACKET]);
-            world.cast_interleaved_each(&world_rays[..n], |j| &rays[of[j]].filter, &mut hits[..n]);
-            for (&k, h) in of.iter().zip(hits) {
-                out[k] = (rays[k].tag, h);
             }
         }
     });

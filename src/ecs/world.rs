@@ -263,7 +263,7 @@ impl Instance {
     }
 
     /// The nearest hit of an object-space ray, through the mesh's structure, counted into `stats` if given.
-    pub(super) fn closest_hit(&self, ray: &Ray, stats: Option<&mut TraversalStats>) -> Option<Hit> {
+    fn closest_hit(&self, ray: &Ray, stats: Option<&mut TraversalStats>) -> Option<Hit> {
         match (self.grid(), stats) {
             (Some(g), Some(s)) => g.closest_hit_counted(ray, s),
             (Some(g), None) => g.closest_hit(ray),

@@ -1,6 +1,6 @@
-//! Shadow segments and closest-hit rays through the two-level world, their walks interleaved: a batch of
-//! scattered segments (the marked pixels' shadow rays of a selective pass) or rays (the ray queue's
-//! single requests) whose entities' trees are not in cache.
+//! Shadow segments through the two-level world, their walks interleaved: a batch of scattered segments
+//! (the marked pixels' shadow rays of a selective pass, the ray queue's single requests) whose entities'
+//! trees are not in cache.
 //!
 //! Each segment's entities are found at the top level first, nearest first; every (segment, entity)
 //! pair is then one any-hit walk of the entity's tree in its object space, and four such walks run at
@@ -17,10 +17,9 @@
 //! as `occluded` walks it. Allocates nothing once the thread's list of walks has grown to the most a
 //! batch needed.
 
-use super::world::nearer;
 use super::world::with_scratch;
-use super::{QueryFilter, RayHit, ShadowRequest, TraceWorld};
-use crate::bvh::{ClosestWalk, Hit, LeafRay, MAX_PACKET, interleaved, traverse};
+use super::{QueryFilter, ShadowRequest, TraceWorld};
+use crate::bvh::{LeafRay, MAX_PACKET, interleaved, traverse};
 use crate::geometry::Ray;
 use bevy_ecs::prelude::Entity;
 use glam::Vec3;
@@ -90,74 +89,11 @@ impl TraceWorld {
         });
     }
 
-    /// [`cast_ray`](Self::cast_ray) with no distance limit for every ray, ray `i` seeing the entities
-    /// `filter(i)` accepts, into `out` (as long as `rays`), the walks of every (ray, entity) pair four
-    /// at a time as [`occluded_interleaved`](Self::occluded_interleaved) runs them: each walk starts
-    /// bounded by its ray's nearest hit so far and shrinks its range at its own hits. The same answers
-    /// as `cast_ray` ray by ray (the nearest hit, ties to the lowest entity, then the lowest triangle).
-    /// Single-threaded; no allocation once the thread's list of walks has grown.
-    pub(crate) fn cast_interleaved_each<'f>(
-        &self,
-        rays: &[Ray],
-        filter: impl Fn(usize) -> &'f QueryFilter,
-        out: &mut [Option<RayHit>],
-    ) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        assert!(
-            rays.len() <= MAX_PACKET,
-            "at most {MAX_PACKET} rays at once"
-        );
-        // Per ray, its nearest hit so far: the entity and the hit in its object space.
-        let best: [Cell<Option<(Entity, Hit)>>; MAX_PACKET] =
-            std::array::from_fn(|_| Cell::new(None));
-        with_scratch(&WALKS, |walks| {
-            self.gather(rays.len(), |i| rays[i], walks);
-            let keep = |i: usize, e: Entity, h: Option<Hit>| {
-                if let Some(h) = h
-                    && nearer(h.t, e, &best[i].get())
-                {
-                    best[i].set(Some((e, h)));
-                }
-            };
-            let start = |w: usize| {
-                let (_, i, e) = walks[w];
-                let inst = &self.instances[&e];
-                if !filter(i).accepts(e, inst.layers) {
-                    return None;
-                }
-                let bound = best[i].get().map_or(rays[i].tmax, |(_, h)| h.t);
-                let object = inst.object_ray(&rays[i], bound);
-                match inst.interleaved_tree() {
-                    Some(nodes) => inst.bvh.closest_job(nodes, &object, (i, e)),
-                    None => {
-                        keep(i, e, inst.closest_hit(&object, None));
-                        None
-                    }
-                }
-            };
-            let leaf = |w: &mut ClosestWalk<(usize, Entity)>,
-                        tris: &[[Vec3; 3]],
-                        slots,
-                        limit: &mut f32| {
-                if w.test(tris, slots, limit) {
-                    keep(w.tag.0, w.tag.1, w.hit(tris));
-                }
-                false
-            };
-            let never = |_: &ClosestWalk<(usize, Entity)>| false;
-            interleaved(walks.len(), start, leaf, |_| {}, never);
-        });
-        for ((o, b), r) in out.iter_mut().zip(&best).zip(rays) {
-            *o = b.get().map(|(e, h)| self.instances[&e].world_hit(e, r, &h));
-        }
-    }
-
     /// Lists into `walks` every (ray, entity) pair whose entity box ray `ray(i)`, `i < n`, reaches at
     /// the top level (an invalid ray none), with its rank among its ray's pairs (nearest first), in the
     /// order the walks start: every ray's first, then every second one, and so on. The walks running at
     /// once are then mostly of different rays, and a ray's later walks start only once its first ones
-    /// have had time to find it blocked (then skipped) or to find a near hit (then bounded by it), as
-    /// `occluded` and `cast_ray` stop or shrink their range at the nearest entities first.
+    /// have had time to find it blocked (then skipped), as `occluded` stops at its first blocker.
     fn gather(&self, n: usize, ray: impl Fn(usize) -> Ray, walks: &mut Vec<(u32, usize, Entity)>) {
         for i in 0..n {
             let ray = ray(i);
