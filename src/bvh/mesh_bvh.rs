@@ -17,6 +17,16 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// Rays one task of the batched queries ([`MeshBvh::closest_hits`], [`MeshBvh::any_hits`]) answers.
 const RAYS_PER_TASK: usize = 256;
 
+/// Runs `batch(rays, out)` on [`RAYS_PER_TASK`]-ray pieces of `rays` and `out` (as long as `rays`), on
+/// all threads with the `parallel` feature: the batched queries' split into tasks.
+fn in_tasks<T: Send>(rays: &[Ray], out: &mut [T], batch: impl Fn(&[Ray], &mut [T]) + Sync) {
+    assert_eq!(rays.len(), out.len(), "one output per ray");
+    parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
+        let first = c * RAYS_PER_TASK;
+        batch(&rays[first..first + out.len()], out);
+    });
+}
+
 /// What an interleaved any-hit walk's leaves test a ray with ([`MeshBvh::any_job`]).
 #[derive(Clone, Copy)]
 pub(crate) struct LeafRay {
@@ -57,8 +67,8 @@ impl LeafRay {
 
 /// An interleaved closest-hit walk's state ([`MeshBvh::closest_job`]): its caller's tag, and what its
 /// leaves need.
-pub(crate) struct ClosestWalk<'a, X> {
-    pub(crate) tag: X,
+struct ClosestWalk<'a, X> {
+    tag: X,
     /// The mesh's primitive per slot.
     prims: &'a [u32],
     /// The ray's slack for the tree's boxes ([`Ray::hit_slack`]).
@@ -70,12 +80,7 @@ impl<X> ClosestWalk<'_, X> {
     /// The leaf test: the triangles `tris[slots]` against the walk's ray, keeping its nearest hit;
     /// where one was nearer, the walk's box `limit` shrinks to it and the answer is true.
     #[inline(always)]
-    pub(crate) fn test(
-        &mut self,
-        tris: &[[Vec3; 3]],
-        slots: Range<usize>,
-        limit: &mut f32,
-    ) -> bool {
+    fn test(&mut self, tris: &[[Vec3; 3]], slots: Range<usize>, limit: &mut f32) -> bool {
         let nearer = self.ray.test(tris, self.prims, slots);
         if nearer {
             *limit = hit_limit(self.ray.tmax, self.slack);
@@ -84,7 +89,7 @@ impl<X> ClosestWalk<'_, X> {
     }
 
     /// The walk's nearest hit so far (`tris` its mesh's triangles by slot).
-    pub(crate) fn hit(&self, tris: &[[Vec3; 3]]) -> Option<Hit> {
+    fn hit(&self, tris: &[[Vec3; 3]]) -> Option<Hit> {
         self.ray.hit(tris)
     }
 }
@@ -631,10 +636,8 @@ impl MeshBvh {
     /// does: the same answers as `closest_hit` ray by ray, at 1.3–1.55× the rays a second on random rays
     /// and 1.0–1.2× on coherent camera rays (`bench cpu --quick`, one thread, 2-core Intel VM).
     pub fn closest_hits(&self, rays: &[Ray], out: &mut [Option<Hit>]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
-            let first = c * RAYS_PER_TASK;
-            self.closest_hits_interleaved(&rays[first..first + out.len()], out);
+        in_tasks(rays, out, |rays, out| {
+            self.closest_hits_interleaved(rays, out)
         });
     }
 
@@ -679,7 +682,7 @@ impl MeshBvh {
     /// Ray `ray`'s closest-hit walk of this mesh's tree `nodes` (its wide or compact one), tagged `tag`,
     /// for [`interleaved`] (its leaf test: [`ClosestWalk::test`]): `None` for an invalid ray, which
     /// hits nothing.
-    pub(crate) fn closest_job<'a, N, X>(
+    fn closest_job<'a, N, X>(
         &'a self,
         nodes: &'a [N],
         ray: &Ray,
@@ -712,11 +715,7 @@ impl MeshBvh {
     /// the rays a second where the nodes are not in cache (`bench cpu --quick`, random rays, one thread,
     /// 2-core Intel VM), 1.0–1.25× on coherent camera rays.
     pub fn any_hits(&self, rays: &[Ray], out: &mut [bool]) {
-        assert_eq!(rays.len(), out.len(), "one output per ray");
-        parallel::fill_chunks(true, out, RAYS_PER_TASK, |c, out| {
-            let first = c * RAYS_PER_TASK;
-            self.any_hits_interleaved(&rays[first..first + out.len()], out);
-        });
+        in_tasks(rays, out, |rays, out| self.any_hits_interleaved(rays, out));
     }
 
     /// [`any_hit`](Self::any_hit) for every ray on the calling thread, four rays' walks interleaved on
