@@ -57,8 +57,8 @@
 //! read-back of 4 bytes a texel stay on the CPU's side; on a software adapter it is slower than the
 //! CPU's map); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full crowd). Use it
 //! for soft shadows, where shadow rays are expensive (dense occluders, many triangles over the
-//! receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard edges are acceptable. A warm pass (same
-//! sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
+//! receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard edges
+//! are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
 //! light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
 //! triangles (triangles edge-on to the light cover no texel; receivers over empty texels are marked
 //! instead); the soft mask assumes every receiver as deep as the deepest, so occluders high above the
