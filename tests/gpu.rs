@@ -68,6 +68,70 @@ fn division_rounds_as_the_cpu_does() {
     assert!(checked > a.len() * 9 / 10, "{checked} of {}", a.len());
 }
 
+/// The kernels' square root (`sqrt_rn`, corrected from a guess by `sqrt_from`) equals Rust's bit for bit
+/// from 2^-100 to 2^126: random positive floats across 2^±100, the arguments the shadow classification takes
+/// (`1 − c²` for `c` in [1/64, 1]), perfect squares and their neighbours, powers of two; each from the
+/// driver's root and from the exact root moved up to four ulp either way. Lavapipe's roots are exact
+/// already, so the moved guesses are what exercise the correction, as NVIDIA's driver's (which may err
+/// by several ulp) would.
+#[test]
+fn square_root_rounds_as_the_cpu_does() {
+    let Some(g) = gpu() else { return };
+    let mut r = rng(12);
+    let mut xs: Vec<f32> = (0..1 << 16)
+        .map(|_| random_float(&mut r, 100).abs())
+        .collect();
+    xs.extend((0..1 << 14).map(|_| {
+        let c = r.random_range(1.0f32 / 64.0..=1.0);
+        (1.0 - c * c).max(0.0)
+    }));
+    for k in 1..=4096u32 {
+        let sq = (k * k) as f32;
+        xs.extend([
+            sq,
+            f32::from_bits(sq.to_bits() + 1),
+            f32::from_bits(sq.to_bits() - 1),
+        ]);
+    }
+    xs.extend((-100..=126).map(|e| 2f32.powi(e)));
+    xs.push(f32::from_bits(2f32.powi(126).to_bits() - 1));
+    let moved = |x: f32, ulps: i32| f32::from_bits((x.sqrt().to_bits() as i32 + ulps) as u32);
+    let mut checked = 0;
+    for ulps in [
+        None,
+        Some(-4),
+        Some(-3),
+        Some(-2),
+        Some(-1),
+        Some(1),
+        Some(2),
+        Some(3),
+        Some(4),
+    ] {
+        let guess: Vec<f32> = match ulps {
+            None => xs.iter().map(|x| x.sqrt()).collect(),
+            Some(u) => xs.iter().map(|&x| moved(x, u)).collect(),
+        };
+        let got = match ulps {
+            // The driver's own root, corrected.
+            None => kinetrace::gpu::square_root(&g, &xs, &vec![f32::NAN; xs.len()]).unwrap(),
+            Some(_) => kinetrace::gpu::square_root(&g, &xs, &guess).unwrap(),
+        };
+        for (&x, &got) in xs.iter().zip(&got) {
+            if (2f32.powi(-100)..=2f32.powi(126)).contains(&x) {
+                let want = x.sqrt();
+                assert_eq!(
+                    got.to_bits(),
+                    want.to_bits(),
+                    "√{x:e} from {ulps:?}: {got:e} vs {want:e}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > xs.len() * 8, "{checked} of {}", xs.len() * 9);
+}
+
 const SIZES: [usize; 6] = [0, 1, 2, 3, 1023, 1025];
 const BIG: usize = (1 << 20) + 7;
 

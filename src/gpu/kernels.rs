@@ -131,7 +131,7 @@ pub(crate) struct Kernels {
     /// The task pool's toy task (a test hook).
     #[cfg(feature = "testing")]
     pub taskpool: Module,
-    /// Correctly rounded division (a test hook).
+    /// Correctly rounded division and square root (a test hook).
     #[cfg(feature = "testing")]
     pub divide: Module,
     /// DACRT on the task pool.
@@ -359,7 +359,7 @@ impl Kernels {
                 "divide",
                 shader!("divide.wgsl"),
                 &[Read, Read, Write],
-                &["divide"],
+                &["divide", "root"],
             ),
             contraction_free: false,
         };

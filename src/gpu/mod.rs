@@ -66,7 +66,7 @@ pub(crate) use frame::{
 };
 pub use ploc::{GpuPloc, PlocBuildCounts};
 #[cfg(feature = "testing")]
-pub use precise::divide;
+pub use precise::{divide, square_root};
 pub use shadow_map::GpuShadowMap;
 pub use skin::GpuSkin;
 #[cfg(feature = "testing")]

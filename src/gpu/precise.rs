@@ -156,8 +156,23 @@ pub(crate) fn shader_module(
 /// quotient is zero or a finite normal number.
 #[cfg(feature = "testing")]
 pub fn divide(ctx: &super::GpuContext, a: &[f32], b: &[f32]) -> crate::Result<Vec<f32>> {
+    pairs(ctx, "divide", a, b)
+}
+
+/// Test hook (feature `testing`): `√x[i]` by the kernels' correctly rounded square root, corrected from
+/// the guess `guess[i]` (`sqrt_from` in shaders/common.wgsl; a NaN guess: the driver's root, `sqrt_rn`), read
+/// back, blocking. Equals the CPU's `x[i].sqrt()` bit for bit for every `x[i]` from 2⁻¹⁰⁰ to 2¹²⁶ whose
+/// guess lies within four ulp of its root.
+#[cfg(feature = "testing")]
+pub fn square_root(ctx: &super::GpuContext, x: &[f32], guess: &[f32]) -> crate::Result<Vec<f32>> {
+    pairs(ctx, "root", x, guess)
+}
+
+/// Runs test kernel `entry` of shaders/divide.wgsl over the pairs `(a[i], b[i])`, read back, blocking.
+#[cfg(feature = "testing")]
+fn pairs(ctx: &super::GpuContext, entry: &str, a: &[f32], b: &[f32]) -> crate::Result<Vec<f32>> {
     use super::buffers::{GpuBuffer, bind_group};
-    assert_eq!(a.len(), b.len(), "one divisor per dividend");
+    assert_eq!(a.len(), b.len(), "one operand for another");
     let bytes = (a.len().max(1) * 4) as u64;
     let (na, nb, q) = (
         GpuBuffer::storage(ctx, "divide num", bytes),
@@ -180,7 +195,7 @@ pub fn divide(ctx: &super::GpuContext, a: &[f32], b: &[f32]) -> crate::Result<Ve
     if !a.is_empty() {
         let (x, y) = ctx.groups(a.len() as u32, 256);
         let mut pass = enc.begin_compute_pass(&Default::default());
-        pass.set_pipeline(module.pipeline("divide"));
+        pass.set_pipeline(module.pipeline(entry));
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(x, y, 1);
     }
