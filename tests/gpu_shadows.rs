@@ -370,15 +370,150 @@ fn crowd_pass_with_the_gpu_map_is_the_cpu_pass() {
     )
     .expect("the GPU pass");
     assert!(cpu.stats().rays > 0, "some pixels get rays");
+    assert!(gpu.stats().classified_on_gpu, "classified where the map is");
     assert_same_pass(&cpu, &gpu, "crowd frame 20");
+    // The GPU's map classified on the CPU.
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    on_gpu.set_classify(false);
+    let mut mixed = HardShadows::new();
+    mixed
+        .run_with(&s, &tw.occluders(&all), &g, rays, &mut on_gpu)
+        .expect("the GPU-map pass");
+    assert!(!mixed.stats().classified_on_gpu, "classified on the CPU");
+    assert_same_pass(&cpu, &mixed, "crowd frame 20, classified on the CPU");
+}
+
+/// Pixels drawn to reach every branch of the classification: receivers on the floor and up to half a
+/// unit above it; normals up, random, grazing, facing away, zero (either sign), NaN, infinite and far
+/// from unit length; on an image whose rows do not start at a word of four pixels. The first row holds
+/// the corners of the receivers' box, facing the light, so the first fit (to a sample of the rows) is
+/// the whole image's. With `wild`, receivers off the map, far away and not finite as well: the first fit
+/// misses some, and the map is fitted twice.
+fn hostile(towards: Vec3, wild: bool, seed: u64) -> GBuffer {
+    let (w, h) = (37, 23);
+    let mut r = rng(seed);
+    let mut g = GBuffer::new(w, h);
+    for k in 0..w * h {
+        let floor = Vec3::new(
+            r.random_range(-5.0..115.0),
+            0.0,
+            r.random_range(-5.0..115.0),
+        );
+        let p = match r.random_range(0..20) {
+            0 if wild => Vec3::new(f32::NAN, 0.0, 1.0),
+            1 if wild => Vec3::new(0.0, f32::INFINITY, 1.0),
+            2 if wild => floor * 1e30,
+            3 if wild => floor + Vec3::X * 500.0,
+            4..=7 => floor + Vec3::Y * r.random_range(0.0..0.5),
+            _ => floor,
+        };
+        let random = rand_vec(&mut r, -1.0, 1.0).normalize_or_zero();
+        let n = match r.random_range(0..24) {
+            0 => Vec3::ZERO,
+            1 => Vec3::new(-0.0, 0.0, -0.0),
+            2 => Vec3::new(f32::NAN, 1.0, 0.0),
+            3 => Vec3::new(0.0, f32::INFINITY, 0.0),
+            4 => Vec3::new(0.0, f32::NEG_INFINITY, 0.0),
+            5 => -towards,
+            6 => towards.any_orthonormal_vector(),
+            7 => (towards.any_orthonormal_vector() + towards * 1e-3).normalize(),
+            8 => Vec3::Y * 3.0,
+            9 => random * 1e-3,
+            10 => random * 1e37,
+            11..=15 => random,
+            _ => Vec3::Y,
+        };
+        g.set(k, p, n);
+    }
+    for c in 0..8 {
+        let corner = |bit: usize, lo: f32, hi: f32| if c >> bit & 1 == 0 { lo } else { hi };
+        let p = Vec3::new(
+            corner(0, -5.0, 115.0),
+            corner(1, 0.0, 0.5),
+            corner(2, -5.0, 115.0),
+        );
+        g.set(c, p, towards);
+    }
+    g
+}
+
+/// The GPU's classification (the default with a `GpuShadowMap`) gives every pixel the CPU's class — the
+/// same visibility, marked pixels and counts — over hostile pixels ([`hostile`]), under lights from
+/// several directions, with constant biases and edge thresholds from none to wide, where the first fit
+/// covered every receiver and where it missed some (then classified again over the whole image's bounds,
+/// the G-buffer not uploaded again).
+#[test]
+fn gpu_classification_is_the_cpu_classification_pixel_for_pixel() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let tris = cluttered_ground();
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    let (mut cpu, mut gpu) = (HardShadows::new(), HardShadows::new());
+    let no_ray = |_: Vec3, _: Vec3| false;
+    let mut seen = [0usize; 3];
+    for (k, towards) in [
+        Vec3::new(0.3, 1.0, 0.2),
+        Vec3::new(-0.7, 0.4, 0.1),
+        Vec3::Y,
+        Vec3::new(0.05, 0.2, -1.0),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        for (bias_texels, edge_texels, wild) in [
+            (1.0, 1.5, false),
+            (0.0, 0.0, true),
+            (2.5, 8.0, false),
+            (1.0, 1.5, true),
+            (0.0, 0.0, false),
+        ] {
+            let what = format!("light {towards}, bias {bias_texels}, edge {edge_texels}");
+            let g = hostile(towards.normalize(), wild, k as u64);
+            let s = ShadowSettings {
+                towards_light: towards,
+                map_resolution: 64,
+                bias_texels,
+                edge_texels,
+                ..Default::default()
+            };
+            cpu.run(&s, &tris, &g, no_ray).expect("the CPU pass");
+            let before = ctx.counters();
+            gpu.run_with(&s, &tris, &g, no_ray, &mut on_gpu)
+                .expect("the GPU pass");
+            let d = ctx.counters().since(&before);
+            let (a, b) = (cpu.stats(), gpu.stats());
+            assert!(b.classified_on_gpu && !a.classified_on_gpu, "{what}");
+            assert_eq!(a.refitted, wild, "{what}: fitted twice");
+            assert_eq!(b.refitted, a.refitted, "{what}");
+            // Uploaded once a pass, even where classified twice.
+            assert!(
+                d.uploaded_bytes < 2 * 24 * 37 * 23,
+                "{what}: {} bytes",
+                d.uploaded_bytes
+            );
+            assert_eq!((b.facing, b.rays), (a.facing, a.rays), "{what}");
+            assert_eq!(cpu.marked(), gpu.marked(), "{what}: marked pixels");
+            let (va, vb) = (cpu.visibility(), gpu.visibility());
+            assert_eq!(va, vb, "{what}: visibility");
+            seen[0] += a.rays;
+            seen[1] += va.iter().filter(|&&v| v == 0.0).count() - a.rays;
+            seen[2] += va.iter().filter(|&&v| v == 1.0).count();
+        }
+    }
+    // Every kind of verdict came up: marked, shadowed, lit.
+    assert!(
+        seen.iter().all(|&n| n > 200),
+        "{seen:?} marked, shadowed, lit"
+    );
 }
 
 /// A warm GPU map costs, per render, one submission (two for an area light, whose extent waits for the
 /// point nearest the light), the upload of 36 bytes a triangle plus each group's first triangle and
 /// transform and the parameters, the read-back of 4 bytes a texel plus the nearest point, and no new
 /// buffer (a context of its own: the counters are the context's, and the other tests share theirs).
+/// Classifying a hard selective pass too adds a submission, the G-buffer's 24 bytes a pixel and the
+/// classification's parameters up, and a byte a pixel and a flag back.
 #[test]
-fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels() {
+fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classifying_one_more() {
     if gpu_or_skip().is_none() {
         return;
     }
@@ -394,9 +529,15 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels() {
     let mut on_gpu = GpuShadowMap::new(&ctx);
     let mut pass = HardShadows::new();
     let res = 128u64;
-    for (angle, submissions) in [(0.0, 1), (0.03, 2)] {
+    let pixels = 32 * 32;
+    for (mode, angle, submissions) in [
+        (ShadowMode::ShadowMap, 0.0, 1),
+        (ShadowMode::ShadowMap, 0.03, 2),
+        (ShadowMode::Selective, 0.0, 2),
+    ] {
+        let classified = mode == ShadowMode::Selective;
         let s = ShadowSettings {
-            mode: ShadowMode::ShadowMap,
+            mode,
             towards_light: Vec3::new(0.3, 1.0, 0.2),
             map_resolution: res as usize,
             light_angle: angle,
@@ -411,18 +552,24 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels() {
         let d = ctx.counters().since(&before);
         assert!(!pass.stats().refitted, "one map a pass");
         assert!(pass.stats().map_on_gpu);
-        let params = 32 * submissions;
+        assert_eq!(pass.stats().classified_on_gpu, classified);
+        let maps = if classified { 1 } else { submissions };
+        let (classify_up, classify_back) = if classified {
+            (24 * pixels + 112, pixels + 4)
+        } else {
+            (0, 0)
+        };
         assert_eq!(d.submissions, submissions, "light angle {angle}");
         assert_eq!(
             d.uploaded_bytes,
-            36 * triangles + 4 * (groups + 1) + 64 * groups + params,
-            "light angle {angle}"
+            36 * triangles + 4 * (groups + 1) + 64 * groups + 32 * maps + classify_up,
+            "{mode:?}, light angle {angle}"
         );
-        let nearest = 4 * submissions;
+        let nearest = 4 * maps;
         assert_eq!(
             d.read_back_bytes,
-            4 * res * res + nearest,
-            "light angle {angle}"
+            4 * res * res + nearest + classify_back,
+            "{mode:?}, light angle {angle}"
         );
         assert!(d.blocking_waits <= submissions, "light angle {angle}");
         assert_eq!(d.allocated_bytes, 0, "light angle {angle}: no new buffer");

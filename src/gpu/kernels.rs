@@ -119,6 +119,8 @@ pub(crate) struct Kernels {
     pub scene: Module,
     pub skin: Module,
     pub shadow_map: Module,
+    /// The hard selective shadow classification against the map `shadow_map` renders.
+    pub shadow_classify: Module,
     pub frame: Module,
     /// The resident frame's SAH cost reduction (reduce.wgsl with `sah_blocks` appended).
     pub frame_sah: Module,
@@ -230,6 +232,13 @@ impl Kernels {
                 shader!("shadow_map.wgsl"),
                 &[Read, Read, Read, Write, Write, Write, Write, Read],
                 &["map_top", "map_small", "map_plan", "map_large"],
+            ),
+            shadow_classify: Module::new(
+                &compiler,
+                "shadow_classify",
+                shader!("shadow_classify.wgsl"),
+                &[Read, Read, Read, Write, Write, Read],
+                &["classify_hard"],
             ),
             frame: Module::new(
                 &compiler,

@@ -4,11 +4,14 @@
 use super::GpuContext;
 use super::buffers::{GpuBuffer, Readback, STORAGE, bind_group};
 use crate::Result;
-use crate::shadows::{self, MapRenderer, Occluders, ShadowMap, ToLight, unkey};
+use crate::shadows::{
+    self, GBuffer, HardClassify, MapRenderer, Occluders, ShadowMap, ToLight, unkey,
+};
 use glam::Vec3;
 
-/// Renders [`HardShadows`](crate::shadows::HardShadows)' shadow maps on the GPU: give it to
-/// [`HardShadows::run_with`](crate::shadows::HardShadows::run_with).
+/// Renders [`HardShadows`](crate::shadows::HardShadows)' shadow maps on the GPU, and classifies a hard
+/// selective pass's pixels against the map there (thesis §6.3: both are nearly free on a GPU): give it
+/// to [`HardShadows::run_with`](crate::shadows::HardShadows::run_with).
 ///
 /// The kernels take each corner into light space and rasterise every triangle with the CPU's operations
 /// in the CPU's order (divisions rounded as the CPU rounds), so where the context compiles them without
@@ -21,9 +24,15 @@ use glam::Vec3;
 /// 2-core Intel VM, `bench shadows`). Costs per pass: the occluders uploaded, 36 bytes a
 /// triangle plus 68 a group and 32 of parameters a submission; one submission and at most one
 /// blocking wait (two of each for an area light's map, whose extent waits for the point nearest the
-/// light); 4 bytes a texel read back, straight into the map. Its buffers grow to the largest scene
-/// and map seen and are kept (a warm render allocates none; wgpu's command encoders and bind groups
-/// are made per render). A GPU error (a map or scene larger than the device's buffers, say) is the
+/// light); 4 bytes a texel read back, straight into the map. The classification
+/// (shaders/shadow_classify.wgsl: `classify::selective`'s operations in its order, square roots and
+/// divisions rounded as the CPU rounds them, so each pixel gets the CPU's class; off with
+/// [`set_classify`](Self::set_classify)) adds per pass the G-buffer uploaded, 24 bytes a pixel, 112 of
+/// parameters, a submission and a blocking wait (a second one, without the G-buffer, where the pass fits
+/// its map twice), and a byte a pixel read back, which the CPU turns into the visibility and the list
+/// of marked pixels (about 1.2 ms for 1024² pixels on 2 cores, against about 5 ms classifying). Its
+/// buffers grow to the largest scene, map and image seen and are kept (a warm render allocates none;
+/// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger than the device's buffers, say) is the
 /// pass's error, and the pass keeps no map (0 × 0).
 ///
 /// ```no_run
@@ -61,6 +70,17 @@ pub struct GpuShadowMap {
     /// Workgroups per dimension the large triangles' indirect dispatch folds at (`fold_groups` in the
     /// kernels): the device's limit, at most 65,535.
     max_groups: u32,
+    /// The hard selective classification's G-buffer (12 bytes a pixel each), classes (a byte a pixel),
+    /// flags and parameters.
+    positions: GpuBuffer,
+    normals: GpuBuffer,
+    classes: GpuBuffer,
+    flags: GpuBuffer,
+    classify_params: GpuBuffer,
+    /// Whether hard selective passes classify their pixels here ([`set_classify`](Self::set_classify)).
+    classify: bool,
+    /// Whether `depth` holds the map last rendered (none when it was left empty or failed).
+    rendered: bool,
 }
 
 /// Words of the kernels' state: the nearest point's key and the count of triangles listed as large.
@@ -89,7 +109,23 @@ impl GpuShadowMap {
             first: Vec::new(),
             transforms: Vec::new(),
             max_groups: ctx.max_groups().min(0xffff),
+            positions: storage("shadow classification positions"),
+            normals: storage("shadow classification normals"),
+            classes: storage("shadow classification classes"),
+            flags: storage("shadow classification flags"),
+            classify_params: storage("shadow classification params"),
+            classify: true,
+            rendered: false,
         }
+    }
+
+    /// Whether hard selective passes also classify their pixels on the GPU (the default), against the
+    /// map still there: the G-buffer uploaded (24 bytes a pixel) and a byte a pixel read back, in a
+    /// submission of its own, instead of the CPU's pass over the G-buffer (about 5 ms for 1024² pixels
+    /// on 2 cores). Off, the CPU classifies against the map read back. Either way the classes, and so
+    /// the image, are the same (where the kernels round as the CPU does, see [`GpuShadowMap`]).
+    pub fn set_classify(&mut self, on_gpu: bool) {
+        self.classify = on_gpu;
     }
 
     /// Test hook (feature `testing`): the large triangles' dispatch folds at `groups` workgroups per
@@ -201,6 +237,7 @@ impl MapRenderer for GpuShadowMap {
         res: usize,
         _parallel: bool,
     ) -> Result<()> {
+        self.rendered = false;
         let n = self.upload(map, occluders)?;
         let texels = (res * res) as u64;
         self.ctx.check_storage("shadow map", texels * 4)?;
@@ -263,6 +300,111 @@ impl MapRenderer for GpuShadowMap {
                 0 => f32::INFINITY,
                 d => unkey(!d),
             });
+        })?;
+        self.rendered = true;
+        Ok(())
+    }
+
+    fn classify_hard(
+        &mut self,
+        map: &ShadowMap,
+        gbuffer: &GBuffer,
+        job: &HardClassify,
+        classes: &mut Vec<u32>,
+    ) -> Result<Option<bool>> {
+        if !self.classify || !self.rendered {
+            return Ok(None);
+        }
+        let ctx = &self.ctx;
+        let pixels = gbuffer.positions.len();
+        let words = pixels.div_ceil(4);
+        let bytes = pixels as u64 * 12;
+        ctx.check_storage("shadow classification G-buffer", bytes)?;
+        ctx.check_threads("shadow classification", words as u64, 256)?;
+        let limit = ctx.storage_limit();
+        if job.fresh {
+            self.positions.ensure_within(ctx, bytes, limit);
+            self.normals.ensure_within(ctx, bytes, limit);
+            for (buffer, data) in [
+                (&self.positions, &gbuffer.positions),
+                (&self.normals, &gbuffer.normals),
+            ] {
+                if !data.is_empty() {
+                    ctx.write_buffer(buffer.buffer(), 0, bytemuck::cast_slice(data));
+                }
+            }
+        }
+        self.classes.ensure_within(ctx, words as u64 * 4, limit);
+        self.flags.ensure(ctx, 4);
+        let (u, v, t, corner, per_texel, top) = map.frame();
+        let (lo, hi) = job.fitted.unwrap_or((Vec3::ZERO, Vec3::ZERO));
+        let f = |x: f32| x.to_bits();
+        let params = [
+            f(u.x),
+            f(u.y),
+            f(u.z),
+            0,
+            f(v.x),
+            f(v.y),
+            f(v.z),
+            0,
+            f(t.x),
+            f(t.y),
+            f(t.z),
+            0,
+            f(lo.x),
+            f(lo.y),
+            f(hi.x),
+            f(hi.y),
+            f(corner.x),
+            f(corner.y),
+            f(per_texel),
+            f(top),
+            f(map.texel_size()),
+            f(job.bias_texels),
+            f(job.edge),
+            f((map.resolution() - 1) as f32),
+            pixels as u32,
+            map.resolution() as u32,
+            job.fitted.is_some() as u32,
+            0,
+        ];
+        self.classify_params.write(ctx, &params);
+        let kernels = &ctx.kernels.shadow_classify;
+        let group = bind_group(
+            ctx,
+            &kernels.layout,
+            &[
+                self.depth.binding(),
+                self.positions.binding(),
+                self.normals.binding(),
+                self.classes.binding(),
+                self.flags.binding(),
+                self.classify_params.binding(),
+            ],
+        );
+        let mut enc = ctx.encoder();
+        enc.clear_buffer(self.flags.buffer(), 0, Some(4));
+        if words > 0 {
+            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("kinetrace shadow classification"),
+                timestamp_writes: None,
+            });
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_pipeline(kernels.pipeline("classify_hard"));
+            let (x, y) = ctx.groups(words as u32, 256);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        let back = Readback::<u32>::record_parts(
+            ctx,
+            &mut enc,
+            &[(self.flags.buffer(), 1), (self.classes.buffer(), words)],
+        );
+        ctx.submit(enc);
+        back.wait_with(ctx, |w| {
+            classes.clear();
+            classes.extend_from_slice(&w[1..]);
+            Some(w[0] != 0)
         })
     }
 }

@@ -21,6 +21,21 @@ pub(super) enum Class {
     Marked,
 }
 
+impl Class {
+    /// The class whose code (`as u8`) is `code`, as the GPU's classification writes it
+    /// (shaders/shadow_classify.wgsl); a code that is none: marked (a ray decides).
+    #[inline(always)]
+    pub(super) fn from_code(code: u8) -> Class {
+        match code {
+            0 => Class::Empty,
+            1 => Class::FacingAway,
+            2 => Class::Lit,
+            3 => Class::Shadowed,
+            _ => Class::Marked,
+        }
+    }
+}
+
 /// The slope-scaled bias, in world units, of a receiver with `cos = n·L`: a receiver no more than this
 /// behind the map's depth counts as the surface itself. The constant bias plus how far the receiver's
 /// own surface can move in depth across one texel (diagonal), `w·√2·tan θ`, `cos θ = n·L` (the
@@ -98,7 +113,7 @@ pub(super) fn soft(map: &ShadowMap, mask: &[bool], p: Vec3, cos: f32, bias_texel
 /// 3.99% of the pixels against 2.38%, with 0.005% and 0.021% of the image unlike the ray-traced one.)
 /// Off the map, over an empty texel (geometry too thin for the map) or under a normal that is not finite:
 /// marked. `deltas` holds the map's depth at each smooth texel.
-#[inline]
+#[inline(always)]
 pub(super) fn selective(
     map: &ShadowMap,
     deltas: &Deltas,

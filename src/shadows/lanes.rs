@@ -385,7 +385,7 @@ pub(super) struct Verdicts {
 impl Verdicts {
     /// Records pixel `k`'s class.
     #[inline(always)]
-    fn set(&mut self, k: usize, class: Class) {
+    pub(super) fn set(&mut self, k: usize, class: Class) {
         let bit = 1 << k;
         if matches!(class, Class::Empty | Class::Lit) {
             self.lit |= bit;

@@ -52,10 +52,11 @@
 //! ray per pixel but 2.4% of the pixels are marked and their rays graze dense geometry (about 0.8 µs of
 //! CPU each, several times an average ray of the reference): about 2.1× — 3× on either crowd takes
 //! the map off the CPU's threads (the thesis renders it on the GPU, where rasterisation is nearly free):
-//! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU
-//! (what that saves on a hardware GPU is not measured yet: the upload of 36 bytes a triangle and the
-//! read-back of 4 bytes a texel stay on the CPU's side; on a software adapter it is slower than the
-//! CPU's map); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full crowd). Use it
+//! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU,
+//! and classifies a hard selective pass's pixels there too, each as the CPU would (what that saves on a
+//! hardware GPU is not measured yet: the uploads of 36 bytes a triangle and 24 a pixel and the
+//! read-backs of 4 bytes a texel and 1 a pixel stay on the CPU's side; on a software adapter it is
+//! slower than the CPU); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full crowd). Use it
 //! for soft shadows, where shadow rays are expensive (dense occluders, many triangles over the
 //! receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard edges
 //! are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
@@ -77,6 +78,8 @@ mod shadow_map;
 pub use occluders::Occluders;
 pub use penumbra::LightDisc;
 pub use rays::{Interleaved, PACKET, Packets, ShadowRays};
+#[cfg(feature = "gpu")]
+pub(crate) use renderer::HardClassify;
 pub use renderer::{CpuMap, MapRenderer};
 pub use shadow_map::ShadowMap;
 #[cfg(feature = "gpu")]
@@ -199,9 +202,13 @@ pub struct ShadowStats {
     pub refitted: bool,
     /// Whether the shadow map was rendered on the GPU ([`HardShadows::run_with`] a `GpuShadowMap`).
     pub map_on_gpu: bool,
+    /// Whether the pixels were classified on the GPU too (a hard selective pass with a `GpuShadowMap`
+    /// that classifies, see `GpuShadowMap::set_classify`).
+    pub classified_on_gpu: bool,
     /// Time rendering the shadow map (on the GPU: uploading, rendering and reading it back).
     pub map_time: Duration,
-    /// Time classifying and compacting.
+    /// Time classifying and compacting (on the GPU: uploading the G-buffer, classifying, reading the
+    /// classes back and listing the marked pixels).
     pub classify_time: Duration,
     /// Time tracing shadow rays and compositing.
     pub trace_time: Duration,
@@ -251,6 +258,11 @@ pub struct HardShadows {
     lit: Vec<f32>,
     /// Soft shadows: per texel, whether a penumbra may reach it.
     mask: Vec<bool>,
+    /// Each pixel's class as the renderer's classification gave it (a byte a pixel, four a word), where
+    /// it classified (`MapRenderer::classify_hard`).
+    classes: Vec<u32>,
+    /// Whether the last classification was the renderer's.
+    classified_elsewhere: bool,
     visibility: Vec<f32>,
     /// The image rows [`Self::receivers`] last read (a sample, or every row when the sample missed an
     /// extreme), and each one's bounds.
@@ -319,7 +331,7 @@ impl HardShadows {
             sampled = Some(bounds);
         }
         let t = Instant::now();
-        let refitted = self.classify(s, gbuffer, towards, sampled);
+        let refitted = self.classify(s, gbuffer, towards, sampled, renderer, true)?;
         classify_time += t.elapsed();
         let mut fit = sampled.unwrap_or(NO_BOUNDS);
         if refitted {
@@ -328,7 +340,7 @@ impl HardShadows {
             self.fit_map(s, occluders, fit, renderer)?;
             map_time += t.elapsed();
             let t = Instant::now();
-            self.classify(s, gbuffer, towards, None);
+            self.classify(s, gbuffer, towards, None, renderer, false)?;
             classify_time += t.elapsed();
         }
         if sampled.is_some() {
@@ -375,6 +387,7 @@ impl HardShadows {
             rays: self.marked.len(),
             refitted,
             map_on_gpu: s.mode != ShadowMode::RayTraced && renderer.on_gpu(),
+            classified_on_gpu: self.classified_elsewhere,
             map_time,
             classify_time,
             trace_time: t2.elapsed(),
@@ -382,8 +395,8 @@ impl HardShadows {
         Ok(&self.visibility)
     }
 
-    /// Renders the map over the receivers' bounds `receivers` (see [`Self::receivers`]), with what the
-    /// mode classifies against: the penumbra mask (soft selective) or the smooth texels (hard selective).
+    /// Renders the map over the receivers' bounds `receivers` (see [`Self::receivers`]), with the penumbra
+    /// mask a soft selective pass classifies against.
     fn fit_map(
         &mut self,
         s: &ShadowSettings,
@@ -391,14 +404,14 @@ impl HardShadows {
         receivers: (Vec3, Vec3),
         renderer: &mut impl MapRenderer,
     ) -> Result<()> {
-        let (par, soft) = (s.parallel, s.light_angle > 0.0);
+        let soft = s.light_angle > 0.0;
         let rendered = renderer.render_map(
             &mut self.map,
             occluders,
             receivers,
             s.light_angle.tan(),
             s.map_resolution,
-            par,
+            s.parallel,
         );
         if rendered.is_err() {
             // A renderer's error (the GPU's) leaves no map behind: none half-written, and none of the
@@ -406,29 +419,61 @@ impl HardShadows {
             self.map.clear(0);
             return rendered;
         }
-        let edge = s.edge_texels * self.map.texel_size();
         if s.mode == ShadowMode::Selective && soft {
+            let edge = s.edge_texels * self.map.texel_size();
             // The deepest receiver's depth: top − its lowest `p · towards`.
             let deepest = self.map.project(Vec3::ZERO).z - receivers.0.z;
             penumbra::mask(&self.map, s.light_angle, edge, deepest, &mut self.mask);
-        } else if s.mode == ShadowMode::Selective {
-            self.deltas.find(&self.map, edge, par);
         }
         Ok(())
     }
 
     /// Classifies every pixel against the last map as the mode says (visibility and each band's marked
     /// pixels); with the receivers' bounds `fitted` the map was fitted to, also returns whether a receiver
-    /// lies outside them (see [`lanes::outside`]): a map fitted to every pixel's bounds would differ.
+    /// lies outside them (see [`lanes::outside`]): a map fitted to every pixel's bounds would differ. A
+    /// hard selective pass is classified by `renderer` where it can (the GPU's, against the map it
+    /// rendered; `fresh`: the pass's first classification, so the G-buffer is new to it), else on the CPU,
+    /// against the map's smooth texels found first.
     fn classify(
         &mut self,
         s: &ShadowSettings,
         g: &GBuffer,
         towards: Vec3,
         fitted: Option<(Vec3, Vec3)>,
-    ) -> bool {
-        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
+        renderer: &mut impl MapRenderer,
+        fresh: bool,
+    ) -> Result<bool> {
         let soft = s.light_angle > 0.0;
+        let hard_selective = s.mode == ShadowMode::Selective && !soft;
+        self.classified_elsewhere = false;
+        if hard_selective {
+            let edge = s.edge_texels * self.map.texel_size();
+            let job = renderer::HardClassify {
+                towards,
+                bias_texels: s.bias_texels,
+                edge,
+                fitted,
+                fresh,
+            };
+            if let Some(outside) = renderer.classify_hard(&self.map, g, &job, &mut self.classes)? {
+                self.classified_elsewhere = true;
+                let into = Classification {
+                    par: s.parallel,
+                    px: Pixels {
+                        g,
+                        towards,
+                        map: None,
+                        within: None,
+                    },
+                    visibility: &mut self.visibility,
+                    chunks: &mut self.chunks,
+                };
+                into.take_classes(&self.classes);
+                return Ok(outside);
+            }
+            self.deltas.find(&self.map, edge, s.parallel);
+        }
+        let (map, mask, deltas) = (&self.map, &self.mask, &self.deltas);
         // Surfaces that see part of the light's disc: n·L above −sin(angle); all of it above +sin(angle).
         // The shadow map alone is hard: it shades everything at or below n·L = 0.
         let horizon = s.light_angle.sin();
@@ -494,7 +539,7 @@ impl HardShadows {
                 },
             ),
         }
-        self.chunks.iter().any(|c| c.outside)
+        Ok(self.chunks.iter().any(|c| c.outside))
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
@@ -609,13 +654,56 @@ struct Classification<'a> {
 
 impl Classification<'_> {
     /// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
-    /// pixels of one image row (in parallel over bands of [`BAND`] rows): writes the map's verdict into
-    /// `visibility` (0 for a marked pixel, until its rays are in) and lists each band's marked pixels in
-    /// its chunk, block by block ([`in_blocks`]: neighbouring marked pixels stay together, so their rays
-    /// make coherent packets), with its count of pixels facing the light and, with `px.within`, whether one
-    /// of its receivers lies outside those bounds. Generic over the test, so each mode's loop has its test
-    /// inlined (mark it `#[inline(always)]`: the loop runs in [`widest`](crate::dispatch::widest)).
+    /// pixels of one image row, into the visibility and the bands' lists ([`bands`](Self::bands)), and
+    /// with `px.within` checks their receivers against those bounds. Generic over the test, so each
+    /// mode's loop has its test inlined (mark it `#[inline(always)]`).
     fn each_four(self, classify: impl Fn(&lanes::Four) -> lanes::Verdicts + Sync) {
+        let px = self.px;
+        let g = px.g;
+        self.bands(
+            #[inline(always)]
+            |i, len| {
+                let four = lanes::Four::new(
+                    &g.positions[i..i + len],
+                    &g.normals[i..i + len],
+                    px.towards,
+                    px.map,
+                );
+                let outside = match (px.map, px.within) {
+                    (Some(map), Some(fitted)) => lanes::outside(map, &four, fitted),
+                    _ => 0,
+                };
+                (classify(&four), outside)
+            },
+        );
+    }
+
+    /// Takes each pixel's class from `classes` (a byte a pixel, four a word from the lowest byte, as
+    /// `MapRenderer::classify_hard` gives them) into the visibility and the bands' lists, as
+    /// [`each_four`](Self::each_four) would from the classes it finds.
+    fn take_classes(self, classes: &[u32]) {
+        self.bands(
+            #[inline(always)]
+            |i, len| {
+                let mut v = lanes::Verdicts::default();
+                for k in 0..len {
+                    let code = classes[(i + k) / 4] >> (8 * ((i + k) % 4)) & 0xff;
+                    v.set(k, Class::from_code(code as u8));
+                }
+                (v, 0)
+            },
+        );
+    }
+
+    /// Runs over every pixel in runs of up to four of one image row (in parallel over bands of
+    /// [`BAND`] rows), `verdicts(first, len)` giving the run's verdicts and the lanes whose receivers lie
+    /// outside the fitted bounds: writes the map's verdict into `visibility` (0 for a marked pixel, until
+    /// its rays are in) and lists each band's marked pixels in its chunk, block by block ([`in_blocks`]:
+    /// neighbouring marked pixels stay together, so their rays make coherent packets), with its count of
+    /// pixels facing the light and whether one of its receivers lies outside. Generic over `verdicts`,
+    /// so each mode's loop has its test inlined (mark it `#[inline(always)]`: the loop runs in
+    /// [`widest`](crate::dispatch::widest)).
+    fn bands(self, verdicts: impl Fn(usize, usize) -> (lanes::Verdicts, lanes::Bits) + Sync) {
         let Self {
             par,
             px,
@@ -640,13 +728,11 @@ impl Classification<'_> {
                     for (y, start) in starts.iter_mut().enumerate().take(rows) {
                         *start = out.marked.len();
                         let row = c * chunk + y * w;
-                        for (i, four) in lanes::fours(g, row..row + w, px.towards, px.map) {
-                            let at = i - c * chunk;
-                            if let (Some(map), Some(fitted)) = (px.map, px.within) {
-                                outside |= lanes::outside(map, &four, fitted);
-                            }
-                            let v = classify(&four);
-                            lanes::write_visibility(v.lit, &mut vis[at..at + four.len()]);
+                        for i in (row..row + w).step_by(4) {
+                            let (at, len) = (i - c * chunk, (row + w - i).min(4));
+                            let (v, off) = verdicts(i, len);
+                            outside |= off;
+                            lanes::write_visibility(v.lit, &mut vis[at..at + len]);
                             out.facing += v.facing.count_ones() as usize;
                             let mut marked = v.marked;
                             while marked != 0 {

@@ -1,8 +1,26 @@
 //! Where a pass's shadow map is rendered: on the CPU's threads, or elsewhere with the same arithmetic.
 
-use super::{Occluders, ShadowMap};
+use super::{GBuffer, Occluders, ShadowMap};
 use crate::Result;
 use glam::Vec3;
+
+/// What a hard selective pass's classification takes besides the map and the G-buffer
+/// ([`MapRenderer::classify_hard`]).
+#[doc(hidden)]
+#[derive(Clone, Copy, Debug)]
+pub struct HardClassify {
+    /// Unit direction towards the light.
+    pub towards: Vec3,
+    /// The constant depth bias, in texels.
+    pub bias_texels: f32,
+    /// The `Δ` threshold, in world units.
+    pub edge: f32,
+    /// The receivers' bounds across the light (x, y) the map was fitted to, where receivers facing the
+    /// light outside them are to be reported.
+    pub fitted: Option<(Vec3, Vec3)>,
+    /// Whether the G-buffer is new since the renderer's last classification (a pass's first).
+    pub fresh: bool,
+}
 
 /// What renders a [`HardShadows`](super::HardShadows) pass's shadow map
 /// ([`run_with`](super::HardShadows::run_with)): [`CpuMap`], or `gpu::GpuShadowMap` (feature `gpu`).
@@ -27,6 +45,21 @@ pub trait MapRenderer: sealed::Sealed {
     #[doc(hidden)]
     fn on_gpu(&self) -> bool {
         false
+    }
+
+    /// Classifies every pixel of `gbuffer` against `map`, which this renderer rendered last, for a hard
+    /// selective pass: each pixel's class (`classify::Class` as a byte) into `classes`, four pixels a
+    /// word from the lowest byte. Returns whether a receiver facing the light lies outside
+    /// `job.fitted`, or `None` where the CPU classifies instead (the default).
+    #[doc(hidden)]
+    fn classify_hard(
+        &mut self,
+        _map: &ShadowMap,
+        _gbuffer: &GBuffer,
+        _job: &HardClassify,
+        _classes: &mut Vec<u32>,
+    ) -> Result<Option<bool>> {
+        Ok(None)
     }
 }
 
