@@ -733,8 +733,9 @@ fn primary_work(world: &World, w: u32, h: u32, camera: &Camera) -> Vec<u32> {
 
 /// Sun visibility per pixel of `g` (1 lit, 0 shadowed), computed as `settings.mode` says, with the
 /// shadow map rendered straight from the world's meshes and the shadow-ray queries of their trees. With
-/// a GPU the map is rendered there or on the CPU — the same map — as the planner's [`Choice::map_on_gpu`]
-/// picks from the seconds per occluder triangle each way measured on the passes so far.
+/// a GPU the map is rendered (and a hard selective pass's pixels classified) there or on the CPU — the
+/// same map and classes — as the planner's [`Choice::map_on_gpu`] picks from the seconds of both phases
+/// per occluder triangle each way measured on the passes so far.
 pub fn sun_visibility<'a>(
     world: &World,
     g: &GBuffer,
@@ -757,7 +758,12 @@ pub fn sun_visibility<'a>(
     } else {
         sun_visibility_with(world, g, settings, pass, &mut CpuMap)?;
     }
-    planner.served(on_gpu, triangles, pass.stats().map_time.as_secs_f64());
+    let s = pass.stats();
+    planner.served(
+        on_gpu,
+        triangles,
+        (s.map_time + s.classify_time).as_secs_f64(),
+    );
     Ok(pass.visibility())
 }
 

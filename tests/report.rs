@@ -78,8 +78,9 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
         );
     }
     // The shadow-map section: per scene the CPU map's rows (its marked pixels' rays one by one, as
-    // packets, interleaved and as the planner picks), and the GPU's and the planner's maps where a GPU
-    // runs; every renderer's map and image are the CPU map's with rays one by one.
+    // packets, interleaved and as the planner picks), and the GPU's (classified on the CPU and on the
+    // GPU) and the planner's maps where a GPU runs; every renderer's map and image are the CPU map's
+    // with rays one by one.
     let rows = |label: &str| {
         let n = |r: &&shadow_rows::ShadowRow| r.renderer.starts_with(label);
         report.shadows.iter().filter(n).count()
@@ -100,8 +101,8 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
     if std::env::var("KINETRACE_REQUIRE_GPU").is_ok_and(|v| v == "1") && cfg!(feature = "gpu") {
         assert_eq!(
             report.shadows.len(),
-            6 * scenes.len(),
-            "CPU maps (four ways of tracing rays), GPU and planned maps"
+            7 * scenes.len(),
+            "CPU maps (four ways of tracing rays), GPU maps (classified on the CPU and the GPU) and planned maps"
         );
     }
     for r in &report.shadows {

@@ -6,14 +6,15 @@
 //! less; the same for the selective pass with its marked pixels' rays as single rays (four walked at
 //! once, interleaved) and as packets, and for a ray per pixel (the crowd's planner picks between them),
 //! and the planner's picks after all the passes, hard and soft.
-//! With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`): its time, CPU
-//! time and map phase, the pixels unlike the CPU-map image (none), and per pass the bytes uploaded per
-//! triangle and read back per texel, the submissions and the blocking waits.
+//! With a GPU, the selective pass again with its map rendered there (`GpuShadowMap`), classified on the
+//! CPU and on the GPU: time, CPU time, map and classification phases, the pixels unlike the CPU-map
+//! image (none), and per pass the bytes uploaded per triangle (per pixel for the classification) and
+//! read back per texel (per pixel), the submissions and the blocking waits.
 //!
-//! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`, or `gpu`: selective with the
-//! map on the GPU) runs only that mode's hard shadows, `KINETRACE_SHADOW_REPS` times (default 60) after
-//! one warm pass, prints the median phase times of those passes and nothing else: what `perf record`
-//! should see.
+//! For profiling, `KINETRACE_SHADOW_PROFILE=selective` (or `traced`, `map`, `gpu`: selective with the
+//! map and the classification on the GPU, or `gpu-map`: the map alone there) runs only that mode's hard
+//! shadows, `KINETRACE_SHADOW_REPS` times (default 60) after one warm pass, prints the median phase times
+//! of those passes and nothing else: what `perf record` should see.
 
 use crate::crowd;
 use crate::record::{CpuClock, Records, best_of, cpu_seconds};
@@ -55,9 +56,13 @@ pub fn run(rec: &mut Records) {
     let (_, g) = crowd::primary_hits(&world, side, side, &crowd::Camera::default());
     let mut pass = HardShadows::new();
     if let Ok(mode) = std::env::var("KINETRACE_SHADOW_PROFILE") {
-        let mut on_gpu = (mode == "gpu").then(|| match rec.gpu() {
-            Ok(ctx) => GpuShadowMap::new(&ctx),
-            Err(e) => panic!("KINETRACE_SHADOW_PROFILE=gpu needs a GPU: {e}"),
+        let mut on_gpu = mode.starts_with("gpu").then(|| match rec.gpu() {
+            Ok(ctx) => {
+                let mut m = GpuShadowMap::new(&ctx);
+                m.set_classify(mode == "gpu");
+                m
+            }
+            Err(e) => panic!("KINETRACE_SHADOW_PROFILE={mode} needs a GPU: {e}"),
         });
         let mode = match mode.as_str() {
             "traced" => ShadowMode::RayTraced,
@@ -89,11 +94,12 @@ pub fn run(rec: &mut Records) {
         };
         let s = pass.stats();
         println!(
-            "  {mode:?} x{reps}: {:.3} ms CPU a pass; median of the passes after the first: map {:?} (on the GPU: {}), classify {:?}, rays {:?}; {} rays, refitted {}",
+            "  {mode:?} x{reps}: {:.3} ms CPU a pass; median of the passes after the first: map {:?} (on the GPU: {}), classify {:?} (on the GPU: {}), rays {:?}; {} rays, refitted {}",
             (cpu_seconds(CpuClock::Process) - cpu) * 1e3 / (reps + 1) as f64,
             median(0),
             s.map_on_gpu,
             median(1),
+            s.classified_on_gpu,
             median(2),
             s.rays,
             s.refitted
@@ -373,9 +379,11 @@ pub fn run(rec: &mut Records) {
     );
 }
 
-/// Selective hard shadows with the map rendered on the GPU (`GpuShadowMap`): time and CPU time per image,
-/// the map's phase (upload, kernels, read-back), and the pixels unlike the CPU-map image `cpu_image`
-/// (none: the maps are the same); the CPU speed-up against a ray per pixel's `traced_cpu` seconds.
+/// Selective hard shadows with the map rendered on the GPU (`GpuShadowMap`), classified on the CPU and
+/// on the GPU: time and CPU time per image, the map's and the classification's phases, and the pixels
+/// unlike the CPU-map image `cpu_image` (none: the maps and classes are the same); the bytes uploaded
+/// per triangle (the map) and per pixel (the classification), read back per texel and per pixel, the
+/// submissions and blocking waits; the CPU speed-up against a ray per pixel's `traced_cpu` seconds.
 /// Skipped, saying so, without a GPU.
 fn gpu_map_rows(
     rec: &mut Records,
@@ -392,65 +400,95 @@ fn gpu_map_rows(
             return;
         }
     };
-    let mut on_gpu = GpuShadowMap::new(&ctx);
-    let mut pass = HardShadows::new();
     let settings = ShadowSettings {
         towards_light: crowd::sun(),
         map_resolution: g.width,
         ..Default::default()
     };
-    let mut run = |pass: &mut HardShadows| {
-        crowd::sun_visibility_with(world, g, &settings, pass, &mut on_gpu)
-            .expect("the GPU pass")
-            .to_vec()
-    };
-    let (t, image) = best_of(rec.reps(), || run(&mut pass));
-    let map = pass.stats().map_time.as_secs_f64();
-    let mut cpu = f64::INFINITY;
-    for _ in 0..rec.reps() {
-        let before = cpu_seconds(CpuClock::Process);
-        std::hint::black_box(run(&mut pass));
-        cpu = cpu.min(cpu_seconds(CpuClock::Process) - before);
-    }
-    let before = ctx.counters();
-    run(&mut pass);
-    let d = ctx.counters().since(&before);
     let triangles = (world.resource::<kinetrace::ecs::TraceWorld>())
         .occluders(&kinetrace::ecs::QueryFilter::default())
         .triangle_count() as f64;
-    let unlike = image.iter().zip(cpu_image).filter(|(a, b)| a != b).count();
-    let subject = "selective, map on the GPU";
-    for (subject, metric, value, unit) in [
-        (subject, "time per image", t * 1e3, "ms"),
-        (subject, "CPU per image", cpu * 1e3, "ms"),
-        (subject, "map", map * 1e3, "ms"),
-        (subject, "pixels unlike CPU map", unlike as f64, "pixels"),
-        (
-            subject,
-            "uploaded a pass",
-            d.uploaded_bytes as f64 / triangles,
-            "B/triangle",
-        ),
-        (
-            subject,
-            "read back a pass",
-            d.read_back_bytes as f64 / (g.width * g.width) as f64,
-            "B/texel",
-        ),
-        (subject, "submissions a pass", d.submissions as f64, ""),
-        (
-            subject,
-            "blocking waits a pass",
-            d.blocking_waits as f64,
-            "",
-        ),
-        (
-            "traced/selective, map on the GPU",
-            "CPU speed-up",
-            traced_cpu / cpu,
-            "x",
-        ),
-    ] {
-        rec.add(SUITE, scene, subject, metric, value, unit);
+    let (pixels, texels) = ((g.width * g.height) as f64, (g.width * g.width) as f64);
+    // The map-only pass's transfers, which the classifying one's exceed by the classification's.
+    let mut map_only = (0.0, 0.0);
+    for classify in [false, true] {
+        let mut on_gpu = GpuShadowMap::new(&ctx);
+        on_gpu.set_classify(classify);
+        let mut pass = HardShadows::new();
+        let mut run = |pass: &mut HardShadows| {
+            crowd::sun_visibility_with(world, g, &settings, pass, &mut on_gpu)
+                .expect("the GPU pass")
+                .to_vec()
+        };
+        let (t, image) = best_of(rec.reps(), || run(&mut pass));
+        let stats = pass.stats();
+        assert_eq!(stats.classified_on_gpu, classify);
+        let mut cpu = f64::INFINITY;
+        for _ in 0..rec.reps() {
+            let before = cpu_seconds(CpuClock::Process);
+            std::hint::black_box(run(&mut pass));
+            cpu = cpu.min(cpu_seconds(CpuClock::Process) - before);
+        }
+        let before = ctx.counters();
+        run(&mut pass);
+        let d = ctx.counters().since(&before);
+        let (up, back) = (d.uploaded_bytes as f64, d.read_back_bytes as f64);
+        let unlike = image.iter().zip(cpu_image).filter(|(a, b)| a != b).count();
+        let (subject, versus) = if classify {
+            (
+                "selective, map and classes on the GPU",
+                "traced/selective, map and classes on the GPU",
+            )
+        } else {
+            map_only = (up, back);
+            (
+                "selective, map on the GPU",
+                "traced/selective, map on the GPU",
+            )
+        };
+        let mut rows = vec![
+            (subject, "time per image", t * 1e3, "ms"),
+            (subject, "CPU per image", cpu * 1e3, "ms"),
+            (subject, "map", stats.map_time.as_secs_f64() * 1e3, "ms"),
+            (
+                subject,
+                "classify+compact",
+                stats.classify_time.as_secs_f64() * 1e3,
+                "ms",
+            ),
+            (subject, "pixels unlike CPU map", unlike as f64, "pixels"),
+            (subject, "submissions a pass", d.submissions as f64, ""),
+            (
+                subject,
+                "blocking waits a pass",
+                d.blocking_waits as f64,
+                "",
+            ),
+            (versus, "CPU speed-up", traced_cpu / cpu, "x"),
+        ];
+        if classify {
+            rows.extend([
+                (
+                    subject,
+                    "uploaded for classes",
+                    (up - map_only.0) / pixels,
+                    "B/pixel",
+                ),
+                (
+                    subject,
+                    "read back for classes",
+                    (back - map_only.1) / pixels,
+                    "B/pixel",
+                ),
+            ]);
+        } else {
+            rows.extend([
+                (subject, "uploaded a pass", up / triangles, "B/triangle"),
+                (subject, "read back a pass", back / texels, "B/texel"),
+            ]);
+        }
+        for (subject, metric, value, unit) in rows {
+            rec.add(SUITE, scene, subject, metric, value, unit);
+        }
     }
 }

@@ -1,8 +1,9 @@
 //! The report's shadow-map section (issue 16): per scene, its middle frame seen by the secondary section's
 //! camera (`side`² pixels: 128², 32² in `--quick`), selective hard shadows of a directional light along
 //! the frame's light direction, with the shadow map rendered on the CPU, on the GPU (`GpuShadowMap`,
-//! where there is one) and as the planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each
-//! pass's map seconds per triangle taught as the crowd demo does; and with the map on the CPU, the
+//! where there is one: the pixels classified on the CPU, "map only", and on the GPU) and as the
+//! planner's [`Choice::map_on_gpu`] picks over [`ROUNDS`] passes, each pass's map and classification
+//! seconds per triangle taught as the crowd demo does; and with the map on the CPU, the
 //! marked pixels' shadow rays as packets (each batch the pass gives, up to 64 rays of one 8×8 block,
 //! traced together), as single rays walked four at a time interleaved (`MeshBvh::any_hits_interleaved`,
 //! as the crowd demo's single rays) and as the planner's [`Choice::sparse_packets`] picks between
@@ -152,6 +153,10 @@ pub fn run(
     #[cfg(feature = "gpu")]
     if let Some(ctx) = gpu {
         let mut on_gpu = kinetrace::gpu::GpuShadowMap::new(ctx);
+        on_gpu.set_classify(false);
+        let (gpu_s, p) = pass(&mut |p| render(p, inputs, rays, &mut on_gpu));
+        rows.push(row("gpu, map only".into(), gpu_s, &p));
+        on_gpu.set_classify(true);
         let (gpu_s, p) = pass(&mut |p| render(p, inputs, rays, &mut on_gpu));
         rows.push(row("gpu".into(), gpu_s, &p));
         let triangles = tris.len() as f64;
@@ -168,7 +173,8 @@ pub fn run(
                 } else {
                     render(p, inputs, rays, &mut CpuMap);
                 }
-                (triangles, p.stats().map_time.as_secs_f64())
+                let s = p.stats();
+                (triangles, (s.map_time + s.classify_time).as_secs_f64())
             },
         ));
     }
@@ -259,7 +265,8 @@ pub fn table(rows: &[ShadowRow]) -> String {
     let mut s = format!(
         "\n## Shadow maps (issue 16)\n\nPer scene, its middle frame through the secondary section's camera; \
          selective hard shadows of a directional light along the frame's light, the map (as many texels a \
-         side as the image) rendered on the CPU, on the GPU, or as the planner picks over {ROUNDS} \
+         side as the image) rendered on the CPU, on the GPU (the pixels classified on the CPU, \
+         \"map only\", or on the GPU too), or as the planner picks over {ROUNDS} \
          passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets); with \
          the CPU's map, the marked pixels' shadow rays one by one, as packets of a block's rays, as \
          single rays walked four at a time interleaved, or as the planner picks over {ROUNDS} passes. One CPU thread; the GPU's map time includes its upload \

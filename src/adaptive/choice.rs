@@ -573,11 +573,12 @@ impl Choice<bool> {
         Choice::new(&[(false, 1.0, 1.0), (true, 1.05, 1.0)]).expect("two options")
     }
 
-    /// Whether a shadow pass renders its map on the GPU ([`GpuShadowMap`](crate::gpu::GpuShadowMap))
-    /// rather than on the CPU's threads, per triangle of the occluders: the CPU first (nothing to try
-    /// where there is no GPU), the GPU 0.25 × its seconds per triangle — our guess at a GPU's
-    /// rasterisation with the upload and read-back it pays, which the first measurements replace (on
-    /// a software adapter the GPU measures slower and is dropped).
+    /// Whether a shadow pass renders its map, and classifies a hard selective pass's pixels, on the GPU
+    /// ([`GpuShadowMap`](crate::gpu::GpuShadowMap)) rather than on the CPU's threads, in seconds of both
+    /// phases per triangle of the occluders: the CPU first (nothing to try where there is no GPU), the
+    /// GPU 0.25 × its seconds per triangle — our guess at a GPU's rasterisation and classification with
+    /// the uploads and read-backs they pay, which the first measurements replace (on a software adapter
+    /// the GPU measures slower and is dropped).
     pub fn map_on_gpu() -> Self {
         Choice::new(&[(false, 1.0, 1.0), (true, 0.25, 1.0)]).expect("two options")
     }
