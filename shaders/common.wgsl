@@ -107,6 +107,21 @@ fn is_leaf(n: Node) -> bool { return (n.index & LEAF_BIT) != 0u; }
 fn leaf_first(n: Node) -> u32 { return n.index & 0x07ffffffu; }
 fn leaf_count(n: Node) -> u32 { return (n.index >> 27u) & 0xfu; }
 
+// Whether x is neither infinite nor NaN, and whether it is NaN, from its bits (WGSL implementations may
+// assume that neither occurs, and fold a comparison that would tell).
+fn finite(x: f32) -> bool { return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u; }
+fn is_nan(x: f32) -> bool { return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u; }
+
+// An order-preserving key of a float: larger floats, larger keys (−0 below +0); and its float.
+fn key(f: f32) -> u32 {
+    let b = bitcast<u32>(f);
+    return select(b | 0x80000000u, ~b, (b & 0x80000000u) != 0u);
+}
+
+fn unkey(k: u32) -> f32 {
+    return bitcast<f32>(select(~k, k & 0x7fffffffu, (k & 0x80000000u) != 0u));
+}
+
 // The largest finite f32: the identity of min/max over finite data (WGSL implementations may assume that no
 // infinity occurs, so none is used).
 fn fmax() -> f32 { return bitcast<f32>(0x7f7fffffu); }

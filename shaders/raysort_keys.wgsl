@@ -28,9 +28,6 @@ struct KeyParams { n: u32, bits: u32, _pad0: u32, _pad1: u32 }
 @group(0) @binding(4) var<storage, read_write> bounds: array<atomic<u32>, 6>;
 @group(0) @binding(5) var<uniform> params: KeyParams;
 
-fn finite(x: f32) -> bool { return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u; }
-fn is_nan(x: f32) -> bool { return !finite(x) && (bitcast<u32>(x) & 0x007fffffu) != 0u; }
-
 fn valid(r: SecondaryRay) -> bool {
     let o = finite(r.origin.x) && finite(r.origin.y) && finite(r.origin.z);
     let d = finite(r.dir.x) && finite(r.dir.y) && finite(r.dir.z);

@@ -41,23 +41,10 @@ const LIT: u32 = 2u;
 const SHADOWED: u32 = 3u;
 const MARKED: u32 = 4u;
 
-fn nan(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
-}
-
-fn finite(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7f800000u) != 0x7f800000u;
-}
-
 // Texel (i, j)'s depth; not finite where it is empty.
 fn depth_at(i: u32, j: u32) -> f32 {
     let d = depth[j * cp.res + i];
     return select(unkey(~d), bitcast<f32>(0x7f800000u), d == 0u);
-}
-
-// An order-preserving key's float (shadow_map.wgsl's `unkey`).
-fn unkey(k: u32) -> f32 {
-    return bitcast<f32>(select(~k, k & 0x7fffffffu, (k & 0x80000000u) != 0u));
 }
 
 // Whether interior texel (i, j), of finite depth `s`, is smooth: its eight neighbours are not empty and
@@ -85,14 +72,14 @@ fn slope_bias(cos: f32) -> f32 {
 fn classify(p: vec3<f32>, n: vec3<f32>) -> u32 {
     let t = cp.towards.xyz;
     let cos = dot3(n, t);
-    if cp.check != 0u && !nan(cos) && cos > 0.0 {
+    if cp.check != 0u && !is_nan(cos) && cos > 0.0 {
         let q = vec3<f32>(dot3(p, cp.u.xyz), dot3(p, cp.v.xyz), dot3(p, t));
-        let within = !nan(q.x) && q.x >= cp.lo.x && q.x <= cp.hi.x
-            && !nan(q.y) && q.y >= cp.lo.y && q.y <= cp.hi.y && !nan(q.z);
+        let within = !is_nan(q.x) && q.x >= cp.lo.x && q.x <= cp.hi.x
+            && !is_nan(q.y) && q.y >= cp.lo.y && q.y <= cp.hi.y && !is_nan(q.z);
         if !within { atomicOr(&flags[0], 1u); }
     }
     if all((bitcast<vec3<u32>>(n) & vec3<u32>(0x7fffffffu)) == vec3<u32>(0u)) { return EMPTY; }
-    if !nan(cos) && cos <= 0.0 { return FACING_AWAY; }
+    if !is_nan(cos) && cos <= 0.0 { return FACING_AWAY; }
     let x = (dot3(p, cp.u.xyz) - cp.corner.x) * cp.per_texel;
     let y = (dot3(p, cp.v.xyz) - cp.corner.y) * cp.per_texel;
     if !(finite(x) && finite(y) && x >= 1.0 && y >= 1.0 && x < cp.last && y < cp.last) {
@@ -105,7 +92,7 @@ fn classify(p: vec3<f32>, n: vec3<f32>) -> u32 {
     let s = depth_at(i, j);
     if !finite(s) { return MARKED; }
     if smooth_texel(i, j, s) {
-        let lit = !nan(d) && (d <= s + cp.texel * cp.bias_texels || d <= s + slope_bias(cos));
+        let lit = !is_nan(d) && (d <= s + cp.texel * cp.bias_texels || d <= s + slope_bias(cos));
         return select(SHADOWED, LIT, lit);
     }
     // An edge texel: the four texels whose centres surround the receiver against its tangent plane.
@@ -121,7 +108,7 @@ fn classify(p: vec3<f32>, n: vec3<f32>) -> u32 {
         let at = first + vec2<f32>(f32(c & 1u), f32(c >> 1u));
         let sc = depth_at(i0 + (c & 1u), j0 + (c >> 1u));
         // An empty texel lies in front of nothing.
-        if finite(sc) && !nan(d) && sc < d + slope.x * at.x + slope.y * at.y - bias { front += 1u; }
+        if finite(sc) && !is_nan(d) && sc < d + slope.x * at.x + slope.y * at.y - bias { front += 1u; }
     }
     if front == 0u { return LIT; }
     if front == 4u { return SHADOWED; }

@@ -36,24 +36,10 @@ const NARROW: u32 = 4u;
 // 2^126 texels²: larger triangles cover nothing (the CPU's MAX_AREA).
 const MAX_AREA: u32 = 0x7e800000u;
 
-// An order-preserving key of a float: larger floats, larger keys (−0 below +0).
-fn key(f: f32) -> u32 {
-    let b = bitcast<u32>(f);
-    return select(b | 0x80000000u, ~b, (b & 0x80000000u) != 0u);
-}
-
-fn unkey(k: u32) -> f32 {
-    return bitcast<f32>(select(~k, k & 0x7fffffffu, (k & 0x80000000u) != 0u));
-}
-
 // Whether no component is infinite or NaN, from the bits (no reliance on the compiler keeping infinities).
 fn finite3(v: vec3<f32>) -> bool {
     let e = bitcast<vec3<u32>>(v) & vec3<u32>(0x7f800000u);
     return all(e != vec3<u32>(0x7f800000u));
-}
-
-fn is_nan(x: f32) -> bool {
-    return (bitcast<u32>(x) & 0x7fffffffu) > 0x7f800000u;
 }
 
 // The CPU's `ceil` and `floor` (src/shadows/shadow_map.rs): exact below 2³¹, clamped to ±2³¹ beyond,
