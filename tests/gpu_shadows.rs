@@ -232,6 +232,69 @@ fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
     assert_same_pass(&cpu, &gpu, "ground under a 2,600² map");
 }
 
+/// Uploads of several mebibytes, copied a mebibyte per task across threads (or not): triangles in groups
+/// of odd sizes, some empty, whose bounds fall inside the chunks, and a G-buffer of 3.5 MB an array;
+/// the map and the classes are the CPU's, and every byte is counted once.
+#[test]
+fn large_uploads_split_across_threads_arrive_whole() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let mut r = rng(41);
+    let mut groups = Vec::new();
+    for n in [0, 40_001, 1, 33_333, 0, 29_000] {
+        let tris: Vec<[Vec3; 3]> = (0..n)
+            .map(|_| {
+                let o = rand_vec(&mut r, 0.0, 100.0) * Vec3::new(1.0, 0.1, 1.0);
+                [
+                    o,
+                    o + rand_vec(&mut r, 0.0, 0.6),
+                    o + rand_vec(&mut r, 0.0, 0.6),
+                ]
+            })
+            .collect();
+        groups.push((tris, None));
+    }
+    let floor = cluttered_ground()[..2].to_vec();
+    groups.push((floor, None));
+    let occluders = Groups(groups);
+    let triangles: u64 = occluders.0.iter().map(|(t, _)| t.len() as u64).sum();
+    let g = ground(540);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    for parallel in [true, false] {
+        let s = ShadowSettings {
+            towards_light: Vec3::new(0.3, 1.0, 0.2),
+            map_resolution: 256,
+            parallel,
+            ..Default::default()
+        };
+        let no_ray = |_: Vec3, _: Vec3| false;
+        let mut cpu = HardShadows::new();
+        cpu.run(&s, &occluders, &g, no_ray).expect("the CPU pass");
+        let mut gpu = HardShadows::new();
+        let before = ctx.counters();
+        gpu.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
+            .expect("the GPU pass");
+        let d = ctx.counters().since(&before);
+        let what = format!("parallel {parallel}");
+        assert!(
+            gpu.stats().classified_on_gpu && !gpu.stats().refitted,
+            "{what}"
+        );
+        assert!(
+            cpu.stats().rays > 1000,
+            "{what}: {} marked",
+            cpu.stats().rays
+        );
+        assert_same_pass(&cpu, &gpu, &what);
+        let groups = occluders.0.len() as u64;
+        let pixels = (540 * 540) as u64;
+        assert_eq!(
+            d.uploaded_bytes,
+            36 * triangles + 4 * (groups + 1) + 64 * groups + 32 + 24 * pixels + 112,
+            "{what}"
+        );
+    }
+}
+
 /// The large triangles' indirect dispatch (eight workgroups a listed triangle) folded into its second
 /// and third dimensions, as it is past the device's limit of workgroups per dimension, here at two and
 /// three a dimension: the same map as the CPU's.

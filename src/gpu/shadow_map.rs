@@ -64,8 +64,10 @@ pub struct GpuShadowMap {
     /// Bound for the arguments while `map_large` reads them as its dispatch's sizes (a buffer may not be
     /// both in one dispatch).
     stand_in: GpuBuffer,
-    /// Each group's first triangle (then the count), and its transform into light space, as uploaded.
+    /// Each group's first triangle (then the count), its first byte (then the total), and its transform
+    /// into light space, as uploaded.
     first: Vec<u32>,
+    bytes: Vec<u64>,
     transforms: Vec<[f32; 16]>,
     /// Workgroups per dimension the large triangles' indirect dispatch folds at (`fold_groups` in the
     /// kernels): the device's limit, at most 65,535.
@@ -107,6 +109,7 @@ impl GpuShadowMap {
             params: storage("shadow map params"),
             stand_in: storage("shadow map stand-in"),
             first: Vec::new(),
+            bytes: Vec::new(),
             transforms: Vec::new(),
             max_groups: ctx.max_groups().min(0xffff),
             positions: storage("shadow classification positions"),
@@ -136,8 +139,14 @@ impl GpuShadowMap {
         self.max_groups = groups.clamp(1, self.ctx.max_groups().min(0xffff));
     }
 
-    /// Uploads `occluders` and their transforms into `map`'s light space; returns the triangle count.
-    fn upload(&mut self, map: &ShadowMap, occluders: &(impl Occluders + ?Sized)) -> Result<u32> {
+    /// Uploads `occluders` (in parallel halves where `parallel`) and their transforms into `map`'s light
+    /// space; returns the triangle count.
+    fn upload(
+        &mut self,
+        map: &ShadowMap,
+        occluders: &(impl Occluders + ?Sized),
+        parallel: bool,
+    ) -> Result<u32> {
         let ctx = &self.ctx;
         let light = map.light();
         self.first.clear();
@@ -162,14 +171,10 @@ impl GpuShadowMap {
         self.large.ensure_within(ctx, n * 4, limit);
         self.starts.ensure(ctx, self.first.len() as u64 * 4);
         self.to_light.ensure(ctx, self.transforms.len() as u64 * 64);
-        let mut at = 0;
-        for g in 0..occluders.groups() {
-            let tris: &[[Vec3; 3]] = occluders.group(g).0;
-            if !tris.is_empty() {
-                ctx.write_buffer(self.corners.buffer(), at, bytemuck::cast_slice(tris));
-                at += tris.len() as u64 * 36;
-            }
-        }
+        self.bytes.clear();
+        self.bytes.extend(self.first.iter().map(|&t| t as u64 * 36));
+        let corners = |g: usize| bytemuck::cast_slice(occluders.group(g).0);
+        ctx.write_buffer_parts(self.corners.buffer(), 0, &self.bytes, corners, parallel);
         self.starts.write(ctx, &self.first);
         self.to_light.write(ctx, &self.transforms);
         Ok(n as u32)
@@ -235,10 +240,10 @@ impl MapRenderer for GpuShadowMap {
         receivers: (Vec3, Vec3),
         spread: f32,
         res: usize,
-        _parallel: bool,
+        parallel: bool,
     ) -> Result<()> {
         self.rendered = false;
-        let n = self.upload(map, occluders)?;
+        let n = self.upload(map, occluders, parallel)?;
         let texels = (res * res) as u64;
         self.ctx.check_storage("shadow map", texels * 4)?;
         self.depth
@@ -329,9 +334,8 @@ impl MapRenderer for GpuShadowMap {
                 (&self.positions, &gbuffer.positions),
                 (&self.normals, &gbuffer.normals),
             ] {
-                if !data.is_empty() {
-                    ctx.write_buffer(buffer.buffer(), 0, bytemuck::cast_slice(data));
-                }
+                let whole = |_| bytemuck::cast_slice(data);
+                ctx.write_buffer_parts(buffer.buffer(), 0, &[0, bytes], whole, job.parallel);
             }
         }
         self.classes.ensure_within(ctx, words as u64 * 4, limit);

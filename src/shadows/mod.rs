@@ -454,6 +454,7 @@ impl HardShadows {
                 edge,
                 fitted,
                 fresh,
+                parallel: s.parallel,
             };
             if let Some(outside) = renderer.classify_hard(&self.map, g, &job, &mut self.classes)? {
                 self.classified_elsewhere = true;

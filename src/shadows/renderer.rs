@@ -20,6 +20,8 @@ pub struct HardClassify {
     pub fitted: Option<(Vec3, Vec3)>,
     /// Whether the G-buffer is new since the renderer's last classification (a pass's first).
     pub fresh: bool,
+    /// Whether the pass runs on all threads.
+    pub parallel: bool,
 }
 
 /// What renders a [`HardShadows`](super::HardShadows) pass's shadow map
