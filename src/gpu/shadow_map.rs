@@ -32,8 +32,8 @@ use glam::Vec3;
 /// its map twice), and a byte a pixel read back, which the CPU turns into the visibility and the list
 /// of marked pixels (about 1.2 ms for 1024² pixels on 2 cores, against about 5 ms classifying). Its
 /// buffers grow to the largest scene, map and image seen and are kept (a warm render allocates none;
-/// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger than the device's buffers, say) is the
-/// pass's error, and the pass keeps no map (0 × 0).
+/// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger
+/// than the device's buffers, say) is the pass's error, and the pass keeps no map (0 × 0).
 ///
 /// ```no_run
 /// use kinetrace::gpu::{GpuContext, GpuShadowMap};

@@ -56,11 +56,11 @@
 //! and classifies a hard selective pass's pixels there too, each as the CPU would (what that saves on a
 //! hardware GPU is not measured yet: the uploads of 36 bytes a triangle and 24 a pixel and the
 //! read-backs of 4 bytes a texel and 1 a pixel stay on the CPU's side; on a software adapter it is
-//! slower than the CPU); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full crowd). Use it
-//! for soft shadows, where shadow rays are expensive (dense occluders, many triangles over the
-//! receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard edges
-//! are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights only; surfaces facing away from all of the
-//! light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
+//! slower than the CPU); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full
+//! crowd). Use it for soft shadows, where shadow rays are expensive (dense occluders, many triangles
+//! over the receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard
+//! edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights
+//! only; surfaces facing away from all of the light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
 //! triangles (triangles edge-on to the light cover no texel; receivers over empty texels are marked
 //! instead); the soft mask assumes every receiver as deep as the deepest, so occluders high above the
 //! receivers mark wide areas (the thesis's caveat), and smooth surfaces that shade part of the disc
