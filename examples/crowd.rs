@@ -19,8 +19,9 @@
 //! ray per pixel, see `kinetrace::shadows`; `--soft RAD` makes the sun a disc of that angular radius with soft
 //! shadows), the turret's hits marked red; camera rays go as 8×8 packets or ray by ray, whichever the
 //! planner measured faster on this scene (see `primary_hits`), and with a GPU the shadow map is rendered
-//! there or on the CPU, the same map, whichever the planner measured faster (see `sun_visibility`). Batched queries run on the GPU when one is found
-//! (`--cpu` keeps them on the CPU).
+//! (and the hard selective pass's pixels classified) there or on the CPU, the same map and classes,
+//! whichever the planner measured faster (see `sun_visibility`). Batched queries run on the GPU when one
+//! is found (`--cpu` keeps them on the CPU).
 
 use bevy_ecs::prelude::*;
 use glam::{Affine3A, Quat, Vec2, Vec3};
@@ -551,7 +552,9 @@ fn run_frames(
             };
             // The shadow map's device, where there is a choice.
             let map = match crowd.gpu_map {
-                Some(_) if lock(&crowd.map_on_gpu).current() => ", shadow map on the GPU",
+                Some(_) if lock(&crowd.map_on_gpu).current() => {
+                    ", shadow map (and classification) on the GPU"
+                }
                 Some(_) => ", shadow map on the CPU",
                 None => "",
             };

@@ -1,6 +1,7 @@
 //! The crowd demo in a window: the scene ray traced on the CPU every frame and shown through a wgpu surface;
-//! with `--gpu` the shadow map of the selective and map-only modes is rendered on the GPU where the planner
-//! measures that faster (the same map either way; see the crowd's `sun_visibility`).
+//! with `--gpu` the shadow map of the selective and map-only modes is rendered (and the hard selective
+//! mode's pixels classified) on the GPU where the planner measures that faster (the same map and classes
+//! either way; see the crowd's `sun_visibility`).
 //!
 //! ```text
 //! cargo run --release --features viewer --example viewer -- [--characters 32] [--triangles 5000]
