@@ -301,11 +301,10 @@ impl MapRenderer for GpuShadowMap {
         back.wait_with(&self.ctx, |words| {
             // A stored depth is its key complemented; 0 is an empty texel.
             let depth = &words[1..];
-            let texel = |k: usize| match depth[k] {
+            map.take_rendered(shadows::nearest(words[0]), |k| match depth[k] {
                 0 => f32::INFINITY,
                 d => unkey(!d),
-            };
-            map.take_rendered(shadows::nearest(words[0]), texel, parallel);
+            });
         })?;
         self.rendered = true;
         Ok(())

@@ -291,18 +291,13 @@ impl ShadowMap {
     }
 
     /// Takes a map rendered elsewhere over the frame [`fit`](Self::fit) set: the point nearest the light
-    /// (`top`), and each texel's depth as `depth(k)` for texel `k`, row by row (in parallel chunks where
-    /// `parallel`).
+    /// (`top`), and each texel's depth as `depth(k)` for texel `k`, row by row.
     #[cfg(feature = "gpu")]
-    pub(crate) fn take_rendered(
-        &mut self,
-        top: f32,
-        depth: impl Fn(usize) -> f32 + Sync + Send,
-        parallel: bool,
-    ) {
+    pub(crate) fn take_rendered(&mut self, top: f32, depth: impl Fn(usize) -> f32) {
         self.top = top;
-        self.depth.resize(self.res * self.res, f32::INFINITY);
-        parallel::fill(parallel, &mut self.depth, 1 << 16, depth);
+        let n = self.res * self.res;
+        self.depth.clear();
+        self.depth.extend((0..n).map(depth));
     }
 
     /// The light-space transform as a matrix with rows `u`, `v` and `towards`: `light() * p` is
