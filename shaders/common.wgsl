@@ -68,21 +68,24 @@ fn remainder_of(m: f32, n: f32, c: f32) -> f32 {
 }
 
 // √x rounded to nearest, as the CPU's `f32::sqrt`. Vulkan lets a driver's square root err by several
-// ulp; sqrt_from corrects it.
+// ulp (and leaves √0 undefined); sqrt_from corrects it, and a zero is its own root.
 fn sqrt_rn(x: f32) -> f32 {
+    if (bitcast<u32>(x) & 0x7fffffffu) == 0u { return x; }
     return sqrt_from(x, sqrt(x));
 }
 
-// √x rounded to nearest from a guess `s` within four ulp of it: moved to the neighbour with the smaller
-// remainder x − c² (from Sterbenz's exact difference and Dekker's product error; rounded at most once, which
-// keeps the order of two neighbours' remainders, and never tied: a square root is never halfway between
-// two floats) until neither neighbour is nearer. An x outside [2^-100, 2^126] (where c² could underflow
-// or overflow), NaN included, keeps the guess.
+// √x rounded to nearest from a guess `s` within eight floats of it (four ulp of the larger binade's
+// where the root lies just below a power of two): moved to the neighbour with the smaller remainder
+// x − c² (from Sterbenz's exact difference and Dekker's product error; rounded at most once, which keeps
+// the order of two neighbours' remainders, and never tied: a square root is never halfway between two
+// floats) until neither neighbour is nearer. An x outside [2^-100, 2^126] (where c² could underflow or
+// overflow), NaN included, keeps the guess; a device that flushes subnormals loses Dekker's smallest
+// term below about 2^-80.
 fn sqrt_from(x: f32, s: f32) -> f32 {
     if !(x >= 7.88860905e-31 && x <= 8.50705917e37) { return s; }
     var c = s;
     var r = root_remainder(x, c);
-    for (var k = 0u; k < 4u; k++) {
+    for (var k = 0u; k < 8u; k++) {
         // The root lies beyond c on the side of r's sign: one ulp that way.
         let d = bitcast<f32>(select(bitcast<u32>(c) - 1u, bitcast<u32>(c) + 1u, r > 0.0));
         let rd = root_remainder(x, d);

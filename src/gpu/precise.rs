@@ -162,7 +162,7 @@ pub fn divide(ctx: &super::GpuContext, a: &[f32], b: &[f32]) -> crate::Result<Ve
 /// Test hook (feature `testing`): `√x[i]` by the kernels' correctly rounded square root, corrected from
 /// the guess `guess[i]` (`sqrt_from` in shaders/common.wgsl; a NaN guess: the driver's root, `sqrt_rn`), read
 /// back, blocking. Equals the CPU's `x[i].sqrt()` bit for bit for every `x[i]` from 2⁻¹⁰⁰ to 2¹²⁶ whose
-/// guess lies within four ulp of its root.
+/// guess lies within eight floats of its root (where subnormals are kept: see `sqrt_from`).
 #[cfg(feature = "testing")]
 pub fn square_root(ctx: &super::GpuContext, x: &[f32], guess: &[f32]) -> crate::Result<Vec<f32>> {
     pairs(ctx, "root", x, guess)
