@@ -28,12 +28,13 @@ use glam::Vec3;
 /// (shaders/shadow_classify.wgsl: `classify::selective`'s operations in its order, square roots and
 /// divisions rounded as the CPU rounds them, so each pixel gets the CPU's class; off with
 /// [`set_classify`](Self::set_classify)) adds per pass the G-buffer uploaded, 24 bytes a pixel, 112 of
-/// parameters, a submission and a blocking wait (a second one, without the G-buffer, where the pass fits
-/// its map twice), and a byte a pixel read back, which the CPU turns into the visibility and the list
+/// parameters, a submission and a blocking wait (two where the pass fits its map twice, the G-buffer
+/// uploaded once), and a byte a pixel read back, which the CPU turns into the visibility and the list
 /// of marked pixels (about 1.2 ms for 1024² pixels on 2 cores, against about 5 ms classifying). Its
 /// buffers grow to the largest scene, map and image seen and are kept (a warm render allocates none;
 /// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger
-/// than the device's buffers, say) is the pass's error, and the pass keeps no map (0 × 0).
+/// than the device's buffers, say) is the pass's error; one while rendering leaves the pass no map
+/// (0 × 0).
 ///
 /// ```no_run
 /// use kinetrace::gpu::{GpuContext, GpuShadowMap};
@@ -117,16 +118,20 @@ impl GpuShadowMap {
             classes: storage("shadow classification classes"),
             flags: storage("shadow classification flags"),
             classify_params: storage("shadow classification params"),
-            classify: true,
+            classify: ctx.contraction_free(),
             rendered: false,
         }
     }
 
-    /// Whether hard selective passes also classify their pixels on the GPU (the default), against the
-    /// map still there: the G-buffer uploaded (24 bytes a pixel) and a byte a pixel read back, in a
-    /// submission of its own, instead of the CPU's pass over the G-buffer (about 5 ms for 1024² pixels
-    /// on 2 cores). Off, the CPU classifies against the map read back. Either way the classes, and so
-    /// the image, are the same (where the kernels round as the CPU does, see [`GpuShadowMap`]).
+    /// Whether hard selective passes also classify their pixels on the GPU, against the map still there:
+    /// the G-buffer uploaded (24 bytes a pixel) and a byte a pixel read back, in a submission of its
+    /// own, instead of the CPU's pass over the G-buffer (about 5 ms for 1024² pixels on 2 cores). Off,
+    /// the CPU classifies against the map read back. On by default where the kernels round as the CPU
+    /// does ([`GpuContext::contraction_free`]: Vulkan), so the classes, and the image, are the same;
+    /// where they may fuse (Metal, DX12) the CPU classifies unless this turns it on. The CPU classifies
+    /// anyway a G-buffer past the device's buffers and an edge threshold beyond `f32`. On a device that
+    /// flushes subnormals, a receiver whose normal is far from unit length (about 10³⁶ and more), whose
+    /// tangent plane's slope then needs a subnormal, may be classified otherwise.
     pub fn set_classify(&mut self, on_gpu: bool) {
         self.classify = on_gpu;
     }
@@ -139,7 +144,7 @@ impl GpuShadowMap {
         self.max_groups = groups.clamp(1, self.ctx.max_groups().min(0xffff));
     }
 
-    /// Uploads `occluders` (in parallel halves where `parallel`) and their transforms into `map`'s light
+    /// Uploads `occluders` (a mebibyte a task across threads where `parallel`) and their transforms into `map`'s light
     /// space; returns the triangle count.
     fn upload(
         &mut self,
@@ -317,15 +322,21 @@ impl MapRenderer for GpuShadowMap {
         job: &HardClassify,
         classes: &mut Vec<u32>,
     ) -> Result<Option<bool>> {
-        if !self.classify || !self.rendered {
-            return Ok(None);
-        }
         let ctx = &self.ctx;
         let pixels = gbuffer.positions.len();
         let words = pixels.div_ceil(4);
         let bytes = pixels as u64 * 12;
-        ctx.check_storage("shadow classification G-buffer", bytes)?;
-        ctx.check_threads("shadow classification", words as u64, 256)?;
+        // The CPU classifies what the kernel cannot: a G-buffer past the device's buffers or dispatch,
+        // and an edge threshold beyond f32 (where the CPU's `Δ ≤ ∞` holds next to empty texels).
+        let fits = ctx
+            .check_storage("shadow classification G-buffer", bytes)
+            .is_ok()
+            && ctx
+                .check_threads("shadow classification", words as u64, 256)
+                .is_ok();
+        if !self.classify || !self.rendered || !fits || !job.edge.is_finite() {
+            return Ok(None);
+        }
         let limit = ctx.storage_limit();
         if job.fresh {
             self.positions.ensure_within(ctx, bytes, limit);

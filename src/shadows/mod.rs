@@ -340,7 +340,10 @@ impl HardShadows {
             self.fit_map(s, occluders, fit, renderer)?;
             map_time += t.elapsed();
             let t = Instant::now();
-            self.classify(s, gbuffer, towards, None, renderer, false)?;
+            // The G-buffer is new to the renderer unless its classification ran the first time (the
+            // first fit may have left it nothing to classify against: no receiver in the sample).
+            let fresh = !self.classified_elsewhere;
+            self.classify(s, gbuffer, towards, None, renderer, fresh)?;
             classify_time += t.elapsed();
         }
         if sampled.is_some() {

@@ -18,7 +18,7 @@ pub struct HardClassify {
     /// The receivers' bounds across the light (x, y) the map was fitted to, where receivers facing the
     /// light outside them are to be reported.
     pub fitted: Option<(Vec3, Vec3)>,
-    /// Whether the G-buffer is new since the renderer's last classification (a pass's first).
+    /// Whether the G-buffer is new to the renderer: none of its classifications in this pass ran yet.
     pub fresh: bool,
     /// Whether the pass runs on all threads.
     pub parallel: bool,
