@@ -85,6 +85,17 @@ fn ground(side: usize) -> GBuffer {
     g
 }
 
+/// A context of its own on the shared context's adapter (`None`, skipping, where there is none): for
+/// tests that read the upload and read-back counters, which other tests sharing a context move.
+fn own_context() -> Option<GpuContext> {
+    gpu_or_skip()?;
+    let options = GpuOptions {
+        hardware_only: false,
+        ..Default::default()
+    };
+    Some(GpuContext::with_options(&options).expect("the adapter the shared context found"))
+}
+
 /// Every texel of the two passes' maps holds the same depth (equal as floats: a zero's sign aside), and
 /// their visibility and marked pixels are the same.
 fn assert_same_pass(cpu: &HardShadows, gpu: &HardShadows, what: &str) {
@@ -238,14 +249,7 @@ fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
 /// counters no other test moves).
 #[test]
 fn large_uploads_split_across_threads_arrive_whole() {
-    if gpu_or_skip().is_none() {
-        return;
-    }
-    let ctx = GpuContext::with_options(&GpuOptions {
-        hardware_only: false,
-        ..Default::default()
-    })
-    .expect("the adapter the shared context found");
+    let Some(ctx) = own_context() else { return };
     let mut r = rng(41);
     let mut groups = Vec::new();
     for n in [0, 40_001, 1, 33_333, 0, 29_000] {
@@ -517,14 +521,7 @@ fn hostile(towards: Vec3, wild: bool, seed: u64) -> GBuffer {
 /// uploads the G-buffer); an edge threshold beyond `f32` is classified on the CPU.
 #[test]
 fn gpu_classification_is_the_cpu_classification_pixel_for_pixel() {
-    if gpu_or_skip().is_none() {
-        return;
-    }
-    let ctx = GpuContext::with_options(&GpuOptions {
-        hardware_only: false,
-        ..Default::default()
-    })
-    .expect("the adapter the shared context found");
+    let Some(ctx) = own_context() else { return };
     let tris = cluttered_ground();
     let mut on_gpu = GpuShadowMap::new(&ctx);
     let (mut cpu, mut gpu) = (HardShadows::new(), HardShadows::new());
@@ -621,14 +618,7 @@ fn gpu_classification_is_the_cpu_classification_pixel_for_pixel() {
 /// classification's parameters up, and a byte a pixel and a flag back.
 #[test]
 fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classifying_one_more() {
-    if gpu_or_skip().is_none() {
-        return;
-    }
-    let ctx = GpuContext::with_options(&GpuOptions {
-        hardware_only: false,
-        ..Default::default()
-    })
-    .expect("the adapter the shared context found");
+    let Some(ctx) = own_context() else { return };
     let occluders = scene(3);
     let triangles: u64 = occluders.0.iter().map(|(t, _)| t.len() as u64).sum();
     let groups = occluders.0.len() as u64;

@@ -144,8 +144,8 @@ impl GpuShadowMap {
         self.max_groups = groups.clamp(1, self.ctx.max_groups().min(0xffff));
     }
 
-    /// Uploads `occluders` (a mebibyte a task across threads where `parallel`) and their transforms into `map`'s light
-    /// space; returns the triangle count.
+    /// Uploads `occluders` (a mebibyte a task across threads where `parallel`) and their transforms into
+    /// `map`'s light space; returns the triangle count.
     fn upload(
         &mut self,
         map: &ShadowMap,
