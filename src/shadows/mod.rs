@@ -261,8 +261,6 @@ pub struct HardShadows {
     /// Each pixel's class as the renderer's classification gave it (a byte a pixel, four a word), where
     /// it classified (`MapRenderer::classify_hard`).
     classes: Vec<u32>,
-    /// Whether the last classification was the renderer's.
-    classified_elsewhere: bool,
     visibility: Vec<f32>,
     /// The image rows [`Self::receivers`] last read (a sample, or every row when the sample missed an
     /// extreme), and each one's bounds.
@@ -331,8 +329,9 @@ impl HardShadows {
             sampled = Some(bounds);
         }
         let t = Instant::now();
-        let refitted = self.classify(s, gbuffer, towards, sampled, renderer, true)?;
+        let mut classified = self.classify(s, gbuffer, towards, sampled, renderer, true)?;
         classify_time += t.elapsed();
+        let refitted = classified.outside;
         let mut fit = sampled.unwrap_or(NO_BOUNDS);
         if refitted {
             let t = Instant::now();
@@ -342,8 +341,8 @@ impl HardShadows {
             let t = Instant::now();
             // The G-buffer is new to the renderer unless its classification ran the first time (the
             // first fit may have left it nothing to classify against: no receiver in the sample).
-            let fresh = !self.classified_elsewhere;
-            self.classify(s, gbuffer, towards, None, renderer, fresh)?;
+            let fresh = !classified.by_renderer;
+            classified = self.classify(s, gbuffer, towards, None, renderer, fresh)?;
             classify_time += t.elapsed();
         }
         if sampled.is_some() {
@@ -390,7 +389,7 @@ impl HardShadows {
             rays: self.marked.len(),
             refitted,
             map_on_gpu: s.mode != ShadowMode::RayTraced && renderer.on_gpu(),
-            classified_on_gpu: self.classified_elsewhere,
+            classified_on_gpu: classified.by_renderer,
             map_time,
             classify_time,
             trace_time: t2.elapsed(),
@@ -432,11 +431,11 @@ impl HardShadows {
     }
 
     /// Classifies every pixel against the last map as the mode says (visibility and each band's marked
-    /// pixels); with the receivers' bounds `fitted` the map was fitted to, also returns whether a receiver
+    /// pixels); with the receivers' bounds `fitted` the map was fitted to, also says whether a receiver
     /// lies outside them (see [`lanes::outside`]): a map fitted to every pixel's bounds would differ. A
     /// hard selective pass is classified by `renderer` where it can (the GPU's, against the map it
-    /// rendered; `fresh`: the pass's first classification, so the G-buffer is new to it), else on the CPU,
-    /// against the map's smooth texels found first.
+    /// rendered; `fresh`: the G-buffer is new to it), else on the CPU, against the map's smooth texels
+    /// found first.
     fn classify(
         &mut self,
         s: &ShadowSettings,
@@ -445,10 +444,9 @@ impl HardShadows {
         fitted: Option<(Vec3, Vec3)>,
         renderer: &mut impl MapRenderer,
         fresh: bool,
-    ) -> Result<bool> {
+    ) -> Result<Classified> {
         let soft = s.light_angle > 0.0;
         let hard_selective = s.mode == ShadowMode::Selective && !soft;
-        self.classified_elsewhere = false;
         if hard_selective {
             let edge = s.edge_texels * self.map.texel_size();
             let job = renderer::HardClassify {
@@ -460,7 +458,6 @@ impl HardShadows {
                 parallel: s.parallel,
             };
             if let Some(outside) = renderer.classify_hard(&self.map, g, &job, &mut self.classes)? {
-                self.classified_elsewhere = true;
                 let into = Classification {
                     par: s.parallel,
                     px: Pixels {
@@ -473,7 +470,10 @@ impl HardShadows {
                     chunks: &mut self.chunks,
                 };
                 into.take_classes(&self.classes);
-                return Ok(outside);
+                return Ok(Classified {
+                    outside,
+                    by_renderer: true,
+                });
             }
             self.deltas.find(&self.map, edge, s.parallel);
         }
@@ -543,7 +543,10 @@ impl HardShadows {
                 },
             ),
         }
-        Ok(self.chunks.iter().any(|c| c.outside))
+        Ok(Classified {
+            outside: self.chunks.iter().any(|c| c.outside),
+            by_renderer: false,
+        })
     }
 
     /// The last pass's visibility per pixel: 1 lit, 0 in shadow (also where the surface faces away from the
@@ -646,6 +649,15 @@ struct Pixels<'a> {
     towards: Vec3,
     map: Option<&'a ShadowMap>,
     within: Option<(Vec3, Vec3)>,
+}
+
+/// What one classification of a pass found out besides the pixels' classes.
+#[derive(Clone, Copy)]
+struct Classified {
+    /// A receiver lies outside the bounds the map was fitted to.
+    outside: bool,
+    /// The renderer classified (the GPU), not the CPU.
+    by_renderer: bool,
 }
 
 /// One classification of every pixel: the pixels, on all threads or not, and where their verdicts go.
