@@ -72,21 +72,22 @@ fn slope_bias(cos: f32) -> f32 {
 fn classify(p: vec3<f32>, n: vec3<f32>) -> u32 {
     let t = cp.towards.xyz;
     let cos = dot3(n, t);
+    // The receiver across the light and along it, for both the bounds and the map.
+    let q = vec3<f32>(dot3(p, cp.u.xyz), dot3(p, cp.v.xyz), dot3(p, t));
     if cp.check != 0u && !is_nan(cos) && cos > 0.0 {
-        let q = vec3<f32>(dot3(p, cp.u.xyz), dot3(p, cp.v.xyz), dot3(p, t));
         let within = !is_nan(q.x) && q.x >= cp.lo.x && q.x <= cp.hi.x
             && !is_nan(q.y) && q.y >= cp.lo.y && q.y <= cp.hi.y && !is_nan(q.z);
         if !within { atomicOr(&flags[0], 1u); }
     }
     if all((bitcast<vec3<u32>>(n) & vec3<u32>(0x7fffffffu)) == vec3<u32>(0u)) { return EMPTY; }
     if !is_nan(cos) && cos <= 0.0 { return FACING_AWAY; }
-    let x = (dot3(p, cp.u.xyz) - cp.corner.x) * cp.per_texel;
-    let y = (dot3(p, cp.v.xyz) - cp.corner.y) * cp.per_texel;
+    let x = (q.x - cp.corner.x) * cp.per_texel;
+    let y = (q.y - cp.corner.y) * cp.per_texel;
     if !(finite(x) && finite(y) && x >= 1.0 && y >= 1.0 && x < cp.last && y < cp.last) {
         return MARKED;
     }
     if !finite(cos) { return MARKED; }
-    let d = cp.top - dot3(p, t);
+    let d = cp.top - q.z;
     let i = u32(x);
     let j = u32(y);
     let s = depth_at(i, j);
