@@ -673,6 +673,36 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
     }
 }
 
+/// A G-buffer larger than the device binds is classified on the CPU, not refused: on a device whose
+/// storage bindings hold a 64² map and the occluders but not the 360² G-buffer's 1.5 MB arrays, the pass
+/// renders its map on the GPU, classifies on the CPU, and gives the CPU pass's map and image.
+#[test]
+fn a_gbuffer_past_the_devices_buffers_is_classified_on_the_cpu() {
+    let Some(shared) = gpu_or_skip() else { return };
+    let mut limits = shared.limits();
+    limits.max_storage_buffer_binding_size = 1 << 20;
+    let ctx = GpuContext::with_options(&GpuOptions {
+        limits: Some(limits),
+        ..Default::default()
+    })
+    .expect("smaller limits than the adapter's");
+    let s = ShadowSettings {
+        towards_light: Vec3::new(0.3, 1.0, 0.2),
+        map_resolution: 64,
+        ..Default::default()
+    };
+    let (g, tris) = (ground(360), cluttered_ground());
+    let no_ray = |_: Vec3, _: Vec3| false;
+    let mut cpu = HardShadows::new();
+    cpu.run(&s, &tris, &g, no_ray).expect("the CPU pass");
+    let mut gpu = HardShadows::new();
+    gpu.run_with(&s, &tris, &g, no_ray, &mut GpuShadowMap::new(&ctx))
+        .expect("a G-buffer too large to bind is no error");
+    assert!(!gpu.stats().classified_on_gpu, "classified on the CPU");
+    assert!(cpu.stats().rays > 0, "some pixels marked");
+    assert_same_pass(&cpu, &gpu, "G-buffer past the device's buffers");
+}
+
 /// A map larger than the device binds is an error (`Error::Gpu`, saying which buffer), not a panic, and
 /// the pass keeps no half-made map; the same renderer then renders a map that fits.
 #[test]
