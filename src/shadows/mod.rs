@@ -24,8 +24,8 @@
 //!    also marks the occluder's own lit side at its silhouette and receivers a texel away from the edge;
 //!    see `classify::selective`). `Δ` is computed for every texel beforehand, in
 //!    one vectorised pass over the map, and pixels are visited row by row in bands of 8 rows (the
-//!    G-buffer read as it lies), four at a time in SIMD lanes where the map's depth alone decides (bit for
-//!    bit the pixel-by-pixel test, which decides the rest).
+//!    G-buffer read as it lies), eight at a time in SIMD lanes with AVX2 (else four) where the map's depth
+//!    alone decides (bit for bit the pixel-by-pixel test, which decides the rest).
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
@@ -41,8 +41,8 @@
 //! every pixel (the reference the selective image is measured against). Its cost is the map
 //! (O(triangles + texels)), O(pixels) classification (plus O(texels + edge texels · splat area) for the
 //! penumbra mask), and rays for the marked pixels only (0.6–2.4% of them on the crowd for hard shadows).
-//! On the CPU the map and the classification (four pixels at a time, bound by its scattered reads of the
-//! map and the G-buffer's 24 bytes a pixel; built for AVX2 too, see [`dispatch`](crate::dispatch)) cost
+//! On the CPU the map and the classification (eight pixels at a time with AVX2, else four, bound by its
+//! scattered reads of the map and the G-buffer's 24 bytes a pixel; see [`dispatch`](crate::dispatch)) cost
 //! under a quarter of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles,
 //! and the marked rays graze silhouettes at several times an average shadow ray's cost, so there
 //! selective hard shadows take about 2.75× less CPU than a ray per pixel traced the faster of two ways
@@ -69,6 +69,7 @@
 mod classify;
 mod deltas;
 mod lanes;
+mod modes;
 mod occluders;
 mod penumbra;
 mod rays;
@@ -88,7 +89,8 @@ pub(crate) use shadow_map::{ToLight, nearest, unkey};
 use crate::{Error, Result, parallel};
 use classify::Class;
 use deltas::Deltas;
-use glam::Vec3;
+use glam::{Vec3, Vec4};
+use lanes::{Lanes, Run};
 use std::time::{Duration, Instant};
 
 /// Which pixels get shadow rays.
@@ -486,9 +488,11 @@ impl HardShadows {
         } else {
             -horizon
         };
-        // A pixel with no surface or one facing away from the light, else its n·L.
-        let toward = |nrm| classify::facing(nrm, towards, away);
-        let bias = s.bias_texels;
+        let light = modes::Light {
+            towards,
+            away,
+            bias: s.bias_texels,
+        };
         // Only a soft map depends on the deepest receiver (`ShadowMap::render`): a hard one is not
         // checked along the light.
         let deepest = |b: (Vec3, Vec3)| if soft { b.0.z } else { f32::NEG_INFINITY };
@@ -506,42 +510,17 @@ impl HardShadows {
             chunks: &mut self.chunks,
         };
         // One classification per mode, each its own loop (the test inlined, no dispatch per pixel). The
-        // hard modes settle most pixels four at a time ([`lanes::decide`]); the rest, pixel by pixel.
+        // hard modes settle most pixels a run at a time ([`lanes::decide`]); the rest, pixel by pixel.
         match s.mode {
-            ShadowMode::RayTraced => into.each_four(
-                #[inline(always)]
-                |four| lanes::mark_facing(four, away),
-            ),
-            ShadowMode::ShadowMap => into.each_four(
-                #[inline(always)]
-                |four| {
-                    let decided = lanes::decide(map, map.depths(), four, away, bias);
-                    lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
-                        Ok(cos) => classify::shadow_map_only(map, p, cos, bias),
-                        Err(c) => c,
-                    })
-                },
-            ),
-            ShadowMode::Selective if soft => into.each_four(
-                #[inline(always)]
-                |four| {
-                    lanes::each(four, |p, nrm| match toward(nrm) {
-                        Ok(cos) if cos <= horizon => Class::Marked,
-                        Ok(cos) => classify::soft(map, mask, p, cos, bias),
-                        Err(c) => c,
-                    })
-                },
-            ),
-            ShadowMode::Selective => into.each_four(
-                #[inline(always)]
-                |four| {
-                    let decided = lanes::decide(map, deltas.table(), four, away, bias);
-                    lanes::or_each(four, decided, |p, nrm| match toward(nrm) {
-                        Ok(cos) => classify::selective(map, deltas, p, nrm, cos, bias),
-                        Err(c) => c,
-                    })
-                },
-            ),
+            ShadowMode::RayTraced => into.each_run(modes::MarkFacing(light)),
+            ShadowMode::ShadowMap => into.each_run(modes::MapOnly { map, light }),
+            ShadowMode::Selective if soft => into.each_run(modes::Soft {
+                map,
+                mask,
+                horizon,
+                light,
+            }),
+            ShadowMode::Selective => into.each_run(modes::Selective { map, deltas, light }),
         }
         Ok(Classified {
             outside: self.chunks.iter().any(|c| c.outside),
@@ -641,7 +620,7 @@ impl HardShadows {
 
 /// The image's pixels as the classification visits them: the G-buffer's, in bands of [`BAND`] rows,
 /// each band row by row, lit from `towards`; with `map`, their positions are read across it (once for
-/// every test, [`lanes::Four::new`]), and with `within` too, their receivers checked against those bounds
+/// every test, [`lanes::Run::new`]), and with `within` too, their receivers checked against those bounds
 /// ([`lanes::outside`]).
 #[derive(Clone, Copy)]
 struct Pixels<'a> {
@@ -669,36 +648,18 @@ struct Classification<'a> {
 }
 
 impl Classification<'_> {
-    /// Classifies every pixel with `classify(four)`, which gives the verdicts on up to four neighbouring
-    /// pixels of one image row, into the visibility and the bands' lists ([`bands`](Self::bands)), and
-    /// with `px.within` checks their receivers against those bounds. Generic over the test, so each
-    /// mode's loop has its test inlined (mark it `#[inline(always)]`).
-    fn each_four(self, classify: impl Fn(&lanes::Four) -> lanes::Verdicts + Sync) {
-        let px = self.px;
-        let g = px.g;
-        self.bands(
-            #[inline(always)]
-            |i, len| {
-                let four = lanes::Four::new(
-                    &g.positions[i..i + len],
-                    &g.normals[i..i + len],
-                    px.towards,
-                    px.map,
-                );
-                let outside = match (px.map, px.within) {
-                    (Some(map), Some(fitted)) => lanes::outside(map, &four, fitted),
-                    _ => 0,
-                };
-                (classify(&four), outside)
-            },
-        );
+    /// Classifies every pixel with `test`, a run of neighbouring pixels of one image row at a time (in the
+    /// widest lanes the CPU has, [`lanes::widest`]), into the visibility and the bands' lists
+    /// ([`bands`](Self::bands)), and with `px.within` checks their receivers against those bounds.
+    fn each_run(self, test: impl modes::RunTest) {
+        lanes::widest(EachRun { into: self, test })
     }
 
     /// Takes each pixel's class from `classes` (a byte a pixel, four a word from the lowest byte, as
     /// `MapRenderer::classify_hard` gives them) into the visibility and the bands' lists, as
-    /// [`each_four`](Self::each_four) would from the classes it finds.
+    /// [`each_run`](Self::each_run) would from the classes it finds.
     fn take_classes(self, classes: &[u32]) {
-        self.bands(
+        self.bands::<Vec4>(
             #[inline(always)]
             |i, len| {
                 let mut v = lanes::Verdicts::default();
@@ -711,15 +672,18 @@ impl Classification<'_> {
         );
     }
 
-    /// Runs over every pixel in runs of up to four of one image row (in parallel over bands of
-    /// [`BAND`] rows), `verdicts(first, len)` giving the run's verdicts and the lanes whose receivers lie
-    /// outside the fitted bounds: writes the map's verdict into `visibility` (0 for a marked pixel, until
-    /// its rays are in) and lists each band's marked pixels in its chunk, block by block ([`in_blocks`]:
-    /// neighbouring marked pixels stay together, so their rays make coherent packets), with its count of
-    /// pixels facing the light and whether one of its receivers lies outside. Generic over `verdicts`,
-    /// so each mode's loop has its test inlined (mark it `#[inline(always)]`: the loop runs in
-    /// [`widest`](crate::dispatch::widest)).
-    fn bands(self, verdicts: impl Fn(usize, usize) -> (lanes::Verdicts, lanes::Bits) + Sync) {
+    /// Runs over every pixel in runs of up to [`L::N`](Lanes::N) of one image row (in parallel over
+    /// bands of [`BAND`] rows), `verdicts(first, len)` giving the run's verdicts and the lanes whose
+    /// receivers lie outside the fitted bounds: writes the map's verdict into `visibility` (0 for a
+    /// marked pixel, until its rays are in) and lists each band's marked pixels in its chunk, block by
+    /// block ([`in_blocks`]: neighbouring marked pixels stay together, so their rays make coherent
+    /// packets), with its count of pixels facing the light and whether one of its receivers lies outside.
+    /// Generic over `verdicts`, so each mode's loop has its test inlined (mark it `#[inline(always)]`:
+    /// the loop runs in [`Lanes::compiled`]).
+    fn bands<L: Lanes>(
+        self,
+        verdicts: impl Fn(usize, usize) -> (lanes::Verdicts, lanes::Bits) + Sync,
+    ) {
         let Self {
             par,
             px,
@@ -732,7 +696,7 @@ impl Classification<'_> {
         visibility.resize(n, 1.0);
         chunks.resize_with(n.div_ceil(chunk.max(1)), Chunk::default);
         parallel::fill_chunks_with(par, visibility, chunk, chunks, |c, vis, out| {
-            crate::dispatch::widest(
+            L::compiled(
                 #[inline(always)]
                 || {
                     out.marked.clear();
@@ -744,8 +708,8 @@ impl Classification<'_> {
                     for (y, start) in starts.iter_mut().enumerate().take(rows) {
                         *start = out.marked.len();
                         let row = c * chunk + y * w;
-                        for i in (row..row + w).step_by(4) {
-                            let (at, len) = (i - c * chunk, (row + w - i).min(4));
+                        for i in (row..row + w).step_by(L::N) {
+                            let (at, len) = (i - c * chunk, (row + w - i).min(L::N));
                             let (v, off) = verdicts(i, len);
                             outside |= off;
                             lanes::write_visibility(v.lit, &mut vis[at..at + len]);
@@ -769,6 +733,38 @@ impl Classification<'_> {
                 },
             )
         });
+    }
+}
+
+/// A classification by `test` ([`Classification::each_run`]), in whichever lanes [`lanes::widest`] picks.
+struct EachRun<'a, T> {
+    into: Classification<'a>,
+    test: T,
+}
+
+impl<T: modes::RunTest> lanes::WithLanes for EachRun<'_, T> {
+    type Output = ();
+
+    fn run<L: Lanes>(self) {
+        let Self { into, test } = self;
+        let px = into.px;
+        let g = px.g;
+        into.bands::<L>(
+            #[inline(always)]
+            |i, len| {
+                let run = Run::<L>::new(
+                    &g.positions[i..i + len],
+                    &g.normals[i..i + len],
+                    px.towards,
+                    px.map,
+                );
+                let outside = match (px.map, px.within) {
+                    (Some(map), Some(fitted)) => lanes::outside(map, &run, fitted),
+                    _ => 0,
+                };
+                (test.verdicts(&run), outside)
+            },
+        );
     }
 }
 

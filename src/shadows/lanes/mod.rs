@@ -1,113 +1,123 @@
-//! Four pixels at a time: the classification's per-pixel arithmetic in SIMD lanes (glam's `Vec4`: SSE2,
-//! NEON or wasm SIMD where the target has them, four plain floats elsewhere), bit for bit what the scalar
-//! tests compute — the same operations in the same order, lane by lane — so a pixel's class does not
-//! depend on which path decided it.
+//! Runs of neighbouring pixels at a time: the classification's per-pixel arithmetic in SIMD lanes, eight
+//! with AVX2 where the CPU has it, else four (glam's `Vec4`: SSE2, NEON or wasm SIMD where the target has
+//! them, four plain floats elsewhere; [`widest`] picks). Bit for bit what the scalar tests compute — the
+//! same operations in the same order, lane by lane — so a pixel's class depends neither on which path
+//! decided it nor on how many lanes there were.
 //!
 //! Most pixels of a hard-shadow pass face the light over an interior texel whose depth the pass trusts (a
-//! smooth texel, or any texel for the shadow map alone): [`decide`] settles those four at a time, with one
-//! scalar read of the table per lane, and leaves every other pixel (no surface, facing away, off the
-//! map, at a shadow edge, non-finite input) to the mode's scalar test. On the crowd at 1024² the
-//! selective classification takes about a fifth less time than pixel by pixel; it is bound by the
-//! scattered reads of the table and the G-buffer's 24 bytes a pixel, not by arithmetic.
+//! smooth texel, or any texel for the shadow map alone): [`decide`] settles those a run at a time, with
+//! one read of the table per lane (one masked gather for eight lanes), and leaves every other pixel (no
+//! surface, facing away, off the map, at a shadow edge, non-finite input) to the mode's scalar test. On
+//! the crowd at 1024² the selective classification takes about a fifth less time in four lanes than
+//! pixel by pixel, and eight lanes take about a quarter less again (`bench shadows`).
+
+#[cfg(target_arch = "x86_64")]
+mod eight;
+mod four;
 
 use super::classify::Class;
 use super::{GBuffer, ShadowMap};
-use glam::{BVec4A, Vec3, Vec4};
-use std::ops::Range;
+use glam::{Vec3, Vec4};
+use std::ops::{Add, Div, Mul, Range, Sub};
 
-/// Up to four points (or normals) in lanes, one coordinate per vector; missing ones are zero.
-#[derive(Clone, Copy)]
-struct Quad {
-    x: Vec4,
-    y: Vec4,
-    z: Vec4,
+/// A row of `f32` lanes the classification computes in: [`Vec4`], or eight with AVX2 (x86-64). Every
+/// operation is IEEE single precision lane by lane, as the scalar `f32` operation; compares are ordered
+/// (false where either side is NaN) and give their lanes as [`Bits`].
+pub(super) trait Lanes:
+    Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> + Div<Output = Self>
+{
+    /// How many lanes.
+    const N: usize;
+
+    /// Every lane `v`.
+    fn splat(v: f32) -> Self;
+
+    /// The first [`N`](Self::N) of `v` (fewer: zero-padded), one coordinate per row of lanes.
+    fn load(v: &[Vec3]) -> [Self; 3];
+
+    /// Calls `f` compiled for these lanes' instruction set (see [`dispatch`](crate::dispatch)): mark it
+    /// `#[inline(always)]`.
+    fn compiled<R>(f: impl FnOnce() -> R) -> R;
+
+    /// Per lane, the larger of the two (`other` where either is NaN, as x86's `maxps`; the callers
+    /// only take it of finite lanes).
+    fn max(self, other: Self) -> Self;
+
+    /// Per lane, the correctly rounded square root.
+    fn sqrt(self) -> Self;
+
+    /// The lanes where `self ≤ other`.
+    fn le(self, other: Self) -> Bits;
+
+    /// The lanes where `self < other`.
+    fn lt(self, other: Self) -> Bits;
+
+    /// The lanes where `self ≥ other`.
+    fn ge(self, other: Self) -> Bits;
+
+    /// The lanes where `self > other`.
+    fn gt(self, other: Self) -> Bits;
+
+    /// The lanes where `self = other`.
+    fn equal(self, other: Self) -> Bits;
+
+    /// The lanes neither infinite nor NaN.
+    fn finite(self) -> Bits;
+
+    /// Per lane of `lanes` whose `x` and `y` lie in `[0, res)`, `table[⌊y⌋ · res + ⌊x⌋]` (a row-major
+    /// `res × res` table); NaN in every other lane. Panics where the table is smaller.
+    fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self;
 }
 
-impl Quad {
-    /// The first four of `v` (fewer: zero-padded).
-    #[inline(always)]
-    fn load(v: &[Vec3]) -> Self {
-        let [a, b, c, d] = match v.first_chunk::<4>() {
-            #[cfg(target_arch = "x86_64")]
-            Some(four) => return Self::transpose_sse(four),
-            #[cfg(not(target_arch = "x86_64"))]
-            Some(&four) => four,
-            None => std::array::from_fn(|k| v.get(k).copied().unwrap_or(Vec3::ZERO)),
-        };
-        Self {
-            x: Vec4::new(a.x, b.x, c.x, d.x),
-            y: Vec4::new(a.y, b.y, c.y, d.y),
-            z: Vec4::new(a.z, b.z, c.z, d.z),
-        }
-    }
+/// Work generic over its lanes, run by [`widest`].
+pub(super) trait WithLanes {
+    type Output;
 
-    /// [`load`](Self::load) of four points on x86-64: the 48 bytes they are, as three loads of four
-    /// floats (`x0 y0 z0 x1 | y1 z1 x2 y2 | z2 x3 y3 z3`) transposed by six shuffles, the same lanes as
-    /// gathering them coordinate by coordinate (twelve scalar loads and nine shuffles, which the compiler
-    /// does not merge). About 2% of a quick selective pass.
+    /// Does the work in lanes `L`.
+    fn run<L: Lanes>(self) -> Self::Output;
+}
+
+/// Runs `work` in the widest lanes the CPU has: eight where it has the AVX2 generation
+/// ([`wide_available`](crate::dispatch::wide_available)), else four. Wrap a loop in
+/// [`dispatch::widest`](crate::dispatch::widest) inside `work` so its eight lanes are compiled for AVX2.
+pub(super) fn widest<W: WithLanes>(work: W) -> W::Output {
     #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    fn transpose_sse(four: &[Vec3; 4]) -> Self {
-        use std::arch::x86_64::*;
-        // `_MM_SHUFFLE(d, c, b, a)`: lanes a and b of the first operand, c and d of the second.
-        const fn pick(a: i32, b: i32, c: i32, d: i32) -> i32 {
-            d << 6 | c << 4 | b << 2 | a
-        }
-        let f = four.as_ptr().cast::<f32>();
-        // SAFETY: SSE is part of the x86-64 baseline, and `Vec3` is three `f32`s (`repr(C)`, no padding),
-        // so four of them are twelve floats: each unaligned load reads four of them, at 0, 4 and 8.
-        let [x, y, z] = unsafe {
-            let (m0, m1, m2) = (
-                _mm_loadu_ps(f),
-                _mm_loadu_ps(f.add(4)),
-                _mm_loadu_ps(f.add(8)),
-            );
-            let x2x3 = _mm_shuffle_ps::<{ pick(2, 3, 0, 1) }>(m1, m2); // x2 y2 z2 x3
-            let yz01 = _mm_shuffle_ps::<{ pick(1, 2, 0, 1) }>(m0, m1); // y0 z0 y1 z1
-            let y2y3 = _mm_shuffle_ps::<{ pick(3, 3, 2, 2) }>(m1, m2); // y2 y2 y3 y3
-            [
-                _mm_shuffle_ps::<{ pick(0, 3, 0, 3) }>(m0, x2x3),
-                _mm_shuffle_ps::<{ pick(0, 2, 0, 2) }>(yz01, y2y3),
-                _mm_shuffle_ps::<{ pick(1, 3, 0, 3) }>(yz01, m2),
-            ]
-        };
-        Self {
-            x: Vec4::from(x),
-            y: Vec4::from(y),
-            z: Vec4::from(z),
-        }
+    if crate::dispatch::wide_available() {
+        return work.run::<eight::F8>();
     }
-
-    /// Each lane's dot product with `d`, summed in `Vec3::dot`'s order.
-    #[inline(always)]
-    fn dot(&self, d: Vec3) -> Vec4 {
-        self.x * d.x + self.y * d.y + self.z * d.z
-    }
-
-    /// The lanes equal to the zero vector.
-    #[inline(always)]
-    fn is_zero(&self) -> BVec4A {
-        self.x.cmpeq(Vec4::ZERO) & self.y.cmpeq(Vec4::ZERO) & self.z.cmpeq(Vec4::ZERO)
-    }
+    work.run::<Vec4>()
 }
 
-/// Up to four neighbouring pixels of one image row: their surfaces, as slices (for the scalar tests), and
-/// their normals in lanes, with `n · L` per lane; with a map, their positions' coordinates across it and
-/// along the light, computed once for every test that reads them (where some pixel shows a surface). A
-/// pass that only asks which pixels face the light reads half the G-buffer.
-pub(super) struct Four<'a> {
+/// Each lane's dot product with `d`, summed in `Vec3::dot`'s order.
+#[inline(always)]
+fn dot<L: Lanes>(p: &[L; 3], d: Vec3) -> L {
+    p[0] * L::splat(d.x) + p[1] * L::splat(d.y) + p[2] * L::splat(d.z)
+}
+
+/// The lanes equal to the zero vector.
+#[inline(always)]
+fn is_zero<L: Lanes>(p: &[L; 3]) -> Bits {
+    let zero = L::splat(0.0);
+    p[0].equal(zero) & p[1].equal(zero) & p[2].equal(zero)
+}
+
+/// Up to [`N`](Lanes::N) neighbouring pixels of one image row: their surfaces, as slices (for the scalar
+/// tests), and their normals in lanes, with `n · L` per lane; with a map, their positions' coordinates
+/// across it and along the light, computed once for every test that reads them (where some pixel shows
+/// a surface). A pass that only asks which pixels face the light reads half the G-buffer.
+pub(super) struct Run<'a, L> {
     positions: &'a [Vec3],
     normals: &'a [Vec3],
-    n: Quad,
+    n: [L; 3],
     /// `n · towards` per lane.
-    cos: Vec4,
+    cos: L,
     /// [`light`]`(map, positions)` for the map given to [`new`](Self::new).
-    light: Option<[Vec4; 3]>,
+    light: Option<[L; 3]>,
 }
 
-impl<'a> Four<'a> {
-    /// Pixels `positions[k]`, `normals[k]` (at most four, as many of each) lit from `towards`, with their
-    /// positions across `map` when given (one aimed along `towards`).
+impl<'a, L: Lanes> Run<'a, L> {
+    /// Pixels `positions[k]`, `normals[k]` (at most [`N`](Lanes::N), as many of each) lit from
+    /// `towards`, with their positions across `map` when given (one aimed along `towards`).
     #[inline(always)]
     pub(super) fn new(
         positions: &'a [Vec3],
@@ -115,25 +125,31 @@ impl<'a> Four<'a> {
         towards: Vec3,
         map: Option<&ShadowMap>,
     ) -> Self {
-        let n = Quad::load(normals);
+        let n = L::load(normals);
+        // Pixels without a surface (the sky) need no place on the map: neither test reads it. (No
+        // closures here, nor anywhere on the lanes' way: one not inlined would take eight lanes' every
+        // instruction out of the AVX2 build as a call.)
+        let light = match map {
+            Some(m) if is_zero(&n) != first(L::N) => Some(light(m, &L::load(positions))),
+            _ => None,
+        };
         Self {
             positions,
             normals,
             n,
-            cos: n.dot(towards),
-            // Four pixels without a surface (the sky) need no place on the map: neither test reads it.
-            light: map
-                .filter(|_| !n.is_zero().all())
-                .map(|m| light(m, Quad::load(positions))),
+            cos: dot(&n, towards),
+            light,
         }
     }
 
     /// The positions in lanes across `map` and along its light: the values [`new`](Self::new) computed
     /// when given the map (it must be this one), else computed now.
     #[inline(always)]
-    fn light(&self, map: &ShadowMap) -> [Vec4; 3] {
-        self.light
-            .unwrap_or_else(|| light(map, Quad::load(self.positions)))
+    fn light(&self, map: &ShadowMap) -> [L; 3] {
+        match self.light {
+            Some(q) => q,
+            None => light(map, &L::load(self.positions)),
+        }
     }
 
     /// How many pixels.
@@ -145,27 +161,27 @@ impl<'a> Four<'a> {
 /// The coordinates of the points `p` across `map` and along its light: `p · u`, `p · v` and `p · towards`
 /// per lane (in `Vec3::dot`'s order, as [`ShadowMap::project`] and `super::receiver` sum them).
 #[inline(always)]
-fn light(map: &ShadowMap, p: Quad) -> [Vec4; 3] {
+fn light<L: Lanes>(map: &ShadowMap, p: &[L; 3]) -> [L; 3] {
     let (u, v, towards, ..) = map.frame();
-    [p.dot(u), p.dot(v), p.dot(towards)]
+    [dot(p, u), dot(p, v), dot(p, towards)]
 }
 
 /// The pixels `pixels` of `g` (indices into its arrays, row-major), four at a time from the first (the
 /// last group may be shorter), each with the index of its first pixel, lit from `towards`, their
-/// positions across `map` when given ([`Four::new`]).
+/// positions across `map` when given ([`Run::new`]).
 #[inline(always)]
 pub(super) fn fours<'a>(
     g: &'a GBuffer,
     pixels: Range<usize>,
     towards: Vec3,
     map: Option<&'a ShadowMap>,
-) -> impl Iterator<Item = (usize, Four<'a>)> {
+) -> impl Iterator<Item = (usize, Run<'a, Vec4>)> {
     let end = pixels.end;
     pixels.step_by(4).map(
         #[inline(always)]
         move |i| {
             let j = (i + 4).min(end);
-            let four = Four::new(&g.positions[i..j], &g.normals[i..j], towards, map);
+            let four = Run::new(&g.positions[i..j], &g.normals[i..j], towards, map);
             (i, four)
         },
     )
@@ -178,21 +194,21 @@ pub(super) type Bits = u32;
 /// lit) or one whose `n · L` is at most `away` ([`Class::FacingAway`]: shadowed), as `classify::facing`
 /// — and the lanes left: those that face it (`n · L` above `away`, or NaN).
 #[inline(always)]
-pub(super) fn surfaces(px: &Four, away: f32) -> (Verdicts, Bits) {
+pub(super) fn surfaces<L: Lanes>(px: &Run<L>, away: f32) -> (Verdicts, Bits) {
     let lanes = first(px.len());
-    let empty = px.n.is_zero() & lanes;
-    let facing = !px.n.is_zero() & !px.cos.cmple(Vec4::splat(away)) & lanes;
+    let zero = is_zero(&px.n);
+    let facing = !zero & !px.cos.le(L::splat(away)) & lanes;
     let verdicts = Verdicts {
-        lit: empty.bitmask(),
+        lit: zero & lanes,
         ..Verdicts::default()
     };
-    (verdicts, facing.bitmask())
+    (verdicts, facing)
 }
 
 /// The verdicts of a pass that marks every pixel facing the light (rays for all of them): [`surfaces`],
 /// with the facing lanes marked.
 #[inline(always)]
-pub(super) fn mark_facing(px: &Four, away: f32) -> Verdicts {
+pub(super) fn mark_facing<L: Lanes>(px: &Run<L>, away: f32) -> Verdicts {
     let (v, facing) = surfaces(px, away);
     Verdicts {
         facing,
@@ -208,10 +224,10 @@ pub(super) fn mark_facing(px: &Four, away: f32) -> Verdicts {
 /// bias_texels`, plus the slope-scaled part), else shadowed, as the scalar `classify::verdict`. Returns
 /// the verdicts so far and the lanes the caller's scalar test must decide.
 #[inline(always)]
-pub(super) fn decide(
+pub(super) fn decide<L: Lanes>(
     map: &ShadowMap,
     table: &[f32],
-    px: &Four,
+    px: &Run<L>,
     away: f32,
     bias_texels: f32,
 ) -> (Verdicts, Bits) {
@@ -221,51 +237,42 @@ pub(super) fn decide(
     }
     let (.., corner, per_texel, top) = map.frame();
     let ([pu, pv, pt], cos) = (px.light(map), px.cos);
-    let qx = (pu - corner.x) * per_texel;
-    let qy = (pv - corner.y) * per_texel;
+    let qx = (pu - L::splat(corner.x)) * L::splat(per_texel);
+    let qy = (pv - L::splat(corner.y)) * L::splat(per_texel);
     // The interior is `[1, res − 1)` on both axes (as `classify::texel`; NaN is outside).
-    let (one, last) = (Vec4::ONE, Vec4::splat((map.resolution() - 1) as f32));
-    let inside = qx.cmpge(one) & qy.cmpge(one) & qx.cmplt(last) & qy.cmplt(last);
-    let candidates = (inside & cos.is_finite_mask()).bitmask() & facing;
+    let res = map.resolution();
+    let (one, last) = (L::splat(1.0), L::splat((res - 1) as f32));
+    let inside = qx.ge(one) & qy.ge(one) & qx.lt(last) & qy.lt(last);
+    let candidates = inside & cos.finite() & facing;
     if candidates == 0 {
         return (verdicts, facing);
     }
-    let res = map.resolution();
-    let (qx, qy) = (qx.to_array(), qy.to_array());
-    let s = Vec4::from_array(std::array::from_fn(|k| {
-        if candidates >> k & 1 == 0 {
-            return f32::NAN;
-        }
-        // SAFETY: a candidate lane's `qx`, `qy` are finite and in `[1, 16383)` (checked above), so they
-        // truncate to an `i32`.
-        let (i, j) = unsafe {
-            (
-                qx[k].to_int_unchecked::<i32>() as usize,
-                qy[k].to_int_unchecked::<i32>() as usize,
-            )
-        };
-        table[j * res + i]
-    }));
-    let settled = s.is_finite_mask().bitmask() & candidates;
-    let d = Vec4::splat(top) - pt;
+    let s = L::gather(table, res, qx, qy, candidates);
+    let settled = s.finite() & candidates;
+    let d = L::splat(top) - pt;
     let texel = map.texel_size();
-    let constant = Vec4::splat(texel * bias_texels);
-    // `classify::slope_bias`, its operations in its order: the constant bias plus the receiver's reach
-    // within one texel, from its slope.
-    let c = cos.max(Vec4::splat(1.0 / 64.0));
-    let tan = (Vec4::ONE - c * c).max(Vec4::ZERO).sqrt() / c;
-    let reach = Vec4::splat(texel * std::f32::consts::SQRT_2) * tan;
-    let slope_bias = constant + reach;
-    let lit = (d.cmple(s + constant) | d.cmple(s + slope_bias)).bitmask() & settled;
+    let constant = L::splat(texel * bias_texels);
+    // `classify::verdict`: lit within the constant bias; past it, within the slope-scaled bias, which only
+    // adds to it (a square root and a division, for the lanes that need them only).
+    let mut lit = d.le(s + constant) & settled;
+    if settled & !lit != 0 {
+        // `classify::slope_bias`, its operations in its order: the constant bias plus the receiver's
+        // reach within one texel, from its slope.
+        let c = cos.max(L::splat(1.0 / 64.0));
+        let tan = (L::splat(1.0) - c * c).max(L::splat(0.0)).sqrt() / c;
+        let reach = L::splat(texel * std::f32::consts::SQRT_2) * tan;
+        let slope_bias = constant + reach;
+        lit |= d.le(s + slope_bias) & settled;
+    }
     verdicts.lit |= lit;
     verdicts.facing |= settled;
     (verdicts, facing & !settled)
 }
 
-/// The first `n` lanes (of four).
+/// The first `n` lanes as bits.
 #[inline(always)]
-fn first(n: usize) -> BVec4A {
-    BVec4A::new(n > 0, n > 1, n > 2, n > 3)
+fn first(n: usize) -> Bits {
+    (1 << n) - 1
 }
 
 /// The lanes of `px` whose surface faces the light (`n · L` above 0) and whose receiver does not lie
@@ -274,23 +281,20 @@ fn first(n: usize) -> BVec4A {
 /// coordinate, which widen nothing but fail the compares (so a broken G-buffer costs a second fit, never
 /// a wrong one). Compares alone, no bounds carried from pixel to pixel.
 #[inline(always)]
-pub(super) fn outside(map: &ShadowMap, px: &Four, fitted: (Vec3, Vec3)) -> Bits {
+pub(super) fn outside<L: Lanes>(map: &ShadowMap, px: &Run<L>, fitted: (Vec3, Vec3)) -> Bits {
     // Missing lanes have a zero normal: they do not face the light.
-    let facing = px.cos.cmpgt(Vec4::ZERO);
-    if !facing.any() {
+    let facing = px.cos.gt(L::splat(0.0));
+    if facing == 0 {
         return 0;
     }
     let q = px.light(map);
-    let (lo, hi) = (
-        fitted.0.to_array().map(Vec4::splat),
-        fitted.1.to_array().map(Vec4::splat),
-    );
-    let within = q[0].cmpge(lo[0])
-        & q[0].cmple(hi[0])
-        & q[1].cmpge(lo[1])
-        & q[1].cmple(hi[1])
-        & q[2].cmpge(lo[2]);
-    (!within & facing).bitmask()
+    let (lo, hi) = fitted;
+    let within = q[0].ge(L::splat(lo.x))
+        & q[0].le(L::splat(hi.x))
+        & q[1].ge(L::splat(lo.y))
+        & q[1].le(L::splat(hi.y))
+        & q[2].ge(L::splat(lo.z));
+    !within & facing
 }
 
 /// The bounds of the receivers among the pixels given to [`add`](Self::add): x and y across a map, z
@@ -317,7 +321,7 @@ impl Receivers {
     /// Grows the bounds by the pixels of `px` whose surface faces the light (`n · L` above 0), across
     /// `map`, along its light.
     #[inline(always)]
-    pub(super) fn add(&mut self, map: &ShadowMap, px: &Four) {
+    pub(super) fn add(&mut self, map: &ShadowMap, px: &Run<Vec4>) {
         let q = px.light(map);
         if px.len() < 4 || !(q[0] + q[1] + q[2]).is_finite() {
             let towards = map.frame().2;
@@ -359,19 +363,22 @@ const VISIBILITY: [[f32; 4]; 16] = {
     t
 };
 
-/// Writes the visibility of up to four pixels (`out`, as long as the pixels) from their lit bits: 1 where
-/// lit, else 0.
+/// Writes the visibility of a run's pixels (`out`, as long as the run) from their lit bits: 1 where lit,
+/// else 0.
 #[inline(always)]
 pub(super) fn write_visibility(lit: Bits, out: &mut [f32]) {
-    let all = &VISIBILITY[lit as usize & 15];
-    match out.first_chunk_mut::<4>() {
-        // Four pixels (nearly always): a store of 16 bytes, not a copy of a length known only at run time.
-        Some(four) => *four = *all,
-        None => out.copy_from_slice(&all[..out.len()]),
+    for (k, part) in out.chunks_mut(4).enumerate() {
+        let all = &VISIBILITY[(lit >> (4 * k)) as usize & 15];
+        match part.first_chunk_mut::<4>() {
+            // Four pixels (nearly always): a store of 16 bytes, not a copy of a length known only at
+            // run time.
+            Some(four) => *four = *all,
+            None => part.copy_from_slice(&all[..part.len()]),
+        }
     }
 }
 
-/// What a pass's test says about up to four pixels, one bit per pixel (bit `k`: pixel `k`).
+/// What a pass's test says about a run's pixels, one bit per pixel (bit `k`: pixel `k`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub(super) struct Verdicts {
     /// Visibility 1 until rays say otherwise: no surface there, or lit by the map.
@@ -401,16 +408,16 @@ impl Verdicts {
 
 /// The verdicts on `px`'s pixels from the scalar `test(position, normal)`, pixel by pixel.
 #[inline(always)]
-pub(super) fn each(px: &Four, test: impl Fn(Vec3, Vec3) -> Class) -> Verdicts {
-    let all = first(px.len()).bitmask();
+pub(super) fn each<L: Lanes>(px: &Run<L>, test: impl Fn(Vec3, Vec3) -> Class) -> Verdicts {
+    let all = first(px.len());
     or_each(px, (Verdicts::default(), all), test)
 }
 
 /// `verdicts`, completed by the scalar `test(position, normal)` for the lanes in `rest` (as [`decide`]
 /// returns them).
 #[inline(always)]
-pub(super) fn or_each(
-    px: &Four,
+pub(super) fn or_each<L: Lanes>(
+    px: &Run<L>,
     (mut verdicts, mut rest): (Verdicts, Bits),
     test: impl Fn(Vec3, Vec3) -> Class,
 ) -> Verdicts {
@@ -487,13 +494,11 @@ mod tests {
         v
     }
 
-    /// Four pixels at a time classify each pixel as the scalar tests do on their own, in every hard mode
-    /// and for one to four pixels, with their positions across the map computed up front or not; their
-    /// receivers' bounds are the scalar fold's, bit for bit (the map is fitted to them and compared with
-    /// `==`); and the lanes found outside given bounds are the pixels facing the light whose scalar
-    /// coordinates do not all lie within them.
-    #[test]
-    fn lanes_classify_as_the_scalar_tests() {
+    /// Runs of `L::N` pixels and fewer classify each pixel as the scalar tests do on their own, in every
+    /// hard mode, with their positions across the map computed up front or not; and the lanes found
+    /// outside given bounds are the pixels facing the light whose scalar coordinates do not all lie within
+    /// them.
+    fn lanes_classify_as_the_scalar_tests<L: Lanes>() {
         let mut r = SmallRng::seed_from_u64(7);
         let (mut settled, mut flagged) = (0, [0; 2]);
         for round in 0..40 {
@@ -501,31 +506,31 @@ mod tests {
                 Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize();
             let (map, deltas) = scene(&mut r, towards);
             let bias = [0.0, 1.0, 2.5][round % 3];
-            for len in [4, 4, 4, 3, 2, 1] {
+            for len in [L::N; 3].into_iter().chain((1..L::N).rev()) {
                 let px: Vec<(Vec3, Vec3)> = (0..len).map(|_| pixel(&mut r, towards)).collect();
                 let (ps, ns): (Vec<Vec3>, Vec<Vec3>) = px.iter().copied().unzip();
                 // With the positions across the map computed up front and without.
-                let four = Four::new(&ps, &ns, towards, Some(&map));
-                let bare = Four::new(&ps, &ns, towards, None);
+                let run = Run::<L>::new(&ps, &ns, towards, Some(&map));
+                let bare = Run::<L>::new(&ps, &ns, towards, None);
                 let scalar = |p: Vec3, n: Vec3, test: &dyn Fn(Vec3, Vec3, f32) -> Class| {
                     classify::facing(n, towards, 0.0).map_or_else(|c| c, |cos| test(p, n, cos))
                 };
                 let selective = |p, n, cos| classify::selective(&map, &deltas, p, n, cos, bias);
                 let map_only = |p, _, cos| classify::shadow_map_only(&map, p, cos, bias);
-                for (table, test, four) in [
+                for (table, test, run) in [
                     (
                         deltas.table(),
                         &selective as &dyn Fn(Vec3, Vec3, f32) -> Class,
-                        &four,
+                        &run,
                     ),
-                    (map.depths(), &map_only, &four),
+                    (map.depths(), &map_only, &run),
                     (deltas.table(), &selective, &bare),
                     (map.depths(), &map_only, &bare),
                 ] {
-                    let decided = decide(&map, table, four, 0.0, bias);
-                    settled += (first(len).bitmask() & !decided.1).count_ones();
-                    let v = or_each(four, decided, |p, n| scalar(p, n, test));
-                    let marks = mark_facing(four, 0.0);
+                    let decided = decide(&map, table, run, 0.0, bias);
+                    settled += (first(len) & !decided.1).count_ones();
+                    let v = or_each(run, decided, |p, n| scalar(p, n, test));
+                    let marks = mark_facing(run, 0.0);
                     for (k, &(p, n)) in px.iter().enumerate() {
                         let bit = |v: Verdicts| Verdicts {
                             lit: v.lit >> k & 1,
@@ -538,12 +543,6 @@ mod tests {
                     }
                     assert_eq!(v.lit >> len | v.facing >> len | v.marked >> len, 0);
                 }
-                let mut lanes = Receivers::new();
-                lanes.add(&map, &four);
-                let one_by_one = px
-                    .iter()
-                    .fold(NO_BOUNDS, |b, &(p, n)| receiver(b, &map, towards, p, n));
-                assert_eq!(lanes.bounds(), one_by_one, "pixels {px:?}");
                 // Checked against the bounds of a few other receivers: a lane is outside when its
                 // pixel faces the light and is not within them, coordinate by coordinate.
                 let fitted = (0..6)
@@ -551,8 +550,8 @@ mod tests {
                     .fold(NO_BOUNDS, |b, (p, _)| {
                         receiver(b, &map, towards, p, towards)
                     });
-                for four in [&four, &bare] {
-                    let bits = outside(&map, four, fitted);
+                for run in [&run, &bare] {
+                    let bits = outside(&map, run, fitted);
                     for (k, &(p, n)) in px.iter().enumerate() {
                         let q = map.across(p).extend(p.dot(towards));
                         let within = q.x >= fitted.0.x
@@ -574,10 +573,52 @@ mod tests {
         }
         // The lanes themselves decided most of the pixels, not the scalar fallback, and the receivers
         // checked fell on both sides of the bounds.
-        assert!(settled > 400, "{settled} pixels settled in lanes");
         assert!(
-            flagged[0] > 100 && flagged[1] > 100,
+            settled > 100 * L::N as u32,
+            "{settled} pixels settled in lanes"
+        );
+        assert!(
+            flagged[0] > 25 * L::N && flagged[1] > 25 * L::N,
             "{flagged:?} inside, outside"
         );
+    }
+
+    #[test]
+    fn four_lanes_classify_as_the_scalar_tests() {
+        lanes_classify_as_the_scalar_tests::<Vec4>();
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn eight_lanes_classify_as_the_scalar_tests() {
+        if !crate::dispatch::wide_available() {
+            eprintln!("SKIPPED: this CPU lacks AVX2; only four lanes run here");
+            return;
+        }
+        lanes_classify_as_the_scalar_tests::<eight::F8>();
+    }
+
+    /// The receivers' bounds of pixels added four at a time are the scalar fold's, bit for bit (the map
+    /// is fitted to them and compared with `==`), for one to four pixels at a time.
+    #[test]
+    fn receivers_in_lanes_are_the_scalar_bounds() {
+        let mut r = SmallRng::seed_from_u64(11);
+        for _ in 0..40 {
+            let towards =
+                Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize();
+            let (map, _) = scene(&mut r, towards);
+            for len in [4, 4, 4, 3, 2, 1] {
+                let px: Vec<(Vec3, Vec3)> = (0..len).map(|_| pixel(&mut r, towards)).collect();
+                let (ps, ns): (Vec<Vec3>, Vec<Vec3>) = px.iter().copied().unzip();
+                for map_given in [Some(&map), None] {
+                    let mut lanes = Receivers::new();
+                    lanes.add(&map, &Run::new(&ps, &ns, towards, map_given));
+                    let one_by_one = px
+                        .iter()
+                        .fold(NO_BOUNDS, |b, &(p, n)| receiver(b, &map, towards, p, n));
+                    assert_eq!(lanes.bounds(), one_by_one, "pixels {px:?}");
+                }
+            }
+        }
     }
 }
