@@ -53,9 +53,11 @@ impl RunTest for MapOnly<'_> {
     fn verdicts<L: Lanes>(&self, px: &Run<L>) -> Verdicts {
         let Self { map, light } = *self;
         let decided = lanes::decide(map, map.depths(), px, light.away, light.bias);
-        lanes::or_each(px, decided, |p, nrm| match light.facing(nrm) {
-            Ok(cos) => classify::shadow_map_only(map, p, cos, light.bias),
-            Err(c) => c,
+        lanes::or_each(px, decided.verdicts, decided.rest, |p, nrm| {
+            match light.facing(nrm) {
+                Ok(cos) => classify::shadow_map_only(map, p, cos, light.bias),
+                Err(c) => c,
+            }
         })
     }
 }
@@ -99,9 +101,15 @@ impl RunTest for Selective<'_> {
     fn verdicts<L: Lanes>(&self, px: &Run<L>) -> Verdicts {
         let Self { map, deltas, light } = *self;
         let decided = lanes::decide(map, deltas.table(), px, light.away, light.bias);
-        lanes::or_each(px, decided, |p, nrm| match light.facing(nrm) {
-            Ok(cos) => classify::selective(map, deltas, p, nrm, cos, light.bias),
-            Err(c) => c,
+        // At shadow edges in lanes too; what is left (off the map, a normal that is not finite) is
+        // marked by the scalar test.
+        let edges = lanes::edges(map, px, decided.edge, light.bias);
+        let rest = decided.rest & !decided.edge;
+        lanes::or_each(px, decided.verdicts | edges, rest, |p, nrm| {
+            match light.facing(nrm) {
+                Ok(cos) => classify::selective(map, deltas, p, nrm, cos, light.bias),
+                Err(c) => c,
+            }
         })
     }
 }

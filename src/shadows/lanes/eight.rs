@@ -89,6 +89,11 @@ impl Lanes for F8 {
     }
 
     #[inline(always)]
+    fn trunc(self) -> Self {
+        F8(unsafe { _mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(self.0) })
+    }
+
+    #[inline(always)]
     fn le(self, other: Self) -> Bits {
         self.compare::<_CMP_LE_OQ>(other)
     }

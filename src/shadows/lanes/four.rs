@@ -44,6 +44,11 @@ impl Lanes for Vec4 {
     }
 
     #[inline(always)]
+    fn trunc(self) -> Self {
+        Vec4::trunc(self)
+    }
+
+    #[inline(always)]
     fn le(self, other: Self) -> Bits {
         self.cmple(other).bitmask()
     }

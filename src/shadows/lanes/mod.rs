@@ -46,6 +46,9 @@ pub(super) trait Lanes:
     /// Per lane, the correctly rounded square root.
     fn sqrt(self) -> Self;
 
+    /// Per lane, rounded towards zero to a whole number.
+    fn trunc(self) -> Self;
+
     /// The lanes where `self ≤ other`.
     fn le(self, other: Self) -> Bits;
 
@@ -217,12 +220,22 @@ pub(super) fn mark_facing<L: Lanes>(px: &Run<L>, away: f32) -> Verdicts {
     }
 }
 
+/// What [`decide`] settled, and what it left.
+pub(super) struct Decided {
+    /// The verdicts on the lanes it settled, and on those without a surface facing the light.
+    pub(super) verdicts: Verdicts,
+    /// The lanes it left to the mode's scalar test.
+    pub(super) rest: Bits,
+    /// Those of `rest` with a finite `n · L` over an interior texel that the table does not settle:
+    /// the ones [`edges`] decides for the selective test.
+    pub(super) edge: Bits,
+}
+
 /// [`surfaces`], then the shadow map's verdict for the facing lanes it settles by one read of `table`
 /// (a `res × res` table of the map's texels, NaN or infinite where the map cannot decide by depth alone):
 /// those with a finite `n · L`, over an interior texel (one with eight neighbours) whose table value `s`
 /// is finite — lit when the receiver's depth `d` is at most `s` plus the bias (`map.texel_size() ×
-/// bias_texels`, plus the slope-scaled part), else shadowed, as the scalar `classify::verdict`. Returns
-/// the verdicts so far and the lanes the caller's scalar test must decide.
+/// bias_texels`, plus the slope-scaled part), else shadowed, as the scalar `classify::verdict`.
 #[inline(always)]
 pub(super) fn decide<L: Lanes>(
     map: &ShadowMap,
@@ -230,26 +243,28 @@ pub(super) fn decide<L: Lanes>(
     px: &Run<L>,
     away: f32,
     bias_texels: f32,
-) -> (Verdicts, Bits) {
+) -> Decided {
     let (mut verdicts, facing) = surfaces(px, away);
+    let mut decided = Decided {
+        verdicts,
+        rest: facing,
+        edge: 0,
+    };
     if facing == 0 {
-        return (verdicts, 0);
+        return decided;
     }
-    let (.., corner, per_texel, top) = map.frame();
-    let ([pu, pv, pt], cos) = (px.light(map), px.cos);
-    let qx = (pu - L::splat(corner.x)) * L::splat(per_texel);
-    let qy = (pv - L::splat(corner.y)) * L::splat(per_texel);
-    // The interior is `[1, res − 1)` on both axes (as `classify::texel`; NaN is outside).
+    let ([qx, qy], d) = map_coordinates(map, px);
+    let cos = px.cos;
     let res = map.resolution();
+    // The interior is `[1, res − 1)` on both axes (as `classify::texel`; NaN is outside).
     let (one, last) = (L::splat(1.0), L::splat((res - 1) as f32));
     let inside = qx.ge(one) & qy.ge(one) & qx.lt(last) & qy.lt(last);
     let candidates = inside & cos.finite() & facing;
     if candidates == 0 {
-        return (verdicts, facing);
+        return decided;
     }
     let s = L::gather(table, res, qx, qy, candidates);
     let settled = s.finite() & candidates;
-    let d = L::splat(top) - pt;
     let texel = map.texel_size();
     let constant = L::splat(texel * bias_texels);
     // `classify::verdict`: lit within the constant bias; past it, within the slope-scaled bias, which only
@@ -266,7 +281,69 @@ pub(super) fn decide<L: Lanes>(
     }
     verdicts.lit |= lit;
     verdicts.facing |= settled;
-    (verdicts, facing & !settled)
+    decided.verdicts = verdicts;
+    decided.rest = facing & !settled;
+    decided.edge = candidates & !settled;
+    decided
+}
+
+/// The receivers' coordinates on `map` in texels (`x`, `y`) and their depths from its light, as
+/// [`ShadowMap::project`] computes them.
+#[inline(always)]
+fn map_coordinates<L: Lanes>(map: &ShadowMap, px: &Run<L>) -> ([L; 2], L) {
+    let (.., corner, per_texel, top) = map.frame();
+    let [pu, pv, pt] = px.light(map);
+    let qx = (pu - L::splat(corner.x)) * L::splat(per_texel);
+    let qy = (pv - L::splat(corner.y)) * L::splat(per_texel);
+    ([qx, qy], L::splat(top) - pt)
+}
+
+/// The selective test at a shadow edge for the lanes `lanes` of `px` (each with a finite `n · L`, over an
+/// interior texel that is not smooth: [`Decided::edge`]), as the scalar `classify::selective` decides
+/// them, its operations in its order: marked over an empty texel; else the depths of the four texels
+/// whose centres surround the receiver (five reads of the map a lane, gathered) compared with its tangent
+/// plane there, less the constant bias — lit when none lies in front of it, shadowed when all do, else
+/// marked (and marked when the plane's slope is not finite).
+#[inline(always)]
+pub(super) fn edges<L: Lanes>(
+    map: &ShadowMap,
+    px: &Run<L>,
+    lanes: Bits,
+    bias_texels: f32,
+) -> Verdicts {
+    if lanes == 0 {
+        return Verdicts::default();
+    }
+    let ([qx, qy], d) = map_coordinates(map, px);
+    let (res, depth) = (map.resolution(), map.depths());
+    let full = L::gather(depth, res, qx, qy, lanes).finite() & lanes;
+    // `ShadowMap::around`: the texel whose centre lies below and left of the receiver, and where the
+    // receiver lies from that centre.
+    let half = L::splat(0.5);
+    let (i, j) = ((qx - half).trunc(), (qy - half).trunc());
+    let first = [(i + half) - qx, (j + half) - qy];
+    // `classify::slope`: `map.across(nrm) · (texel / max(n·L, 1/64))`.
+    let (u, v, ..) = map.frame();
+    let texel = map.texel_size();
+    let k = L::splat(texel) / px.cos.max(L::splat(1.0 / 64.0));
+    let slope = [dot(&px.n, u) * k, dot(&px.n, v) * k];
+    let plane = full & slope[0].finite() & slope[1].finite();
+    let bias = L::splat(texel * bias_texels);
+    let (mut any, mut all) = (0, plane);
+    for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
+        let (dx, dy) = (L::splat(dx), L::splat(dy));
+        let s = L::gather(depth, res, i + dx, j + dy, plane);
+        let at = [first[0] + dx, first[1] + dy];
+        // An empty texel (infinitely deep) lies in front of nothing.
+        let front = s.lt(d + slope[0] * at[0] + slope[1] * at[1] - bias) & plane;
+        any |= front;
+        all &= front;
+    }
+    Verdicts {
+        lit: plane & !any,
+        facing: lanes,
+        marked: lanes & !(plane & !any) & !all,
+    }
 }
 
 /// The first `n` lanes as bits.
@@ -389,6 +466,20 @@ pub(super) struct Verdicts {
     pub(super) marked: Bits,
 }
 
+impl std::ops::BitOr for Verdicts {
+    type Output = Verdicts;
+
+    /// The verdicts of both, on lanes each settled (a pixel's bits come from one of them).
+    #[inline(always)]
+    fn bitor(self, other: Verdicts) -> Verdicts {
+        Verdicts {
+            lit: self.lit | other.lit,
+            facing: self.facing | other.facing,
+            marked: self.marked | other.marked,
+        }
+    }
+}
+
 impl Verdicts {
     /// Records pixel `k`'s class.
     #[inline(always)]
@@ -410,7 +501,7 @@ impl Verdicts {
 #[inline(always)]
 pub(super) fn each<L: Lanes>(px: &Run<L>, test: impl Fn(Vec3, Vec3) -> Class) -> Verdicts {
     let all = first(px.len());
-    or_each(px, (Verdicts::default(), all), test)
+    or_each(px, Verdicts::default(), all, test)
 }
 
 /// `verdicts`, completed by the scalar `test(position, normal)` for the lanes in `rest` (as [`decide`]
@@ -418,7 +509,8 @@ pub(super) fn each<L: Lanes>(px: &Run<L>, test: impl Fn(Vec3, Vec3) -> Class) ->
 #[inline(always)]
 pub(super) fn or_each<L: Lanes>(
     px: &Run<L>,
-    (mut verdicts, mut rest): (Verdicts, Bits),
+    mut verdicts: Verdicts,
+    mut rest: Bits,
     test: impl Fn(Vec3, Vec3) -> Class,
 ) -> Verdicts {
     while rest != 0 {
@@ -431,6 +523,7 @@ pub(super) fn or_each<L: Lanes>(
 
 #[cfg(test)]
 mod tests {
+    use super::super::modes::{self, RunTest};
     use super::super::{NO_BOUNDS, classify, deltas::Deltas, receiver};
     use super::*;
     use rand::{Rng, SeedableRng, rngs::SmallRng};
@@ -495,12 +588,13 @@ mod tests {
     }
 
     /// Runs of `L::N` pixels and fewer classify each pixel as the scalar tests do on their own, in every
-    /// hard mode, with their positions across the map computed up front or not; and the lanes found
+    /// hard mode's test as the pass runs it (shadow edges in lanes too), with their positions across the
+    /// map computed up front or not; and the lanes found
     /// outside given bounds are the pixels facing the light whose scalar coordinates do not all lie within
     /// them.
     fn lanes_classify_as_the_scalar_tests<L: Lanes>() {
         let mut r = SmallRng::seed_from_u64(7);
-        let (mut settled, mut flagged) = (0, [0; 2]);
+        let (mut settled, mut at_edges, mut flagged) = (0, 0, [0; 2]);
         for round in 0..40 {
             let towards =
                 Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize();
@@ -517,31 +611,42 @@ mod tests {
                 };
                 let selective = |p, n, cos| classify::selective(&map, &deltas, p, n, cos, bias);
                 let map_only = |p, _, cos| classify::shadow_map_only(&map, p, cos, bias);
-                for (table, test, run) in [
-                    (
-                        deltas.table(),
-                        &selective as &dyn Fn(Vec3, Vec3, f32) -> Class,
-                        &run,
-                    ),
-                    (map.depths(), &map_only, &run),
-                    (deltas.table(), &selective, &bare),
-                    (map.depths(), &map_only, &bare),
-                ] {
-                    let decided = decide(&map, table, run, 0.0, bias);
-                    settled += (first(len) & !decided.1).count_ones();
-                    let v = or_each(run, decided, |p, n| scalar(p, n, test));
-                    let marks = mark_facing(run, 0.0);
-                    for (k, &(p, n)) in px.iter().enumerate() {
-                        let bit = |v: Verdicts| Verdicts {
-                            lit: v.lit >> k & 1,
-                            facing: v.facing >> k & 1,
-                            marked: v.marked >> k & 1,
-                        };
-                        assert_eq!(bit(v), expect(scalar(p, n, test)), "pixel {p}, {n}");
-                        let traced = scalar(p, n, &|_, _, _| Class::Marked);
-                        assert_eq!(bit(marks), expect(traced), "pixel {p}, {n}");
+                // The modes' tests as the pass runs them, in lanes.
+                let light = modes::Light {
+                    towards,
+                    away: 0.0,
+                    bias,
+                };
+                let in_lanes = modes::Selective {
+                    map: &map,
+                    deltas: &deltas,
+                    light,
+                };
+                let map_in_lanes = modes::MapOnly { map: &map, light };
+                for run in [&run, &bare] {
+                    let decided = decide(&map, deltas.table(), run, 0.0, bias);
+                    settled += (first(len) & !decided.rest).count_ones();
+                    at_edges += decided.edge.count_ones();
+                    for (v, test) in [
+                        (
+                            in_lanes.verdicts(run),
+                            &selective as &dyn Fn(Vec3, Vec3, f32) -> Class,
+                        ),
+                        (map_in_lanes.verdicts(run), &map_only),
+                        (modes::MarkFacing(light).verdicts(run), &|_, _, _| {
+                            Class::Marked
+                        }),
+                    ] {
+                        for (k, &(p, n)) in px.iter().enumerate() {
+                            let bit = |v: Verdicts| Verdicts {
+                                lit: v.lit >> k & 1,
+                                facing: v.facing >> k & 1,
+                                marked: v.marked >> k & 1,
+                            };
+                            assert_eq!(bit(v), expect(scalar(p, n, test)), "pixel {p}, {n}");
+                        }
+                        assert_eq!(v.lit >> len | v.facing >> len | v.marked >> len, 0);
                     }
-                    assert_eq!(v.lit >> len | v.facing >> len | v.marked >> len, 0);
                 }
                 // Checked against the bounds of a few other receivers: a lane is outside when its
                 // pixel faces the light and is not within them, coordinate by coordinate.
@@ -571,12 +676,13 @@ mod tests {
                 }
             }
         }
-        // The lanes themselves decided most of the pixels, not the scalar fallback, and the receivers
-        // checked fell on both sides of the bounds.
+        // The lanes themselves decided most of the pixels, not the scalar fallback, many of them at
+        // shadow edges, and the receivers checked fell on both sides of the bounds.
         assert!(
             settled > 100 * L::N as u32,
             "{settled} pixels settled in lanes"
         );
+        assert!(at_edges > 25 * L::N as u32, "{at_edges} pixels at edges");
         assert!(
             flagged[0] > 25 * L::N && flagged[1] > 25 * L::N,
             "{flagged:?} inside, outside"
