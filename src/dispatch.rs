@@ -52,9 +52,10 @@ pub fn wide_available() -> bool {
     false
 }
 
-/// Whether the CPU has every feature `avx2` is compiled for (cached by the standard library).
+/// Whether the CPU has every feature `avx2` is compiled for (cached by the standard library), whatever
+/// the testing hook says.
 #[cfg(target_arch = "x86_64")]
-fn has_wide() -> bool {
+pub(crate) fn has_wide() -> bool {
     std::arch::is_x86_feature_detected!("avx2")
         && std::arch::is_x86_feature_detected!("fma")
         && std::arch::is_x86_feature_detected!("bmi1")

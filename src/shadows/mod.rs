@@ -24,8 +24,8 @@
 //!    also marks the occluder's own lit side at its silhouette and receivers a texel away from the edge;
 //!    see `classify::selective`). `Δ` is computed for every texel beforehand, in
 //!    one vectorised pass over the map, and pixels are visited row by row in bands of 8 rows (the
-//!    G-buffer read as it lies), eight at a time in SIMD lanes with AVX2 (else four) where the map's depth
-//!    alone decides (bit for bit the pixel-by-pixel test, which decides the rest).
+//!    G-buffer read as it lies), eight at a time in SIMD lanes with AVX2 (else four), edges too (bit for
+//!    bit the pixel-by-pixel test, which decides what the lanes leave: off the map, broken normals).
 //!    Soft shadows (a disc light, [`ShadowSettings::light_angle`] above 0) mark
 //!    instead the pixels under the penumbra mask — every edge texel splatted with the light's disc, as wide
 //!    as a shadow can spread from it — and those near the light's horizon;
@@ -45,12 +45,12 @@
 //! scattered reads of the map and the G-buffer's 24 bytes a pixel; see [`dispatch`](crate::dispatch)) cost
 //! under a quarter of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles,
 //! and the marked rays graze silhouettes at several times an average shadow ray's cost, so there
-//! selective hard shadows take about 2.75× less CPU than a ray per pixel traced the faster of two ways
+//! selective hard shadows take about 2.85× less CPU than a ray per pixel traced the faster of two ways
 //! (single rays walked four at a time, interleaved, rather than packets of 8 × 8 pixels; same query and
 //! threads on both sides, a 2-core Intel VM; see the `shadows` bench suite in docs/BENCHMARKS.md). On a
 //! crowd of 700k triangles, smaller than a texel, the map and classification alone cost a quarter of a
 //! ray per pixel but 2.4% of the pixels are marked and their rays graze dense geometry (about 0.8 µs of
-//! CPU each, several times an average ray of the reference): about 2.1× — 3× on either crowd takes
+//! CPU each, several times an average ray of the reference): about 2.15× — 3× on either crowd takes
 //! the map off the CPU's threads (the thesis renders it on the GPU, where rasterisation is nearly free):
 //! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU,
 //! and classifies a hard selective pass's pixels there too, each as the CPU would (what that saves on a
@@ -805,7 +805,7 @@ const NO_BOUNDS: (Vec3, Vec3) = (Vec3::MAX, Vec3::MIN);
 /// Bounds `b` grown by the receiver at `p` with normal `nrm` when it faces the light (`n · towards` above
 /// 0) and has a place across `map`: its coordinates across the map and `p · towards`, when all three are
 /// finite (a non-finite one, from a broken G-buffer, would make every texel of the map NaN). The
-/// classification adds pixels four at a time ([`lanes::Receivers`]) and only the odd ones here.
+/// receivers' sampled rows add pixels four at a time ([`lanes::Receivers`]) and only the odd ones here.
 fn receiver(b: (Vec3, Vec3), map: &ShadowMap, towards: Vec3, p: Vec3, nrm: Vec3) -> (Vec3, Vec3) {
     let q = map.across(p).extend(p.dot(towards));
     if nrm.dot(towards) > 0.0 && q.is_finite() {

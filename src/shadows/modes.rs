@@ -53,12 +53,16 @@ impl RunTest for MapOnly<'_> {
     fn verdicts<L: Lanes>(&self, px: &Run<L>) -> Verdicts {
         let Self { map, light } = *self;
         let decided = lanes::decide(map, map.depths(), px, light.away, light.bias);
-        lanes::or_each(px, decided.verdicts, decided.rest, |p, nrm| {
-            match light.facing(nrm) {
+        lanes::or_each(
+            px,
+            decided.verdicts,
+            decided.rest,
+            #[inline(always)]
+            |p, nrm| match light.facing(nrm) {
                 Ok(cos) => classify::shadow_map_only(map, p, cos, light.bias),
                 Err(c) => c,
-            }
-        })
+            },
+        )
     }
 }
 
@@ -80,11 +84,15 @@ impl RunTest for Soft<'_> {
             horizon,
             light,
         } = *self;
-        lanes::each(px, |p, nrm| match light.facing(nrm) {
-            Ok(cos) if cos <= horizon => Class::Marked,
-            Ok(cos) => classify::soft(map, mask, p, cos, light.bias),
-            Err(c) => c,
-        })
+        lanes::each(
+            px,
+            #[inline(always)]
+            |p, nrm| match light.facing(nrm) {
+                Ok(cos) if cos <= horizon => Class::Marked,
+                Ok(cos) => classify::soft(map, mask, p, cos, light.bias),
+                Err(c) => c,
+            },
+        )
     }
 }
 
@@ -105,11 +113,15 @@ impl RunTest for Selective<'_> {
         // marked by the scalar test.
         let edges = lanes::edges(map, px, decided.edge, light.bias);
         let rest = decided.rest & !decided.edge;
-        lanes::or_each(px, decided.verdicts | edges, rest, |p, nrm| {
-            match light.facing(nrm) {
+        lanes::or_each(
+            px,
+            decided.verdicts | edges,
+            rest,
+            #[inline(always)]
+            |p, nrm| match light.facing(nrm) {
                 Ok(cos) => classify::selective(map, deltas, p, nrm, cos, light.bias),
                 Err(c) => c,
-            }
-        })
+            },
+        )
     }
 }

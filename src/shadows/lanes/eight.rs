@@ -1,6 +1,7 @@
 //! Eight lanes: AVX2 on x86-64. [`F8`] is private to [`lanes`](super): the only way to it is
 //! [`widest`](super::widest), which checks that the CPU has the AVX2 generation first, so every
-//! instruction below runs on a CPU that has it.
+//! instruction below runs on a CPU that has it (and the lanes' tests, behind the same check). Every `F8`
+//! starts as a [`splat`](Lanes::splat) or a [`load`](Lanes::load), which check it again in debug builds.
 
 use super::{Bits, Lanes, four::transpose_sse};
 use glam::Vec3;
@@ -58,11 +59,13 @@ impl Lanes for F8 {
 
     #[inline(always)]
     fn splat(v: f32) -> Self {
+        debug_assert!(crate::dispatch::has_wide(), "eight lanes need AVX2");
         F8(unsafe { _mm256_set1_ps(v) })
     }
 
     #[inline(always)]
     fn load(v: &[Vec3]) -> [Self; 3] {
+        debug_assert!(crate::dispatch::has_wide(), "eight lanes need AVX2");
         match v.first_chunk::<8>() {
             Some(eight) => transpose(eight),
             None => {
@@ -127,10 +130,7 @@ impl Lanes for F8 {
     /// One masked gather: the lanes not read keep NaN.
     #[inline(always)]
     fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self {
-        assert!(
-            res <= 1 << 14 && table.len() >= res * res,
-            "a table of {res}² texels"
-        );
+        super::check_table(table, res);
         let r = Self::splat(res as f32);
         let zero = Self::splat(0.0);
         let read = x.ge(zero) & x.lt(r) & y.ge(zero) & y.lt(r) & lanes;

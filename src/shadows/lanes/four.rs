@@ -80,6 +80,7 @@ impl Lanes for Vec4 {
 
     #[inline(always)]
     fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self {
+        super::check_table(table, res);
         let r = res as f32;
         let inside =
             x.ge(Vec4::ZERO) & x.lt(Vec4::splat(r)) & y.ge(Vec4::ZERO) & y.lt(Vec4::splat(r));
@@ -89,8 +90,8 @@ impl Lanes for Vec4 {
             if read >> k & 1 == 0 {
                 return f32::NAN;
             }
-            // SAFETY: lane `k`'s `x` and `y` are in `[0, res)` (checked above; NaN is not), `res` at most
-            // 16384, so they truncate to an `i32`. (The saturating `as usize` conversions cost about fifteen
+            // SAFETY: lane `k`'s `x` and `y` are in `[0, res)` (checked above; NaN is not), and `res` is
+            // at most 16384 (`check_table`), so they truncate to an `i32`. (The saturating `as usize` conversions cost about fifteen
             // instructions a coordinate on x86-64.)
             let (i, j) = unsafe {
                 (

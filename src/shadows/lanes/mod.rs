@@ -4,12 +4,15 @@
 //! same operations in the same order, lane by lane — so a pixel's class depends neither on which path
 //! decided it nor on how many lanes there were.
 //!
-//! Most pixels of a hard-shadow pass face the light over an interior texel whose depth the pass trusts (a
-//! smooth texel, or any texel for the shadow map alone): [`decide`] settles those a run at a time, with
-//! one read of the table per lane (one masked gather for eight lanes), and leaves every other pixel (no
-//! surface, facing away, off the map, at a shadow edge, non-finite input) to the mode's scalar test. On
-//! the crowd at 1024² the selective classification takes about a fifth less time in four lanes than
-//! pixel by pixel, and eight lanes take about a quarter less again (`bench shadows`).
+//! [`surfaces`] settles the pixels without a surface facing the light. Most others face it over an
+//! interior texel whose depth the pass trusts (a smooth texel, or any texel for the shadow map alone):
+//! [`decide`] settles those, with one read of the table per lane (one masked gather for eight lanes);
+//! for the selective test, [`edges`] settles those over the other interior texels (a shadow edge) from
+//! the four texels around each. What is left (off the map, a normal that is not finite; for the shadow
+//! map alone, any texel the table leaves) goes to the mode's scalar test. On the crowd at 1024² the
+//! selective classification takes about a fifth less time in four lanes than pixel by pixel, and eight
+//! lanes with the edges in them take about a third less again (`bench shadows`; docs/BENCHMARKS.md,
+//! stop 50).
 
 #[cfg(target_arch = "x86_64")]
 mod eight;
@@ -39,8 +42,8 @@ pub(super) trait Lanes:
     /// `#[inline(always)]`.
     fn compiled<R>(f: impl FnOnce() -> R) -> R;
 
-    /// Per lane, the larger of the two (`other` where either is NaN, as x86's `maxps`; the callers
-    /// only take it of finite lanes).
+    /// Per lane, the larger of the two (which one where either is NaN depends on the target: the
+    /// callers only keep it for finite lanes).
     fn max(self, other: Self) -> Self;
 
     /// Per lane, the correctly rounded square root.
@@ -72,6 +75,17 @@ pub(super) trait Lanes:
     fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self;
 }
 
+/// Panics unless `table` holds `res × res` texels of a map of at most 16384 a side (what
+/// [`Lanes::gather`] reads), so that every texel index fits an `i32`.
+#[inline(always)]
+fn check_table(table: &[f32], res: usize) {
+    assert!(
+        res <= 1 << 14 && table.len() >= res * res,
+        "a table of {} texels for a map of {res}²",
+        table.len()
+    );
+}
+
 /// Work generic over its lanes, run by [`widest`].
 pub(super) trait WithLanes {
     type Output;
@@ -82,7 +96,7 @@ pub(super) trait WithLanes {
 
 /// Runs `work` in the widest lanes the CPU has: eight where it has the AVX2 generation
 /// ([`wide_available`](crate::dispatch::wide_available)), else four. Wrap a loop in
-/// [`dispatch::widest`](crate::dispatch::widest) inside `work` so its eight lanes are compiled for AVX2.
+/// [`Lanes::compiled`] inside `work` so that it is compiled for its lanes (eight need AVX2's).
 pub(super) fn widest<W: WithLanes>(work: W) -> W::Output {
     #[cfg(target_arch = "x86_64")]
     if crate::dispatch::wide_available() {
@@ -301,9 +315,9 @@ fn map_coordinates<L: Lanes>(map: &ShadowMap, px: &Run<L>) -> ([L; 2], L) {
 /// The selective test at a shadow edge for the lanes `lanes` of `px` (each with a finite `n · L`, over an
 /// interior texel that is not smooth: [`Decided::edge`]), as the scalar `classify::selective` decides
 /// them, its operations in its order: marked over an empty texel; else the depths of the four texels
-/// whose centres surround the receiver (five reads of the map a lane, gathered) compared with its tangent
+/// whose centres surround the receiver (four reads of the map a lane, gathered) compared with its tangent
 /// plane there, less the constant bias — lit when none lies in front of it, shadowed when all do, else
-/// marked (and marked when the plane's slope is not finite).
+/// marked (and marked when the plane's slope is not finite). Four gathers a run.
 #[inline(always)]
 pub(super) fn edges<L: Lanes>(
     map: &ShadowMap,
@@ -316,12 +330,26 @@ pub(super) fn edges<L: Lanes>(
     }
     let ([qx, qy], d) = map_coordinates(map, px);
     let (res, depth) = (map.resolution(), map.depths());
-    let full = L::gather(depth, res, qx, qy, lanes).finite() & lanes;
     // `ShadowMap::around`: the texel whose centre lies below and left of the receiver, and where the
-    // receiver lies from that centre.
+    // receiver lies from that centre. (`q − ½` is exact below 2¹⁴ texels.)
     let half = L::splat(0.5);
     let (i, j) = ((qx - half).trunc(), (qy - half).trunc());
     let first = [(i + half) - qx, (j + half) - qy];
+    // The four in `ShadowMap::around`'s order. (Loops, not closures, here: see `Run::new`.)
+    let (zero, one) = (L::splat(0.0), L::splat(1.0));
+    let offsets = [(zero, zero), (one, zero), (zero, one), (one, one)];
+    let mut corners = [zero; 4];
+    for (s, &(dx, dy)) in corners.iter_mut().zip(&offsets) {
+        *s = L::gather(depth, res, i + dx, j + dy, lanes);
+    }
+    // The receiver's own texel is one of the four: `(i, j)` moved by one along each axis where `q` lies
+    // past the next texel's edge. Over an empty one (no occluder the map saw), marked.
+    let (past_x, past_y) = (qx.ge(i + one), qy.ge(j + one));
+    let full = lanes
+        & ((corners[0].finite() & !past_x & !past_y)
+            | (corners[1].finite() & past_x & !past_y)
+            | (corners[2].finite() & !past_x & past_y)
+            | (corners[3].finite() & past_x & past_y));
     // `classify::slope`: `map.across(nrm) · (texel / max(n·L, 1/64))`.
     let (u, v, ..) = map.frame();
     let texel = map.texel_size();
@@ -330,9 +358,7 @@ pub(super) fn edges<L: Lanes>(
     let plane = full & slope[0].finite() & slope[1].finite();
     let bias = L::splat(texel * bias_texels);
     let (mut any, mut all) = (0, plane);
-    for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
-        let (dx, dy) = (L::splat(dx), L::splat(dy));
-        let s = L::gather(depth, res, i + dx, j + dy, plane);
+    for (&s, &(dx, dy)) in corners.iter().zip(&offsets) {
         let at = [first[0] + dx, first[1] + dy];
         // An empty texel (infinitely deep) lies in front of nothing.
         let front = s.lt(d + slope[0] * at[0] + slope[1] * at[1] - bias) & plane;
@@ -565,11 +591,15 @@ mod tests {
                 r.random_range(-1.1..1.1),
             ),
         };
-        let n = match r.random_range(0..10) {
+        let n = match r.random_range(0..12) {
             0 => Vec3::ZERO,
             1 => Vec3::splat(f32::NAN),
             2 => towards.any_orthonormal_vector(),
             3 => -towards,
+            // Far from unit length and grazing (under a light along an axis, the plane's slope then
+            // overflows), or not finite at all.
+            4 => towards.any_orthonormal_vector() * 1e38 + towards * 1e-3,
+            5 => Vec3::new(f32::INFINITY, 1.0, 0.0),
             _ => (towards * r.random_range(-0.5..1.0)
                 + Vec3::new(
                     r.random_range(-1.0..1.0),
@@ -596,10 +626,16 @@ mod tests {
         let mut r = SmallRng::seed_from_u64(7);
         let (mut settled, mut at_edges, mut flagged) = (0, 0, [0; 2]);
         for round in 0..40 {
-            let towards =
-                Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize();
+            let towards = match round % 4 {
+                3 => Vec3::Y,
+                _ => {
+                    Vec3::new(r.random_range(-1.0..1.0), 1.0, r.random_range(-1.0..1.0)).normalize()
+                }
+            };
             let (map, deltas) = scene(&mut r, towards);
             let bias = [0.0, 1.0, 2.5][round % 3];
+            // A hard selective pass's `away` is −0 (−sin 0), the shadow map's +0.
+            let away = [0.0, -0.0][round / 3 % 2];
             for len in [L::N; 3].into_iter().chain((1..L::N).rev()) {
                 let px: Vec<(Vec3, Vec3)> = (0..len).map(|_| pixel(&mut r, towards)).collect();
                 let (ps, ns): (Vec<Vec3>, Vec<Vec3>) = px.iter().copied().unzip();
@@ -607,14 +643,14 @@ mod tests {
                 let run = Run::<L>::new(&ps, &ns, towards, Some(&map));
                 let bare = Run::<L>::new(&ps, &ns, towards, None);
                 let scalar = |p: Vec3, n: Vec3, test: &dyn Fn(Vec3, Vec3, f32) -> Class| {
-                    classify::facing(n, towards, 0.0).map_or_else(|c| c, |cos| test(p, n, cos))
+                    classify::facing(n, towards, away).map_or_else(|c| c, |cos| test(p, n, cos))
                 };
                 let selective = |p, n, cos| classify::selective(&map, &deltas, p, n, cos, bias);
                 let map_only = |p, _, cos| classify::shadow_map_only(&map, p, cos, bias);
                 // The modes' tests as the pass runs them, in lanes.
                 let light = modes::Light {
                     towards,
-                    away: 0.0,
+                    away,
                     bias,
                 };
                 let in_lanes = modes::Selective {
@@ -624,7 +660,7 @@ mod tests {
                 };
                 let map_in_lanes = modes::MapOnly { map: &map, light };
                 for run in [&run, &bare] {
-                    let decided = decide(&map, deltas.table(), run, 0.0, bias);
+                    let decided = decide(&map, deltas.table(), run, away, bias);
                     settled += (first(len) & !decided.rest).count_ones();
                     at_edges += decided.edge.count_ones();
                     for (v, test) in [
@@ -702,6 +738,20 @@ mod tests {
             return;
         }
         lanes_classify_as_the_scalar_tests::<eight::F8>();
+    }
+
+    /// [`widest`] runs eight lanes exactly where the CPU has the AVX2 generation.
+    #[test]
+    fn widest_picks_eight_lanes_with_avx2() {
+        struct Width;
+        impl WithLanes for Width {
+            type Output = usize;
+            fn run<L: Lanes>(self) -> usize {
+                L::N
+            }
+        }
+        let wide = cfg!(target_arch = "x86_64") && crate::dispatch::wide_available();
+        assert_eq!(widest(Width), if wide { 8 } else { 4 });
     }
 
     /// The receivers' bounds of pixels added four at a time are the scalar fold's, bit for bit (the map
