@@ -71,7 +71,8 @@ pub(super) trait Lanes:
     fn finite(self) -> Bits;
 
     /// Per lane of `lanes` whose `x` and `y` lie in `[0, res)`, `table[⌊y⌋ · res + ⌊x⌋]` (a row-major
-    /// `res × res` table); NaN in every other lane. Panics where the table is smaller.
+    /// `res × res` table); NaN in every other lane. Panics where the table is smaller or `res` above
+    /// 16384.
     fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self;
 }
 
