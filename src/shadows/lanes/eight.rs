@@ -129,14 +129,10 @@ impl Lanes for F8 {
 
     /// One masked gather: the lanes not read keep NaN.
     #[inline(always)]
-    fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self {
-        super::check_table(table, res);
-        let r = Self::splat(res as f32);
-        let zero = Self::splat(0.0);
-        let read = x.ge(zero) & x.lt(r) & y.ge(zero) & y.lt(r) & lanes;
-        // SAFETY: the lanes in `read` have `x` and `y` in `[0, res)`, so they truncate to texel indices
-        // whose `j · res + i` is below `res² ≤ table.len()` (and below 2²⁸: an `i32`); the mask keeps
-        // every other lane from being read.
+    unsafe fn gather_within(table: &[f32], res: usize, x: Self, y: Self, read: Bits) -> Self {
+        // SAFETY: the lanes in `read` have `x` and `y` in `[0, res)`, `res² ≤ table.len()` (the caller's
+        // promise), so they truncate to texel indices whose `j · res + i` is below `res²` (and below
+        // 2²⁸: an `i32`); the mask keeps every other lane from being read.
         unsafe {
             let (i, j) = (_mm256_cvttps_epi32(x.0), _mm256_cvttps_epi32(y.0));
             let at = _mm256_add_epi32(_mm256_mullo_epi32(j, _mm256_set1_epi32(res as i32)), i);

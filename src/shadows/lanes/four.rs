@@ -79,20 +79,15 @@ impl Lanes for Vec4 {
     }
 
     #[inline(always)]
-    fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self {
-        super::check_table(table, res);
-        let r = res as f32;
-        let inside =
-            x.ge(Vec4::ZERO) & x.lt(Vec4::splat(r)) & y.ge(Vec4::ZERO) & y.lt(Vec4::splat(r));
-        let read = inside & lanes;
+    unsafe fn gather_within(table: &[f32], res: usize, x: Self, y: Self, read: Bits) -> Self {
         let (x, y) = (x.to_array(), y.to_array());
         Vec4::from_array(std::array::from_fn(|k| {
             if read >> k & 1 == 0 {
                 return f32::NAN;
             }
-            // SAFETY: lane `k`'s `x` and `y` are in `[0, res)` (checked above; NaN is not), and `res` is
-            // at most 16384 (`check_table`), so they truncate to an `i32`. (The saturating `as usize` conversions cost about fifteen
-            // instructions a coordinate on x86-64.)
+            // SAFETY: lane `k` of `read` has `x` and `y` in `[0, res)`, `res` at most 16384 (the caller's
+            // promise), so they truncate to an `i32` (where `as usize`, saturating, costs about fifteen
+            // instructions a coordinate on x86-64).
             let (i, j) = unsafe {
                 (
                     x[k].to_int_unchecked::<i32>() as usize,

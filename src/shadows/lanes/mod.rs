@@ -72,19 +72,27 @@ pub(super) trait Lanes:
 
     /// Per lane of `lanes` whose `x` and `y` lie in `[0, res)`, `table[⌊y⌋ · res + ⌊x⌋]` (a row-major
     /// `res × res` table); NaN in every other lane. Panics where the table is smaller or `res` above
-    /// 16384.
-    fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self;
-}
+    /// 16384. The checks that make [`gather_within`](Self::gather_within) safe, once for every width.
+    #[inline(always)]
+    fn gather(table: &[f32], res: usize, x: Self, y: Self, lanes: Bits) -> Self {
+        assert!(
+            res <= 1 << 14 && table.len() >= res * res,
+            "a table of {} texels for a map of {res}²",
+            table.len()
+        );
+        let (zero, r) = (Self::splat(0.0), Self::splat(res as f32));
+        let read = x.ge(zero) & x.lt(r) & y.ge(zero) & y.lt(r) & lanes;
+        // SAFETY: exactly what `gather_within` asks, checked just above (NaN is in no lane of `read`).
+        unsafe { Self::gather_within(table, res, x, y, read) }
+    }
 
-/// Panics unless `table` holds `res × res` texels of a map of at most 16384 a side (what
-/// [`Lanes::gather`] reads), so that every texel index fits an `i32`.
-#[inline(always)]
-fn check_table(table: &[f32], res: usize) {
-    assert!(
-        res <= 1 << 14 && table.len() >= res * res,
-        "a table of {} texels for a map of {res}²",
-        table.len()
-    );
+    /// [`gather`](Self::gather) without its checks: NaN in the lanes not in `read`.
+    ///
+    /// # Safety
+    ///
+    /// `res` is at most 16384, `table` holds at least `res²` floats, and every lane of `read` has `x` and
+    /// `y` in `[0, res)`, so each truncates to an `i32` and `⌊y⌋ · res + ⌊x⌋` indexes the table.
+    unsafe fn gather_within(table: &[f32], res: usize, x: Self, y: Self, read: Bits) -> Self;
 }
 
 /// Work generic over its lanes, run by [`widest`].
@@ -260,13 +268,14 @@ pub(super) fn decide<L: Lanes>(
     bias_texels: f32,
 ) -> Decided {
     let (mut verdicts, facing) = surfaces(px, away);
-    let mut decided = Decided {
+    // What is left where no lane faces the light over the map's interior.
+    let unsettled = Decided {
         verdicts,
         rest: facing,
         edge: 0,
     };
     if facing == 0 {
-        return decided;
+        return unsettled;
     }
     let ([qx, qy], d) = map_coordinates(map, px);
     let cos = px.cos;
@@ -276,7 +285,7 @@ pub(super) fn decide<L: Lanes>(
     let inside = qx.ge(one) & qy.ge(one) & qx.lt(last) & qy.lt(last);
     let candidates = inside & cos.finite() & facing;
     if candidates == 0 {
-        return decided;
+        return unsettled;
     }
     let s = L::gather(table, res, qx, qy, candidates);
     let settled = s.finite() & candidates;
@@ -296,10 +305,11 @@ pub(super) fn decide<L: Lanes>(
     }
     verdicts.lit |= lit;
     verdicts.facing |= settled;
-    decided.verdicts = verdicts;
-    decided.rest = facing & !settled;
-    decided.edge = candidates & !settled;
-    decided
+    Decided {
+        verdicts,
+        rest: facing & !settled,
+        edge: candidates & !settled,
+    }
 }
 
 /// The receivers' coordinates on `map` in texels (`x`, `y`) and their depths from its light, as
