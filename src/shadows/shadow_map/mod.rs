@@ -1,9 +1,12 @@
 //! The shadow map of a directional light: the scene's triangles rasterised orthographically along the
 //! light into a square depth map that just covers them.
 
+mod raster;
+
 use super::Occluders;
 use crate::parallel;
 use glam::{Affine3A, Mat3A, Vec2, Vec3, Vec3A};
+use raster::{lane_span, rasterise_band};
 
 /// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
@@ -236,13 +239,8 @@ impl ShadowMap {
                 #[inline(always)]
                 || {
                     out.fill(f32::INFINITY);
-                    // Nested loops, not a flattened iterator: its `next` was not inlined, a call
-                    // per triangle.
                     for p in &placed {
-                        for t in p.band(band) {
-                            let t = t.map(|q| q.truncate().extend(this.top - q.z));
-                            rasterise(&t, band * BAND_ROWS, res, out);
-                        }
+                        rasterise_band(p.band(band), this.top, band * BAND_ROWS, res, out);
                     }
                 },
             )
@@ -484,149 +482,9 @@ fn reach_lanes(
     (reach, top.into_iter().fold(0, u32::max), q)
 }
 
-/// [`span`]'s first and last centre as integers, decided alike where the span is not empty, for every
-/// lane without a branch or a saturating conversion (both keep the placing pass's lanes from
-/// vectorising): the bounds are clamped to `[−1, n]` first (NaN to −1), so each converts in one
-/// instruction.
-#[inline(always)]
-fn lane_span(lo: f32, hi: f32, n: usize) -> (i32, i32) {
-    let n = n as f32;
-    // Clamped to `[−1, n]`, `n` at most 16384; `f32::max` turns NaN into −1.
-    let (a, b) = ((lo - 0.5).max(-1.0).min(n), (hi - 0.5).max(-1.0).min(n));
-    // SAFETY: `a` and `b` are finite and within `[−1, 16384]` (clamped above): well within `i32`.
-    let trunc = |x: f32| unsafe { x.to_int_unchecked::<i32>() };
-    let (ta, tb) = (trunc(a), trunc(b));
-    // Truncation towards zero, then one up (ceil) or down (floor) where it moved the other way.
-    let first = ta + ((ta as f32) < a) as i32;
-    let last = tb - ((tb as f32) > b) as i32;
-    (first.max(0), last.min(n as i32 - 1))
-}
-
-/// `x` rounded up, exact for |x| below 2³¹ and clamped to ±2³¹ beyond (NaN gives 0): all the callers
-/// clamp to the map, far inside. Inline, where `f32::ceil` is a library call on targets without SSE4.1
-/// (it was a tenth of the map's time).
-fn ceil(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t < x { t + 1.0 } else { t }
-}
-
-/// `x` rounded down, as [`ceil`].
-fn floor(x: f32) -> f32 {
-    let t = x as i32 as f32;
-    if t > x { t - 1.0 } else { t }
-}
-
-/// The first and last texel whose centre (`i + 0.5`) lies in `[lo, hi]`, clamped to `0..n`, as whole
-/// floats; empty when the first is past the last.
-fn span(lo: f32, hi: f32, n: usize) -> (f32, f32) {
-    (ceil(lo - 0.5).max(0.0), floor(hi - 0.5).min(n as f32 - 1.0))
-}
-
-/// [`span`] as indices; `(1, 0)` when empty.
-fn centres(lo: f32, hi: f32, n: usize) -> (usize, usize) {
-    let (first, last) = span(lo, hi, n);
-    if last < first {
-        (1, 0)
-    } else {
-        (first as usize, last as usize)
-    }
-}
-
-/// Twice the area, in texels², from which a triangle covers nothing (2¹²⁶; also a non-finite one): its
-/// reciprocal would be subnormal, which a GPU may flush to zero (`GpuShadowMap` renders the same map).
-/// Such a triangle is 2⁶³ texels across: a receiver under it sees an empty texel and is marked for a ray.
-const MAX_AREA: f32 = (1u128 << 126) as f32;
-
-/// Triangles whose bounds span fewer texel centres than this along a row are rasterised centre by centre;
-/// wider ones solve each row's covered span.
-const NARROW: usize = 4;
-
-/// Writes the nearest depth of triangle `t` (map coordinates) into the texels of rows `row0..` whose centres
-/// it covers, edges and corners included (a centre on a shared edge belongs to both triangles, up to
-/// rounding). A triangle a few texels wide (the crowd's: about a texel each) tests each centre of its
-/// bounds; a wider one solves each row's covered span from the three edge functions and checks its two
-/// ends exactly (a weight is monotone along the row, so the covered centres are one run), so the cost is
-/// one depth-plane step per covered texel plus a few per row. One division per triangle. Triangles seen
-/// edge-on by the light cover nothing, nor do those of [`MAX_AREA`] or more.
-#[inline(always)]
-fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32]) {
-    let rows = out.len() / res;
-    let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-    let (y0, y1) = centres(lo.y, hi.y, res);
-    let (y0, y1) = (y0.max(row0), y1.min(row0 + rows - 1));
-    let (x0, x1) = centres(lo.x, hi.x, res);
-    if y1 < y0 || x1 < x0 {
-        return;
-    }
-    // Edge k's weight is a_k x + b_k y + c_k, normalised so the three sum to 1 (barycentrics).
-    let area = (t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[1].y - t[0].y) * (t[2].x - t[0].x);
-    if area == 0.0 || !area.is_finite() || area.abs() >= MAX_AREA {
-        return;
-    }
-    let per_area = area.recip();
-    let coef = |a: Vec3, b: Vec3| {
-        let (ea, eb) = ((a.y - b.y) * per_area, (b.x - a.x) * per_area);
-        (ea, eb, -(ea * a.x + eb * a.y))
-    };
-    let e = [coef(t[1], t[2]), coef(t[2], t[0]), coef(t[0], t[1])];
-    // Depth is the weights' blend of the corners' depths: linear along a row, `dz · x + z_row`.
-    let dz = e[0].0 * t[0].z + e[1].0 * t[1].z + e[2].0 * t[2].z;
-    let inside = |cx: f32, cy: f32| e.iter().all(|&(a, b, c)| a * cx + b * cy + c >= 0.0);
-    // Where along a row each edge's weight crosses 0, per unit of its `b · y + c`.
-    let crossing = e.map(|(a, ..)| -a.recip());
-    for y in y0..=y1 {
-        let cy = y as f32 + 0.5;
-        let z_row = e
-            .iter()
-            .zip(t)
-            .map(|(&(_, b, c), p)| (b * cy + c) * p.z)
-            .sum::<f32>();
-        let row = &mut out[(y - row0) * res..(y - row0 + 1) * res];
-        // Through `i32` (exact: at most 16383): a vector conversion, where one from `usize` is several
-        // instructions a texel.
-        let centre = |x: usize| x as i32 as f32 + 0.5;
-        if x1 - x0 < NARROW {
-            for (x, d) in row.iter_mut().enumerate().take(x1 + 1).skip(x0) {
-                if inside(centre(x), cy) {
-                    *d = d.min(dz * centre(x) + z_row);
-                }
-            }
-            continue;
-        }
-        // The span of centres where all three weights are ≥ 0, one centre of slack each way, then
-        // trimmed at both ends by the exact test.
-        let (mut from, mut to) = (x0 as f32, x1 as f32);
-        for (&(a, b, c), &cross) in e.iter().zip(&crossing) {
-            let r = b * cy + c; // weight = a·(x + 0.5) + r ≥ 0
-            if a > 0.0 {
-                from = from.max(ceil(r * cross - 0.5) - 1.0);
-            } else if a < 0.0 {
-                to = to.min(floor(r * cross - 0.5) + 1.0);
-            } else if r < 0.0 {
-                to = -1.0;
-            }
-        }
-        if to < from {
-            continue;
-        }
-        let (mut from, mut to) = (from as usize, to as usize);
-        while from <= to && !inside(centre(from), cy) {
-            from += 1;
-        }
-        while to > from && !inside(centre(to), cy) {
-            to -= 1;
-        }
-        if from > to || !inside(centre(from), cy) {
-            continue;
-        }
-        for (x, d) in row[from..=to].iter_mut().enumerate() {
-            *d = d.min(dz * centre(from + x) + z_row);
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
+    use super::raster::rasterise;
     use super::*;
     use rand::{Rng, SeedableRng, rngs::SmallRng};
 
@@ -786,146 +644,5 @@ mod tests {
                 "spread {spread}, parallel {parallel}"
             );
         }
-    }
-
-    /// [`lane_span`] decides as [`span`] (the rasteriser's): the same first and last centre wherever the
-    /// span is not empty, and empty where it is, for bounds on, between and beyond the centres, at the
-    /// clamps, at ±0, beyond `i32` and infinite. (NaN bounds come only from a triangle that is not
-    /// finite, which [`reach_lanes`] leaves out whatever its span.)
-    #[test]
-    fn lane_span_decides_as_span() {
-        let n = 64;
-        let edges = [
-            f32::NEG_INFINITY,
-            -1e12,
-            -3.0,
-            -1.5,
-            -1.0,
-            -0.5,
-            -0.25,
-            -0.0,
-            0.0,
-            0.25,
-            0.5,
-            0.75,
-            1.0,
-            1.5,
-            31.5,
-            32.0,
-            62.5,
-            63.0,
-            63.5,
-            64.0,
-            64.5,
-            65.0,
-            1e12,
-            f32::INFINITY,
-        ];
-        for &lo in &edges {
-            for &hi in &edges {
-                let (first, last) = span(lo, hi, n);
-                let (a, b) = lane_span(lo, hi, n);
-                if first <= last {
-                    assert_eq!((a, b), (first as i32, last as i32), "[{lo}, {hi}]");
-                } else {
-                    assert!(a > b, "[{lo}, {hi}]: {a}..={b}, not empty");
-                }
-            }
-        }
-    }
-
-    /// Triangles covering texel centres as a brute-force test in f64 says: each centre the triangle's
-    /// barycentric weights all cover gets the nearest interpolated depth, in bands of rows as the map
-    /// renders them. Centres within a rounding band of an edge (weight below 1e-4) are left out of the
-    /// comparison, both ways.
-    #[test]
-    fn rasterised_texels_equal_a_brute_force_coverage() {
-        let mut r = SmallRng::seed_from_u64(3);
-        let res = 96;
-        let mut checked = [0usize; 2];
-        for _ in 0..60 {
-            let tris: Vec<[Vec3; 3]> = (0..30)
-                .map(|k| {
-                    // Tiny, medium and long thin triangles, some reaching past the map.
-                    let size = [0.8, 3.0, 20.0, 70.0][k % 4];
-                    let o = Vec2::new(r.random_range(-10.0..100.0), r.random_range(-10.0..100.0));
-                    let mut corner = || {
-                        let c = o + Vec2::new(r.random_range(0.0..size), r.random_range(0.0..size));
-                        c.extend(r.random_range(0.0..10.0))
-                    };
-                    [corner(), corner(), corner()]
-                })
-                .collect();
-            let mut depth = vec![f32::INFINITY; res * res];
-            for (band, out) in depth.chunks_mut(BAND_ROWS * res).enumerate() {
-                for t in &tris {
-                    rasterise(t, band * BAND_ROWS, res, out);
-                }
-            }
-            for y in 0..res {
-                for x in 0..res {
-                    let c = (x as f64 + 0.5, y as f64 + 0.5);
-                    let (mut want, mut tolerance) = (f64::INFINITY, 0.0);
-                    let mut unsure = false;
-                    for t in &tris {
-                        let p = t.map(|v| (v.x as f64, v.y as f64, v.z as f64));
-                        // Twice the signed area of (a, b, q).
-                        let edge = |a: (f64, f64, f64), b: (f64, f64, f64), q: (f64, f64)| {
-                            (b.0 - a.0) * (q.1 - a.1) - (b.1 - a.1) * (q.0 - a.0)
-                        };
-                        let area = edge(p[0], p[1], (p[2].0, p[2].1));
-                        if area == 0.0 {
-                            continue;
-                        }
-                        let weights = |q| {
-                            [
-                                edge(p[1], p[2], q),
-                                edge(p[2], p[0], q),
-                                edge(p[0], p[1], q),
-                            ]
-                            .map(|e| e / area)
-                        };
-                        let depth = |w: [f64; 3]| w[0] * p[0].2 + w[1] * p[1].2 + w[2] * p[2].2;
-                        let w = weights(c);
-                        if w.iter().any(|w| w.abs() < 1e-4) {
-                            unsure = true;
-                        } else if w.iter().all(|&w| w > 0.0) && depth(w) < want {
-                            want = depth(w);
-                            // f32 blends the corners' depths by weights `a·x + b·y + c` and steps
-                            // the plane as `dz · x + z_row`: its rounding grows with each term's
-                            // size, a few units in the last place of each.
-                            let (w0, wx, wy) = (
-                                weights((0.0, 0.0)),
-                                weights((1.0, 0.0)),
-                                weights((0.0, 1.0)),
-                            );
-                            let terms: f64 = (0..3)
-                                .map(|k| {
-                                    let (a, b) = (wx[k] - w0[k], wy[k] - w0[k]);
-                                    p[k].2 * (a.abs() * c.0 + b.abs() * c.1 + w0[k].abs())
-                                })
-                                .sum();
-                            let dz = depth(wx) - depth(w0);
-                            let plane = dz.abs() * c.0 + (want - dz * c.0).abs();
-                            tolerance = 8.0 * f32::EPSILON as f64 * (terms + plane);
-                        }
-                    }
-                    if unsure {
-                        continue;
-                    }
-                    let got = depth[y * res + x] as f64;
-                    checked[want.is_finite() as usize] += 1;
-                    if want.is_finite() {
-                        assert!(
-                            (got - want).abs() <= tolerance,
-                            "texel ({x}, {y}): {got} against {want} ± {tolerance}"
-                        );
-                    } else {
-                        assert_eq!(got, f64::INFINITY, "texel ({x}, {y}) covered");
-                    }
-                }
-            }
-        }
-        assert!(checked[0] > 10_000 && checked[1] > 10_000, "{checked:?}");
     }
 }
