@@ -103,13 +103,6 @@ impl Placed {
     #[inline(always)]
     fn place(&mut self, tris: &[[Vec3; 3]], to: ToLight, map: &ShadowMap) {
         let count = map.res.div_ceil(BAND_ROWS);
-        // Corner `k` of lane `l` in texels across the map, and its `p · towards`.
-        let texels = |q: &Lanes, l: usize| {
-            [0, 1, 2].map(|k| {
-                map.in_texels(Vec2::new(q[k][0][l], q[k][1][l]))
-                    .extend(q[k][2][l])
-            })
-        };
         self.bins.clear();
         self.bins.resize(count + 1, 0);
         self.covering.clear();
@@ -117,14 +110,25 @@ impl Placed {
         for block in tris.chunks(LANES) {
             let (reach, nearest, q) = reach_lanes(block, to, map);
             top = top.max(nearest);
+            // Every lane's triangle written, those that cover a centre kept, and their bands counted:
+            // no branch on a triangle's coverage (a quarter cover one, unpredictably).
+            self.covering.reserve(LANES);
+            let spare = self.covering.spare_capacity_mut();
+            let mut kept = 0;
             for (l, &[b0, b1]) in reach[..block.len()].iter().enumerate() {
-                if b0 <= b1 {
-                    for b in b0..=b1 {
-                        self.bins[b as usize + 1] += 1;
-                    }
-                    self.covering.push((texels(&q, l), [b0, b1]));
+                let corners = [0, 1, 2].map(|k| Vec3::new(q[k][0][l], q[k][1][l], q[k][2][l]));
+                spare[kept].write((corners, [b0, b1]));
+                let covers = (b0 <= b1) as u32;
+                kept += covers as usize;
+                self.bins[(b0 * covers) as usize + 1] += covers;
+                // Past the first band (rarely).
+                for b in b0 + 1..=b1 {
+                    self.bins[b as usize + 1] += 1;
                 }
             }
+            // SAFETY: the first `kept` spare slots were written: each lane writes the slot at `kept`,
+            // then keeps it by counting it.
+            unsafe { self.covering.set_len(self.covering.len() + kept) };
         }
         self.top = top;
         for b in 0..count {
@@ -431,10 +435,11 @@ type Lanes = [[[f32; LANES]; 3]; 3];
 /// For up to [`LANES`] triangles `tris` taken into light space by `to`: per triangle the first and last
 /// band of [`BAND_ROWS`] rows of `map` whose texel centres its bounds may cover (`[1, 0]` when none, or
 /// when a corner is not finite, see [`in_light`]), and the largest [`key`] of its finite triangles'
-/// `p · towards` (0 when none), and the triangles in light space (lanes past the triangles NaN), which
-/// the caller keeps for the few that cover a centre (a quarter of a detailed scene's triangles): a second
-/// pass that projected those again cost 7% of the placing. The operations of [`ToLight::apply`],
-/// [`in_light`] and [`ShadowMap::project`] in their order, lane by lane: bit for bit a triangle at a time.
+/// `p · towards` (0 when none), and the triangles' corners across the map in texels, with their
+/// `p · towards` (lanes past the triangles NaN), which the caller keeps for the few that cover a centre (a
+/// quarter of a detailed scene's triangles): a second pass that projected those again cost 7% of the
+/// placing. The operations of [`ToLight::apply`], [`in_light`] and [`ShadowMap::project`] in their order,
+/// lane by lane: bit for bit a triangle at a time.
 #[inline(always)]
 fn reach_lanes(
     tris: &[[Vec3; 3]],
@@ -471,6 +476,9 @@ fn reach_lanes(
             x.map(|v| (v - corner.x) * per_texel),
             y.map(|v| (v - corner.y) * per_texel),
         );
+        for (k, qk) in q.iter_mut().enumerate() {
+            (qk[0][l], qk[1][l]) = (x[k], y[k]);
+        }
         let (x0, x1) = lane_span(x[0].min(x[1]).min(x[2]), x[0].max(x[1]).max(x[2]), map.res);
         let (y0, y1) = lane_span(y[0].min(y[1]).min(y[2]), y[0].max(y[1]).max(y[2]), map.res);
         let covers = finite & (x0 <= x1) & (y0 <= y1);
