@@ -13,7 +13,8 @@ struct ClassifyParams {
     hi: vec2<f32>,
     corner: vec2<f32>,
     per_texel: f32,
-    top: f32,
+    // The key of the map's point nearest the light (the map kernels' state, copied), 0 for none.
+    top: u32,
     texel: f32,
     bias_texels: f32,
     edge: f32,
@@ -33,6 +34,9 @@ struct ClassifyParams {
 // [0]: 1 when a receiver facing the light lies outside the bounds.
 @group(0) @binding(4) var<storage, read_write> flags: array<atomic<u32>>;
 @group(0) @binding(5) var<storage, read> cp: ClassifyParams;
+
+// The CPU's `shadow_map::nearest`: the float of key `k`, the lowest finite one for none (0).
+fn nearest(k: u32) -> f32 { return select(unkey(k), -fmax(), k == 0u); }
 
 // The CPU's `Class`.
 const EMPTY: u32 = 0u;
@@ -87,7 +91,7 @@ fn classify(p: vec3<f32>, n: vec3<f32>) -> u32 {
         return MARKED;
     }
     if !finite(cos) { return MARKED; }
-    let d = cp.top - q.z;
+    let d = nearest(cp.top) - q.z;
     let i = u32(x);
     let j = u32(y);
     let s = depth_at(i, j);

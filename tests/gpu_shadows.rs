@@ -610,14 +610,15 @@ fn gpu_classification_is_the_cpu_classification_pixel_for_pixel() {
     );
 }
 
-/// A warm GPU map costs, per render, one submission (two for an area light, whose extent waits for the
-/// point nearest the light), the upload of 36 bytes a triangle plus each group's first triangle and
-/// transform and the parameters, the read-back of 4 bytes a texel plus the nearest point, and no new
-/// buffer (a context of its own: the counters are the context's, and the other tests share theirs).
-/// Classifying a hard selective pass too adds a submission, the G-buffer's 24 bytes a pixel and the
-/// classification's parameters up, and a byte a pixel and a flag back.
+/// A warm GPU map costs, per render, one submission and one blocking wait (two for an area light, whose
+/// extent waits for the point nearest the light), the upload of 36 bytes a triangle plus each group's
+/// first triangle and transform and the parameters, the read-back of 4 bytes a texel plus the nearest
+/// point, and no new buffer (a context of its own: the counters are the context's, and the other tests
+/// share theirs). Classifying a hard selective pass too goes in the map's submission and wait, and adds
+/// the G-buffer's 24 bytes a pixel and the classification's parameters up, and a byte a pixel and a
+/// flag back.
 #[test]
-fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classifying_one_more() {
+fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classifying_none_more() {
     let Some(ctx) = own_context() else { return };
     let occluders = scene(3);
     let triangles: u64 = occluders.0.iter().map(|(t, _)| t.len() as u64).sum();
@@ -630,7 +631,7 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
     for (mode, angle, submissions) in [
         (ShadowMode::ShadowMap, 0.0, 1),
         (ShadowMode::ShadowMap, 0.03, 2),
-        (ShadowMode::Selective, 0.0, 2),
+        (ShadowMode::Selective, 0.0, 1),
     ] {
         let classified = mode == ShadowMode::Selective;
         let s = ShadowSettings {
@@ -650,7 +651,7 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
         assert!(!pass.stats().refitted, "one map a pass");
         assert!(pass.stats().map_on_gpu);
         assert_eq!(pass.stats().classified_on_gpu, classified);
-        let maps = if classified { 1 } else { submissions };
+        let maps = submissions;
         let (classify_up, classify_back) = if classified {
             (24 * pixels + 112, pixels + 4)
         } else {
@@ -668,7 +669,11 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
             4 * res * res + nearest + classify_back,
             "{mode:?}, light angle {angle}"
         );
-        assert!(d.blocking_waits <= submissions, "light angle {angle}");
+        assert!(
+            (1..=submissions).contains(&d.blocking_waits),
+            "{mode:?}, light angle {angle}: {} blocking waits",
+            d.blocking_waits
+        );
         assert_eq!(d.allocated_bytes, 0, "light angle {angle}: no new buffer");
     }
 }

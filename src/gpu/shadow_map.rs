@@ -20,17 +20,18 @@ use glam::Vec3;
 /// (Metal, DX12) up to the rounding of fused operations. Triangles that would need subnormal
 /// arithmetic, which a GPU may flush to zero, cover nothing on either side (see the CPU rasteriser's
 /// largest area). Use it where the GPU is free and the CPU is not: the map is the pass's one cost
-/// proportional to the triangles (on the CPU, about 9 ms a pass for the 696k-triangle crowd on a
+/// proportional to the triangles (on the CPU, about 6 ms a pass for the 696k-triangle crowd on a
 /// 2-core Intel VM, `bench shadows`). Costs per pass: the occluders uploaded, 36 bytes a
 /// triangle plus 68 a group and 32 of parameters a submission; one submission and at most one
 /// blocking wait (two of each for an area light's map, whose extent waits for the point nearest the
 /// light); 4 bytes a texel read back, straight into the map. The classification
 /// (shaders/shadow_classify.wgsl: `classify::selective`'s operations in its order, square roots and
 /// divisions rounded as the CPU rounds them, so each pixel gets the CPU's class; off with
-/// [`set_classify`](Self::set_classify)) adds per pass the G-buffer uploaded, 24 bytes a pixel, 112 of
-/// parameters, a submission and a blocking wait (two where the pass fits its map twice, the G-buffer
-/// uploaded once), and a byte a pixel read back, which the CPU turns into the visibility and the list
-/// of marked pixels (about 1.2 ms for 1024² pixels on 2 cores, against about 5 ms classifying). Its
+/// [`set_classify`](Self::set_classify)) runs in the map's submission, after it, and its results come
+/// back in the map's wait (twice where the pass fits its map twice, the G-buffer uploaded once); it adds
+/// per pass the G-buffer uploaded, 24 bytes a pixel, 112 of parameters, and a byte a pixel read back,
+/// which the CPU turns into the visibility and the list of marked pixels (about 1.2 ms for 1024²
+/// pixels on 2 cores, against about 5 ms classifying). Its
 /// buffers grow to the largest scene, map and image seen and are kept (a warm render allocates none;
 /// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger
 /// than the device's buffers, say) is the pass's error; one while rendering leaves the pass no map
@@ -84,10 +85,16 @@ pub struct GpuShadowMap {
     classify: bool,
     /// Whether `depth` holds the map last rendered (none when it was left empty or failed).
     rendered: bool,
+    /// The map's commands, recorded for a hard selective pass whose classification follows: they go in
+    /// its submission, and the map is read back with the classes.
+    pending: Option<wgpu::CommandEncoder>,
 }
 
 /// Words of the kernels' state: the nearest point's key and the count of triangles listed as large.
 const STATE_WORDS: usize = 2;
+
+/// Where the classification's parameters hold the nearest point's key (bytes), copied from the state.
+const TOP_AT: u64 = 19 * 4;
 
 impl GpuShadowMap {
     /// Empty buffers on `ctx`'s device; they grow on the first render.
@@ -120,12 +127,13 @@ impl GpuShadowMap {
             classify_params: storage("shadow classification params"),
             classify: ctx.contraction_free(),
             rendered: false,
+            pending: None,
         }
     }
 
     /// Whether hard selective passes also classify their pixels on the GPU, against the map still there:
-    /// the G-buffer uploaded (24 bytes a pixel) and a byte a pixel read back, in a submission of its
-    /// own, instead of the CPU's pass over the G-buffer (about 5 ms for 1024² pixels on 2 cores). Off,
+    /// the G-buffer uploaded (24 bytes a pixel) and a byte a pixel read back, in the map's submission
+    /// and wait, instead of the CPU's pass over the G-buffer (about 5 ms for 1024² pixels on 2 cores). Off,
     /// the CPU classifies against the map read back. On by default where the kernels round as the CPU
     /// does ([`GpuContext::contraction_free`]: Vulkan), so the classes, and the image, are the same;
     /// where they may fuse (Metal, DX12) the CPU classifies unless this turns it on. The CPU classifies
@@ -214,6 +222,36 @@ impl GpuShadowMap {
         pass.dispatch_workgroups(x, y, 1);
     }
 
+    /// Records into `enc` the read-back of the map of `texels` texels (its nearest point's key, then
+    /// each texel's depth), submits it and blocks until `map` holds it, with `also` of the words after
+    /// them (the parts `more` reads back as well). An error leaves no map (0 × 0).
+    fn read_map<R>(
+        &self,
+        map: &mut ShadowMap,
+        mut enc: wgpu::CommandEncoder,
+        texels: usize,
+        more: &[(&wgpu::Buffer, usize)],
+        also: impl FnOnce(&[u32]) -> R,
+    ) -> Result<R> {
+        let mut parts = vec![(self.state.buffer(), 1), (self.depth.buffer(), texels)];
+        parts.extend_from_slice(more);
+        let back = Readback::<u32>::record_parts(&self.ctx, &mut enc, &parts);
+        self.ctx.submit(enc);
+        let read = back.wait_with(&self.ctx, |words| {
+            // A stored depth is its key complemented; 0 is an empty texel.
+            let depth = &words[1..1 + texels];
+            map.take_rendered(shadows::nearest(words[0]), |k| match depth[k] {
+                0 => f32::INFINITY,
+                d => unkey(!d),
+            });
+            also(&words[1 + texels..])
+        });
+        if read.is_err() {
+            map.clear(0);
+        }
+        read
+    }
+
     /// The kernels' bind group, with `args` bound for the dispatch arguments.
     fn bind(&self, args: &GpuBuffer) -> wgpu::BindGroup {
         bind_group(
@@ -246,8 +284,10 @@ impl MapRenderer for GpuShadowMap {
         spread: f32,
         res: usize,
         parallel: bool,
+        classify_next: bool,
     ) -> Result<()> {
         self.rendered = false;
+        self.pending = None;
         let n = self.upload(map, occluders, parallel)?;
         let texels = (res * res) as u64;
         self.ctx.check_storage("shadow map", texels * 4)?;
@@ -294,30 +334,19 @@ impl MapRenderer for GpuShadowMap {
             pass.set_bind_group(0, &reading_args, &[]);
             pass.dispatch_workgroups_indirect(self.args.buffer(), 0);
         }
-        let back = Readback::<u32>::record_parts(
-            &self.ctx,
-            &mut enc,
-            &[
-                (self.state.buffer(), 1),
-                (self.depth.buffer(), texels as usize),
-            ],
-        );
-        self.ctx.submit(enc);
-        back.wait_with(&self.ctx, |words| {
-            // A stored depth is its key complemented; 0 is an empty texel.
-            let depth = &words[1..];
-            map.take_rendered(shadows::nearest(words[0]), |k| match depth[k] {
-                0 => f32::INFINITY,
-                d => unkey(!d),
-            });
-        })?;
         self.rendered = true;
-        Ok(())
+        if classify_next && self.classify {
+            self.pending = Some(enc);
+            return Ok(());
+        }
+        let read = self.read_map(map, enc, texels as usize, &[], |_| ());
+        self.rendered = read.is_ok();
+        read
     }
 
     fn classify_hard(
         &mut self,
-        map: &ShadowMap,
+        map: &mut ShadowMap,
         gbuffer: &GBuffer,
         job: &HardClassify,
         classes: &mut Vec<u32>,
@@ -334,7 +363,15 @@ impl MapRenderer for GpuShadowMap {
             && ctx
                 .check_threads("shadow classification", words as u64, 256)
                 .is_ok();
+        let pending = self.pending.take();
         if !self.classify || !self.rendered || !fits || !job.edge.is_finite() {
+            // The CPU classifies, against the map read back.
+            if let Some(enc) = pending {
+                let texels = map.resolution() * map.resolution();
+                let read = self.read_map(map, enc, texels, &[], |_| ());
+                self.rendered = read.is_ok();
+                read?;
+            }
             return Ok(None);
         }
         let limit = ctx.storage_limit();
@@ -351,7 +388,7 @@ impl MapRenderer for GpuShadowMap {
         }
         self.classes.ensure_within(ctx, words as u64 * 4, limit);
         self.flags.ensure(ctx, 4);
-        let (u, v, t, corner, per_texel, top) = map.frame();
+        let (u, v, t, corner, per_texel, _) = map.frame();
         let (lo, hi) = job.fitted.unwrap_or((Vec3::ZERO, Vec3::ZERO));
         let f = |x: f32| x.to_bits();
         let params = [
@@ -374,7 +411,8 @@ impl MapRenderer for GpuShadowMap {
             f(corner.x),
             f(corner.y),
             f(per_texel),
-            f(top),
+            // The nearest point's key: copied from the map's state below, where it may only now be.
+            0,
             f(map.texel_size()),
             f(job.bias_texels),
             f(job.edge),
@@ -398,7 +436,16 @@ impl MapRenderer for GpuShadowMap {
                 self.classify_params.binding(),
             ],
         );
-        let mut enc = ctx.encoder();
+        // After the map's commands where they wait (one submission and one wait for both).
+        let map_pending = pending.is_some();
+        let mut enc = pending.unwrap_or_else(|| ctx.encoder());
+        enc.copy_buffer_to_buffer(
+            self.state.buffer(),
+            0,
+            self.classify_params.buffer(),
+            TOP_AT,
+            4,
+        );
         enc.clear_buffer(self.flags.buffer(), 0, Some(4));
         if words > 0 {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
@@ -410,16 +457,20 @@ impl MapRenderer for GpuShadowMap {
             let (x, y) = ctx.groups(words as u32, 256);
             pass.dispatch_workgroups(x, y, 1);
         }
-        let back = Readback::<u32>::record_parts(
-            ctx,
-            &mut enc,
-            &[(self.flags.buffer(), 1), (self.classes.buffer(), words)],
-        );
-        ctx.submit(enc);
-        back.wait_with(ctx, |w| {
+        let take = |w: &[u32]| {
             classes.clear();
             classes.extend_from_slice(&w[1..]);
             Some(w[0] != 0)
-        })
+        };
+        let more = [(self.flags.buffer(), 1), (self.classes.buffer(), words)];
+        if map_pending {
+            let texels = map.resolution() * map.resolution();
+            let read = self.read_map(map, enc, texels, &more, take);
+            self.rendered = read.is_ok();
+            return read;
+        }
+        let back = Readback::<u32>::record_parts(ctx, &mut enc, &more);
+        ctx.submit(enc);
+        back.wait_with(ctx, take)
     }
 }

@@ -207,10 +207,13 @@ pub struct ShadowStats {
     /// Whether the pixels were classified on the GPU too (a hard selective pass with a `GpuShadowMap`
     /// that classifies, see `GpuShadowMap::set_classify`).
     pub classified_on_gpu: bool,
-    /// Time rendering the shadow map (on the GPU: uploading, rendering and reading it back).
+    /// Time rendering the shadow map (on the GPU: uploading, rendering and reading it back; where the
+    /// GPU classifies too, uploading the occluders and recording the map's commands: they are submitted,
+    /// run and read back with the classification, in its time).
     pub map_time: Duration,
     /// Time classifying and compacting (on the GPU: uploading the G-buffer, classifying, reading the
-    /// classes back and listing the marked pixels).
+    /// classes back and listing the marked pixels; with the map's rendering and read-back, which share
+    /// its submission and wait).
     pub classify_time: Duration,
     /// Time tracing shadow rays and compositing.
     pub trace_time: Duration,
@@ -416,6 +419,7 @@ impl HardShadows {
             s.light_angle.tan(),
             s.map_resolution,
             s.parallel,
+            s.mode == ShadowMode::Selective && !soft,
         );
         if rendered.is_err() {
             // A renderer's error (the GPU's) leaves no map behind: none half-written, and none of the
@@ -459,7 +463,9 @@ impl HardShadows {
                 fresh,
                 parallel: s.parallel,
             };
-            if let Some(outside) = renderer.classify_hard(&self.map, g, &job, &mut self.classes)? {
+            if let Some(outside) =
+                renderer.classify_hard(&mut self.map, g, &job, &mut self.classes)?
+            {
                 let into = Classification {
                     par: s.parallel,
                     px: Pixels {

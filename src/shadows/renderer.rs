@@ -31,8 +31,11 @@ pub struct HardClassify {
 /// crate's renderers are the only ones.
 pub trait MapRenderer: sealed::Sealed {
     /// Renders `occluders` into `map` (already aimed at the light) over the receivers' bounds, as
-    /// [`ShadowMap`]'s own render does.
+    /// [`ShadowMap`]'s own render does. With `classify_next` (a hard selective pass, which asks
+    /// [`classify_hard`](Self::classify_hard) next, before it reads the map), a renderer may leave the
+    /// map's depths and point nearest the light to be filled in there, with the classes.
     #[doc(hidden)]
+    #[allow(clippy::too_many_arguments)] // each one thing the render reads, as `ShadowMap::render`'s
     fn render_map(
         &mut self,
         map: &mut ShadowMap,
@@ -41,6 +44,7 @@ pub trait MapRenderer: sealed::Sealed {
         spread: f32,
         res: usize,
         parallel: bool,
+        classify_next: bool,
     ) -> Result<()>;
 
     /// Whether the map is rendered on the GPU ([`ShadowStats::map_on_gpu`](super::ShadowStats)).
@@ -52,11 +56,12 @@ pub trait MapRenderer: sealed::Sealed {
     /// Classifies every pixel of `gbuffer` against `map`, which this renderer rendered last, for a hard
     /// selective pass: each pixel's class (`classify::Class` as a byte) into `classes`, four pixels a
     /// word from the lowest byte. Returns whether a receiver facing the light lies outside
-    /// `job.fitted`, or `None` where the CPU classifies instead (the default).
+    /// `job.fitted`, or `None` where the CPU classifies instead (the default). Either way `map` is
+    /// whole on return (see [`render_map`](Self::render_map)'s `classify_next`); on an error, empty.
     #[doc(hidden)]
     fn classify_hard(
         &mut self,
-        _map: &ShadowMap,
+        _map: &mut ShadowMap,
         _gbuffer: &GBuffer,
         _job: &HardClassify,
         _classes: &mut Vec<u32>,
@@ -79,6 +84,7 @@ impl MapRenderer for CpuMap {
         spread: f32,
         res: usize,
         parallel: bool,
+        _classify_next: bool,
     ) -> Result<()> {
         map.render(occluders, receivers, spread, res, parallel);
         Ok(())
