@@ -45,26 +45,27 @@
 //! scattered reads of the map and the G-buffer's 24 bytes a pixel; see [`dispatch`](crate::dispatch)) cost
 //! under a quarter of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles,
 //! and the marked rays graze silhouettes at several times an average shadow ray's cost, so there
-//! selective hard shadows take about 3.05× less CPU than a ray per pixel traced the faster of two ways
+//! selective hard shadows take about 3.15× less CPU than a ray per pixel traced the faster of two ways
 //! (single rays walked four at a time, interleaved, rather than packets of 8 × 8 pixels; same query and
 //! threads on both sides, a 2-core Intel VM; see the `shadows` bench suite in docs/BENCHMARKS.md). On a
-//! crowd of 700k triangles, smaller than a texel, the map and classification alone cost a quarter of a
+//! crowd of 700k triangles, smaller than a texel, the map and classification alone cost a fifth of a
 //! ray per pixel but 2.4% of the pixels are marked and their rays graze dense geometry (about 0.8 µs of
-//! CPU each, several times an average ray of the reference): about 2.25× — 3× there takes the map off
+//! CPU each, several times an average ray of the reference): about 2.45× — 3× there takes the map off
 //! the CPU's threads (the thesis renders it on the GPU, where rasterisation is nearly free):
 //! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU,
-//! and classifies a hard selective pass's pixels there too, each as the CPU would (what that saves on a
-//! hardware GPU is not measured yet: the uploads of 36 bytes a triangle and 24 a pixel and the
-//! read-backs of 4 bytes a texel and 1 a pixel stay on the CPU's side; on a software adapter it is
-//! slower than the CPU); soft shadows, 16 rays a pixel, gain about 3.5× and 1.7× (quick and full
-//! crowd). Use it for soft shadows, where shadow rays are expensive (dense occluders, many triangles
-//! over the receivers) or where the map is rendered anyway; use the shadow map alone where aliased hard
-//! edges are acceptable. A warm pass (same sizes) allocates nothing of its own. Directional lights
-//! only; surfaces facing away from all of the light are in shadow without a ray. Not covered: point lights, and conservative rasterisation of thin
-//! triangles (triangles edge-on to the light cover no texel; receivers over empty texels are marked
-//! instead); the soft mask assumes every receiver as deep as the deepest, so occluders high above the
-//! receivers mark wide areas (the thesis's caveat), and smooth surfaces that shade part of the disc
-//! without a depth edge (a slope below the light's horizon) are missed.
+//! and classifies a hard selective pass's pixels there too, each as the CPU would, in one submission
+//! and one wait (what that saves on a hardware GPU is not measured yet: the uploads of 36 bytes a
+//! triangle and 24 a pixel and the read-backs of 4 bytes a texel and 1 a pixel stay on the CPU's side;
+//! on a software adapter it is slower than the CPU); soft shadows, 16 rays a pixel, gain about 3.5× and
+//! 1.7× (quick and full crowd). Use it for soft shadows, where shadow rays are expensive (dense
+//! occluders, many triangles over the receivers) or where the map is rendered anyway; use the shadow map
+//! alone where aliased hard edges are acceptable. A warm pass (same sizes) allocates nothing of its own.
+//! Directional lights only; surfaces facing away from all of the light are in shadow without a ray. Not
+//! covered: point lights, and conservative rasterisation of thin triangles (triangles edge-on to the
+//! light cover no texel; receivers over empty texels are marked instead); the soft mask assumes every
+//! receiver as deep as the deepest, so occluders high above the receivers mark wide areas (the thesis's
+//! caveat), and smooth surfaces that shade part of the disc without a depth edge (a slope below the
+//! light's horizon) are missed.
 
 mod classify;
 mod deltas;
