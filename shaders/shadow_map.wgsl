@@ -42,7 +42,7 @@ fn finite3(v: vec3<f32>) -> bool {
     return all(e != vec3<u32>(0x7f800000u));
 }
 
-// The CPU's `ceil` and `floor` (src/shadows/shadow_map.rs): exact below 2³¹, clamped to ±2³¹ beyond,
+// The CPU's `ceil` and `floor` (src/shadows/shadow_map/raster.rs): exact below 2³¹, clamped to ±2³¹ beyond,
 // 0 for NaN.
 fn ceil_c(x: f32) -> f32 {
     if is_nan(x) { return 0.0; }

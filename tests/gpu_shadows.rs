@@ -651,7 +651,6 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
         assert!(!pass.stats().refitted, "one map a pass");
         assert!(pass.stats().map_on_gpu);
         assert_eq!(pass.stats().classified_on_gpu, classified);
-        let maps = submissions;
         let (classify_up, classify_back) = if classified {
             (24 * pixels + 112, pixels + 4)
         } else {
@@ -660,20 +659,16 @@ fn a_warm_gpu_map_costs_one_submission_its_triangles_and_its_texels_and_classify
         assert_eq!(d.submissions, submissions, "light angle {angle}");
         assert_eq!(
             d.uploaded_bytes,
-            36 * triangles + 4 * (groups + 1) + 64 * groups + 32 * maps + classify_up,
+            36 * triangles + 4 * (groups + 1) + 64 * groups + 32 * submissions + classify_up,
             "{mode:?}, light angle {angle}"
         );
-        let nearest = 4 * maps;
+        let nearest = 4 * submissions;
         assert_eq!(
             d.read_back_bytes,
             4 * res * res + nearest + classify_back,
             "{mode:?}, light angle {angle}"
         );
-        assert!(
-            (1..=submissions).contains(&d.blocking_waits),
-            "{mode:?}, light angle {angle}: {} blocking waits",
-            d.blocking_waits
-        );
+        assert!(d.blocking_waits <= submissions, "light angle {angle}");
         assert_eq!(d.allocated_bytes, 0, "light angle {angle}: no new buffer");
     }
 }

@@ -270,7 +270,8 @@ pub fn table(rows: &[ShadowRow]) -> String {
          passes (its milliseconds the passes' median; its picks, passes per renderer, in brackets); with \
          the CPU's map, the marked pixels' shadow rays one by one, as packets of a block's rays, as \
          single rays walked four at a time interleaved, or as the planner picks over {ROUNDS} passes. One CPU thread; the GPU's map time includes its upload \
-         and read-back. Mismatches: map texels and image pixels unlike the CPU-map pass's (rays one by \
+         and read-back (where the GPU classifies too, \"gpu\", its upload only: the map's rendering and \
+         read-back share the classification's submission and wait). Mismatches: map texels and image pixels unlike the CPU-map pass's (rays one by \
          one).\n\n\
          | scene | map, rays | ms/pass | map ms | marked % | texels covered % | mismatches |\n\
          |---|---|---|---|---|---|---|\n",

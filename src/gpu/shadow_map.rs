@@ -20,22 +20,20 @@ use glam::Vec3;
 /// (Metal, DX12) up to the rounding of fused operations. Triangles that would need subnormal
 /// arithmetic, which a GPU may flush to zero, cover nothing on either side (see the CPU rasteriser's
 /// largest area). Use it where the GPU is free and the CPU is not: the map is the pass's one cost
-/// proportional to the triangles (on the CPU, about 6 ms a pass for the 696k-triangle crowd on a
-/// 2-core Intel VM, `bench shadows`). Costs per pass: the occluders uploaded, 36 bytes a
-/// triangle plus 68 a group and 32 of parameters a submission; one submission and at most one
-/// blocking wait (two of each for an area light's map, whose extent waits for the point nearest the
-/// light); 4 bytes a texel read back, straight into the map. The classification
-/// (shaders/shadow_classify.wgsl: `classify::selective`'s operations in its order, square roots and
-/// divisions rounded as the CPU rounds them, so each pixel gets the CPU's class; off with
-/// [`set_classify`](Self::set_classify)) runs in the map's submission, after it, and its results come
-/// back in the map's wait (twice where the pass fits its map twice, the G-buffer uploaded once); it adds
-/// per pass the G-buffer uploaded, 24 bytes a pixel, 112 of parameters, and a byte a pixel read back,
-/// which the CPU turns into the visibility and the list of marked pixels (about 1.2 ms for 1024²
-/// pixels on 2 cores, against about 5 ms classifying). Its
-/// buffers grow to the largest scene, map and image seen and are kept (a warm render allocates none;
-/// wgpu's command encoders and bind groups are made per render). A GPU error (a map or scene larger
-/// than the device's buffers, say) is the pass's error; one while rendering leaves the pass no map
-/// (0 × 0).
+/// proportional to the triangles (on the CPU, about 6 ms a pass for the 696k-triangle crowd on a 2-core
+/// Intel VM, `bench shadows`). Costs per pass: the occluders uploaded, 36 bytes a triangle plus 68 a group
+/// and 32 of parameters a submission; one submission and at most one blocking wait (two of each for an area
+/// light's map, whose extent waits for the point nearest the light); 4 bytes a texel read back, straight
+/// into the map. The classification (shaders/shadow_classify.wgsl: `classify::selective`'s operations in
+/// its order, square roots and divisions rounded as the CPU rounds them, so each pixel gets the CPU's
+/// class; off with [`set_classify`](Self::set_classify)) runs in the map's submission, after it, and its
+/// results come back in the map's wait (twice where the pass fits its map twice, the G-buffer uploaded
+/// once); it adds per pass the G-buffer uploaded, 24 bytes a pixel, 112 of parameters, and a byte a pixel
+/// read back, which the CPU turns into the visibility and the list of marked pixels (about 1.2 ms for 1024²
+/// pixels on 2 cores, against about 5 ms classifying). Its buffers grow to the largest scene, map and image
+/// seen and are kept (a warm render allocates none; wgpu's command encoders and bind groups are made per
+/// render). A GPU error (a map or scene larger than the device's buffers, say) is the pass's error; one
+/// while rendering leaves the pass no map (0 × 0).
 ///
 /// ```no_run
 /// use kinetrace::gpu::{GpuContext, GpuShadowMap};
@@ -93,8 +91,10 @@ pub struct GpuShadowMap {
 /// Words of the kernels' state: the nearest point's key and the count of triangles listed as large.
 const STATE_WORDS: usize = 2;
 
-/// Where the classification's parameters hold the nearest point's key (bytes), copied from the state.
-const TOP_AT: u64 = 19 * 4;
+/// The word of the classification's parameters that holds the nearest point's key, copied from the
+/// state (`top` in shaders/shadow_classify.wgsl's `ClassifyParams`), and its byte.
+const TOP_WORD: usize = 19;
+const TOP_AT: u64 = TOP_WORD as u64 * 4;
 
 impl GpuShadowMap {
     /// Empty buffers on `ctx`'s device; they grow on the first render.
@@ -286,6 +286,10 @@ impl MapRenderer for GpuShadowMap {
         parallel: bool,
         classify_next: bool,
     ) -> Result<()> {
+        debug_assert!(
+            self.pending.is_none(),
+            "a map left for a classification never asked"
+        );
         self.rendered = false;
         self.pending = None;
         let n = self.upload(map, occluders, parallel)?;
@@ -391,7 +395,7 @@ impl MapRenderer for GpuShadowMap {
         let (u, v, t, corner, per_texel, _) = map.frame();
         let (lo, hi) = job.fitted.unwrap_or((Vec3::ZERO, Vec3::ZERO));
         let f = |x: f32| x.to_bits();
-        let params = [
+        let mut params: [u32; 28] = [
             f(u.x),
             f(u.y),
             f(u.z),
@@ -411,7 +415,6 @@ impl MapRenderer for GpuShadowMap {
             f(corner.x),
             f(corner.y),
             f(per_texel),
-            // The nearest point's key: copied from the map's state below, where it may only now be.
             0,
             f(map.texel_size()),
             f(job.bias_texels),
@@ -422,6 +425,8 @@ impl MapRenderer for GpuShadowMap {
             job.fitted.is_some() as u32,
             0,
         ];
+        // The nearest point's key: copied from the map's state below, where it may only now be.
+        params[TOP_WORD] = 0;
         self.classify_params.write(ctx, &params);
         let kernels = &ctx.kernels.shadow_classify;
         let group = bind_group(
@@ -471,6 +476,11 @@ impl MapRenderer for GpuShadowMap {
         }
         let back = Readback::<u32>::record_parts(ctx, &mut enc, &more);
         ctx.submit(enc);
-        back.wait_with(ctx, take)
+        let read = back.wait_with(ctx, take);
+        if read.is_err() {
+            self.rendered = false;
+            map.clear(0);
+        }
+        read
     }
 }

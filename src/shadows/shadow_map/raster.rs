@@ -39,7 +39,7 @@ fn floor(x: f32) -> f32 {
 
 /// The first and last texel whose centre (`i + 0.5`) lies in `[lo, hi]`, clamped to `0..n`, as whole
 /// floats; empty when the first is past the last.
-pub(super) fn span(lo: f32, hi: f32, n: usize) -> (f32, f32) {
+fn span(lo: f32, hi: f32, n: usize) -> (f32, f32) {
     (ceil(lo - 0.5).max(0.0), floor(hi - 0.5).min(n as f32 - 1.0))
 }
 
@@ -301,7 +301,7 @@ mod tests {
     #[test]
     fn band_lanes_rasterise_as_one_triangle_at_a_time() {
         let mut r = SmallRng::seed_from_u64(11);
-        let res = 80;
+        let res: usize = 80;
         let on_grid = |r: &mut SmallRng, scale: f32| {
             Vec2::new(
                 r.random_range(-2..res as i32 + 2) as f32,
@@ -344,7 +344,29 @@ mod tests {
                 tris.push(corner.map(|(x, y)| Vec3::new(x, y, 50.0)));
             }
         }
-        tris.truncate(tris.len() / LANES * LANES + 3);
+        // A partial block of three at the end.
+        tris.truncate(tris.len() / LANES * LANES - LANES + 3);
+        // Both ways are taken often: a triangle with one or two candidate centres in a band goes
+        // through the lanes, one with more through `rasterise`.
+        let mut ways = [0; 2];
+        for band in 0..res.div_ceil(BAND_ROWS) {
+            let rows = (
+                (band * BAND_ROWS) as f32,
+                ((band + 1) * BAND_ROWS - 1) as f32,
+            );
+            for t in &tris {
+                let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                let (x, y) = (span(lo.x, hi.x, res), span(lo.y, hi.y, res));
+                let y = (y.0.max(rows.0), y.1.min(rows.1));
+                if x.0 <= x.1 && y.0 <= y.1 {
+                    ways[((x.1 - x.0) + (y.1 - y.0) > 1.0) as usize] += 1;
+                }
+            }
+        }
+        assert!(
+            ways.iter().all(|&n| n > 1_000),
+            "{ways:?}: in lanes, one at a time"
+        );
         let top = 2.5;
         let (mut lanes, mut one) = (
             vec![f32::INFINITY; res * res],
