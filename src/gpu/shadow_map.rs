@@ -224,7 +224,7 @@ impl GpuShadowMap {
 
     /// Records into `enc` the read-back of the map of `texels` texels (its nearest point's key, then
     /// each texel's depth), submits it and blocks until `map` holds it, with `also` of the words after
-    /// them (the parts `more` reads back as well). An error leaves no map (0 × 0).
+    /// them (the parts `more`, at most two, reads back as well). An error leaves no map (0 × 0).
     fn read_map<R>(
         &self,
         map: &mut ShadowMap,
@@ -233,9 +233,15 @@ impl GpuShadowMap {
         more: &[(&wgpu::Buffer, usize)],
         also: impl FnOnce(&[u32]) -> R,
     ) -> Result<R> {
-        let mut parts = vec![(self.state.buffer(), 1), (self.depth.buffer(), texels)];
-        parts.extend_from_slice(more);
-        let back = Readback::<u32>::record_parts(&self.ctx, &mut enc, &parts);
+        // At most two more parts (no allocation: a fixed array, its unused slots never read).
+        let mut parts = [
+            (self.state.buffer(), 1),
+            (self.depth.buffer(), texels),
+            (self.state.buffer(), 0),
+            (self.state.buffer(), 0),
+        ];
+        parts[2..2 + more.len()].copy_from_slice(more);
+        let back = Readback::<u32>::record_parts(&self.ctx, &mut enc, &parts[..2 + more.len()]);
         self.ctx.submit(enc);
         let read = back.wait_with(&self.ctx, |words| {
             // A stored depth is its key complemented; 0 is an empty texel.
@@ -395,7 +401,7 @@ impl MapRenderer for GpuShadowMap {
         let (u, v, t, corner, per_texel, _) = map.frame();
         let (lo, hi) = job.fitted.unwrap_or((Vec3::ZERO, Vec3::ZERO));
         let f = |x: f32| x.to_bits();
-        let mut params: [u32; 28] = [
+        let params: [u32; 28] = [
             f(u.x),
             f(u.y),
             f(u.z),
@@ -415,6 +421,8 @@ impl MapRenderer for GpuShadowMap {
             f(corner.x),
             f(corner.y),
             f(per_texel),
+            // Word TOP_WORD, the nearest point's key: copied from the map's state below, where it may
+            // only now be.
             0,
             f(map.texel_size()),
             f(job.bias_texels),
@@ -425,8 +433,6 @@ impl MapRenderer for GpuShadowMap {
             job.fitted.is_some() as u32,
             0,
         ];
-        // The nearest point's key: copied from the map's state below, where it may only now be.
-        params[TOP_WORD] = 0;
         self.classify_params.write(ctx, &params);
         let kernels = &ctx.kernels.shadow_classify;
         let group = bind_group(
