@@ -157,7 +157,8 @@ fn row_depth(e: &[(f32, f32, f32); 3], z: [f32; 3], cy: f32) -> f32 {
 /// [`rasterise`]'s operations in its order, and any wider one goes through `rasterise`; the texels are
 /// written triangle by triangle in the band's order, so the map is bit for bit `rasterise`'s, one
 /// triangle at a time. Branch-free but for the wider triangles: one at a time, each triangle's loops
-/// and coverage tests mispredicted so often that the crowd's 164k covering triangles took 47 ns each.
+/// and coverage tests mispredicted so often that the crowd's 164k covering triangles took 47 ns of CPU
+/// each, against about 16 in lanes (2-core Intel VM).
 #[inline(always)]
 pub(super) fn rasterise_band(
     tris: &[[Vec3; 3]],
