@@ -81,10 +81,9 @@ pub struct GpuShadowMap {
     classify_params: GpuBuffer,
     /// Whether hard selective passes classify their pixels here ([`set_classify`](Self::set_classify)).
     classify: bool,
-    /// Whether `depth` holds the map last rendered (none when it was left empty or failed).
-    rendered: bool,
     /// The map's commands, recorded for a hard selective pass whose classification follows: they go in
-    /// its submission, and the map is read back with the classes.
+    /// its submission, and the map is read back with the classes. The only map classified here (none
+    /// when the map was left empty, failed, or was read back at once).
     pending: Option<wgpu::CommandEncoder>,
 }
 
@@ -126,7 +125,6 @@ impl GpuShadowMap {
             flags: storage("shadow classification flags"),
             classify_params: storage("shadow classification params"),
             classify: ctx.contraction_free(),
-            rendered: false,
             pending: None,
         }
     }
@@ -296,7 +294,6 @@ impl MapRenderer for GpuShadowMap {
             self.pending.is_none(),
             "a map left for a classification never asked"
         );
-        self.rendered = false;
         self.pending = None;
         let n = self.upload(map, occluders, parallel)?;
         let texels = (res * res) as u64;
@@ -344,14 +341,11 @@ impl MapRenderer for GpuShadowMap {
             pass.set_bind_group(0, &reading_args, &[]);
             pass.dispatch_workgroups_indirect(self.args.buffer(), 0);
         }
-        self.rendered = true;
         if classify_next && self.classify {
             self.pending = Some(enc);
             return Ok(());
         }
-        let read = self.read_map(map, enc, texels as usize, &[], |_| ());
-        self.rendered = read.is_ok();
-        read
+        self.read_map(map, enc, texels as usize, &[], |_| ())
     }
 
     fn classify_hard(
@@ -373,15 +367,15 @@ impl MapRenderer for GpuShadowMap {
             && ctx
                 .check_threads("shadow classification", words as u64, 256)
                 .is_ok();
-        let pending = self.pending.take();
-        if !self.classify || !self.rendered || !fits || !job.edge.is_finite() {
-            // The CPU classifies, against the map read back.
-            if let Some(enc) = pending {
-                let texels = map.resolution() * map.resolution();
-                let read = self.read_map(map, enc, texels, &[], |_| ());
-                self.rendered = read.is_ok();
-                read?;
-            }
+        // Only a map kept for it (rendered with `classify_next` while classifying here): the CPU
+        // classifies any other, read back already.
+        let Some(mut enc) = self.pending.take() else {
+            return Ok(None);
+        };
+        let texels = map.resolution() * map.resolution();
+        if !fits || !job.edge.is_finite() {
+            // The CPU classifies, against the map read back now.
+            self.read_map(map, enc, texels, &[], |_| ())?;
             return Ok(None);
         }
         let limit = ctx.storage_limit();
@@ -447,9 +441,7 @@ impl MapRenderer for GpuShadowMap {
                 self.classify_params.binding(),
             ],
         );
-        // After the map's commands where they wait (one submission and one wait for both).
-        let map_pending = pending.is_some();
-        let mut enc = pending.unwrap_or_else(|| ctx.encoder());
+        // After the map's commands (one submission and one wait for both).
         enc.copy_buffer_to_buffer(
             self.state.buffer(),
             0,
@@ -474,19 +466,6 @@ impl MapRenderer for GpuShadowMap {
             Some(w[0] != 0)
         };
         let more = [(self.flags.buffer(), 1), (self.classes.buffer(), words)];
-        if map_pending {
-            let texels = map.resolution() * map.resolution();
-            let read = self.read_map(map, enc, texels, &more, take);
-            self.rendered = read.is_ok();
-            return read;
-        }
-        let back = Readback::<u32>::record_parts(ctx, &mut enc, &more);
-        ctx.submit(enc);
-        let read = back.wait_with(ctx, take);
-        if read.is_err() {
-            self.rendered = false;
-            map.clear(0);
-        }
-        read
+        self.read_map(map, enc, texels, &more, take)
     }
 }
