@@ -6,7 +6,7 @@ mod raster;
 use super::Occluders;
 use crate::parallel;
 use glam::{Affine3A, Mat3A, Vec2, Vec3, Vec3A};
-use raster::{lane_span, rasterise_band};
+use raster::{lane_bounds, rasterise_band};
 
 /// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
@@ -432,6 +432,18 @@ const LANES: usize = 8;
 /// Up to [`LANES`] triangles lane by lane: coordinate `a` of corner `k` is `[k][a]`.
 type Lanes = [[[f32; LANES]; 3]; 3];
 
+/// Writes `tris` (at most [`LANES`]) into `p` lane by lane, `z` as `depth(z)`; the lanes past them
+/// keep what `p` held. (In place: an array returned by value made the full crowd's map about a sixth
+/// slower.)
+#[inline(always)]
+fn fill_lanes(p: &mut Lanes, tris: &[[Vec3; 3]], depth: impl Fn(f32) -> f32) {
+    for (l, t) in tris.iter().enumerate() {
+        for (pk, c) in p.iter_mut().zip(t) {
+            (pk[0][l], pk[1][l], pk[2][l]) = (c.x, c.y, depth(c.z));
+        }
+    }
+}
+
 /// For up to [`LANES`] triangles `tris` taken into light space by `to`: per triangle the first and last
 /// band of [`BAND_ROWS`] rows of `map` whose texel centres its bounds may cover (`[1, 0]` when none, or
 /// when a corner is not finite, see [`in_light`]), and the largest [`key`] of its finite triangles'
@@ -446,13 +458,14 @@ fn reach_lanes(
     to: ToLight,
     map: &ShadowMap,
 ) -> ([[u32; 2]; LANES], u32, Lanes) {
-    // Coordinate `a` of corner `k` is `p[k][a]`, lane by lane; lanes past the triangles are NaN.
+    // Lanes past the triangles are NaN.
     let mut p = [[[f32::NAN; LANES]; 3]; 3];
-    for (l, t) in tris.iter().enumerate() {
-        for (pk, c) in p.iter_mut().zip(t) {
-            (pk[0][l], pk[1][l], pk[2][l]) = (c.x, c.y, c.z);
-        }
-    }
+    fill_lanes(
+        &mut p,
+        tris,
+        #[inline(always)]
+        |z| z,
+    );
     let (m, t) = ([to.m.x_axis, to.m.y_axis, to.m.z_axis], to.t);
     // `m · p + t` as glam's `Mat3A * Vec3A` computes it: the columns' products summed in column order.
     let mut q = [[[0.0f32; LANES]; 3]; 3];
@@ -479,8 +492,7 @@ fn reach_lanes(
         for (k, qk) in q.iter_mut().enumerate() {
             (qk[0][l], qk[1][l]) = (x[k], y[k]);
         }
-        let (x0, x1) = lane_span(x[0].min(x[1]).min(x[2]), x[0].max(x[1]).max(x[2]), map.res);
-        let (y0, y1) = lane_span(y[0].min(y[1]).min(y[2]), y[0].max(y[1]).max(y[2]), map.res);
+        let ((x0, x1), (y0, y1)) = (lane_bounds(x, map.res), lane_bounds(y, map.res));
         let covers = finite & (x0 <= x1) & (y0 <= y1);
         let band = |y: i32| y as u32 / BAND_ROWS as u32;
         reach[l] = if covers { [band(y0), band(y1)] } else { [1, 0] };

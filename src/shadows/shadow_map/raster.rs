@@ -2,7 +2,7 @@
 //! covers, a triangle at a time ([`rasterise`]) or a band's binned triangles [`LANES`] at a time
 //! ([`rasterise_band`]), bit for bit alike.
 
-use super::LANES;
+use super::{LANES, fill_lanes};
 use glam::Vec3;
 
 /// [`span`]'s first and last centre as integers, decided alike where the span is not empty, for every
@@ -10,7 +10,7 @@ use glam::Vec3;
 /// vectorising): the bounds are clamped to `[−1, n]` first (NaN to −1), so each converts in one
 /// instruction.
 #[inline(always)]
-pub(super) fn lane_span(lo: f32, hi: f32, n: usize) -> (i32, i32) {
+fn lane_span(lo: f32, hi: f32, n: usize) -> (i32, i32) {
     let n = n as f32;
     // Clamped to `[−1, n]`, `n` at most 16384; `f32::max` turns NaN into −1.
     let (a, b) = ((lo - 0.5).max(-1.0).min(n), (hi - 0.5).max(-1.0).min(n));
@@ -142,6 +142,12 @@ pub(super) fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32])
     }
 }
 
+/// [`lane_span`] of the bounds of a triangle's corners' coordinates `c` along one axis.
+#[inline(always)]
+pub(super) fn lane_bounds(c: [f32; 3], n: usize) -> (i32, i32) {
+    lane_span(c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]), n)
+}
+
 /// The depth at `x = 0` along the row through `cy` of the plane through the corners' depths `z`, by the
 /// edge weights `e` (`a x + b y + c` each): the corners' depths blended by the weights' parts that do not
 /// change along the row, summed in corner order (as `shaders/shadow_map.wgsl` sums them).
@@ -175,14 +181,14 @@ pub(super) fn rasterise_band(
 /// [`rasterise_band`] for up to [`LANES`] triangles.
 #[inline(always)]
 fn rasterise_lanes(block: &[[Vec3; 3]], top: f32, row0: usize, res: usize, out: &mut [f32]) {
-    // Coordinate `a` of corner `k` is `p[k][a]`, lane by lane, depth for `z`; lanes past the
-    // triangles are NaN and cover nothing.
+    // Lanes past the triangles are NaN and cover nothing. Depth for `z`.
     let mut p = [[[f32::NAN; LANES]; 3]; 3];
-    for (l, t) in block.iter().enumerate() {
-        for (pk, c) in p.iter_mut().zip(t) {
-            (pk[0][l], pk[1][l], pk[2][l]) = (c.x, c.y, top - c.z);
-        }
-    }
+    fill_lanes(
+        &mut p,
+        block,
+        #[inline(always)]
+        |z| top - z,
+    );
     // Per lane, the candidate centres (the bounds' first, and their last where there are two) as the
     // texel each falls in within `out` and the depth to write there (infinite where not covered, into
     // texel 0: no change); and whether the triangle has more candidates than the lanes take.
@@ -193,8 +199,8 @@ fn rasterise_lanes(block: &[[Vec3; 3]], top: f32, row0: usize, res: usize, out: 
     for l in 0..LANES {
         // Indexed in place (no per-lane copies), so the loop runs as vector operations.
         let [x, y, z] = [0, 1, 2].map(|a| [p[0][a][l], p[1][a][l], p[2][a][l]]);
-        let (x0, x1) = lane_span(x[0].min(x[1]).min(x[2]), x[0].max(x[1]).max(x[2]), res);
-        let (y0, y1) = lane_span(y[0].min(y[1]).min(y[2]), y[0].max(y[1]).max(y[2]), res);
+        let (x0, x1) = lane_bounds(x, res);
+        let (y0, y1) = lane_bounds(y, res);
         let (y0, y1) = (y0.max(rows.0), y1.min(rows.1));
         let covers = (x0 <= x1) & (y0 <= y1);
         // One candidate, or two side by side: (x0, y0) and (x1, y1).
