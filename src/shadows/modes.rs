@@ -111,7 +111,7 @@ impl RunTest for Selective<'_> {
         let decided = lanes::decide(map, deltas.table(), px, light.away, light.bias);
         // At shadow edges in lanes too; what is left (off the map, a normal that is not finite) is
         // marked by the scalar test.
-        let edges = lanes::edges(map, px, decided.edge, light.bias);
+        let edges = lanes::edges(map, px, &decided, light.bias);
         let rest = decided.rest & !decided.edge;
         lanes::or_each(
             px,

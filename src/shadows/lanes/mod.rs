@@ -244,7 +244,7 @@ pub(super) fn mark_facing<L: Lanes>(px: &Run<L>, away: f32) -> Verdicts {
 }
 
 /// What [`decide`] settled, and what it left.
-pub(super) struct Decided {
+pub(super) struct Decided<L> {
     /// The verdicts on the lanes it settled, and on those without a surface facing the light.
     pub(super) verdicts: Verdicts,
     /// The lanes it left to the mode's scalar test.
@@ -252,6 +252,9 @@ pub(super) struct Decided {
     /// Those of `rest` with a finite `n · L` over an interior texel that the table does not settle:
     /// the ones [`edges`] decides for the selective test.
     pub(super) edge: Bits,
+    /// The receivers' coordinates on the map and depths ([`map_coordinates`]), for [`edges`]: meaningful
+    /// only where `edge` has lanes (NaN where `decide` stopped before it needed them).
+    pub(super) at: ([L; 2], L),
 }
 
 /// [`surfaces`], then the shadow map's verdict for the facing lanes it settles by one read of `table`
@@ -266,18 +269,20 @@ pub(super) fn decide<L: Lanes>(
     px: &Run<L>,
     away: f32,
     bias_texels: f32,
-) -> Decided {
+) -> Decided<L> {
     let (mut verdicts, facing) = surfaces(px, away);
     // What is left where no lane faces the light over the map's interior.
+    let nan = L::splat(f32::NAN);
     let unsettled = Decided {
         verdicts,
         rest: facing,
         edge: 0,
+        at: ([nan; 2], nan),
     };
     if facing == 0 {
         return unsettled;
     }
-    let ([qx, qy], d) = map_coordinates(map, px);
+    let at @ ([qx, qy], d) = map_coordinates(map, px);
     let cos = px.cos;
     let res = map.resolution();
     // The interior is `[1, res − 1)` on both axes (as `classify::texel`; NaN is outside).
@@ -309,6 +314,7 @@ pub(super) fn decide<L: Lanes>(
         verdicts,
         rest: facing & !settled,
         edge: candidates & !settled,
+        at,
     }
 }
 
@@ -323,23 +329,24 @@ fn map_coordinates<L: Lanes>(map: &ShadowMap, px: &Run<L>) -> ([L; 2], L) {
     ([qx, qy], L::splat(top) - pt)
 }
 
-/// The selective test at a shadow edge for the lanes `lanes` of `px` (each with a finite `n · L`, over an
-/// interior texel that is not smooth: [`Decided::edge`]), as the scalar `classify::selective` decides
-/// them, its operations in its order: marked over an empty texel; else the depths of the four texels
-/// whose centres surround the receiver (four reads of the map a lane, gathered) compared with its tangent
-/// plane there, less the constant bias — lit when none lies in front of it, shadowed when all do, else
-/// marked (and marked when the plane's slope is not finite). Four gathers a run.
+/// The selective test at a shadow edge for the lanes [`Decided::edge`] of `px` (each with a finite
+/// `n · L`, over an interior texel that is not smooth), at the map coordinates `decide` found for them,
+/// as the scalar `classify::selective` decides them, its operations in its order: marked over an empty
+/// texel; else the depths of the four texels whose centres surround the receiver (four reads of the map a lane,
+/// gathered) compared with its tangent plane there, less the constant bias — lit when none lies in front
+/// of it, shadowed when all do, else marked (and marked when the plane's slope is not finite). Four
+/// gathers a run.
 #[inline(always)]
 pub(super) fn edges<L: Lanes>(
     map: &ShadowMap,
     px: &Run<L>,
-    lanes: Bits,
+    decided: &Decided<L>,
     bias_texels: f32,
 ) -> Verdicts {
+    let (lanes, ([qx, qy], d)) = (decided.edge, decided.at);
     if lanes == 0 {
         return Verdicts::default();
     }
-    let ([qx, qy], d) = map_coordinates(map, px);
     let (res, depth) = (map.resolution(), map.depths());
     // `ShadowMap::around`: the texel whose centre lies below and left of the receiver, and where the
     // receiver lies from that centre. (`q − ½` is exact below 2¹⁴ texels.)
