@@ -4,7 +4,7 @@ use crate::bvh::MAX_PRIMITIVES;
 use crate::geometry::Aabb;
 use crate::{Error, Result};
 use glam::Vec3;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// An indexed triangle mesh whose input has been checked: every coordinate finite, every index in range,
 /// whole triangles only. Degenerate triangles (repeated or collinear vertices) are legal.
@@ -28,6 +28,8 @@ pub struct Mesh {
     /// Identity of the topology: fresh for every [`Mesh::new`], kept by clones and
     /// [`Mesh::with_positions`].
     topology: u64,
+    /// [`Mesh::is_closed`], found once per topology (shared as `topology` is).
+    closed: Arc<OnceLock<bool>>,
 }
 
 /// Source of [`Mesh::topology`] identities (never reused, unlike an index buffer's address).
@@ -57,6 +59,7 @@ impl Mesh {
             positions,
             indices,
             topology,
+            closed: Arc::default(),
         })
     }
 
@@ -106,7 +109,31 @@ impl Mesh {
             positions,
             indices: self.indices.clone(),
             topology: self.topology,
+            closed: self.closed.clone(),
         })
+    }
+
+    /// Whether the mesh is a closed surface facing outwards: every edge `a → b` of a triangle (corners in
+    /// index order) is met exactly once more, as `b → a` in another triangle, no triangle repeats an
+    /// index, and the volume it encloses, by the corners' winding, is positive. Several closed parts
+    /// (interpenetrating or not, as a character made of capsules) are one closed surface. A line from
+    /// outside then first crosses such a surface at a triangle whose winding faces where the line comes
+    /// from, so a shadow map leaves out the triangles facing away from the light (see
+    /// [`Occluders::closed`](crate::shadows::Occluders::closed)).
+    ///
+    /// Found once per topology, O(triangles · log triangles) with one allocation, and kept by clones and
+    /// [`with_positions`](Self::with_positions) copies: the volume's sign is taken from the positions of
+    /// the first copy asked (posing or skinning a closed surface does not turn it inside out).
+    ///
+    /// ```
+    /// use kinetrace::scenes;
+    /// assert!(scenes::icosphere(2).is_closed());
+    /// assert!(!scenes::folded_sheet(8, 0.0).is_closed()); // an open sheet
+    /// ```
+    pub fn is_closed(&self) -> bool {
+        *self
+            .closed
+            .get_or_init(|| closed_outwards(&self.positions, &self.indices))
     }
 
     /// Bounds of every triangle, in triangle order.
@@ -129,6 +156,34 @@ pub(crate) fn triangle(positions: &[Vec3], indices: &[u32], i: usize) -> [Vec3; 
         positions[t[1] as usize],
         positions[t[2] as usize],
     ]
+}
+
+/// [`Mesh::is_closed`] for an index buffer that has already been checked: every directed edge once, its
+/// reverse once, no repeated index, and a positive signed volume (summed in `f64`).
+fn closed_outwards(positions: &[Vec3], indices: &[u32]) -> bool {
+    if indices.is_empty() {
+        return false;
+    }
+    let mut edges = Vec::with_capacity(indices.len());
+    for t in indices.chunks_exact(3) {
+        if t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
+            return false;
+        }
+        for k in 0..3 {
+            edges.push((t[k] as u64) << 32 | t[(k + 1) % 3] as u64);
+        }
+    }
+    // `a → b` as `a · 2³² + b`: its reverse is the two halves swapped.
+    edges.sort_unstable();
+    let once = edges.windows(2).all(|w| w[0] != w[1]);
+    let paired = || (edges.iter()).all(|&e| edges.binary_search(&e.rotate_right(32)).is_ok());
+    let volume = || {
+        let at = |i: u32| positions[i as usize].as_dvec3();
+        (indices.chunks_exact(3))
+            .map(|t| at(t[0]).dot(at(t[1]).cross(at(t[2]))))
+            .sum::<f64>()
+    };
+    once && paired() && volume() > 0.0
 }
 
 /// Every coordinate finite, or the first vertex that is not.
@@ -167,6 +222,52 @@ fn check_indices(indices: &[u32], vertex_count: usize) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `m` with its index buffer changed by `f`.
+    fn reindexed(m: &Mesh, f: impl Fn(&mut Vec<u32>)) -> Mesh {
+        let mut idx = m.indices().to_vec();
+        f(&mut idx);
+        Mesh::new(m.positions().to_vec(), idx).unwrap()
+    }
+
+    /// Every triangle's winding reversed.
+    fn inside_out(i: &mut [u32]) {
+        i.chunks_exact_mut(3).for_each(|t| t.swap(1, 2))
+    }
+
+    /// Closed surfaces facing outwards, against edge counts and winding: spheres, a box and the bumpy
+    /// torus turned inside out (its winding faces in) are closed; the same turned inside out, with a
+    /// triangle missing, with one repeated or one flipped, the cube-sphere (its faces' windings
+    /// disagree), an open sheet and an empty mesh are not; re-positioned copies keep the answer.
+    #[test]
+    fn closed_surfaces_face_outwards_and_share_every_edge_once_each_way() {
+        use crate::scenes;
+        let torus = scenes::bumpy_torus(800);
+        assert!(!torus.is_closed());
+        let closed = [
+            scenes::icosphere(0),
+            scenes::icosphere(2),
+            scenes::shoebox(Vec3::ZERO, Vec3::ONE),
+            reindexed(&torus, |i| inside_out(i)),
+        ];
+        for m in &closed {
+            assert!(m.is_closed());
+            let with = |f: &dyn Fn(&mut Vec<u32>)| reindexed(m, f);
+            assert!(!with(&|i| inside_out(i)).is_closed());
+            assert!(!with(&|i| i.truncate(i.len() - 3)).is_closed());
+            assert!(!with(&|i| i.extend_from_within(..3)).is_closed());
+            assert!(!with(&|i| i.swap(0, 1)).is_closed());
+            let moved: Vec<Vec3> = m.positions().iter().map(|p| *p * 2.0 + Vec3::X).collect();
+            assert!(m.with_positions(moved).unwrap().is_closed());
+        }
+        let cube = scenes::cube_sphere(3);
+        assert!(!cube.is_closed() && !reindexed(&cube, |i| inside_out(i)).is_closed());
+        assert!(!scenes::folded_sheet(8, 0.3).is_closed());
+        assert!(!Mesh::new(Vec::new(), Vec::new()).unwrap().is_closed());
+        // Two corners the same: degenerate, not closed (its edges pair with themselves).
+        let p = vec![Vec3::ZERO, Vec3::X, Vec3::Y];
+        assert!(!Mesh::new(p, vec![0, 1, 1, 1, 0, 0]).unwrap().is_closed());
+    }
 
     /// Topology identities follow the mesh, not the buffer's address: clones and re-positioned copies share
     /// one, and a mesh made after another was freed — which may reuse its allocation — never takes its id.

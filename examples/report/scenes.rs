@@ -18,7 +18,7 @@ pub struct Scene {
 enum Motion {
     /// Skinned characters (rest mesh offsets per character), plus static triangles after them.
     Characters {
-        asset: CharacterAsset,
+        asset: Box<CharacterAsset>,
         placements: Vec<Vec3>,
         arena: Vec<Vec3>,
     },
@@ -65,7 +65,7 @@ impl Scene {
                         name: "rigged_figure",
                         indices: asset.mesh.indices().into(),
                         motion: Motion::Characters {
-                            asset,
+                            asset: Box::new(asset),
                             placements: vec![Vec3::ZERO],
                             arena: Vec::new(),
                         },
@@ -92,7 +92,7 @@ impl Scene {
             name: "crowd",
             indices: indices.into(),
             motion: Motion::Characters {
-                asset,
+                asset: Box::new(asset),
                 placements,
                 arena: Vec::new(),
             },
@@ -150,7 +150,7 @@ impl Scene {
             name: "teapot_in_stadium",
             indices: indices.into(),
             motion: Motion::Characters {
-                asset,
+                asset: Box::new(asset),
                 placements: vec![Vec3::ZERO],
                 arena,
             },
