@@ -17,7 +17,9 @@ struct MapParams {
 
 @group(0) @binding(0) var<storage, read> corners: array<f32>;        // 9 per triangle
 @group(0) @binding(1) var<storage, read> starts: array<u32>;         // each group's first triangle, then n
-@group(0) @binding(2) var<storage, read> to_light: array<vec4<f32>>; // per group: m's columns, t
+// Per group: m's columns, then t with the CPU's `ToLight::cull` as w (0: every triangle; ±1: only those
+// whose area across the map has this sign, a closed group's faces towards the light).
+@group(0) @binding(2) var<storage, read> to_light: array<vec4<f32>>;
 @group(0) @binding(3) var<storage, read_write> depth: array<atomic<u32>>;
 // [0]: the key of the largest `p · towards` (0: none), [1]: how many triangles are listed in `large`.
 @group(0) @binding(4) var<storage, read_write> state: array<atomic<u32>>;
@@ -128,6 +130,9 @@ fn setup(i: u32) -> Setup {
     let area = (s.t1.x - s.t0.x) * (s.t2.y - s.t0.y) - (s.t1.y - s.t0.y) * (s.t2.x - s.t0.x);
     // The CPU's MAX_AREA: beyond it 1 / area would be subnormal, which a GPU may flush to zero.
     if area == 0.0 || !(abs(area) < bitcast<f32>(MAX_AREA)) { return s; }
+    // A closed group's faces away from the light (the CPU's `faces`).
+    let cull = to_light[4u * g + 3u].w;
+    if cull != 0.0 && !(area * cull > 0.0) { return s; }
     let per_area = div_rn(1.0, area);
     s.e0 = coef(s.t1, s.t2, per_area);
     s.e1 = coef(s.t2, s.t0, per_area);

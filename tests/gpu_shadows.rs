@@ -408,6 +408,99 @@ fn gpu_map_of_nothing_is_the_cpu_map() {
     }
 }
 
+/// Groups said to be closed or not ([`Occluders::closed`]).
+struct Claimed(Groups, Vec<bool>);
+
+impl Occluders for Claimed {
+    fn groups(&self) -> usize {
+        self.0.groups()
+    }
+
+    fn group(&self, g: usize) -> (&[[Vec3; 3]], Option<Affine3A>) {
+        self.0.group(g)
+    }
+
+    fn closed(&self, g: usize) -> bool {
+        self.1[g]
+    }
+}
+
+/// Closed groups leave out the same faces away from the light on the GPU as on the CPU: icospheres placed
+/// by a rotation and scale, by a mirroring transform (their winding turned over) and in world space,
+/// one turned inside out but said to be closed (its far side kept), above an open scene of random
+/// triangles — the same map texel for texel and the same passes, with culling and without.
+#[test]
+fn gpu_map_leaves_out_the_faces_of_closed_groups_the_cpu_map_leaves_out() {
+    let Some(ctx) = gpu_or_skip() else { return };
+    let sphere = kinetrace::scenes::icosphere(4);
+    let tris = |m: &kinetrace::Mesh| (0..m.triangle_count()).map(|i| m.triangle(i)).collect();
+    let outwards: Vec<[Vec3; 3]> = tris(&sphere);
+    let inwards = outwards.iter().map(|t| [t[0], t[2], t[1]]).collect();
+    let at = |scale: Vec3, turn: Quat, to: Vec3| {
+        Some(Affine3A::from_scale_rotation_translation(scale, turn, to))
+    };
+    let mut groups = scene(21).0;
+    let open = vec![false; groups.len()];
+    groups.extend([
+        (
+            outwards.clone(),
+            at(
+                Vec3::new(9.0, 6.0, 7.0),
+                Quat::from_rotation_y(0.4),
+                Vec3::new(30.0, 35.0, 40.0),
+            ),
+        ),
+        (
+            outwards.clone(),
+            at(
+                Vec3::new(-8.0, 7.0, 8.0),
+                Quat::from_rotation_x(0.7),
+                Vec3::new(70.0, 40.0, 65.0),
+            ),
+        ),
+        (
+            outwards
+                .iter()
+                .map(|t| t.map(|p| p * 10.0 + Vec3::new(50.0, 45.0, 20.0)))
+                .collect(),
+            None,
+        ),
+        (
+            inwards,
+            at(
+                Vec3::splat(8.0),
+                Quat::IDENTITY,
+                Vec3::new(20.0, 38.0, 80.0),
+            ),
+        ),
+    ]);
+    let occluders = Claimed(Groups(groups), [open, vec![true; 4]].concat());
+    let g = ground(200);
+    let mut on_gpu = GpuShadowMap::new(&ctx);
+    for closed_culling in [true, false] {
+        let s = ShadowSettings {
+            towards_light: Vec3::new(0.3, 1.0, 0.2),
+            map_resolution: 256,
+            closed_culling,
+            ..Default::default()
+        };
+        let no_ray = |_: Vec3, _: Vec3| false;
+        let mut cpu = HardShadows::new();
+        cpu.run(&s, &occluders, &g, no_ray).expect("the CPU pass");
+        let mut gpu = HardShadows::new();
+        gpu.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
+            .expect("the GPU pass");
+        let closed = if closed_culling {
+            4 * outwards.len()
+        } else {
+            0
+        };
+        assert_eq!(cpu.stats().closed_triangles, closed);
+        assert_eq!(gpu.stats().closed_triangles, closed);
+        assert_same_pass(&cpu, &gpu, &format!("closed culling {closed_culling}"));
+    }
+}
+
 /// A crowd frame's selective pass with the map rendered on the GPU from the world's meshes and transforms
 /// is the CPU pass: same map, same marked pixels, same image.
 #[test]
@@ -446,6 +539,10 @@ fn crowd_pass_with_the_gpu_map_is_the_cpu_pass() {
     .expect("the GPU pass");
     assert!(cpu.stats().rays > 0, "some pixels get rays");
     assert!(gpu.stats().classified_on_gpu, "classified where the map is");
+    // The characters are closed: their faces away from the light left out on both.
+    let characters = tw.occluders(&all).triangle_count() - 2;
+    assert_eq!(cpu.stats().closed_triangles, characters);
+    assert_eq!(gpu.stats().closed_triangles, characters);
     assert_same_pass(&cpu, &gpu, "crowd frame 20");
     // The GPU's map classified on the CPU.
     let mut on_gpu = GpuShadowMap::new(&ctx);

@@ -464,7 +464,7 @@ fn start_from_sibling(
         overlap,
         ..Kept::default()
     };
-    let mut inst = Instance::new(bvh, topology, kept);
+    let mut inst = Instance::new(bvh, &mesh.0, kept);
     // Until its first frame is attributed, the sibling's queries are the best guess of its own: planned
     // for none, its first frame dropped the wide tree the sibling's planner had settled on.
     inst.load = load;
@@ -630,7 +630,7 @@ impl Rebuilder<'_> {
             "kinetrace: rebuilt {e} with {build} ({reason:?}), {triangles} triangles in {:.3} ms",
             seconds * 1e3
         );
-        let mut inst = Instance::new(bvh, topology_id(&mesh.0), kept);
+        let mut inst = Instance::new(bvh, &mesh.0, kept);
         inst.load = load;
         if let Some(policy) = inst.kept.adaptive.as_mut() {
             inst.sah = inst.bvh.bvh().sah_cost();

@@ -42,6 +42,9 @@ pub(crate) struct Instance {
     /// Identity of the topology the tree was built for ([`topology_id`]): a different one means a topology
     /// change.
     pub topology: u64,
+    /// Whether the mesh is a closed surface facing outwards ([`Mesh::is_closed`], found once per
+    /// topology): a shadow map leaves out its triangles facing away from the light.
+    pub closed: bool,
     pub transform: Affine3A,
     pub inverse: Affine3A,
     /// Inverse transpose of the linear part, for normals.
@@ -175,11 +178,12 @@ impl Instance {
         self.history.push(degradation);
     }
 
-    /// The entity's state around a freshly built tree for the index buffer `topology`.
-    pub fn new(bvh: MeshBvh, topology: u64, kept: Kept) -> Instance {
+    /// The entity's state around a freshly built tree for `mesh` (its topology: its index buffer).
+    pub fn new(bvh: MeshBvh, mesh: &Mesh, kept: Kept) -> Instance {
         let mut inst = Instance {
             bvh,
-            topology,
+            topology: topology_id(mesh),
+            closed: mesh.is_closed(),
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
             normal_matrix: Mat3A::IDENTITY,
@@ -357,6 +361,10 @@ impl Occluders for WorldOccluders<'_> {
         } else {
             (&[], None)
         }
+    }
+
+    fn closed(&self, g: usize) -> bool {
+        self.world.instances[&self.world.tlas_entities[g]].closed
     }
 }
 

@@ -166,11 +166,11 @@ impl GpuShadowMap {
         for g in 0..occluders.groups() {
             let (tris, place) = occluders.group(g);
             self.first.push(n as u32);
-            let to = ToLight::new(light, place);
+            let to = ToLight::new(light, place, occluders.closed(g));
             let [x, y, z] = [to.m.x_axis, to.m.y_axis, to.m.z_axis];
             let t = to.t;
             self.transforms.push([
-                x.x, x.y, x.z, 0.0, y.x, y.y, y.z, 0.0, z.x, z.y, z.z, 0.0, t.x, t.y, t.z, 0.0,
+                x.x, x.y, x.z, 0.0, y.x, y.y, y.z, 0.0, z.x, z.y, z.z, 0.0, t.x, t.y, t.z, to.cull,
             ]);
             n += tris.len() as u64;
         }

@@ -17,8 +17,9 @@ const BAND_ROWS: usize = 32;
 /// Use it through [`HardShadows`](super::HardShadows); on its own it answers "what does the light see
 /// nearest at this point". Rendering costs one pass over the triangles, in parallel chunks, that places
 /// each across the map (finding the point nearest the light on the way) and sorts those that cover a
-/// texel centre, projected, into bands of 32 rows, chunk by chunk (an area light's map first finds the
-/// nearest point in a pass of its own: how far it widens depends on it); then, in parallel over bands,
+/// texel centre (of a closed group, only those facing the light: [`Occluders::closed`]), projected, into
+/// bands of 32 rows, chunk by chunk (an area light's map first finds the nearest point in a pass of its
+/// own: how far it widens depends on it); then, in parallel over bands,
 /// a few steps per row a triangle spans plus one per covered texel (O(triangles + texels)). The buffers
 /// are kept (36 bytes per covering triangle and band), so a warm map of the same resolution does not
 /// allocate.
@@ -47,24 +48,39 @@ pub struct ShadowMap {
 /// How a group of occluders goes into light space ([`ShadowMap::light`]): its transform composed with the
 /// light, `m · p + t` — for triangles in world space the light alone and `t = −0`, which adds nothing
 /// to any float (not even the sign of a zero), so they project bit for bit as [`ShadowMap::project`]
-/// does. One form for both: no branch per point.
+/// does. One form for both: no branch per point. And which of its triangles the map keeps ([`faces`]).
 #[derive(Clone, Copy)]
 pub(crate) struct ToLight {
     pub(crate) m: Mat3A,
     pub(crate) t: Vec3A,
+    /// 0: every triangle; ±1: only those whose area across the map (corners in texels, the rasteriser's
+    /// `area`) has this sign — a closed group's faces towards the light, its transform mirroring it or not.
+    pub(crate) cull: f32,
 }
 
 impl ToLight {
-    /// For a group placed by `place` (`None`: in world space) under the light transform `light`.
-    pub(crate) fn new(light: Mat3A, place: Option<Affine3A>) -> Self {
+    /// For a group placed by `place` (`None`: in world space) under the light transform `light`, keeping
+    /// only its faces towards the light where it is `closed` ([`Occluders::closed`]).
+    pub(crate) fn new(light: Mat3A, place: Option<Affine3A>, closed: bool) -> Self {
+        // The light's axes are right-handed (`u × v = towards`), so a triangle whose winding faces the
+        // light has a positive area across the map; a mirroring transform turns its winding over. A
+        // transform that flattens the group (or is not finite) culls nothing.
+        let det = place.map_or(1.0, |a| a.matrix3.determinant());
+        let cull = match closed {
+            true if det > 0.0 => 1.0,
+            true if det < 0.0 => -1.0,
+            _ => 0.0,
+        };
         match place {
             None => Self {
                 m: light,
                 t: Vec3A::splat(-0.0),
+                cull,
             },
             Some(a) => Self {
                 m: light * a.matrix3,
                 t: light * a.translation,
+                cull,
             },
         }
     }
@@ -110,25 +126,24 @@ impl Placed {
         for block in tris.chunks(LANES) {
             let (reach, nearest, q) = reach_lanes(block, to, map);
             top = top.max(nearest);
-            // Every lane's triangle written, those that cover a centre kept, and their bands counted:
-            // no branch on a triangle's coverage (a quarter cover one, unpredictably).
-            self.covering.reserve(LANES);
-            let spare = self.covering.spare_capacity_mut();
-            let mut kept = 0;
+            // The lanes that cover a centre, one by one. (Every lane written to spare room and kept by
+            // counting it, without a branch per lane, was as fast while a quarter of the crowd's
+            // triangles covered one; with its closed characters' faces away from the light left out,
+            // an eighth do, and the map is about a tenth faster this way.)
+            let mut lanes = 0u32;
             for (l, &[b0, b1]) in reach[..block.len()].iter().enumerate() {
+                lanes |= ((b0 <= b1) as u32) << l;
+            }
+            while lanes != 0 {
+                let l = lanes.trailing_zeros() as usize;
+                lanes &= lanes - 1;
+                let [b0, b1] = reach[l];
                 let corners = [0, 1, 2].map(|k| Vec3::new(q[k][0][l], q[k][1][l], q[k][2][l]));
-                spare[kept].write((corners, [b0, b1]));
-                let covers = (b0 <= b1) as u32;
-                kept += covers as usize;
-                self.bins[(b0 * covers) as usize + 1] += covers;
-                // Past the first band (rarely).
-                for b in b0 + 1..=b1 {
+                self.covering.push((corners, [b0, b1]));
+                for b in b0..=b1 {
                     self.bins[b as usize + 1] += 1;
                 }
             }
-            // SAFETY: the first `kept` spare slots were written: each lane writes the slot at `kept`,
-            // then keeps it by counting it.
-            unsafe { self.covering.set_len(self.covering.len() + kept) };
         }
         self.top = top;
         for b in 0..count {
@@ -198,7 +213,7 @@ impl ShadowMap {
         let piece = |&(g, first): &(usize, usize)| {
             let (tris, place) = occluders.group(g);
             let tris = &tris[first..(first + PLACE_CHUNK).min(tris.len())];
-            (tris, ToLight::new(light, place))
+            (tris, ToLight::new(light, place, occluders.closed(g)))
         };
         let highest = |pieces: &[(usize, usize)]| {
             (pieces.iter().map(piece))
@@ -493,13 +508,22 @@ fn reach_lanes(
             (qk[0][l], qk[1][l]) = (x[k], y[k]);
         }
         let ((x0, x1), (y0, y1)) = (lane_bounds(x, map.res), lane_bounds(y, map.res));
-        let covers = finite & (x0 <= x1) & (y0 <= y1);
+        let covers = finite & (x0 <= x1) & (y0 <= y1) & faces(to.cull, x, y);
         let band = |y: i32| y as u32 / BAND_ROWS as u32;
         reach[l] = if covers { [band(y0), band(y1)] } else { [1, 0] };
         let nearest = key(z[0]).max(key(z[1])).max(key(z[2]));
         top[l] = if finite { nearest } else { 0 };
     }
     (reach, top.into_iter().fold(0, u32::max), q)
+}
+
+/// Whether the triangle with corners `x`, `y` across the map (in texels) is kept under `cull`
+/// ([`ToLight::cull`]): always where it is 0, else where its area — `rasterise`'s, the same operations —
+/// has `cull`'s sign (a triangle seen edge-on covers nothing either way).
+#[inline(always)]
+fn faces(cull: f32, x: [f32; 3], y: [f32; 3]) -> bool {
+    let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
+    cull == 0.0 || area * cull > 0.0
 }
 
 #[cfg(test)]
@@ -662,6 +686,98 @@ mod tests {
             assert!(
                 bits(map.depths()) == bits(&want),
                 "spread {spread}, parallel {parallel}"
+            );
+        }
+    }
+
+    /// Groups of triangles said to be closed or not ([`Occluders::closed`]).
+    struct Claimed(Vec<(Vec<[Vec3; 3]>, Option<Affine3A>)>, bool);
+
+    impl Occluders for Claimed {
+        fn groups(&self) -> usize {
+            self.0.len()
+        }
+        fn group(&self, g: usize) -> (&[[Vec3; 3]], Option<Affine3A>) {
+            (&self.0[g].0, self.0[g].1)
+        }
+        fn closed(&self, _: usize) -> bool {
+            self.1
+        }
+    }
+
+    /// Closed groups (icospheres: [`Mesh::is_closed`](crate::Mesh::is_closed)) leave out their faces
+    /// away from the light, and the map is that of all their faces, texel for texel: under a rotation and
+    /// scale, under a mirroring transform (which turns their winding over) and in world space, in
+    /// parallel or not. The same spheres turned inside out and said to be closed (a wrong claim) keep
+    /// their far sides instead: deeper wherever the spheres cover the map, which shows that faces are
+    /// left out, and which.
+    #[test]
+    fn closed_groups_render_as_all_their_faces_without_those_away_from_the_light() {
+        let sphere = crate::scenes::icosphere(4);
+        assert!(sphere.is_closed());
+        let outwards: Vec<[Vec3; 3]> = (0..sphere.triangle_count())
+            .map(|i| sphere.triangle(i))
+            .collect();
+        let inwards: Vec<[Vec3; 3]> = outwards.iter().map(|t| [t[0], t[2], t[1]]).collect();
+        let at = |scale: Vec3, turn: glam::Quat, to: Vec3| {
+            Affine3A::from_scale_rotation_translation(scale, turn, to)
+        };
+        let places = [
+            Some(at(
+                Vec3::new(8.0, 5.0, 6.0),
+                glam::Quat::from_rotation_y(0.4),
+                Vec3::new(30.0, 6.0, 40.0),
+            )),
+            // Mirrored (a negative determinant).
+            Some(at(
+                Vec3::new(-7.0, 6.0, 7.0),
+                glam::Quat::from_rotation_x(0.7),
+                Vec3::new(65.0, 8.0, 62.0),
+            )),
+            None,
+        ];
+        // The world-space group: the sphere placed by hand.
+        let world = at(
+            Vec3::splat(9.0),
+            glam::Quat::IDENTITY,
+            Vec3::new(45.0, 10.0, 20.0),
+        );
+        let claimed = |tris: &[[Vec3; 3]], closed: bool| {
+            let groups = places.iter().map(|&place| match place {
+                Some(_) => (tris.to_vec(), place),
+                None => (
+                    tris.iter()
+                        .map(|t| t.map(|p| world.transform_point3(p)))
+                        .collect(),
+                    None,
+                ),
+            });
+            Claimed(groups.collect(), closed)
+        };
+        let towards = Vec3::new(0.3, 1.0, 0.2).normalize();
+        for parallel in [true, false] {
+            let render = |occluders: &Claimed| {
+                let (mut map, receivers) = aimed(towards);
+                map.render(occluders, receivers, 0.0, 256, parallel);
+                map
+            };
+            let all = render(&claimed(&outwards, false));
+            let culled = render(&claimed(&outwards, true));
+            let bits = |m: &ShadowMap| m.depths().iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+            let covered = all.depths().iter().filter(|d| d.is_finite()).count();
+            assert!(covered > 3000, "{covered} texels covered");
+            assert!(bits(&culled) == bits(&all), "parallel {parallel}");
+            // Inside out, said to be closed: the far sides.
+            let far = render(&claimed(&inwards, true));
+            assert_eq!(far.top, all.top, "the nearest point counts every triangle");
+            let mut deeper = 0;
+            for (f, a) in far.depths().iter().zip(all.depths()) {
+                assert!(f >= a, "a far side {f} nearer than the near side {a}");
+                deeper += (f > a) as usize;
+            }
+            assert!(
+                deeper > covered * 9 / 10,
+                "{deeper} of {covered} texels deeper"
             );
         }
     }
