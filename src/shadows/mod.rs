@@ -46,12 +46,12 @@
 //! scattered reads of the map and the G-buffer's 24 bytes a pixel; see [`dispatch`](crate::dispatch)) cost
 //! under a quarter of hard shadow rays that mostly escape to the sky on a crowd of 16 × 2,880 triangles,
 //! and the marked rays graze silhouettes at several times an average shadow ray's cost, so there
-//! selective hard shadows take about 3.15× less CPU than a ray per pixel traced the faster of two ways
+//! selective hard shadows take about 3.5× less CPU than a ray per pixel traced the faster of two ways
 //! (single rays walked four at a time, interleaved, rather than packets of 8 × 8 pixels; same query and
 //! threads on both sides, a 2-core Intel VM; see the `shadows` bench suite in docs/BENCHMARKS.md). On a
-//! crowd of 700k triangles, smaller than a texel, the map and classification alone cost a fifth of a
+//! crowd of 700k triangles, smaller than a texel, the map and classification alone cost a sixth of a
 //! ray per pixel but 2.4% of the pixels are marked and their rays graze dense geometry (about 0.8 µs of
-//! CPU each, several times an average ray of the reference): about 2.45× — 3× there takes the map off
+//! CPU each, several times an average ray of the reference): about 2.75× — 3× there takes the map off
 //! the CPU's threads (the thesis renders it on the GPU, where rasterisation is nearly free):
 //! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU,
 //! and classifies a hard selective pass's pixels there too, each as the CPU would, in one submission
