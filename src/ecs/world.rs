@@ -42,9 +42,9 @@ pub(crate) struct Instance {
     /// Identity of the topology the tree was built for ([`topology_id`]): a different one means a topology
     /// change.
     pub topology: u64,
-    /// Whether the mesh is a closed surface facing outwards ([`Mesh::is_closed`], found once per
-    /// topology): a shadow map leaves out its triangles facing away from the light.
-    pub closed: bool,
+    /// The mesh the tree was built for (its buffers shared), asked [`Mesh::is_closed`] by a shadow map
+    /// (which then leaves out its triangles facing away from the light) when one is first rendered.
+    pub mesh: Mesh,
     pub transform: Affine3A,
     pub inverse: Affine3A,
     /// Inverse transpose of the linear part, for normals.
@@ -183,7 +183,7 @@ impl Instance {
         let mut inst = Instance {
             bvh,
             topology: topology_id(mesh),
-            closed: mesh.is_closed(),
+            mesh: mesh.clone(),
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
             normal_matrix: Mat3A::IDENTITY,
@@ -364,7 +364,9 @@ impl Occluders for WorldOccluders<'_> {
     }
 
     fn closed(&self, g: usize) -> bool {
-        self.world.instances[&self.world.tlas_entities[g]].closed
+        self.world.instances[&self.world.tlas_entities[g]]
+            .mesh
+            .is_closed()
     }
 }
 

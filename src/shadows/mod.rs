@@ -9,8 +9,8 @@
 //! `TraceWorld::occluded_interleaved`), and writes a visibility per pixel:
 //!
 //! 1. the shadow map: the triangles rasterised orthographically along the light over the footprint of the
-//!    pixels' surfaces ([`ShadowMap`]; a closed mesh's only where they face the light,
-//!    [`ShadowSettings::closed_culling`]). The footprint is first taken from a sample of the image's rows
+//!    pixels' surfaces ([`ShadowMap`]; in a selective pass, a closed mesh's only where they face the
+//!    light, [`ShadowSettings::closed_culling`]). The footprint is first taken from a sample of the image's rows
 //!    (every 16th, and those around where the last pass found its extremes); step 2, which reads every
 //!    pixel anyway, checks that each lies within it, and where the sample missed part of it the exact
 //!    footprint is found, the map rendered and step 2 run again ([`ShadowStats::refitted`]): the same
@@ -134,15 +134,19 @@ pub struct ShadowSettings {
     /// Shadow rays per pixel that gets rays when the light has an area ([`light_angle`](Self::light_angle)
     /// above 0), 1 to 1024, along [`LightDisc`]'s pattern; the thesis shows 16.
     pub samples: u32,
-    /// Leave out of the shadow map the triangles of closed groups ([`Occluders::closed`]) that face away
-    /// from the light: about half of them, and never the nearest surface the light meets on a closed
-    /// surface facing outwards, so the map is the same — except where skinning folds a surface over
-    /// itself at a bent joint and turns a few triangles inside out: there the map keeps the depth of the
-    /// surface behind the fold. On the full crowd (64 closed characters of 10,880 triangles, `bench
-    /// shadows`, rows "all faces" and "culled"): the map 6.5 → 5.2 ms, the selective pass 6% less CPU;
-    /// 89 of the map's 1M texels deeper, by up to 6 texel sides, and one pixel of the selective image
-    /// unlike (0.021% of the pixels unlike the ray-traced image either way). Shadow rays meet every
-    /// triangle either way. Default on; off, every triangle counts.
+    /// In a selective pass, leave out of the shadow map the triangles of closed groups
+    /// ([`Occluders::closed`]) that face away from the light: about half of them, and never the first
+    /// surface a line from the light meets on a closed surface facing outwards. The map changes only
+    /// where that first surface is lost: where the rasteriser's rounding drops a texel centre from both
+    /// triangles along a shared edge (it is not watertight; a face behind used to fill the pinhole), and
+    /// where skinning folds a surface over itself at a bent joint, turning a few triangles inside out.
+    /// Such a texel is deeper or empty, a depth edge the classification sends rays to, so the image
+    /// barely moves: on the full crowd (64 closed characters of 10,880 triangles, `bench shadows`, rows
+    /// "all faces" and "culled") the map took 6.5 → 5.2 ms and the pass 6% less CPU, 89 of the map's 1M
+    /// texels were deeper (by up to 6 texel sides) and one pixel of the image changed (0.021% of the
+    /// pixels unlike the ray-traced image either way). The shadow map alone
+    /// ([`ShadowMode::ShadowMap`]) would show those pinholes as specks of light, so it keeps every face.
+    /// Shadow rays meet every triangle either way. Default on; off, every triangle counts.
     pub closed_culling: bool,
 }
 
@@ -232,7 +236,8 @@ pub struct ShadowStats {
     /// Time tracing shadow rays and compositing.
     pub trace_time: Duration,
     /// Triangles of closed groups, whose faces away from the light the map left out
-    /// ([`ShadowSettings::closed_culling`]; 0 with it off or without a map).
+    /// ([`ShadowSettings::closed_culling`]: selective passes only; 0 in the other modes or with it
+    /// off).
     pub closed_triangles: usize,
 }
 
@@ -415,13 +420,12 @@ impl HardShadows {
             map_time,
             classify_time,
             trace_time: t2.elapsed(),
-            closed_triangles: if s.closed_culling && s.mode != ShadowMode::RayTraced {
-                (0..occluders.groups())
-                    .filter(|&g| occluders.closed(g))
-                    .map(|g| occluders.group(g).0.len())
+            closed_triangles: {
+                let culled = Culling::of(occluders, s);
+                (0..culled.groups())
+                    .filter(|&g| culled.closed(g))
+                    .map(|g| culled.group(g).0.len())
                     .sum()
-            } else {
-                0
             },
         };
         Ok(&self.visibility)
@@ -439,10 +443,7 @@ impl HardShadows {
         let soft = s.light_angle > 0.0;
         let rendered = renderer.render_map(
             &mut self.map,
-            &Culling {
-                of: occluders,
-                on: s.closed_culling,
-            },
+            &Culling::of(occluders, s),
             receivers,
             s.light_angle.tan(),
             s.map_resolution,

@@ -50,10 +50,21 @@ impl<T: AsRef<[[Vec3; 3]]> + Sync + ?Sized> Occluders for T {
     }
 }
 
-/// `of`'s groups, closed where `of` says so only while `on` ([`ShadowSettings::closed_culling`](super::ShadowSettings::closed_culling)).
+/// `of`'s groups, closed where `of` says so in a pass that culls ([`Culling::of`]).
 pub(super) struct Culling<'a, O: ?Sized> {
-    pub of: &'a O,
-    pub on: bool,
+    of: &'a O,
+    on: bool,
+}
+
+impl<'a, O: ?Sized> Culling<'a, O> {
+    /// `occluders` as a pass with settings `s` renders them: closed groups only in a selective pass with
+    /// [`ShadowSettings::closed_culling`](super::ShadowSettings::closed_culling) on.
+    pub(super) fn of(occluders: &'a O, s: &super::ShadowSettings) -> Self {
+        Self {
+            of: occluders,
+            on: s.closed_culling && s.mode == super::ShadowMode::Selective,
+        }
+    }
 }
 
 impl<O: Occluders + ?Sized> Occluders for Culling<'_, O> {
