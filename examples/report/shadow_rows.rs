@@ -136,8 +136,8 @@ pub fn run(
         row("cpu, rays interleaved".into(), interleaved_s, &i),
     ];
     // A closed scene (the crowd's closed characters): its faces away from the light left out of the map
-    // (`Occluders::closed`), exact but where skinning folds a surface over itself, so what that changes
-    // against every face's map is in the name, not among the mismatches.
+    // (`Occluders::closed`); the texels and pixels that changes against every face's map (pinholes,
+    // skinning folds) in the name, its mismatches the texels nearer than every face's map.
     if mesh.is_closed() {
         let (closed_s, c) = pass(&mut |p| {
             p.run_with(&s, &Closed(&tris), &g, rays, &mut CpuMap)

@@ -42,8 +42,9 @@ pub(crate) struct Instance {
     /// Identity of the topology the tree was built for ([`topology_id`]): a different one means a topology
     /// change.
     pub topology: u64,
-    /// The mesh the tree was built for (its buffers shared), asked [`Mesh::is_closed`] by a shadow map
-    /// (which then leaves out its triangles facing away from the light) when one is first rendered.
+    /// The mesh the tree was built for (its buffers shared), asked [`Mesh::is_closed`] by a selective
+    /// shadow pass (which then leaves out its triangles facing away from the light) when one first
+    /// renders it: once per topology, re-positioned copies sharing the answer.
     pub mesh: Mesh,
     pub transform: Affine3A,
     pub inverse: Affine3A,
@@ -364,9 +365,10 @@ impl Occluders for WorldOccluders<'_> {
     }
 
     fn closed(&self, g: usize) -> bool {
-        self.world.instances[&self.world.tlas_entities[g]]
-            .mesh
-            .is_closed()
+        // A rejected entity's group is empty: nothing to ask its mesh about.
+        let e = self.world.tlas_entities[g];
+        let inst = &self.world.instances[&e];
+        self.filter.accepts(e, inst.layers) && inst.mesh.is_closed()
     }
 }
 

@@ -22,12 +22,12 @@ pub trait Occluders: Sync {
 
     /// Whether group `g`'s triangles form a closed surface facing outwards, as
     /// [`Mesh::is_closed`](crate::Mesh::is_closed) finds for the mesh they come from (in its winding):
-    /// then the shadow map leaves out those facing away from the light, about half of them, which the
-    /// light never meets first on such a surface (see
-    /// [`ShadowSettings::closed_culling`](super::ShadowSettings::closed_culling): the map a fifth faster on
-    /// a crowd of skinned characters, and what skinning folds change). By default `false`: every triangle
-    /// counts, as for a shadow ray. [`TraceWorld::occluders`](crate::ecs::TraceWorld::occluders) says it
-    /// of every closed mesh.
+    /// then a selective pass's shadow map leaves out those facing away from the light, about half of
+    /// them, which the light never meets first on such a surface (see
+    /// [`ShadowSettings::closed_culling`](super::ShadowSettings::closed_culling): the map a fifth faster
+    /// on a crowd of skinned characters, what it changes, and why the shadow map alone keeps every face).
+    /// By default `false`: every triangle counts, as for a shadow ray.
+    /// [`TraceWorld::occluders`](crate::ecs::TraceWorld::occluders) says it of every closed mesh.
     fn closed(&self, g: usize) -> bool {
         let _ = g;
         false
