@@ -98,11 +98,29 @@ fn quick_report_writes_every_file_with_zero_mismatches() {
     ] {
         assert_eq!(rows(label), scenes.len(), "a {label} row per scene");
     }
+    // A row of the CPU map without the faces away from the light per closed scene (its middle frame's
+    // mesh), the crowd's among them.
+    let (all, _) = scenes::Scene::all(settings.triangles, &common::shared_assets_dir());
+    let closed: Vec<&str> = (all.iter())
+        .filter(|s| {
+            let mut p = Vec::new();
+            s.positions(settings.frames / 2, &mut p);
+            s.mesh(&p).is_closed()
+        })
+        .map(|s| s.name)
+        .collect();
+    assert!(closed.contains(&"crowd"), "closed scenes: {closed:?}");
+    let culled: Vec<&str> = (report.shadows.iter())
+        .filter(|r| r.renderer.starts_with("cpu, faces away left out"))
+        .map(|r| r.scene)
+        .collect();
+    assert_eq!(culled, closed, "a culled row per closed scene");
     if std::env::var("KINETRACE_REQUIRE_GPU").is_ok_and(|v| v == "1") && cfg!(feature = "gpu") {
         assert_eq!(
             report.shadows.len(),
-            7 * scenes.len(),
-            "CPU maps (four ways of tracing rays), GPU maps (classified on the CPU and the GPU) and planned maps"
+            7 * scenes.len() + closed.len(),
+            "CPU maps (four ways of tracing rays, and without the faces away from the light where \
+             closed), GPU maps (classified on the CPU and the GPU) and planned maps"
         );
     }
     for r in &report.shadows {
