@@ -6,7 +6,7 @@ mod raster;
 use super::Occluders;
 use crate::parallel;
 use glam::{Affine3A, Mat3A, Vec2, Vec3, Vec3A};
-use raster::{lane_bounds, rasterise_band};
+use raster::{area, lane_bounds, rasterise_band};
 
 /// Rows of the map one worker rasterises at a time (each band visits only the triangles binned to it).
 const BAND_ROWS: usize = 32;
@@ -518,12 +518,11 @@ fn reach_lanes(
 }
 
 /// Whether the triangle with corners `x`, `y` across the map (in texels) is kept under `cull`
-/// ([`ToLight::cull`]): always where it is 0, else where its area — `rasterise`'s, the same operations —
+/// ([`ToLight::cull`]): always where it is 0, else where its [`area`] — the one `rasterise` computes —
 /// has `cull`'s sign (a triangle seen edge-on covers nothing either way).
 #[inline(always)]
 fn faces(cull: f32, x: [f32; 3], y: [f32; 3]) -> bool {
-    let area = (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0]);
-    cull == 0.0 || area * cull > 0.0
+    cull == 0.0 || area(x, y) * cull > 0.0
 }
 
 #[cfg(test)]

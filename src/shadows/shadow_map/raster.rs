@@ -80,7 +80,7 @@ pub(super) fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32])
         return;
     }
     // Edge k's weight is a_k x + b_k y + c_k, normalised so the three sum to 1 (barycentrics).
-    let area = (t[1].x - t[0].x) * (t[2].y - t[0].y) - (t[1].y - t[0].y) * (t[2].x - t[0].x);
+    let area = area([t[0].x, t[1].x, t[2].x], [t[0].y, t[1].y, t[2].y]);
     if area == 0.0 || !area.is_finite() || area.abs() >= MAX_AREA {
         return;
     }
@@ -140,6 +140,14 @@ pub(super) fn rasterise(t: &[Vec3; 3], row0: usize, res: usize, out: &mut [f32])
             *d = d.min(dz * centre(from + x) + z_row);
         }
     }
+}
+
+/// Twice the signed area of the triangle with corners `x`, `y` across the map: positive where its
+/// winding runs counter-clockwise there, as [`rasterise`] normalises its edge weights by and the placing
+/// pass culls by (`shaders/shadow_map.wgsl`'s `area`, the same operations).
+#[inline(always)]
+pub(super) fn area(x: [f32; 3], y: [f32; 3]) -> f32 {
+    (x[1] - x[0]) * (y[2] - y[0]) - (y[1] - y[0]) * (x[2] - x[0])
 }
 
 /// [`lane_span`] of the bounds of a triangle's corners' coordinates `c` along one axis.
