@@ -174,12 +174,11 @@ fn closed_outwards(positions: &[Vec3], indices: &[u32]) -> bool {
     // Each edge as its two corners, lower first, and its triangle with the edge's way in the top bit.
     let mut edges = Vec::with_capacity(indices.len());
     for (i, t) in indices.chunks_exact(3).enumerate() {
-        let c = [t[0], t[1], t[2]];
-        if c[0] == c[1] || c[1] == c[2] || c[2] == c[0] {
+        if t[0] == t[1] || t[1] == t[2] || t[2] == t[0] {
             return false;
         }
         for k in 0..3 {
-            let (a, b) = (c[k], c[(k + 1) % 3]);
+            let (a, b) = (t[k], t[(k + 1) % 3]);
             let key = (a.min(b) as u64) << 32 | a.max(b) as u64;
             edges.push((key, i as u32 | ((a < b) as u32) << 31));
         }
