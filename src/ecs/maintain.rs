@@ -87,7 +87,7 @@ pub(crate) fn maintain_system(
     // Topologies whose mesh went away this frame: the planner forgets them once no mesh has them.
     let mut gone: Vec<u64> = Vec::new();
     for e in removed.read() {
-        if let Some(topology) = world.instances.get(&e).map(|i| i.topology) {
+        if let Some(topology) = world.instances.get(&e).map(|i| i.topology()) {
             gone.push(topology);
         }
         world.remove(e);
@@ -132,7 +132,7 @@ pub(crate) fn maintain_system(
         if let Some(inst) = world
             .instances
             .get_mut(&e)
-            .filter(|i| i.topology == topology_id(&mesh.0))
+            .filter(|i| i.topology() == topology_id(&mesh.0))
         {
             // The planner weighs the refitted tree (its SAH cost measured in the refit's pass); a
             // motion that outpaces refitting is rebuilt without a refit.
@@ -189,7 +189,7 @@ pub(crate) fn maintain_system(
             Some(Decision::Keep | Decision::PartialRebuild) => None,
             Some(Decision::Rebuild(build)) => Some((Some(build), RebuildReason::Policy)),
             None if world.contains(e) => {
-                gone.extend(world.instances.get(&e).map(|i| i.topology));
+                gone.extend(world.instances.get(&e).map(|i| i.topology()));
                 Some((None, RebuildReason::Topology))
             }
             None => Some((None, RebuildReason::New)),
@@ -389,7 +389,7 @@ fn refit_ahead(
         let outpaced = (inst.kept.adaptive.as_ref()).is_some_and(AdaptivePolicy::skips_next_refit);
         // Cleared for every changed mesh: no earlier frame's refit is ever taken for this one's.
         inst.prefit = None;
-        if inst.topology == topology_id(&mesh.0) && !outpaced {
+        if inst.topology() == topology_id(&mesh.0) && !outpaced {
             let with_sah = adaptive && inst.structure == StructureKind::Bvh;
             let inst = world.instances.remove(&e).expect("looked up above");
             ahead.push((e, with_sah, inst));
@@ -416,7 +416,7 @@ fn refit_ahead(
 /// Prunes the shared cost table of the assets among `gone` that no mesh has any more. O(gone · meshes),
 /// only in frames where meshes were removed or changed topology.
 fn forget_orphans(world: &TraceWorld, costs: &CostTable, mut gone: Vec<u64>) {
-    gone.retain(|t| !world.instances.values().any(|i| i.topology == *t));
+    gone.retain(|t| !world.instances.values().any(|i| i.topology() == *t));
     if !gone.is_empty() {
         costs.retain_assets(|a| !gone.contains(&a.id));
     }
@@ -441,7 +441,7 @@ fn start_from_sibling(
     let topology = topology_id(&mesh.0);
     let Some((bvh, policy, wide, packets, structure, overlap, load)) =
         world.instances.values().find_map(|i| {
-            let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology == topology)?;
+            let policy = (i.kept.adaptive.as_ref()).filter(|_| i.topology() == topology)?;
             Some((
                 i.bvh.clone(),
                 policy.sibling(),

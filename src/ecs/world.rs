@@ -39,12 +39,10 @@ pub(super) fn with_scratch<T, R>(
 /// One traceable entity's state.
 pub(crate) struct Instance {
     pub bvh: MeshBvh,
-    /// Identity of the topology the tree was built for ([`topology_id`]): a different one means a topology
-    /// change.
-    pub topology: u64,
-    /// The mesh the tree was built for (its buffers shared), asked [`Mesh::is_closed`] by a selective
-    /// shadow pass (which then leaves out its triangles facing away from the light) when one first
-    /// renders it: once per topology, re-positioned copies sharing the answer.
+    /// The mesh the tree was built for (its buffers shared): its [`topology`](Self::topology), and
+    /// [`Mesh::is_closed`], which a selective shadow pass asks (then leaving out its triangles facing
+    /// away from the light) when one first renders it, once per topology, re-positioned copies sharing
+    /// the answer.
     pub mesh: Mesh,
     pub transform: Affine3A,
     pub inverse: Affine3A,
@@ -179,11 +177,16 @@ impl Instance {
         self.history.push(degradation);
     }
 
+    /// Identity of the topology the tree was built for ([`topology_id`] of its mesh): a different one
+    /// means a topology change.
+    pub fn topology(&self) -> u64 {
+        topology_id(&self.mesh)
+    }
+
     /// The entity's state around a freshly built tree for `mesh` (its topology: its index buffer).
     pub fn new(bvh: MeshBvh, mesh: &Mesh, kept: Kept) -> Instance {
         let mut inst = Instance {
             bvh,
-            topology: topology_id(mesh),
             mesh: mesh.clone(),
             transform: Affine3A::IDENTITY,
             inverse: Affine3A::IDENTITY,
