@@ -239,7 +239,12 @@ fn gpu_map_of_a_ground_under_more_rows_than_one_step_is_the_cpu_map() {
         map_resolution: 2600,
         ..Default::default()
     };
-    let (cpu, gpu) = both_passes(&s, &cluttered_ground(), GpuShadowMap::new(&ctx));
+    let (cpu, gpu) = both_passes(
+        &s,
+        &cluttered_ground(),
+        &ground(32),
+        &mut GpuShadowMap::new(&ctx),
+    );
     assert_same_pass(&cpu, &gpu, "ground under a 2,600² map");
 }
 
@@ -322,23 +327,25 @@ fn gpu_map_with_its_large_triangles_dispatch_folded_is_the_cpu_map() {
     for groups in [2, 3] {
         let mut on_gpu = GpuShadowMap::new(&ctx);
         on_gpu.limit_workgroups(groups);
-        let (cpu, gpu) = both_passes(&s, &cluttered_ground(), on_gpu);
+        let (cpu, gpu) = both_passes(&s, &cluttered_ground(), &ground(32), &mut on_gpu);
         assert_same_pass(&cpu, &gpu, &format!("folded at {groups} workgroups"));
     }
 }
 
-/// `settings`' pass over `tris` (no shadow rays) with the CPU's map and with `on_gpu`'s.
+/// `settings`' pass over `occluders` and the receivers `g` (no shadow rays) with the CPU's map and with
+/// `on_gpu`'s.
 fn both_passes(
     settings: &ShadowSettings,
-    tris: &[[Vec3; 3]],
-    mut on_gpu: GpuShadowMap,
+    occluders: &(impl Occluders + ?Sized),
+    g: &GBuffer,
+    on_gpu: &mut GpuShadowMap,
 ) -> (HardShadows, HardShadows) {
-    let g = ground(32);
+    let no_ray = |_: Vec3, _: Vec3| false;
     let mut cpu = HardShadows::new();
-    cpu.run(settings, tris, &g, |_: Vec3, _: Vec3| false)
+    cpu.run(settings, occluders, g, no_ray)
         .expect("the CPU pass");
     let mut gpu = HardShadows::new();
-    gpu.run_with(settings, tris, &g, |_: Vec3, _: Vec3| false, &mut on_gpu)
+    gpu.run_with(settings, occluders, g, no_ray, on_gpu)
         .expect("the GPU pass");
     (cpu, gpu)
 }
@@ -484,12 +491,7 @@ fn gpu_map_leaves_out_the_faces_of_closed_groups_the_cpu_map_leaves_out() {
             closed_culling,
             ..Default::default()
         };
-        let no_ray = |_: Vec3, _: Vec3| false;
-        let mut cpu = HardShadows::new();
-        cpu.run(&s, &occluders, &g, no_ray).expect("the CPU pass");
-        let mut gpu = HardShadows::new();
-        gpu.run_with(&s, &occluders, &g, no_ray, &mut on_gpu)
-            .expect("the GPU pass");
+        let (cpu, gpu) = both_passes(&s, &occluders, &g, &mut on_gpu);
         let closed = if closed_culling {
             4 * outwards.len()
         } else {
