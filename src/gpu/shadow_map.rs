@@ -20,7 +20,7 @@ use glam::Vec3;
 /// (Metal, DX12) up to the rounding of fused operations. Triangles that would need subnormal
 /// arithmetic, which a GPU may flush to zero, cover nothing on either side (see the CPU rasteriser's
 /// largest area). Use it where the GPU is free and the CPU is not: the map is the pass's one cost
-/// proportional to the triangles (on the CPU, about 6 ms a pass for the 696k-triangle crowd on a 2-core
+/// proportional to the triangles (on the CPU, about 4–5 ms a pass for the 696k-triangle crowd on a 2-core
 /// Intel VM, `bench shadows`). Costs per pass: the occluders uploaded, 36 bytes a triangle plus 68 a group
 /// and 32 of parameters a submission; one submission and at most one blocking wait (two of each for an area
 /// light's map, whose extent waits for the point nearest the light); 4 bytes a texel read back, straight
