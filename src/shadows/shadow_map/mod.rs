@@ -689,6 +689,30 @@ mod tests {
         }
     }
 
+    /// A closed group culls by the sign of its transform's determinant — its faces towards the light
+    /// (+1), or, mirrored, the other winding (−1) — and culls nothing where the transform flattens it
+    /// (a zero determinant) or is not finite (a NaN or infinite matrix: no sign to trust), nor where the
+    /// group is not closed.
+    #[test]
+    fn closed_groups_cull_by_their_transforms_handedness_and_broken_ones_not_at_all() {
+        let light = Mat3A::from_rotation_x(0.3);
+        let with = |m: Mat3A| Some(Affine3A::from_mat3_translation(m.into(), Vec3::ONE));
+        let scaled = |d: Vec3| with(Mat3A::from_diagonal(d));
+        for (place, cull) in [
+            (None, 1.0),
+            (scaled(Vec3::new(2.0, 3.0, 0.5)), 1.0),
+            (scaled(Vec3::new(-2.0, 3.0, 0.5)), -1.0),
+            (scaled(Vec3::new(-1.0, -1.0, -1.0)), -1.0),
+            (scaled(Vec3::new(1.0, 0.0, 1.0)), 0.0),
+            (scaled(Vec3::new(1.0, f32::NAN, 1.0)), 0.0),
+            (scaled(Vec3::new(1.0, f32::INFINITY, 1.0)), 0.0),
+            (with(Mat3A::from_cols(Vec3A::X, Vec3A::NAN, Vec3A::Z)), 0.0),
+        ] {
+            assert_eq!(ToLight::new(light, place, true).cull, cull, "{place:?}");
+            assert_eq!(ToLight::new(light, place, false).cull, 0.0, "{place:?}");
+        }
+    }
+
     /// Groups of triangles said to be closed or not ([`Occluders::closed`]).
     struct Claimed(Vec<(Vec<[Vec3; 3]>, Option<Affine3A>)>, bool);
 
