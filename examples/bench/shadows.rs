@@ -193,7 +193,7 @@ pub fn run(rec: &mut Records) {
         }
     }
     // Each mode's image, timed now that the crowd's planners have seen the passes above (timed first,
-    // the selective pass's could catch its planner trying packets, a fifth slower here).
+    // the selective pass's could catch its planner trying packets, a quarter slower here).
     let mut image = |mode, map_resolution, light_angle| {
         let settings = ShadowSettings {
             mode,
