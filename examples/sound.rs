@@ -56,7 +56,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     });
     // The room (plaster) and the characters (clothing): one shared body mesh, each its own entity.
     let room = scenes::shoebox(Vec3::ZERO, ROOM);
-    let body = scenes::cube_sphere(10);
+    let body = scenes::cube_sphere(11);
     world.spawn((TraceMesh(room.clone()), AcousticSurface(plaster)));
     let characters: Vec<Entity> = (0..CHARACTERS)
         .map(|k| {

@@ -15,17 +15,24 @@
 //! with one exact ray per leg (`paths.rs`).
 //!
 //! When to use it: interactive acoustics of a scene with up to a few hundred thousand triangles. Cost: the
-//! number of frusta grows with the reflection order and (about logarithmically, thanks to merging) with
-//! the sampling rate; each frustum is one tree traversal plus `n²` samples for the triangles it only
-//! partly covers. Levels of the frustum tree run on all threads; results do not depend on the thread count.
+//! number of frusta grows with the reflection order and with the sampling rate. A frustum that straddles
+//! surfaces splits into merged blocks of sub-frusta along their borders, about as many as its side has
+//! samples, and its children split again. Each doubling of [`SoundConfig::sampling`] multiplied the
+//! frusta by 4.6–4.9 in an empty shoebox and by 9.3–10.4 among curved characters, order 3. The thesis
+//! found the cost growing about logarithmically with the sampling rate in its scenes; these do not. Each
+//! frustum is one tree traversal plus `n²` samples for the triangles it only partly covers. Levels of
+//! the frustum tree run on all threads; results do not depend on the thread count.
 //!
-//! Measured (`bench sound --quick`, release, 2-core dev VM loaded by parallel builds to a load average of
-//! about 14, so the process got 0.15–0.18 of a core): a 10 × 8 × 3.5 m room with 16 walking characters
-//! (19,212 triangles), order 3, surfaces + propagation per ECS update: 10,295 frusta at 4² samples in
-//! 28–207 ms wall per update, about 25 ms of CPU time over all threads (the whole quick run's 70 ms of CPU,
-//! less the shoebox and setup, over its two updates; 209 ms before the culling by sample planes and the
-//! per-scene world triangles); 116,661 frusta at the default 8² samples in 0.33–0.38 s. The CPU time puts
-//! the 50 ms target within reach of an idle 2-core machine; it was not measured idle.
+//! Measured (`bench sound`, release, a 2-core AMD EPYC VM, three runs, best of five updates each):
+//! - **A 10 × 8 × 3.5 m room with 16 walking characters** (23,244 triangles), order 3, one ECS update
+//!   (surfaces and propagation): 10,399 frusta at the default 4² samples in 17.9–20.8 ms, 108,635 at
+//!   8² in 67–102 ms, 1.01M at 16² in 547–654 ms. Two threads against one: 1.2–1.9×.
+//! - **The same room empty:** 59 of the 63 image-source paths found at 4² (5,920 frusta, 1.7–2.7 ms),
+//!   61 at 8² (28,935 frusta, 8.9–11.9 ms), 62 at 16² (132,653 frusta, 42–61 ms). One thread traces
+//!   about 2.1M frusta per second there (1.4–2.3M).
+//! - **`tests/sound.rs`, three source–listener pairs in a 5 × 3.7 × 2.9 m shoebox:** 14 of 189 image
+//!   sources missed at 4² and 6 at 8². Every missed one has a reflection point within the footprint
+//!   below of its wall's border.
 //!
 //! Limits (thesis §6.1.7): discrete sampling misses a path when one of its reflection points lies closer
 //! to its surface's border than a sub-frustum's footprint there — at most `r · sin ρ / cos(θ + ρ)` for a
@@ -72,7 +79,10 @@ pub struct SoundConfig {
     /// Frusta per cube-face side around the source (`6 · primary²` primary frusta), 1 to [`MAX_PRIMARY`].
     /// Default 4.
     pub primary: usize,
-    /// Sub-frusta per frustum side, a power of two (the thesis tested 4 to 32). Default 8.
+    /// Sub-frusta per frustum side, a power of two (the thesis tested 4 to 32). Default 4: a path is
+    /// missed only where one of its reflection points lies within a sub-frustum's footprint of its
+    /// surface's border (see the module docs), and each doubling multiplies the frusta several times
+    /// (measured in the module docs: raise it where paths near edges matter more than the update's time).
     pub sampling: usize,
     /// Highest reflection order traced. Default 3.
     pub max_order: u32,
@@ -86,7 +96,7 @@ impl Default for SoundConfig {
     fn default() -> Self {
         Self {
             primary: 4,
-            sampling: 8,
+            sampling: 4,
             max_order: 3,
             speed_of_sound: 343.0,
             parallel: true,
