@@ -284,6 +284,12 @@ impl<'a> SoundScene<'a> {
         self.facets.len()
     }
 
+    /// Every triangle as tracing reads it, for tests' brute-force oracles.
+    #[cfg(test)]
+    pub(crate) fn facets(&self) -> &[Facet] {
+        &self.facets
+    }
+
     /// Calls `f(placed)` for every instance whose world box `enter(box, bound)` accepts, nearest key first;
     /// `f` returns the new bound and whether to stop.
     fn instances_by<K: PartialOrd + Copy + Default>(
