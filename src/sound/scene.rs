@@ -15,7 +15,8 @@ pub(crate) const NO_SURFACE: u32 = u32::MAX;
 
 /// A plane `normal · x = offset` (unit normal) with one material: the coplanar triangles of one material
 /// merged, so a wall of two triangles reflects as one (thesis §6.1.3, merging of neighbouring coplanar
-/// triangles).
+/// triangles). Coplanar triangles that do not touch merge too: both mirror the sound alike, and sub-frusta
+/// through a gap between them hit something else, so no merged block spans it.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Surface {
     pub normal: Vec3,
