@@ -29,7 +29,7 @@
 //!   8² in 67–102 ms, 1.01M at 16² in 547–654 ms. Two threads against one: 1.2–1.9×.
 //! - **The same room empty:** 59 of the 63 image-source paths found at 4² (5,920 frusta, 1.7–2.7 ms),
 //!   61 at 8² (28,935 frusta, 8.9–11.9 ms), 62 at 16² (132,653 frusta, 42–61 ms). One thread traces
-//!   about 2.1M frusta per second there (1.4–2.3M).
+//!   1.3–2.3M frusta per second there.
 //! - **`tests/sound.rs`, three source–listener pairs in a 5 × 3.7 × 2.9 m shoebox:** 14 of 189 image
 //!   sources missed at 4² and 6 at 8². Every missed one has a reflection point within the footprint
 //!   below of its wall's border.
