@@ -52,9 +52,9 @@
 //! bench suite in docs/BENCHMARKS.md). On a crowd of 700k triangles, smaller than a texel, the map and
 //! classification alone cost an eighth to a sixth of a ray per pixel but 2.4% of the pixels are marked
 //! and their rays graze dense geometry (0.8–1 µs of CPU each, several times an average ray of the
-//! reference): 3.2–3.4× on the AMD machine, 2.8× on the Intel one, whose rays are cheaper against the
-//! map and the classification. Moving the map off the CPU's threads helps most there (the thesis renders
-//! it on the GPU, where rasterisation is nearly free):
+//! reference): 3.2–3.3× less CPU on the AMD machine, 2.8× on the Intel one, whose rays are cheaper
+//! against the map and the classification. Moving the map off the CPU's threads helps most there (the
+//! thesis renders it on the GPU, where rasterisation is nearly free):
 //! [`HardShadows::run_with`] a `gpu::GpuShadowMap` renders the same map, texel for texel, on the GPU,
 //! and classifies a hard selective pass's pixels there too, each as the CPU would, in one submission
 //! and one wait (what that saves on a hardware GPU is not measured yet: the uploads of 36 bytes a
